@@ -1,0 +1,102 @@
+/* clothsim/backend.h - the model/state split and the backend interface.
+ *
+ * cs_model holds what does not change while stepping (scene, parameters, derived constants);
+ * cs_state holds what does (vertex arrays, rest lengths, rocks, counters). The core owns both on
+ * the host; a backend advances the state. The CPU backend works on the host arrays in place; a
+ * device backend keeps its own copy and syncs through upload/download. Backends are one table of
+ * function pointers each, chosen at run time (like raylib's platforms).
+ *
+ * Every backend runs the same sequence, so that they agree bit for bit (h = dt/2):
+ *
+ * velocity_verlet, substep s of one step call (x, v, a complete at the call's start):
+ *   1. the grabbed vertex g: v[g] = cs_grab_velocity(x[g]).
+ *   2. every rock: v += h a, w += h alpha (cs_rock_kick), then cs_rock_drift.
+ *      every vertex: if s > 0, v += h a (finishing the previous substep); then v += h a;
+ *      x += dt v.
+ *   3. every vertex: F = its 12 springs in CS_SPRING_SLOTS order (each spring's force computed
+ *      from d = xj - xi, so the far end's is exactly its negation), + cs_air_gravity: the
+ *      non-contact resultant Ro; then each touching rock in index order, then the ground;
+ *      a = F (inv_mass w). Springs the vertex owns get cs_strain_update into L0_next (when
+ *      strain_on). Each rock's reaction is summed per chunk (cs_tree_sum).
+ *   4. every rock: cs_rock_force, cs_rock_accel, cs_rock_kick(h). Swap L0 and L0_next.
+ *   After the last substep: every vertex v += h a.
+ * symplectic_euler, each substep:
+ *   1. every vertex: a as in step 3 above (no strain update).
+ *   2. every rock: cs_rock_force, cs_rock_accel, cs_rock_kick(dt), cs_rock_drift(dt);
+ *      the grabbed vertex: v[g] = cs_grab_velocity(x[g]).
+ *   3. every vertex: v += dt a; x += dt v.
+ *   4. when strain_on: every owned spring cs_strain_update from |xj - xi|; swap. */
+#ifndef CLOTHSIM_BACKEND_H
+#define CLOTHSIM_BACKEND_H
+
+#include "clothsim/clothsim.h"
+#include "clothsim/physics.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct cs_model {
+    cs_scene scene;
+    cs_params params;
+    cs_phys phys;           /* what the force functions read (dt for the effective substeps) */
+    int32_t substeps;       /* effective substeps per frame (>= params.substeps) */
+    double dt;              /* 1 / (frame_rate substeps) */
+    double dt_max;          /* stability guard's limit */
+    float rest[CS_NTYPES];  /* grid rest length of each spring type */
+    int32_t threads;        /* CPU threads; 0 = OpenMP's default */
+} cs_model;
+
+typedef struct cs_state {
+    int32_t n;                       /* vertices, nx ny */
+    float *x, *y, *z;                /* positions (m) */
+    float *vx, *vy, *vz;             /* velocities (m/s) */
+    float *ax, *ay, *az;             /* accelerations (m/s^2), a_n of velocity Verlet */
+    float *w;                        /* 1 for a free vertex, 0 pinned or grabbed */
+    float *L0;                       /* CS_NTYPES x n rest lengths, type-major; CS_TORN if absent */
+    float *L0_next;                  /* the other half of the rest-length double buffer */
+    uint8_t *pinned;                 /* 1 where pinned */
+    cs_rock_state *rocks;
+    int32_t n_rocks, rock_cap;
+    uint32_t next_rock_id;
+    int32_t grab;                    /* grabbed vertex or -1 */
+    cs_vec3 grab_target;
+    uint64_t step;                   /* substeps run since the scene was built */
+    double time;                     /* simulated seconds */
+    int64_t n_torn;                  /* springs torn */
+} cs_state;
+
+typedef struct cs_step_report {
+    int64_t torn;     /* springs torn during the call */
+    int finite;       /* 1 when every position, velocity and rock value is finite */
+} cs_step_report;
+
+enum { CS_SYNC_POSITIONS = 1, CS_SYNC_ALL = 3 };
+
+typedef struct cs_backend {
+    const char *name;
+    /* 1 if usable on this machine; else 0 and the reason in why. */
+    int (*available)(char *why, size_t why_len);
+    cs_status (*create)(void **ctx, char *err, size_t err_len);
+    void (*destroy)(void *ctx);
+    /* The host state changed from outside (scene, command, snapshot): take all of it. */
+    cs_status (*upload)(void *ctx, const cs_model *m, cs_state *s);
+    /* Bring the host state's arrays up to date (what: CS_SYNC_*). */
+    cs_status (*download)(void *ctx, const cs_model *m, cs_state *s, unsigned what);
+    /* Recompute accelerations of cloth and rocks from the current positions and velocities. */
+    cs_status (*refresh)(void *ctx, const cs_model *m, cs_state *s);
+    /* Advance the given number of substeps. Counters (step, time) are the core's. */
+    cs_status (*step)(void *ctx, const cs_model *m, cs_state *s, int32_t substeps, cs_step_report *rep);
+    /* Human-readable device, e.g. the CPU model and thread count. */
+    const char *(*device)(void *ctx);
+} cs_backend;
+
+/* The CPU backend; always available. */
+extern const cs_backend cs_backend_cpu;
+/* The CUDA backend, or NULL when this build has none. */
+const cs_backend *cs_backend_cuda(void);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

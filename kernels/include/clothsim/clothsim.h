@@ -1,0 +1,173 @@
+/* clothsim/clothsim.h - libclothsim, the physics core of clothd: a mass-spring cloth and rigid
+ * spherical rocks with penalty contact (DESIGN.md section 2).
+ *
+ * One cs_sim owns a scene, its parameters and its state, and steps them on a backend (CPU or
+ * CUDA). Every call validates its input; a refused call returns a cs_status other than CS_OK,
+ * leaves the simulation exactly as it was, and explains itself through cs_sim_error() (and
+ * cs_sim_error_param() when one parameter is to blame). The library never exits, aborts or prints.
+ *
+ * Not thread-safe: one thread drives a cs_sim (the daemon's sim thread). Vertex index = j nx + i. */
+#ifndef CLOTHSIM_CLOTHSIM_H
+#define CLOTHSIM_CLOTHSIM_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "clothsim/params.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define CS_VERSION "0.1.0"
+/* Most rocks one simulation holds. */
+#define CS_MAX_ROCKS 1024
+
+typedef enum cs_status {
+    CS_OK = 0,
+    CS_E_INVALID = -1,   /* malformed argument: NULL, not finite, wrong size, bad name */
+    CS_E_RANGE = -2,     /* a value outside its range (a vertex index, a parameter) */
+    CS_E_NOT_FOUND = -3, /* no rock with that id */
+    CS_E_UNSTABLE = -4,  /* the stability guard refuses the change */
+    CS_E_LIMIT = -5,     /* too many rocks, or a scene too large to allocate */
+    CS_E_NOMEM = -6,     /* out of memory */
+    CS_E_NONFINITE = -7, /* the state holds a NaN or an infinity */
+    CS_E_FORMAT = -8,    /* a snapshot is truncated, corrupted or not a snapshot */
+    CS_E_VERSION = -9,   /* a snapshot written by another format version */
+    CS_E_BACKEND = -10,  /* the backend is unavailable or failed */
+    CS_E_DEVICE = -11    /* sticky device error: the device state is lost */
+} cs_status;
+
+/* Short lowercase name of a status ("ok", "invalid", "unstable", ...). */
+const char *cs_status_name(cs_status s);
+/* One sentence describing a status in general. */
+const char *cs_status_message(cs_status s);
+
+typedef struct cs_sim cs_sim;
+
+/* Creates a simulation of the scene with the parameters on a backend: "cpu", "cuda" or "auto"
+ * (CUDA when a device is present, else CPU). NULL scene or params means the defaults. On failure
+ * *out is NULL and err says why. */
+cs_status cs_sim_create(const cs_scene *scene, const cs_params *params, const char *backend, cs_sim **out,
+                        char *err, size_t err_len);
+void cs_sim_destroy(cs_sim *sim);
+
+/* Detail of the last refused call (empty after a success). */
+const char *cs_sim_error(const cs_sim *sim);
+/* Name of the parameter the last refusal is about, or "" when none. */
+const char *cs_sim_error_param(const cs_sim *sim);
+/* Backend in use ("cpu" or "cuda"), and the device it runs on. */
+const char *cs_sim_backend(const cs_sim *sim);
+const char *cs_sim_device(const cs_sim *sim);
+/* Why this backend was chosen (for "auto": whether a CUDA device was found). */
+const char *cs_sim_backend_note(const cs_sim *sim);
+/* CPU threads (1..256; 0 = OpenMP's default). Results do not depend on it. */
+cs_status cs_sim_set_threads(cs_sim *sim, int threads);
+
+/* Bytes a scene's state needs, computed with overflow checks; CS_E_LIMIT when it overflows. */
+cs_status cs_scene_memory(const cs_scene *scene, uint64_t *bytes);
+
+/* ---- scene and parameters ---- */
+void cs_sim_scene(const cs_sim *sim, cs_scene *out);
+/* Rebuilds the cloth from a new scene: rocks removed, grab released, pins from the scene's
+ * preset, step 0. */
+cs_status cs_sim_set_scene(cs_sim *sim, const cs_scene *scene);
+/* Rebuilds the current scene. */
+cs_status cs_sim_reset(cs_sim *sim);
+void cs_sim_params(const cs_sim *sim, cs_params *out);
+/* Replaces every live parameter at once, or none (CS_E_RANGE, CS_E_UNSTABLE). */
+cs_status cs_sim_set_params(cs_sim *sim, const cs_params *params);
+
+/* ---- time ---- */
+/* Runs substeps (0..1e9). Returns CS_E_NONFINITE when the state stopped being finite; the
+ * state is then left as it is for the caller to restore from a snapshot. */
+cs_status cs_sim_step(cs_sim *sim, int64_t substeps);
+/* Runs frames of the effective substeps each. */
+cs_status cs_sim_step_frames(cs_sim *sim, int64_t frames);
+
+typedef struct cs_info {
+    uint64_t step;       /* substeps since the scene was built */
+    double time;         /* simulated seconds */
+    int32_t substeps;    /* effective substeps per frame */
+    double dt, dt_max;   /* substep and the stability guard's limit (s) */
+    int32_t n_vertices, n_springs, n_rocks;
+    int64_t n_torn;
+} cs_info;
+void cs_sim_info(const cs_sim *sim, cs_info *out);
+
+/* ---- rocks ---- */
+typedef struct cs_rock_def {
+    float position[3];         /* m */
+    float velocity[3];         /* m/s */
+    float angular_velocity[3]; /* rad/s */
+    float orientation[4];      /* quaternion x, y, z, w; normalised when set */
+    float radius;              /* m, > 0 */
+    float density;             /* kg/m^3, > 0 */
+    bool kinematic;            /* moves with its velocity, ignores forces */
+} cs_rock_def;
+
+typedef struct cs_rock {
+    uint32_t id;
+    cs_rock_def def;           /* its current state */
+    float mass, inertia;       /* M = rho 4/3 pi R^3, I = 2/5 M R^2 */
+} cs_rock;
+
+/* A resting rock of radius 0.1 m and density 300 kg/m^3 at the origin (light enough for the
+ * default cloth to hold: contact is per vertex, so a heavy rock stretches the cloth until it slips
+ * between vertices). */
+void cs_rock_def_default(cs_rock_def *def);
+/* Adds a rock; ids start at 1 and are never reused within a scene. */
+cs_status cs_rock_add(cs_sim *sim, const cs_rock_def *def, uint32_t *id);
+cs_status cs_rock_get(cs_sim *sim, uint32_t id, cs_rock *out);
+/* Changes every field of a rock (teleport, new radius, kinematic or not). */
+cs_status cs_rock_set(cs_sim *sim, uint32_t id, const cs_rock_def *def);
+cs_status cs_rock_remove(cs_sim *sim, uint32_t id);
+/* Removes every rock; returns how many. */
+int32_t cs_rock_clear(cs_sim *sim);
+int32_t cs_rock_count(const cs_sim *sim);
+/* The rock at index 0..count-1 (in order of addition). */
+cs_status cs_rock_at(cs_sim *sim, int32_t index, cs_rock *out);
+
+/* ---- pins and grab ---- */
+/* Replaces every pin with a preset. */
+cs_status cs_pins_preset(cs_sim *sim, cs_pins preset);
+/* Pins or unpins the listed vertices, all or none. A pinned vertex stops (velocity 0). */
+cs_status cs_pin(cs_sim *sim, const int32_t *vertices, size_t count, bool pinned);
+bool cs_is_pinned(const cs_sim *sim, int32_t vertex);
+/* Moves one vertex kinematically toward target at grab_speed at most; replaces an earlier grab. */
+cs_status cs_grab(cs_sim *sim, int32_t vertex, const float target[3]);
+cs_status cs_release(cs_sim *sim);
+/* The grabbed vertex (and its target) or -1. */
+int32_t cs_grabbed(const cs_sim *sim, float target[3]);
+
+/* ---- reads (each brings the host copy up to date first) ---- */
+/* xyz must hold 3 n floats: interleaved x, y, z in vertex order. */
+cs_status cs_read_positions(cs_sim *sim, float *xyz, size_t n_floats);
+cs_status cs_read_velocities(cs_sim *sim, float *xyz, size_t n_floats);
+/* 6 n floats, type-major (CS_SX, CS_SY, CS_D1, CS_D2, CS_BX, CS_BY of physics.h), each indexed by
+ * the spring's lower-index end; CS_TORN (-1) where torn or absent at a border. */
+cs_status cs_read_rest_lengths(cs_sim *sim, float *out, size_t n_floats);
+/* Ids (type n + v) of torn springs, up to cap of them; returns how many are torn in all. */
+int64_t cs_read_torn(cs_sim *sim, uint32_t *ids, size_t cap);
+
+typedef struct cs_energy {
+    double kinetic, spring, gravity, total; /* J; gravity is -sum m g . x */
+} cs_energy;
+cs_status cs_energy_get(cs_sim *sim, cs_energy *out);
+/* FNV-1a 64 over positions, velocities, accelerations, rest lengths and rock state. */
+uint64_t cs_state_hash(cs_sim *sim);
+/* The hash as 16 lowercase hex digits and a NUL. */
+void cs_hash_hex(uint64_t hash, char out[17]);
+
+/* ---- snapshots: the whole state as a versioned, checksummed byte buffer ---- */
+size_t cs_snapshot_size(cs_sim *sim);
+/* Writes a snapshot into buf (cap bytes); *len receives its size. */
+cs_status cs_snapshot_save(cs_sim *sim, void *buf, size_t cap, size_t *len);
+/* Restores a snapshot, or changes nothing (CS_E_FORMAT, CS_E_VERSION, ...). */
+cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

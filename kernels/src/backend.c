@@ -1,0 +1,46 @@
+/* backend.c - choosing a backend by name. */
+#include <stdio.h>
+#include <string.h>
+
+#include "sim_internal.h"
+
+#ifndef CLOTHSIM_HAVE_CUDA
+const cs_backend *cs_backend_cuda(void) { return NULL; }
+#endif
+
+/* Picks the backend for a name ("cpu", "cuda", "auto"); note says why. */
+cs_status cs_backend_pick(const char *name, const cs_backend **out, char *note, size_t note_len)
+{
+    const cs_backend *cuda = cs_backend_cuda();
+    char why[128] = "";
+    if (!name || strcmp(name, "auto") == 0) {
+        if (cuda && cuda->available(why, sizeof why)) {
+            *out = cuda;
+            snprintf(note, note_len, "auto: a CUDA device was found");
+        } else {
+            *out = &cs_backend_cpu;
+            snprintf(note, note_len, "auto: %s", cuda ? why : "this build has no CUDA backend");
+        }
+        return CS_OK;
+    }
+    if (strcmp(name, "cpu") == 0) {
+        *out = &cs_backend_cpu;
+        snprintf(note, note_len, "cpu: asked for");
+        return CS_OK;
+    }
+    if (strcmp(name, "cuda") == 0) {
+        if (!cuda) {
+            snprintf(note, note_len, "cuda: this build has no CUDA backend");
+            return CS_E_BACKEND;
+        }
+        if (!cuda->available(why, sizeof why)) {
+            snprintf(note, note_len, "cuda: %s", why);
+            return CS_E_BACKEND;
+        }
+        *out = cuda;
+        snprintf(note, note_len, "cuda: asked for");
+        return CS_OK;
+    }
+    snprintf(note, note_len, "unknown backend '%s' (cpu, cuda or auto)", name);
+    return CS_E_INVALID;
+}

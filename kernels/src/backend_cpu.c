@@ -1,0 +1,633 @@
+/* backend_cpu.c - the CPU backend: the physics.h functions looped over the host arrays with
+ * OpenMP, in the sequence that backend.h prescribes.
+ *
+ * The force pass runs over whole rows, each thread a contiguous block of them. For row j it
+ * first evaluates the six springs every vertex of the row owns (cs_spring_force, once per
+ * spring) into a ring of three rows; a vertex's force is then gathered from the ring in
+ * CS_SPRING_SLOTS order, the springs it does not own entering negated - exactly what evaluating
+ * them from this end gives, so the result equals a gather that evaluates every spring from both
+ * ends (as the CUDA kernels do) at half the cost. Springs missing at a border are evaluated
+ * against the vertex itself (zero length, zero force), which keeps one vectorized loop for every
+ * column. Contacts follow per chunk, then the accelerations.
+ *
+ * Nothing a thread computes depends on which thread it is or how many there are: rock forces
+ * from the cloth go through per-chunk trees summed in chunk order, and torn-spring counts are
+ * integers. So the state is the same bit for bit for any thread count. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
+#include "sim_internal.h"
+
+#if defined(__GNUC__)
+#define CS_ALWAYS_INLINE __attribute__((always_inline)) inline
+#else
+#define CS_ALWAYS_INLINE inline
+#endif
+
+/* Columns -2 .. 4097 of the widest row, rounded up: a ring row has this fixed stride so the
+ * compiler can tell its component rows apart. */
+#define RING_W 4104
+#define RING_PAD 2
+#define RING_ROWS (3 * CS_NTYPES) /* x, y, z of each owned spring type */
+
+typedef struct thread_buf {
+    float ring[3][RING_ROWS * RING_W]; /* owned-spring forces of rows j, j-1, j-2 (slot j mod 3);
+                                          component row q = 3 t + c at q RING_W, column i at RING_PAD + i */
+    float f[3][RING_W];               /* resultant on the vertices of the current row */
+    float ro[3][RING_W];              /* non-contact resultant Ro (resultant friction) */
+    float contrib[6][CS_CHUNK];       /* one rock's reaction from the touching vertices of a chunk */
+    uint8_t hit[CS_CHUNK];            /* vertices of a chunk near a rock */
+    uint8_t idx[CS_CHUNK];            /* vertices of a chunk touching a rock */
+    int64_t torn;
+    int32_t last_row;
+} thread_buf;
+
+typedef struct cpu_ctx {
+    float *partials;      /* nchunks x rocks x 6: each chunk's force and torque on each rock */
+    size_t partials_cap;  /* floats */
+    thread_buf **tb;
+    int n_tb;
+    char device[160];
+} cpu_ctx;
+
+static const int32_t type_di[CS_NTYPES] = {1, 0, 1, -1, 2, 0};
+static const int32_t type_dj[CS_NTYPES] = {0, 1, 1, 1, 0, 2};
+
+static int cpu_available(char *why, size_t why_len)
+{
+    if (why && why_len) why[0] = '\0';
+    return 1;
+}
+
+static int max_threads(void)
+{
+#ifdef _OPENMP
+    return omp_get_max_threads();
+#else
+    return 1;
+#endif
+}
+
+static int thread_id(void)
+{
+#ifdef _OPENMP
+    return omp_get_thread_num();
+#else
+    return 0;
+#endif
+}
+
+static int threads_of(const cs_model *m) { return m->threads > 0 ? m->threads : max_threads(); }
+
+static cs_status cpu_create(void **out, char *err, size_t err_len)
+{
+    cpu_ctx *c = calloc(1, sizeof *c);
+    if (!c) {
+        snprintf(err, err_len, "out of memory");
+        return CS_E_NOMEM;
+    }
+#ifdef _OPENMP
+    snprintf(c->device, sizeof c->device, "cpu (OpenMP, %d threads)", max_threads());
+#else
+    snprintf(c->device, sizeof c->device, "cpu (1 thread, built without OpenMP)");
+#endif
+    *out = c;
+    return CS_OK;
+}
+
+static void cpu_destroy(void *ctx)
+{
+    cpu_ctx *c = ctx;
+    if (!c) return;
+    for (int i = 0; i < c->n_tb; i++) free(c->tb[i]);
+    free(c->tb);
+    free(c->partials);
+    free(c);
+}
+
+/* Makes room for this scene, rock count and thread count. */
+static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s)
+{
+    const size_t need = (size_t)m->phys.nchunks * (size_t)(s->n_rocks > 0 ? s->n_rocks : 1) * 6;
+    if (need > c->partials_cap) {
+        float *p = realloc(c->partials, need * sizeof(float));
+        if (!p) return CS_E_NOMEM;
+        c->partials = p;
+        c->partials_cap = need;
+    }
+    const int t = threads_of(m);
+    if (t > c->n_tb) {
+        thread_buf **tb = realloc(c->tb, sizeof *tb * (size_t)t);
+        if (!tb) return CS_E_NOMEM;
+        c->tb = tb;
+        for (; c->n_tb < t; c->n_tb++) {
+            thread_buf *b = aligned_alloc(64, (sizeof *b + 63) / 64 * 64);
+            if (!b) return CS_E_NOMEM;
+            memset(b, 0, sizeof *b);
+            c->tb[c->n_tb] = b;
+        }
+    }
+    return CS_OK;
+}
+
+static cs_status cpu_upload(void *ctx, const cs_model *m, cs_state *s) { return reserve(ctx, m, s); }
+
+static cs_status cpu_download(void *ctx, const cs_model *m, cs_state *s, unsigned what)
+{
+    (void)ctx, (void)m, (void)s, (void)what;
+    return CS_OK;
+}
+
+#define LOADX(o) cs_v3(X[(o)], Y[(o)], Z[(o)])
+#define LOADV(o) cs_v3(VX[(o)], VY[(o)], VZ[(o)])
+
+/* ---- the force pass ---- */
+
+/* The springs owned by cnt consecutive vertices from v0, each reaching v + off[t] (0 where the
+ * grid has no such spring): forces into out (component row 3 t + c, stride RING_W), and with
+ * strain the new rest lengths into n0..n5. Returns springs torn. The arrays are restrict
+ * parameters, which gcc honours, so the loop vectorizes. */
+static CS_ALWAYS_INLINE int owned_body(const cs_phys *pp, int32_t v0, int32_t cnt, const int32_t *off,
+                                      const float *restrict X, const float *restrict Y, const float *restrict Z,
+                                      const float *restrict VX, const float *restrict VY, const float *restrict VZ,
+                                      const float *restrict L0, float *restrict out, float *restrict n0,
+                                      float *restrict n1, float *restrict n2, float *restrict n3,
+                                      float *restrict n4, float *restrict n5, const int strain)
+{
+    const cs_phys P = *pp; /* a local copy: the stores cannot alias it */
+    const cs_phys *p = &P;
+    const size_t n = (size_t)p->n;
+    int32_t o[CS_NTYPES];
+    for (int t = 0; t < CS_NTYPES; t++) o[t] = off[t];
+    int torn = 0;
+    for (int32_t k = 0; k < cnt; k++) {
+        const int32_t v = v0 + k;
+        const cs_vec3 xi = LOADX(v), vi = LOADV(v);
+        float len;
+#define NEXT_OF(t) ((t) == 0 ? n0 : (t) == 1 ? n1 : (t) == 2 ? n2 : (t) == 3 ? n3 : (t) == 4 ? n4 : n5)
+#define CS_OWNED(t, di, dj)                                                                            \
+    {                                                                                                  \
+        const int32_t j_ = v + o[t];                                                                   \
+        const float l0 = L0[(t) * n + v];                                                              \
+        const cs_vec3 F = cs_spring_force(xi, vi, LOADX(j_), LOADV(j_), l0, p->k[t], p->c_spring, &len); \
+        out[(3 * (t) + 0) * RING_W + k] = F.x;                                                         \
+        out[(3 * (t) + 1) * RING_W + k] = F.y;                                                         \
+        out[(3 * (t) + 2) * RING_W + k] = F.z;                                                         \
+        if (strain) {                                                                                  \
+            const float nl = cs_strain_update(len, l0, p);                                             \
+            NEXT_OF(t)[v] = nl;                                                                        \
+            torn += (l0 > 0.0f) & (nl <= 0.0f);                                                        \
+        }                                                                                              \
+    }
+        CS_SPRING_TYPES(CS_OWNED)
+#undef CS_OWNED
+#undef NEXT_OF
+    }
+    return torn;
+}
+
+static int owned_plain(const cs_phys *p, const cs_state *s, int32_t v0, int32_t cnt, const int32_t *off, float *out)
+{
+    return owned_body(p, v0, cnt, off, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->L0, out, NULL, NULL, NULL, NULL,
+                      NULL, NULL, 0);
+}
+
+static int owned_strain(const cs_phys *p, const cs_state *s, int32_t v0, int32_t cnt, const int32_t *off, float *out)
+{
+    float *L = s->L0_next;
+    const size_t n = (size_t)p->n;
+    return owned_body(p, v0, cnt, off, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->L0, out, L, L + n, L + 2 * n,
+                      L + 3 * n, L + 4 * n, L + 5 * n, 1);
+}
+
+/* Offsets of the springs vertex (i, r) owns; 0 where the far end is off the grid. */
+static void owned_offsets(const cs_phys *p, int32_t i, int32_t r, int32_t off[CS_NTYPES])
+{
+    for (int t = 0; t < CS_NTYPES; t++) {
+        const int32_t i2 = i + type_di[t], r2 = r + type_dj[t];
+        off[t] = (i2 >= 0 && i2 < p->nx && r2 < p->ny) ? type_di[t] + type_dj[t] * p->nx : 0;
+    }
+}
+
+/* Forces of the springs owned by row r into a ring row (zeros for rows above the grid).
+ * strain: also their new rest lengths (only for rows this thread owns). */
+static int owned_row(const cs_phys *p, const cs_state *s, int32_t r, float *R, int strain)
+{
+    const int32_t nx = p->nx;
+    for (int q = 0; q < RING_ROWS; q++) {
+        float *row = R + (size_t)q * RING_W;
+        if (r < 0) {
+            memset(row, 0, sizeof(float) * (size_t)(nx + 2 * RING_PAD));
+        } else {
+            row[0] = row[1] = row[nx + RING_PAD] = row[nx + RING_PAD + 1] = 0.0f;
+        }
+    }
+    if (r < 0) return 0;
+    int (*const run)(const cs_phys *, const cs_state *, int32_t, int32_t, const int32_t *, float *) =
+        strain ? owned_strain : owned_plain;
+    int torn = 0;
+    int32_t off[CS_NTYPES];
+    /* Columns 1 .. nx-3 have every horizontal neighbour: one run. */
+    if (nx > 3) {
+        owned_offsets(p, 1, r, off);
+        torn += run(p, s, r * nx + 1, nx - 3, off, R + RING_PAD + 1);
+    }
+    for (int32_t i = 0; i < nx; i = (i == 0 && nx > 3) ? nx - 2 : i + 1) {
+        owned_offsets(p, i, r, off);
+        torn += run(p, s, r * nx + i, 1, off, R + RING_PAD + i);
+    }
+    return torn;
+}
+
+/* The 12 springs of row j's vertices from the ring rows of j, j-1, j-2, plus air and gravity,
+ * into f (and a copy into ro). */
+static void gather_row(const cs_phys *pp, int32_t v0, int32_t cnt, const float *restrict R0,
+                       const float *restrict R1, const float *restrict R2, const float *restrict VX,
+                       const float *restrict VY, const float *restrict VZ, float *restrict fx, float *restrict fy,
+                       float *restrict fz)
+{
+    const cs_phys P = *pp;
+    const cs_phys *p = &P;
+    for (int32_t k = 0; k < cnt; k++) {
+        const int32_t c = RING_PAD + k;
+        cs_vec3 f = cs_v3(0.0f, 0.0f, 0.0f);
+        /* Owned (fwd) springs from row j at column k; the others from row j + dj at k + di,
+         * negated. */
+#define CS_GATHER(t, di, dj, fwd)                                                                      \
+    {                                                                                                  \
+        const float *rr = (fwd) ? R0 : (dj) == 0 ? R0 : (dj) == -1 ? R1 : R2;                          \
+        const int32_t col = (fwd) ? c : c + (di);                                                      \
+        const cs_vec3 F = cs_v3(rr[(3 * (t) + 0) * RING_W + col], rr[(3 * (t) + 1) * RING_W + col],      \
+                                rr[(3 * (t) + 2) * RING_W + col]);                                     \
+        f = cs_add(f, (fwd) ? F : cs_neg(F));                                                          \
+    }
+        CS_SPRING_SLOTS(CS_GATHER)
+#undef CS_GATHER
+        f = cs_add(f, cs_air_gravity(cs_v3(VX[v0 + k], VY[v0 + k], VZ[v0 + k]), p));
+        fx[k] = f.x;
+        fy[k] = f.y;
+        fz[k] = f.z;
+    }
+}
+
+/* Whether a sphere of radius r at c may touch a point of the box [lo, hi] (never a false no). */
+static int sphere_box(cs_vec3 c, float r, cs_vec3 lo, cs_vec3 hi)
+{
+    const float dx = c.x < lo.x ? lo.x - c.x : (c.x > hi.x ? c.x - hi.x : 0.0f);
+    const float dy = c.y < lo.y ? lo.y - c.y : (c.y > hi.y ? c.y - hi.y : 0.0f);
+    const float dz = c.z < lo.z ? lo.z - c.z : (c.z > hi.z ? c.z - hi.z : 0.0f);
+    const float reach = r * 1.001f + 1e-6f;
+    return dx * dx + dy * dy + dz * dz <= reach * reach;
+}
+
+/* Sums the written leaves (idx[0..n), distinct, each < CS_CHUNK) of contrib by exactly the tree
+ * of cs_tree_sum, treating the others as +0 without reading them: the subtree of the leaves
+ * whose low b bits are a given prefix is the sum of its two halves (bit b clear, then set); an
+ * empty subtree is +0, and the sums above it are still done, so even signed zeros come out as
+ * the full tree gives them. */
+static void tree_sum_sparse(const float (*contrib)[CS_CHUNK], const uint8_t *idx, int n, int b, float out[6])
+{
+    if (n == 0) {
+        for (int q = 0; q < 6; q++) out[q] = 0.0f;
+        return;
+    }
+    if ((1 << b) == CS_CHUNK) {
+        for (int q = 0; q < 6; q++) out[q] = contrib[q][idx[0]];
+        return;
+    }
+    uint8_t part[CS_CHUNK];
+    int lo = 0, hi = n;
+    for (int k = 0; k < n; k++) {
+        if (idx[k] >> b & 1) part[--hi] = idx[k];
+        else part[lo++] = idx[k];
+    }
+    float a[6], c[6];
+    tree_sum_sparse(contrib, part, lo, b + 1, a);
+    tree_sum_sparse(contrib, part + lo, n - lo, b + 1, c);
+    for (int q = 0; q < 6; q++) out[q] = a[q] + c[q];
+}
+
+/* hit[i] = 1 where vertex i may touch a sphere (a superset of the contacts), vectorized. */
+static void near_sphere(int32_t cnt, const float *restrict X, const float *restrict Y, const float *restrict Z,
+                        cs_vec3 c, float reach2, uint8_t *restrict hit)
+{
+    for (int32_t i = 0; i < cnt; i++) {
+        const float dx = X[i] - c.x, dy = Y[i] - c.y, dz = Z[i] - c.z;
+        hit[i] = dx * dx + dy * dy + dz * dz <= reach2;
+    }
+}
+
+/* Contacts of chunk (row j, columns i0 .. i1) with rocks and the ground, added onto tb->f in
+ * rock order then the ground; each rock's reaction summed with the chunk tree into the chunk's
+ * partials (zeros for a rock that cannot touch the chunk: what the tree of +0 gives). */
+static void chunk_contacts(const cs_phys *p, const cs_state *s, thread_buf *tb, int32_t j, int32_t i0, int32_t i1,
+                           int32_t chunk, float *partials)
+{
+    const float *X = s->x, *Y = s->y, *Z = s->z, *VX = s->vx, *VY = s->vy, *VZ = s->vz;
+    const int32_t nr = s->n_rocks, base = j * p->nx, cnt = i1 - i0;
+    cs_vec3 lo = LOADX(base + i0), hi = lo;
+    for (int32_t i = i0 + 1; i < i1; i++) {
+        const cs_vec3 x = LOADX(base + i);
+        lo = cs_v3(x.x < lo.x ? x.x : lo.x, x.y < lo.y ? x.y : lo.y, x.z < lo.z ? x.z : lo.z);
+        hi = cs_v3(x.x > hi.x ? x.x : hi.x, x.y > hi.y ? x.y : hi.y, x.z > hi.z ? x.z : hi.z);
+    }
+    const int need_ro = p->friction == CS_FRICTION_RESULTANT;
+    const int ground = p->ground && lo.z < p->ground_z + p->contact_offset;
+    if (need_ro && (nr || ground)) {
+        for (int q = 0; q < 3; q++) memcpy(&tb->ro[q][i0], &tb->f[q][i0], sizeof(float) * (size_t)cnt);
+    }
+#define RO_OF(i) (need_ro ? cs_v3(tb->ro[0][i], tb->ro[1][i], tb->ro[2][i]) : cs_v3(0.0f, 0.0f, 0.0f))
+    for (int32_t r = 0; r < nr; r++) {
+        const cs_rock_state *rock = &s->rocks[r];
+        float *out = partials + ((size_t)chunk * nr + r) * 6;
+        const float reach = rock->radius + p->contact_offset;
+        if (!sphere_box(rock->x, reach, lo, hi)) {
+            for (int q = 0; q < 6; q++) out[q] = 0.0f;
+            continue;
+        }
+        near_sphere(cnt, X + base + i0, Y + base + i0, Z + base + i0, rock->x, reach * reach * 1.001f + 1e-12f,
+                    tb->hit);
+        int n_idx = 0;
+        for (int32_t l = 0; l < cnt; l++) {
+            if (!tb->hit[l]) continue;
+            const int32_t i = i0 + l;
+            cs_vec3 F, arm;
+            if (cs_vertex_rock_contact(LOADX(base + i), LOADV(base + i), RO_OF(i), rock, p, &F, &arm)) {
+                tb->f[0][i] += F.x;
+                tb->f[1][i] += F.y;
+                tb->f[2][i] += F.z;
+                const cs_vec3 R = cs_neg(F), T = cs_cross(arm, R);
+                tb->contrib[0][l] = R.x;
+                tb->contrib[1][l] = R.y;
+                tb->contrib[2][l] = R.z;
+                tb->contrib[3][l] = T.x;
+                tb->contrib[4][l] = T.y;
+                tb->contrib[5][l] = T.z;
+                tb->idx[n_idx++] = (uint8_t)l;
+            }
+        }
+        tree_sum_sparse((const float(*)[CS_CHUNK])tb->contrib, tb->idx, n_idx, 0, out);
+    }
+    if (ground) {
+        for (int32_t i = i0; i < i1; i++) {
+            cs_vec3 F;
+            if (cs_vertex_ground_contact(LOADX(base + i), LOADV(base + i), RO_OF(i), p, &F)) {
+                tb->f[0][i] += F.x;
+                tb->f[1][i] += F.y;
+                tb->f[2][i] += F.z;
+            }
+        }
+    }
+#undef RO_OF
+}
+
+/* a = F (inv_mass w) over cnt vertices. */
+static void accel(int32_t cnt, float inv_mass, const float *restrict W, const float *restrict FX,
+                  const float *restrict FY, const float *restrict FZ, float *restrict AX, float *restrict AY,
+                  float *restrict AZ)
+{
+    for (int32_t i = 0; i < cnt; i++) {
+        const float k = inv_mass * W[i];
+        AX[i] = FX[i] * k;
+        AY[i] = FY[i] * k;
+        AZ[i] = FZ[i] * k;
+    }
+}
+
+/* The force pass for row j: a for its vertices, strain updates of its springs, its chunks'
+ * partials. Rows j-2 and j-1 must already be in the ring (this thread's previous rows). */
+static void force_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, float *partials, int strain)
+{
+    const int32_t nx = p->nx, v0 = j * nx;
+    if (tb->last_row != j - 1) {
+        /* The first row of this thread's block: the two rows above, without owning them. */
+        owned_row(p, s, j - 2, tb->ring[(j + 1) % 3], 0);
+        owned_row(p, s, j - 1, tb->ring[(j + 2) % 3], 0);
+    }
+    tb->last_row = j;
+    tb->torn += owned_row(p, s, j, tb->ring[j % 3], strain);
+    gather_row(p, v0, nx, tb->ring[j % 3], tb->ring[(j + 2) % 3], tb->ring[(j + 1) % 3], s->vx, s->vy, s->vz,
+               tb->f[0], tb->f[1], tb->f[2]);
+    for (int32_t g = 0; g < p->nseg; g++) {
+        const int32_t i0 = g * CS_CHUNK, i1 = i0 + CS_CHUNK < nx ? i0 + CS_CHUNK : nx;
+        chunk_contacts(p, s, tb, j, i0, i1, j * p->nseg + g, partials);
+    }
+    accel(nx, p->inv_mass, s->w + v0, tb->f[0], tb->f[1], tb->f[2], s->ax + v0, s->ay + v0, s->az + v0);
+}
+
+/* New rest lengths from the current positions (symplectic Euler, after the update). */
+static int strain_row(const cs_phys *p, cs_state *s, int32_t r)
+{
+    const float *X = s->x, *Y = s->y, *Z = s->z, *L0 = s->L0;
+    float *L0n = s->L0_next;
+    const size_t n = (size_t)p->n;
+    int torn = 0;
+    for (int32_t i = 0; i < p->nx; i++) {
+        const int32_t v = r * p->nx + i;
+        int32_t off[CS_NTYPES];
+        owned_offsets(p, i, r, off);
+        for (int t = 0; t < CS_NTYPES; t++) {
+            const float l0 = L0[t * n + v];
+            const float nl = cs_strain_update(cs_len(cs_sub(LOADX(v + off[t]), LOADX(v))), l0, p);
+            L0n[t * n + v] = nl;
+            torn += (l0 > 0.0f) & (nl <= 0.0f);
+        }
+    }
+    return torn;
+}
+
+/* ---- streaming passes ---- */
+
+/* v += h a over cnt vertices (restrict parameters, so gcc vectorizes). */
+static void kick(int32_t cnt, float h, float *restrict VX, float *restrict VY, float *restrict VZ,
+                 const float *restrict AX, const float *restrict AY, const float *restrict AZ)
+{
+    for (int32_t i = 0; i < cnt; i++) {
+        VX[i] = VX[i] + h * AX[i];
+        VY[i] = VY[i] + h * AY[i];
+        VZ[i] = VZ[i] + h * AZ[i];
+    }
+}
+
+/* v += h a; x += dt v over cnt vertices. */
+static void kick_drift(int32_t cnt, float h, float dt, float *restrict X, float *restrict Y, float *restrict Z,
+                       float *restrict VX, float *restrict VY, float *restrict VZ, const float *restrict AX,
+                       const float *restrict AY, const float *restrict AZ)
+{
+    for (int32_t i = 0; i < cnt; i++) {
+        VX[i] = VX[i] + h * AX[i];
+        VY[i] = VY[i] + h * AY[i];
+        VZ[i] = VZ[i] + h * AZ[i];
+        X[i] = X[i] + dt * VX[i];
+        Y[i] = Y[i] + dt * VY[i];
+        Z[i] = Z[i] + dt * VZ[i];
+    }
+}
+
+/* Row j: when finish, v += h a (the end of the previous substep); then v += h a, x += dt v. */
+static void move_row(cs_state *s, const cs_phys *p, int32_t j, int finish, float h, float dt)
+{
+    const size_t v0 = (size_t)j * (size_t)p->nx;
+    if (finish) kick(p->nx, h, s->vx + v0, s->vy + v0, s->vz + v0, s->ax + v0, s->ay + v0, s->az + v0);
+    kick_drift(p->nx, h, dt, s->x + v0, s->y + v0, s->z + v0, s->vx + v0, s->vy + v0, s->vz + v0, s->ax + v0,
+               s->ay + v0, s->az + v0);
+}
+
+static void kick_row(cs_state *s, const cs_phys *p, int32_t j, float h)
+{
+    const size_t v0 = (size_t)j * (size_t)p->nx;
+    kick(p->nx, h, s->vx + v0, s->vy + v0, s->vz + v0, s->ax + v0, s->ay + v0, s->az + v0);
+}
+
+/* ---- rocks (few: one thread) ---- */
+
+static void rocks_forces(const cs_phys *p, cs_state *s, const float *partials, float kick)
+{
+    /* Safe to store as we go: a rock's force reads other rocks' x, v, w, never their a. */
+    for (int32_t r = 0; r < s->n_rocks; r++) {
+        cs_vec3 F, T;
+        cs_rock_force(s->rocks, s->n_rocks, r, partials, p->nchunks, p, &F, &T);
+        cs_rock_accel(&s->rocks[r], F, T);
+    }
+    if (kick != 0.0f)
+        for (int32_t r = 0; r < s->n_rocks; r++) cs_rock_kick(&s->rocks[r], kick);
+}
+
+static void rocks_move(cs_state *s, float h, float dt)
+{
+    for (int32_t r = 0; r < s->n_rocks; r++) {
+        cs_rock_kick(&s->rocks[r], h);
+        cs_rock_drift(&s->rocks[r], dt);
+    }
+}
+
+static void grab_motion(const cs_phys *p, cs_state *s)
+{
+    const int32_t g = s->grab;
+    if (g < 0) return;
+    const cs_vec3 v = cs_grab_velocity(cs_v3(s->x[g], s->y[g], s->z[g]), s->grab_target, p);
+    s->vx[g] = v.x;
+    s->vy[g] = v.y;
+    s->vz[g] = v.z;
+}
+
+static void swap_rest(cs_state *s)
+{
+    float *t = s->L0;
+    s->L0 = s->L0_next;
+    s->L0_next = t;
+}
+
+/* Inside a parallel region: the force pass over every row. */
+static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain)
+{
+    thread_buf *tb = c->tb[thread_id()];
+    tb->last_row = -3;
+#pragma omp for schedule(static)
+    for (int32_t j = 0; j < p->ny; j++) force_row(p, s, tb, j, c->partials, strain);
+}
+
+static int64_t take_torn(cpu_ctx *c, int threads)
+{
+    int64_t t = 0;
+    for (int i = 0; i < threads; i++) {
+        t += c->tb[i]->torn;
+        c->tb[i]->torn = 0;
+    }
+    return t;
+}
+
+static cs_status cpu_refresh(void *ctx, const cs_model *m, cs_state *s)
+{
+    cpu_ctx *c = ctx;
+    const cs_phys *p = &m->phys;
+    if (reserve(c, m, s) != CS_OK) return CS_E_NOMEM;
+    const int threads = threads_of(m);
+#pragma omp parallel num_threads(threads)
+    force_pass(c, p, s, 0);
+    rocks_forces(p, s, c->partials, 0.0f);
+    take_torn(c, threads);
+    return CS_OK;
+}
+
+static int state_finite(const cs_state *s)
+{
+    int ok = 1;
+    const float *arrays[] = {s->x, s->y, s->z, s->vx, s->vy, s->vz};
+    for (int a = 0; a < 6; a++) {
+        const float *q = arrays[a];
+        float acc = 0.0f;
+        for (int32_t v = 0; v < s->n; v++) acc += q[v] - q[v]; /* NaN for any NaN or infinity */
+        ok &= acc == 0.0f;
+    }
+    for (int32_t r = 0; r < s->n_rocks; r++) {
+        const cs_rock_state *k = &s->rocks[r];
+        const float vals[] = {k->x.x, k->x.y, k->x.z, k->v.x, k->v.y, k->v.z, k->w.x, k->w.y, k->w.z};
+        for (int i = 0; i < 9; i++) ok &= vals[i] - vals[i] == 0.0f;
+    }
+    return ok;
+}
+
+static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t substeps, cs_step_report *rep)
+{
+    cpu_ctx *c = ctx;
+    const cs_phys *p = &m->phys;
+    if (reserve(c, m, s) != CS_OK) return CS_E_NOMEM;
+    const int threads = threads_of(m), verlet = p->integrator == CS_VELOCITY_VERLET;
+    const int strain = p->strain_on != 0;
+    const int32_t ny = p->ny;
+#pragma omp parallel num_threads(threads)
+    {
+        for (int32_t it = 0; it < substeps; it++) {
+            if (verlet) {
+#pragma omp single
+                {
+                    grab_motion(p, s);
+                    rocks_move(s, p->hdt, p->dt);
+                }
+#pragma omp for schedule(static)
+                for (int32_t j = 0; j < ny; j++) move_row(s, p, j, it > 0, p->hdt, p->dt);
+                force_pass(c, p, s, strain);
+#pragma omp single
+                {
+                    rocks_forces(p, s, c->partials, p->hdt);
+                    if (strain) swap_rest(s);
+                }
+            } else {
+                force_pass(c, p, s, 0);
+#pragma omp single
+                {
+                    rocks_forces(p, s, c->partials, 0.0f);
+                    rocks_move(s, p->dt, p->dt);
+                    grab_motion(p, s);
+                }
+#pragma omp for schedule(static)
+                for (int32_t j = 0; j < ny; j++) move_row(s, p, j, 0, p->dt, p->dt);
+                if (strain) {
+                    thread_buf *tb = c->tb[thread_id()];
+#pragma omp for schedule(static)
+                    for (int32_t j = 0; j < ny; j++) tb->torn += strain_row(p, s, j);
+#pragma omp single
+                    swap_rest(s);
+                }
+            }
+        }
+        if (verlet && substeps > 0) {
+#pragma omp for schedule(static)
+            for (int32_t j = 0; j < ny; j++) kick_row(s, p, j, p->hdt);
+        }
+    }
+    rep->torn = take_torn(c, threads);
+    rep->finite = state_finite(s);
+    return CS_OK;
+}
+
+static const char *cpu_device(void *ctx) { return ((cpu_ctx *)ctx)->device; }
+
+const cs_backend cs_backend_cpu = {
+    "cpu", cpu_available, cpu_create, cpu_destroy, cpu_upload, cpu_download, cpu_refresh, cpu_step, cpu_device,
+};

@@ -1,0 +1,204 @@
+/* rocks.c - adding, changing and removing rocks. A rock list change goes through the stability
+ * guard (a light rock on stiff contact may need more substeps) before it is adopted. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "sim_internal.h"
+
+void cs_rock_def_default(cs_rock_def *def)
+{
+    memset(def, 0, sizeof *def);
+    def->orientation[3] = 1.0f;
+    def->radius = 0.1f;
+    def->density = 300.0f;
+}
+
+static cs_status check_vec(cs_sim *sim, const char *name, const float *v, int n, float most)
+{
+    for (int i = 0; i < n; i++) {
+        if (!isfinite(v[i])) return cs_fail(sim, CS_E_INVALID, name, "%s must be finite numbers", name);
+        if (fabsf(v[i]) > most) return cs_fail(sim, CS_E_RANGE, name, "%s components must be within +-%g", name, most);
+    }
+    return CS_OK;
+}
+
+static cs_status check_def(cs_sim *sim, const cs_rock_def *d)
+{
+    cs_status st;
+    if (!d) return cs_fail(sim, CS_E_INVALID, NULL, "rock is NULL");
+    if ((st = check_vec(sim, "position", d->position, 3, 1e6f)) != CS_OK) return st;
+    if ((st = check_vec(sim, "velocity", d->velocity, 3, 1e4f)) != CS_OK) return st;
+    if ((st = check_vec(sim, "angular_velocity", d->angular_velocity, 3, 1e5f)) != CS_OK) return st;
+    if ((st = check_vec(sim, "orientation", d->orientation, 4, 1e6f)) != CS_OK) return st;
+    const float *q = d->orientation;
+    if (!(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] > 1e-12f))
+        return cs_fail(sim, CS_E_INVALID, "orientation", "orientation must be a non-zero quaternion");
+    if (!(isfinite(d->radius) && d->radius >= 1e-3f && d->radius <= 1e3f))
+        return cs_fail(sim, CS_E_RANGE, "radius", "radius must be between 0.001 and 1000 m");
+    if (!(isfinite(d->density) && d->density >= 1e-3f && d->density <= 1e6f))
+        return cs_fail(sim, CS_E_RANGE, "density", "density must be between 0.001 and 1e6 kg/m^3");
+    return CS_OK;
+}
+
+static void def_to_state(const cs_rock_def *d, cs_rock_state *r)
+{
+    const float *q = d->orientation;
+    const float inv = 1.0f / sqrtf(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    r->x = cs_v3_from(d->position);
+    r->v = cs_v3_from(d->velocity);
+    r->w = cs_v3_from(d->angular_velocity);
+    r->a = r->alpha = cs_v3(0.0f, 0.0f, 0.0f);
+    for (int i = 0; i < 4; i++) r->q[i] = q[i] * inv;
+    r->radius = d->radius;
+    r->density = d->density;
+    r->kinematic = d->kinematic ? 1 : 0;
+    cs_rock_mass(r);
+}
+
+static void state_to_rock(const cs_rock_state *r, cs_rock *out)
+{
+    memset(out, 0, sizeof *out);
+    out->id = r->id;
+    out->def.position[0] = r->x.x, out->def.position[1] = r->x.y, out->def.position[2] = r->x.z;
+    out->def.velocity[0] = r->v.x, out->def.velocity[1] = r->v.y, out->def.velocity[2] = r->v.z;
+    out->def.angular_velocity[0] = r->w.x, out->def.angular_velocity[1] = r->w.y, out->def.angular_velocity[2] = r->w.z;
+    memcpy(out->def.orientation, r->q, sizeof r->q);
+    out->def.radius = r->radius;
+    out->def.density = r->density;
+    out->def.kinematic = r->kinematic != 0;
+    out->mass = r->mass;
+    out->inertia = r->inertia;
+}
+
+static int32_t find(const cs_sim *sim, uint32_t id)
+{
+    for (int32_t r = 0; r < sim->state.n_rocks; r++)
+        if (sim->state.rocks[r].id == id) return r;
+    return -1;
+}
+
+static cs_status not_found(cs_sim *sim, uint32_t id)
+{
+    return cs_fail(sim, CS_E_NOT_FOUND, "id", "no rock with id %u", (unsigned)id);
+}
+
+/* Adopts a new rock list (already guarded): swaps it in, hands it to the backend. */
+static cs_status adopt(cs_sim *sim, cs_rock_state *rocks, int32_t n, int32_t cap)
+{
+    free(sim->state.rocks);
+    sim->state.rocks = rocks;
+    sim->state.n_rocks = n;
+    sim->state.rock_cap = cap;
+    const cs_status st = cs_sim_commit(sim);
+    if (st == CS_OK) cs_ok(sim);
+    return st;
+}
+
+/* A copy of the rock list with room for one more. */
+static cs_rock_state *copy_rocks(cs_sim *sim, int32_t *cap)
+{
+    *cap = sim->state.n_rocks + 1;
+    cs_rock_state *r = malloc(sizeof *r * (size_t)*cap);
+    if (r && sim->state.n_rocks) memcpy(r, sim->state.rocks, sizeof *r * (size_t)sim->state.n_rocks);
+    return r;
+}
+
+cs_status cs_rock_add(cs_sim *sim, const cs_rock_def *def, uint32_t *id)
+{
+    if (!sim) return CS_E_INVALID;
+    cs_status st = check_def(sim, def);
+    if (st != CS_OK) return st;
+    if (sim->state.n_rocks >= CS_MAX_ROCKS)
+        return cs_fail(sim, CS_E_LIMIT, NULL, "a simulation holds at most %d rocks", CS_MAX_ROCKS);
+    if ((st = cs_sim_sync(sim, CS_SYNC_ALL)) != CS_OK) return st;
+    int32_t cap;
+    cs_rock_state *rocks = copy_rocks(sim, &cap);
+    if (!rocks) return cs_fail(sim, CS_E_NOMEM, NULL, "out of memory");
+    cs_rock_state *r = &rocks[sim->state.n_rocks];
+    memset(r, 0, sizeof *r);
+    def_to_state(def, r);
+    r->id = sim->state.next_rock_id;
+    if ((st = cs_sim_reguard(sim, rocks, sim->state.n_rocks + 1, "radius")) != CS_OK) {
+        free(rocks);
+        return st;
+    }
+    sim->state.next_rock_id++;
+    if (id) *id = r->id;
+    return adopt(sim, rocks, sim->state.n_rocks + 1, cap);
+}
+
+cs_status cs_rock_get(cs_sim *sim, uint32_t id, cs_rock *out)
+{
+    if (!sim || !out) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "out is NULL") : CS_E_INVALID;
+    const int32_t r = find(sim, id);
+    if (r < 0) return not_found(sim, id);
+    const cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    if (st != CS_OK) return st;
+    state_to_rock(&sim->state.rocks[r], out);
+    cs_ok(sim);
+    return CS_OK;
+}
+
+cs_status cs_rock_set(cs_sim *sim, uint32_t id, const cs_rock_def *def)
+{
+    if (!sim) return CS_E_INVALID;
+    const int32_t r = find(sim, id);
+    if (r < 0) return not_found(sim, id);
+    cs_status st = check_def(sim, def);
+    if (st != CS_OK) return st;
+    if ((st = cs_sim_sync(sim, CS_SYNC_ALL)) != CS_OK) return st;
+    int32_t cap;
+    cs_rock_state *rocks = copy_rocks(sim, &cap);
+    if (!rocks) return cs_fail(sim, CS_E_NOMEM, NULL, "out of memory");
+    def_to_state(def, &rocks[r]);
+    if ((st = cs_sim_reguard(sim, rocks, sim->state.n_rocks, "radius")) != CS_OK) {
+        free(rocks);
+        return st;
+    }
+    return adopt(sim, rocks, sim->state.n_rocks, cap);
+}
+
+cs_status cs_rock_remove(cs_sim *sim, uint32_t id)
+{
+    if (!sim) return CS_E_INVALID;
+    const int32_t r = find(sim, id);
+    if (r < 0) return not_found(sim, id);
+    cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    if (st != CS_OK) return st;
+    int32_t cap;
+    cs_rock_state *rocks = copy_rocks(sim, &cap);
+    if (!rocks) return cs_fail(sim, CS_E_NOMEM, NULL, "out of memory");
+    const int32_t n = sim->state.n_rocks - 1;
+    memmove(&rocks[r], &rocks[r + 1], sizeof *rocks * (size_t)(n - r));
+    /* Fewer rocks never need more substeps, but the effective count may now drop. */
+    if ((st = cs_sim_reguard(sim, rocks, n, NULL)) != CS_OK) {
+        free(rocks);
+        return st;
+    }
+    return adopt(sim, rocks, n, cap);
+}
+
+int32_t cs_rock_clear(cs_sim *sim)
+{
+    if (!sim) return 0;
+    const int32_t n = sim->state.n_rocks;
+    if (cs_sim_sync(sim, CS_SYNC_ALL) != CS_OK) return 0;
+    if (cs_sim_reguard(sim, NULL, 0, NULL) != CS_OK) return 0;
+    if (adopt(sim, NULL, 0, 0) != CS_OK) return 0;
+    return n;
+}
+
+int32_t cs_rock_count(const cs_sim *sim) { return sim ? sim->state.n_rocks : 0; }
+
+cs_status cs_rock_at(cs_sim *sim, int32_t index, cs_rock *out)
+{
+    if (!sim || !out) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "out is NULL") : CS_E_INVALID;
+    if (index < 0 || index >= sim->state.n_rocks)
+        return cs_fail(sim, CS_E_RANGE, "index", "rock index %d is not in 0..%d", (int)index, (int)sim->state.n_rocks - 1);
+    const cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    if (st != CS_OK) return st;
+    state_to_rock(&sim->state.rocks[index], out);
+    cs_ok(sim);
+    return CS_OK;
+}

@@ -1,0 +1,343 @@
+/* sim.c - the simulation object: creation, scene and parameter changes, stepping, pins and grab.
+ *
+ * Every command follows one pattern: validate everything, compute the new model or state aside,
+ * and only then adopt it, so a refused command changes nothing. After a command changes the host
+ * state it is handed to the backend and the accelerations are recomputed from the current
+ * positions and velocities (DESIGN: a_n is refreshed whenever the state changes from outside). */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "sim_internal.h"
+
+cs_status cs_sim_sync(cs_sim *sim, unsigned what)
+{
+    if (!sim->host_stale) return CS_OK;
+    const cs_status st = sim->backend->download(sim->ctx, &sim->model, &sim->state, what);
+    if (st != CS_OK) return cs_fail(sim, st, NULL, "could not read the state back from the %s backend", sim->backend->name);
+    if (what == CS_SYNC_ALL) sim->host_stale = 0;
+    return CS_OK;
+}
+
+cs_status cs_sim_commit(cs_sim *sim)
+{
+    cs_status st = sim->backend->upload(sim->ctx, &sim->model, &sim->state);
+    if (st == CS_OK) st = sim->backend->refresh(sim->ctx, &sim->model, &sim->state);
+    if (st != CS_OK) return cs_fail(sim, st, NULL, "the %s backend failed to take the new state", sim->backend->name);
+    return CS_OK;
+}
+
+static cs_status check_scene(cs_sim *sim, const cs_scene *scene)
+{
+    const char *bad = NULL;
+    char why[200];
+    if (cs_scene_validate(scene, &bad, why, sizeof why) != 0) return cs_fail(sim, CS_E_RANGE, bad, "%s", why);
+    uint64_t bytes;
+    if (cs_scene_memory(scene, &bytes) != CS_OK || bytes > (uint64_t)SIZE_MAX / 2)
+        return cs_fail(sim, CS_E_LIMIT, "nx", "a %d x %d cloth is too large for this machine", (int)scene->nx,
+                       (int)scene->ny);
+    return CS_OK;
+}
+
+static cs_status check_params(cs_sim *sim, const cs_params *p)
+{
+    const char *bad = NULL;
+    char why[200];
+    if (cs_params_validate(p, &bad, why, sizeof why) != 0) return cs_fail(sim, CS_E_RANGE, bad, "%s", why);
+    return CS_OK;
+}
+
+/* Builds a fresh state for a scene and adopts it with the given parameters; on failure the old
+ * state stays. */
+static cs_status rebuild(cs_sim *sim, const cs_scene *scene, const cs_params *p)
+{
+    cs_combos combos;
+    int32_t substeps;
+    double dt_max;
+    cs_guard_scene(&combos, scene);
+    cs_status st = cs_guard_eval(sim, &combos, scene, p, NULL, 0, NULL, &substeps, &dt_max);
+    if (st != CS_OK) return st;
+    cs_state fresh;
+    if (cs_state_alloc(&fresh, scene->nx * scene->ny) != CS_OK)
+        return cs_fail(sim, CS_E_NOMEM, "nx", "out of memory for a %d x %d cloth", (int)scene->nx, (int)scene->ny);
+    cs_scene_build(scene, &fresh);
+    cs_model model = sim->model;
+    cs_model_derive(&model, scene, p, substeps, dt_max);
+    st = sim->backend->upload(sim->ctx, &model, &fresh);
+    if (st == CS_OK) st = sim->backend->refresh(sim->ctx, &model, &fresh);
+    if (st != CS_OK) {
+        cs_state_free(&fresh);
+        if (sim->state.x && sim->backend->upload(sim->ctx, &sim->model, &sim->state) != CS_OK) st = CS_E_DEVICE;
+        return cs_fail(sim, st, NULL, "the %s backend could not take the new scene", sim->backend->name);
+    }
+    cs_state_free(&sim->state);
+    sim->state = fresh;
+    sim->model = model;
+    sim->combos = combos;
+    sim->host_stale = 0;
+    return CS_OK;
+}
+
+cs_status cs_sim_create(const cs_scene *scene, const cs_params *params, const char *backend, cs_sim **out,
+                        char *err, size_t err_len)
+{
+    char scratch[8];
+    if (!err || !err_len) err = scratch, err_len = sizeof scratch;
+    err[0] = '\0';
+    if (!out) {
+        snprintf(err, err_len, "out is NULL");
+        return CS_E_INVALID;
+    }
+    *out = NULL;
+    cs_scene s;
+    cs_params p;
+    if (scene) s = *scene;
+    else cs_scene_default(&s);
+    if (params) p = *params;
+    else cs_params_default(&p);
+
+    cs_sim *sim = calloc(1, sizeof *sim);
+    if (!sim) {
+        snprintf(err, err_len, "out of memory");
+        return CS_E_NOMEM;
+    }
+    sim->state.grab = -1;
+    cs_ok(sim);
+    cs_status st = cs_backend_pick(backend, &sim->backend, sim->backend_note, sizeof sim->backend_note);
+    if (st != CS_OK) {
+        snprintf(err, err_len, "%s", sim->backend_note);
+        free(sim);
+        return st;
+    }
+    st = sim->backend->create(&sim->ctx, err, err_len);
+    if (st != CS_OK) {
+        free(sim);
+        return st;
+    }
+    st = check_scene(sim, &s);
+    if (st == CS_OK) st = check_params(sim, &p);
+    if (st == CS_OK) st = rebuild(sim, &s, &p);
+    if (st != CS_OK) {
+        snprintf(err, err_len, "%s", sim->err);
+        cs_sim_destroy(sim);
+        return st;
+    }
+    cs_ok(sim);
+    *out = sim;
+    return CS_OK;
+}
+
+void cs_sim_destroy(cs_sim *sim)
+{
+    if (!sim) return;
+    if (sim->backend && sim->ctx) sim->backend->destroy(sim->ctx);
+    cs_state_free(&sim->state);
+    free(sim);
+}
+
+const char *cs_sim_error(const cs_sim *sim) { return sim ? sim->err : "sim is NULL"; }
+const char *cs_sim_error_param(const cs_sim *sim) { return sim && sim->err_param ? sim->err_param : ""; }
+const char *cs_sim_backend(const cs_sim *sim) { return sim->backend->name; }
+const char *cs_sim_device(const cs_sim *sim) { return sim->backend->device(sim->ctx); }
+const char *cs_sim_backend_note(const cs_sim *sim) { return sim->backend_note; }
+
+cs_status cs_sim_set_threads(cs_sim *sim, int threads)
+{
+    if (!sim) return CS_E_INVALID;
+    if (threads < 0 || threads > 256) return cs_fail(sim, CS_E_RANGE, NULL, "threads must be 0..256 (got %d)", threads);
+    sim->model.threads = threads;
+    cs_ok(sim);
+    return CS_OK;
+}
+
+void cs_sim_scene(const cs_sim *sim, cs_scene *out) { *out = sim->model.scene; }
+void cs_sim_params(const cs_sim *sim, cs_params *out) { *out = sim->model.params; }
+
+cs_status cs_sim_set_scene(cs_sim *sim, const cs_scene *scene)
+{
+    if (!sim || !scene) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "scene is NULL") : CS_E_INVALID;
+    cs_status st = check_scene(sim, scene);
+    if (st == CS_OK) st = rebuild(sim, scene, &sim->model.params);
+    if (st == CS_OK) cs_ok(sim);
+    return st;
+}
+
+cs_status cs_sim_reset(cs_sim *sim)
+{
+    if (!sim) return CS_E_INVALID;
+    const cs_scene scene = sim->model.scene;
+    return cs_sim_set_scene(sim, &scene);
+}
+
+/* The first parameter that differs between a and b, for blaming a refusal on it. */
+static const char *first_change(const cs_params *a, const cs_params *b)
+{
+    for (size_t i = 0; i < cs_param_count(); i++) {
+        const cs_param_info *p = cs_param_at(i);
+        if (p->kind != CS_KIND_LIVE) continue;
+        for (int c = 0; c < (p->type == CS_T_VEC3 ? 3 : 1); c++)
+            if (cs_param_get(p, a, c) != cs_param_get(p, b, c)) return p->name;
+    }
+    return NULL;
+}
+
+cs_status cs_sim_set_params(cs_sim *sim, const cs_params *params)
+{
+    if (!sim || !params) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "params is NULL") : CS_E_INVALID;
+    cs_status st = check_params(sim, params);
+    if (st != CS_OK) return st;
+    int32_t substeps;
+    double dt_max;
+    st = cs_guard_eval(sim, &sim->combos, &sim->model.scene, params, sim->state.rocks, sim->state.n_rocks,
+                       first_change(&sim->model.params, params), &substeps, &dt_max);
+    if (st != CS_OK) return st;
+    if ((st = cs_sim_sync(sim, CS_SYNC_ALL)) != CS_OK) return st;
+    cs_model_derive(&sim->model, &sim->model.scene, params, substeps, dt_max);
+    if ((st = cs_sim_commit(sim)) != CS_OK) return st;
+    cs_ok(sim);
+    return CS_OK;
+}
+
+cs_status cs_sim_reguard(cs_sim *sim, const cs_rock_state *rocks, int32_t n_rocks, const char *param)
+{
+    int32_t substeps;
+    double dt_max;
+    const cs_status st = cs_guard_eval(sim, &sim->combos, &sim->model.scene, &sim->model.params, rocks, n_rocks,
+                                       param, &substeps, &dt_max);
+    if (st == CS_OK) cs_model_derive(&sim->model, &sim->model.scene, &sim->model.params, substeps, dt_max);
+    return st;
+}
+
+cs_status cs_sim_step(cs_sim *sim, int64_t substeps)
+{
+    if (!sim) return CS_E_INVALID;
+    if (substeps < 0 || substeps > 1000000000)
+        return cs_fail(sim, CS_E_RANGE, "substeps", "substeps must be 0..1e9 (got %lld)", (long long)substeps);
+    cs_step_report total = {0, 1};
+    while (substeps > 0 && total.finite) {
+        const int32_t now = substeps > 100000 ? 100000 : (int32_t)substeps;
+        cs_step_report rep = {0, 1};
+        const cs_status st = sim->backend->step(sim->ctx, &sim->model, &sim->state, now, &rep);
+        if (st != CS_OK) return cs_fail(sim, st, NULL, "the %s backend failed while stepping", sim->backend->name);
+        sim->host_stale = sim->backend != &cs_backend_cpu;
+        sim->state.step += (uint64_t)now;
+        sim->state.time += now * sim->model.dt;
+        sim->state.n_torn += rep.torn;
+        total.finite = rep.finite;
+        substeps -= now;
+    }
+    if (!total.finite)
+        return cs_fail(sim, CS_E_NONFINITE, NULL, "the state became non-finite by step %llu",
+                       (unsigned long long)sim->state.step);
+    cs_ok(sim);
+    return CS_OK;
+}
+
+cs_status cs_sim_step_frames(cs_sim *sim, int64_t frames)
+{
+    if (!sim) return CS_E_INVALID;
+    if (frames < 0 || frames > 1000000000 / sim->model.substeps)
+        return cs_fail(sim, CS_E_RANGE, "frames", "frames must be 0..%d at %d substeps per frame (got %lld)",
+                       1000000000 / (int)sim->model.substeps, (int)sim->model.substeps, (long long)frames);
+    return cs_sim_step(sim, frames * sim->model.substeps);
+}
+
+static int64_t spring_total(int64_t nx, int64_t ny)
+{
+    const int64_t bx = nx > 2 ? (nx - 2) * ny : 0, by = ny > 2 ? nx * (ny - 2) : 0;
+    return (nx - 1) * ny + nx * (ny - 1) + 2 * (nx - 1) * (ny - 1) + bx + by;
+}
+
+void cs_sim_info(const cs_sim *sim, cs_info *out)
+{
+    const cs_model *m = &sim->model;
+    out->step = sim->state.step;
+    out->time = sim->state.time;
+    out->substeps = m->substeps;
+    out->dt = m->dt;
+    out->dt_max = m->dt_max;
+    out->n_vertices = sim->state.n;
+    out->n_torn = sim->state.n_torn;
+    out->n_springs = (int32_t)(spring_total(m->scene.nx, m->scene.ny) - sim->state.n_torn);
+    out->n_rocks = sim->state.n_rocks;
+}
+
+/* ---- pins and grab ---- */
+
+cs_status cs_pins_preset(cs_sim *sim, cs_pins preset)
+{
+    if (!sim) return CS_E_INVALID;
+    if ((unsigned)preset > CS_PINS_NONE) return cs_fail(sim, CS_E_RANGE, "preset", "unknown pins preset %d", (int)preset);
+    cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    if (st != CS_OK) return st;
+    cs_state_apply_preset(&sim->model.scene, &sim->state, preset);
+    if ((st = cs_sim_commit(sim)) != CS_OK) return st;
+    cs_ok(sim);
+    return CS_OK;
+}
+
+cs_status cs_pin(cs_sim *sim, const int32_t *vertices, size_t count, bool pinned)
+{
+    if (!sim) return CS_E_INVALID;
+    if (count && !vertices) return cs_fail(sim, CS_E_INVALID, "vertices", "vertices is NULL");
+    for (size_t k = 0; k < count; k++)
+        if (vertices[k] < 0 || vertices[k] >= sim->state.n)
+            return cs_fail(sim, CS_E_RANGE, "vertices", "vertex %lld is not in 0..%d", (long long)vertices[k],
+                           (int)sim->state.n - 1);
+    cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    if (st != CS_OK) return st;
+    for (size_t k = 0; k < count; k++) sim->state.pinned[vertices[k]] = pinned ? 1 : 0;
+    cs_state_update_mask(&sim->state);
+    if ((st = cs_sim_commit(sim)) != CS_OK) return st;
+    cs_ok(sim);
+    return CS_OK;
+}
+
+bool cs_is_pinned(const cs_sim *sim, int32_t vertex)
+{
+    return sim && vertex >= 0 && vertex < sim->state.n && sim->state.pinned[vertex];
+}
+
+static int finite3(const float *v) { return isfinite(v[0]) && isfinite(v[1]) && isfinite(v[2]); }
+
+cs_status cs_grab(cs_sim *sim, int32_t vertex, const float target[3])
+{
+    if (!sim) return CS_E_INVALID;
+    if (vertex < 0 || vertex >= sim->state.n)
+        return cs_fail(sim, CS_E_RANGE, "vertex", "vertex %d is not in 0..%d", (int)vertex, (int)sim->state.n - 1);
+    if (!target || !finite3(target)) return cs_fail(sim, CS_E_INVALID, "target", "target must be 3 finite numbers");
+    for (int i = 0; i < 3; i++)
+        if (fabsf(target[i]) > 1e6f) return cs_fail(sim, CS_E_RANGE, "target", "target must be within 1e6 m of the origin");
+    cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    if (st != CS_OK) return st;
+    sim->state.grab = vertex;
+    sim->state.grab_target = cs_v3_from(target);
+    cs_state_update_mask(&sim->state);
+    if ((st = cs_sim_commit(sim)) != CS_OK) return st;
+    cs_ok(sim);
+    return CS_OK;
+}
+
+cs_status cs_release(cs_sim *sim)
+{
+    if (!sim) return CS_E_INVALID;
+    cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    if (st != CS_OK) return st;
+    sim->state.grab = -1;
+    cs_state_update_mask(&sim->state);
+    if ((st = cs_sim_commit(sim)) != CS_OK) return st;
+    cs_ok(sim);
+    return CS_OK;
+}
+
+int32_t cs_grabbed(const cs_sim *sim, float target[3])
+{
+    if (!sim) return -1;
+    if (target && sim->state.grab >= 0) {
+        target[0] = sim->state.grab_target.x;
+        target[1] = sim->state.grab_target.y;
+        target[2] = sim->state.grab_target.z;
+    }
+    return sim->state.grab;
+}

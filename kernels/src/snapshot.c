@@ -1,0 +1,327 @@
+/* snapshot.c - the whole state as a versioned, checksummed byte buffer (snapshots, checkpoints).
+ *
+ * Layout, all little-endian:
+ *   header (32 bytes): "CSNP", u32 version, u64 layout id (a hash of the parameter table's names,
+ *   types and kinds, so a build with other parameters refuses the buffer), u64 payload bytes,
+ *   u64 FNV-1a 64 of the payload;
+ *   payload: every table row (scene then live) as f64 per component; u64 step; f64 time;
+ *   i32 grab vertex, 3 f32 grab target; u32 rocks, u32 next rock id; x, y, z, vx, vy, vz, ax, ay,
+ *   az (n f32 each); rest lengths (6 n f32); pins (n u8, zero-padded to 4 bytes); per rock: u32 id,
+ *   u32 kinematic, 21 f32 (x, v, w, a, alpha, q, radius, density).
+ * Everything derived (masses, the mask, the guard's substeps, torn count) is recomputed on load,
+ * and nothing is adopted until the whole buffer has been checked. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "sim_internal.h"
+
+#define SNAP_MAGIC "CSNP"
+#define SNAP_VERSION 1u
+#define SNAP_HEADER 32u
+#define ROCK_FLOATS 21u
+
+typedef struct wbuf {
+    unsigned char *p;
+    size_t len;
+} wbuf;
+
+static void put_u32(wbuf *b, uint32_t u)
+{
+    for (int i = 0; i < 4; i++) b->p[b->len++] = (unsigned char)(u >> (8 * i));
+}
+static void put_u64(wbuf *b, uint64_t u)
+{
+    for (int i = 0; i < 8; i++) b->p[b->len++] = (unsigned char)(u >> (8 * i));
+}
+static void put_f32(wbuf *b, float f)
+{
+    uint32_t u;
+    memcpy(&u, &f, 4);
+    put_u32(b, u);
+}
+static void put_f64(wbuf *b, double f)
+{
+    uint64_t u;
+    memcpy(&u, &f, 8);
+    put_u64(b, u);
+}
+static void put_floats(wbuf *b, const float *f, size_t n)
+{
+    for (size_t i = 0; i < n; i++) put_f32(b, f[i]);
+}
+
+typedef struct rbuf {
+    const unsigned char *p;
+    size_t len, at;
+    int bad; /* ran past the end */
+} rbuf;
+
+static int take(rbuf *b, size_t n)
+{
+    if (b->bad || b->len - b->at < n) {
+        b->bad = 1;
+        return 0;
+    }
+    return 1;
+}
+static uint32_t get_u32(rbuf *b)
+{
+    if (!take(b, 4)) return 0;
+    uint32_t u = 0;
+    for (int i = 0; i < 4; i++) u |= (uint32_t)b->p[b->at++] << (8 * i);
+    return u;
+}
+static uint64_t get_u64(rbuf *b)
+{
+    if (!take(b, 8)) return 0;
+    uint64_t u = 0;
+    for (int i = 0; i < 8; i++) u |= (uint64_t)b->p[b->at++] << (8 * i);
+    return u;
+}
+static float get_f32(rbuf *b)
+{
+    const uint32_t u = get_u32(b);
+    float f;
+    memcpy(&f, &u, 4);
+    return f;
+}
+static double get_f64(rbuf *b)
+{
+    const uint64_t u = get_u64(b);
+    double f;
+    memcpy(&f, &u, 8);
+    return f;
+}
+static void get_floats(rbuf *b, float *f, size_t n)
+{
+    for (size_t i = 0; i < n; i++) f[i] = get_f32(b);
+}
+
+static uint64_t layout_id(void)
+{
+    uint64_t h = CS_FNV_OFFSET;
+    for (size_t i = 0; i < cs_param_count(); i++) {
+        const cs_param_info *p = cs_param_at(i);
+        const unsigned char tk[2] = {(unsigned char)p->type, (unsigned char)p->kind};
+        h = cs_fnv1a(h, p->name, strlen(p->name) + 1);
+        h = cs_fnv1a(h, tk, 2);
+    }
+    return h;
+}
+
+static int components(const cs_param_info *p) { return p->type == CS_T_VEC3 ? 3 : 1; }
+
+static size_t payload_size(const cs_state *s)
+{
+    size_t table = 0;
+    for (size_t i = 0; i < cs_param_count(); i++) table += 8u * (size_t)components(cs_param_at(i));
+    const size_t n = (size_t)s->n;
+    return table + 8 + 8 + 4 + 12 + 4 + 4 + n * 4 * (9 + CS_NTYPES) + (n + 3) / 4 * 4 +
+           (size_t)s->n_rocks * (8 + 4 * ROCK_FLOATS);
+}
+
+size_t cs_snapshot_size(cs_sim *sim) { return sim ? SNAP_HEADER + payload_size(&sim->state) : 0; }
+
+cs_status cs_snapshot_save(cs_sim *sim, void *buf, size_t cap, size_t *len)
+{
+    if (!sim) return CS_E_INVALID;
+    const size_t need = cs_snapshot_size(sim);
+    if (!buf || cap < need) return cs_fail(sim, CS_E_INVALID, NULL, "snapshot buffer must hold %zu bytes", need);
+    cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    if (st != CS_OK) return st;
+    const cs_state *s = &sim->state;
+    const size_t n = (size_t)s->n;
+    wbuf b = {(unsigned char *)buf + SNAP_HEADER, 0};
+    for (size_t i = 0; i < cs_param_count(); i++) {
+        const cs_param_info *p = cs_param_at(i);
+        const void *base = CS_PARAM_BASE(p, &sim->model.scene, &sim->model.params);
+        for (int c = 0; c < components(p); c++) put_f64(&b, cs_param_get(p, base, c));
+    }
+    put_u64(&b, s->step);
+    put_f64(&b, s->time);
+    put_u32(&b, (uint32_t)s->grab);
+    put_f32(&b, s->grab_target.x);
+    put_f32(&b, s->grab_target.y);
+    put_f32(&b, s->grab_target.z);
+    put_u32(&b, (uint32_t)s->n_rocks);
+    put_u32(&b, s->next_rock_id);
+    const float *arrays[] = {s->x, s->y, s->z, s->vx, s->vy, s->vz, s->ax, s->ay, s->az};
+    for (int a = 0; a < 9; a++) put_floats(&b, arrays[a], n);
+    put_floats(&b, s->L0, n * CS_NTYPES);
+    memcpy(b.p + b.len, s->pinned, n);
+    b.len += n;
+    while (b.len % 4) b.p[b.len++] = 0;
+    for (int32_t r = 0; r < s->n_rocks; r++) {
+        const cs_rock_state *k = &s->rocks[r];
+        put_u32(&b, k->id);
+        put_u32(&b, (uint32_t)k->kinematic);
+        const float f[ROCK_FLOATS] = {k->x.x, k->x.y, k->x.z, k->v.x, k->v.y, k->v.z, k->w.x, k->w.y, k->w.z,
+                                      k->a.x, k->a.y, k->a.z, k->alpha.x, k->alpha.y, k->alpha.z, k->q[0], k->q[1],
+                                      k->q[2], k->q[3], k->radius, k->density};
+        put_floats(&b, f, ROCK_FLOATS);
+    }
+    wbuf h = {buf, 0};
+    memcpy(h.p, SNAP_MAGIC, 4);
+    h.len = 4;
+    put_u32(&h, SNAP_VERSION);
+    put_u64(&h, layout_id());
+    put_u64(&h, b.len);
+    put_u64(&h, cs_fnv1a(CS_FNV_OFFSET, b.p, b.len));
+    if (len) *len = SNAP_HEADER + b.len;
+    cs_ok(sim);
+    return CS_OK;
+}
+
+static int all_finite(const float *f, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        if (!isfinite(f[i])) return 0;
+    return 1;
+}
+
+/* Reads the table rows into scene and params; CS_OK or the refusal. */
+static cs_status load_table(cs_sim *sim, rbuf *b, cs_scene *scene, cs_params *params)
+{
+    char why[200];
+    for (size_t i = 0; i < cs_param_count(); i++) {
+        const cs_param_info *p = cs_param_at(i);
+        double v[3] = {0, 0, 0};
+        for (int c = 0; c < components(p); c++) v[c] = get_f64(b);
+        if (b->bad) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot is truncated");
+        if (cs_param_set(p, CS_PARAM_BASE(p, scene, params), v, why, sizeof why) != 0)
+            return cs_fail(sim, CS_E_FORMAT, p->name, "snapshot holds a bad parameter: %s", why);
+    }
+    const char *bad = NULL;
+    if (cs_params_validate(params, &bad, why, sizeof why) != 0)
+        return cs_fail(sim, CS_E_FORMAT, bad, "snapshot holds bad parameters: %s", why);
+    return CS_OK;
+}
+
+static cs_status load_state(cs_sim *sim, rbuf *b, const cs_scene *scene, cs_state *s)
+{
+    const size_t n = (size_t)s->n;
+    s->step = get_u64(b);
+    s->time = get_f64(b);
+    s->grab = (int32_t)get_u32(b);
+    get_floats(b, &s->grab_target.x, 1);
+    get_floats(b, &s->grab_target.y, 1);
+    get_floats(b, &s->grab_target.z, 1);
+    const uint32_t n_rocks = get_u32(b);
+    s->next_rock_id = get_u32(b);
+    if (b->bad) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot is truncated");
+    if (!isfinite(s->time) || s->grab < -1 || s->grab >= s->n ||
+        !(isfinite(s->grab_target.x) && isfinite(s->grab_target.y) && isfinite(s->grab_target.z)))
+        return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds a bad clock or grab");
+    if (n_rocks > CS_MAX_ROCKS) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds %u rocks, more than %d", n_rocks, CS_MAX_ROCKS);
+    float *arrays[] = {s->x, s->y, s->z, s->vx, s->vy, s->vz, s->ax, s->ay, s->az};
+    for (int a = 0; a < 9; a++) get_floats(b, arrays[a], n);
+    get_floats(b, s->L0, n * CS_NTYPES);
+    if (!take(b, (n + 3) / 4 * 4)) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot is truncated");
+    memcpy(s->pinned, b->p + b->at, n);
+    b->at += (n + 3) / 4 * 4;
+    for (int a = 0; a < 9; a++)
+        if (!all_finite(arrays[a], n)) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds non-finite vertex state");
+    for (int t = 0; t < CS_NTYPES; t++) {
+        for (size_t v = 0; v < n; v++) {
+            const float l = s->L0[(size_t)t * n + v];
+            const int exists = cs_spring_exists(scene->nx, scene->ny, t, (int32_t)v);
+            if (!(l == CS_TORN || (exists && isfinite(l) && l > 0.0f)))
+                return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds a bad rest length");
+        }
+    }
+    for (size_t v = 0; v < n; v++)
+        if (s->pinned[v] > 1) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds bad pins");
+    if (n_rocks) {
+        if (!(s->rocks = calloc(n_rocks, sizeof *s->rocks))) return cs_fail(sim, CS_E_NOMEM, NULL, "out of memory");
+        s->rock_cap = (int32_t)n_rocks;
+    }
+    for (uint32_t r = 0; r < n_rocks; r++) {
+        cs_rock_state *k = &s->rocks[r];
+        k->id = get_u32(b);
+        k->kinematic = (int32_t)get_u32(b);
+        float f[ROCK_FLOATS];
+        get_floats(b, f, ROCK_FLOATS);
+        if (b->bad) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot is truncated");
+        if (!all_finite(f, ROCK_FLOATS) || (k->kinematic != 0 && k->kinematic != 1) || k->id == 0 || k->id >= s->next_rock_id ||
+            !(f[19] >= 1e-3f && f[19] <= 1e3f) || !(f[20] >= 1e-3f && f[20] <= 1e6f))
+            return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds a bad rock");
+        for (uint32_t o = 0; o < r; o++)
+            if (s->rocks[o].id == k->id) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds a rock id twice");
+        k->x = cs_v3(f[0], f[1], f[2]);
+        k->v = cs_v3(f[3], f[4], f[5]);
+        k->w = cs_v3(f[6], f[7], f[8]);
+        k->a = cs_v3(f[9], f[10], f[11]);
+        k->alpha = cs_v3(f[12], f[13], f[14]);
+        memcpy(k->q, &f[15], 4 * sizeof(float));
+        k->radius = f[19];
+        k->density = f[20];
+        cs_rock_mass(k);
+        s->n_rocks = (int32_t)r + 1;
+    }
+    if (b->at != b->len) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot has %zu bytes too many", b->len - b->at);
+    s->n_torn = cs_torn_list(scene->nx, scene->ny, s->L0, NULL, 0);
+    /* The mask from pins and grab, without touching velocities (they are restored as saved). */
+    for (size_t v = 0; v < n; v++) s->w[v] = (s->pinned[v] || (int32_t)v == s->grab) ? 0.0f : 1.0f;
+    return CS_OK;
+}
+
+cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
+{
+    if (!sim) return CS_E_INVALID;
+    if (!buf || len < SNAP_HEADER) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot is shorter than its header");
+    rbuf h = {buf, SNAP_HEADER, 0, 0};
+    if (memcmp(h.p, SNAP_MAGIC, 4) != 0) return cs_fail(sim, CS_E_FORMAT, NULL, "not a clothsim snapshot (bad magic)");
+    h.at = 4;
+    const uint32_t version = get_u32(&h);
+    const uint64_t layout = get_u64(&h), plen = get_u64(&h), sum = get_u64(&h);
+    if (version != SNAP_VERSION)
+        return cs_fail(sim, CS_E_VERSION, NULL, "snapshot format version %u, this build reads %u", version, SNAP_VERSION);
+    if (layout != layout_id())
+        return cs_fail(sim, CS_E_VERSION, NULL, "snapshot was written with another parameter table");
+    if (plen != len - SNAP_HEADER) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot length does not match its header (truncated?)");
+    rbuf b = {(const unsigned char *)buf + SNAP_HEADER, (size_t)plen, 0, 0};
+    if (cs_fnv1a(CS_FNV_OFFSET, b.p, b.len) != sum) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot checksum does not match (corrupted)");
+
+    cs_scene scene;
+    cs_params params;
+    cs_scene_default(&scene);
+    cs_params_default(&params);
+    cs_status st = load_table(sim, &b, &scene, &params);
+    if (st != CS_OK) return st;
+    uint64_t bytes;
+    if (cs_scene_memory(&scene, &bytes) != CS_OK) return cs_fail(sim, CS_E_LIMIT, "nx", "snapshot's cloth is too large");
+    /* Before allocating for the scene, make sure the buffer can hold its arrays at all. */
+    const size_t n = (size_t)scene.nx * (size_t)scene.ny;
+    if ((b.len - b.at) / (4 * (9 + CS_NTYPES) + 1) < n) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot is truncated");
+    cs_state s;
+    if (cs_state_alloc(&s, scene.nx * scene.ny) != CS_OK) return cs_fail(sim, CS_E_NOMEM, NULL, "out of memory");
+    cs_combos combos;
+    int32_t substeps;
+    double dt_max;
+    cs_guard_scene(&combos, &scene);
+    st = load_state(sim, &b, &scene, &s);
+    if (st == CS_OK)
+        st = cs_guard_eval(sim, &combos, &scene, &params, s.rocks, s.n_rocks, NULL, &substeps, &dt_max);
+    cs_model model = sim->model;
+    if (st == CS_OK) {
+        cs_model_derive(&model, &scene, &params, substeps, dt_max);
+        st = sim->backend->upload(sim->ctx, &model, &s);
+        if (st != CS_OK) {
+            if (sim->backend->upload(sim->ctx, &sim->model, &sim->state) != CS_OK) st = CS_E_DEVICE;
+            cs_fail(sim, st, NULL, "the %s backend could not take the snapshot", sim->backend->name);
+        }
+    }
+    if (st != CS_OK) {
+        cs_state_free(&s);
+        return st;
+    }
+    /* No refresh: the accelerations are part of the snapshot. */
+    cs_state_free(&sim->state);
+    sim->state = s;
+    sim->model = model;
+    sim->combos = combos;
+    sim->host_stale = 0;
+    cs_ok(sim);
+    return CS_OK;
+}

@@ -1,0 +1,7 @@
+#!/usr/bin/env bash
+# The Debian packages clothd builds and tests with, in one place: scripts/setup.sh installs them
+# for a user, .ci/run for CI.
+CLOTHD_APT_PACKAGES=(
+  gcc make cmake pkg-config   # the build
+  libcmocka-dev               # C unit and physics tests
+)

@@ -1,0 +1,111 @@
+/* testkit.h - what the C tests share: building simulations with a few fields changed, and
+ * white-box access to the state (setting a vertex, reading a rock) through the core's internal
+ * header. Tests only; nothing here is compiled into the library. */
+#ifndef CLOTHD_TESTKIT_H
+#define CLOTHD_TESTKIT_H
+
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include "clothsim/backend.h"
+#include "clothsim/clothsim.h"
+#include "clothsim/physics.h"
+#include "sim_internal.h"
+
+/* A simulation on the CPU backend, failing the test if it cannot be made. */
+static inline cs_sim *tk_sim(const cs_scene *scene, const cs_params *params)
+{
+    cs_sim *sim = NULL;
+    char err[256];
+    const cs_status st = cs_sim_create(scene, params, "cpu", &sim, err, sizeof err);
+    if (st != CS_OK) fail_msg("cs_sim_create: %s (%s)", err, cs_status_name(st));
+    return sim;
+}
+
+/* Defaults with every external influence off: no gravity, drag, damping or ground. */
+static inline void tk_quiet(cs_scene *sc, cs_params *p)
+{
+    cs_scene_default(sc);
+    cs_params_default(p);
+    p->gravity[2] = 0.0f;
+    p->drag = 0.0f;
+    p->c_spring = 0.0f;
+    p->c_contact = 0.0f;
+    p->ground = 0;
+}
+
+/* Sets a vertex's position and velocity (either may be NULL) as a command would. */
+static inline void tk_set_vertex(cs_sim *sim, int32_t v, const float *x, const float *vel)
+{
+    assert_int_equal(cs_sim_sync(sim, CS_SYNC_ALL), CS_OK);
+    cs_state *s = &sim->state;
+    if (x) s->x[v] = x[0], s->y[v] = x[1], s->z[v] = x[2];
+    if (vel) s->vx[v] = vel[0], s->vy[v] = vel[1], s->vz[v] = vel[2];
+    assert_int_equal(cs_sim_commit(sim), CS_OK);
+}
+
+static inline cs_rock tk_rock(cs_sim *sim, uint32_t id)
+{
+    cs_rock r;
+    assert_int_equal(cs_rock_get(sim, id, &r), CS_OK);
+    return r;
+}
+
+static inline uint32_t tk_add_rock(cs_sim *sim, float x, float y, float z, float radius, float density)
+{
+    cs_rock_def d;
+    cs_rock_def_default(&d);
+    d.position[0] = x, d.position[1] = y, d.position[2] = z;
+    d.radius = radius;
+    d.density = density;
+    uint32_t id = 0;
+    const cs_status st = cs_rock_add(sim, &d, &id);
+    if (st != CS_OK) fail_msg("cs_rock_add: %s", cs_sim_error(sim));
+    return id;
+}
+
+/* Positions as a freshly allocated xyz array. */
+static inline float *tk_positions(cs_sim *sim)
+{
+    const size_t n = (size_t)sim->state.n;
+    float *xyz = malloc(sizeof(float) * 3 * n);
+    assert_non_null(xyz);
+    assert_int_equal(cs_read_positions(sim, xyz, 3 * n), CS_OK);
+    return xyz;
+}
+
+static inline void tk_step(cs_sim *sim, int64_t substeps)
+{
+    const cs_status st = cs_sim_step(sim, substeps);
+    if (st != CS_OK) fail_msg("cs_sim_step: %s", cs_sim_error(sim));
+}
+
+/* Total linear momentum of cloth and dynamic rocks. */
+static inline void tk_momentum(cs_sim *sim, double out[3])
+{
+    assert_int_equal(cs_sim_sync(sim, CS_SYNC_ALL), CS_OK);
+    const cs_state *s = &sim->state;
+    const double m = sim->model.phys.mass;
+    out[0] = out[1] = out[2] = 0;
+    for (int32_t v = 0; v < s->n; v++) {
+        out[0] += m * s->vx[v];
+        out[1] += m * s->vy[v];
+        out[2] += m * s->vz[v];
+    }
+    for (int32_t r = 0; r < s->n_rocks; r++) {
+        const cs_rock_state *k = &s->rocks[r];
+        if (k->kinematic) continue;
+        out[0] += (double)k->mass * k->v.x;
+        out[1] += (double)k->mass * k->v.y;
+        out[2] += (double)k->mass * k->v.z;
+    }
+}
+
+#endif
