@@ -22,19 +22,20 @@ static void usage(FILE *f)
 {
     fprintf(f,
             "usage: clothd-bench [--backend cpu|cuda|auto] [--json] [--threads N] [--seconds S]\n"
-            "                    [--sizes 64,128,256,512] [--integrator velocity_verlet|symplectic_euler]\n");
+            "                    [--sizes 64,128,256,512] [--rocks 0,16]\n"
+            "                    [--integrator velocity_verlet|symplectic_euler]\n");
 }
 
-/* 16 rocks on a 4 x 4 grid over the middle of the cloth, just touching it. */
-static int add_rocks(cs_sim *sim, const cs_scene *sc, const cs_params *p)
+/* Rocks on a 4-wide grid over the middle of the cloth, just touching it. */
+static int add_rocks(cs_sim *sim, const cs_scene *sc, const cs_params *p, int count)
 {
-    for (int k = 0; k < 16; k++) {
+    for (int k = 0; k < count; k++) {
         cs_rock_def d;
         cs_rock_def_default(&d);
         d.radius = 0.08f;
         d.density = 200.0f;
         d.position[0] = (float)((k % 4 - 1.5) * sc->size_x / 5);
-        d.position[1] = (float)((k / 4 - 1.5) * sc->size_y / 5);
+        d.position[1] = (float)((k / 4 % 4 - 1.5) * sc->size_y / 5);
         d.position[2] = sc->height + d.radius + p->contact_offset;
         if (cs_rock_add(sim, &d, NULL) != CS_OK) return -1;
     }
@@ -43,7 +44,7 @@ static int add_rocks(cs_sim *sim, const cs_scene *sc, const cs_params *p)
 
 int main(int argc, char **argv)
 {
-    const char *backend = "cpu", *sizes = "64,128,256,512", *integrator = "velocity_verlet";
+    const char *backend = "cpu", *sizes = "64,128,256,512", *integrator = "velocity_verlet", *rock_cases = "0,16";
     int json = 0, threads = 0;
     double seconds = 1.5;
     for (int i = 1; i < argc; i++) {
@@ -54,6 +55,7 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--threads") == 0 && val) threads = atoi(val), i++;
         else if (strcmp(a, "--seconds") == 0 && val) seconds = atof(val), i++;
         else if (strcmp(a, "--sizes") == 0 && val) sizes = val, i++;
+        else if (strcmp(a, "--rocks") == 0 && val) rock_cases = val, i++;
         else if (strcmp(a, "--integrator") == 0 && val) integrator = val, i++;
         else if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
@@ -75,11 +77,18 @@ int main(int argc, char **argv)
     }
     if (!json) printf("%-7s %-9s %5s %14s %22s\n", "backend", "grid", "rocks", "substeps/s", "vertex-substeps/s");
 
+    int rock_counts[8], n_counts = 0;
     char list[256];
+    snprintf(list, sizeof list, "%s", rock_cases);
+    for (char *tok = strtok(list, ","); tok && n_counts < 8; tok = strtok(NULL, ",")) rock_counts[n_counts++] = atoi(tok);
     snprintf(list, sizeof list, "%s", sizes);
     for (char *tok = strtok(list, ","); tok; tok = strtok(NULL, ",")) {
         const int size = atoi(tok);
-        for (int with_rocks = 0; with_rocks <= 1; with_rocks++) {
+        if (size < 2 || size > 4096) {
+            fprintf(stderr, "clothd-bench: sizes must be 2..4096\n");
+            return 2;
+        }
+        for (int rc = 0; rc < n_counts; rc++) {
             cs_scene sc;
             cs_params p;
             cs_scene_default(&sc);
@@ -96,7 +105,7 @@ int main(int argc, char **argv)
                 return 1;
             }
             cs_sim_set_threads(sim, threads);
-            if (with_rocks && add_rocks(sim, &sc, &p) != 0) {
+            if (add_rocks(sim, &sc, &p, rock_counts[rc]) != 0) {
                 fprintf(stderr, "clothd-bench: adding rocks: %s\n", cs_sim_error(sim));
                 return 1;
             }

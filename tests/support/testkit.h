@@ -19,6 +19,16 @@
 #include "clothsim/physics.h"
 #include "sim_internal.h"
 
+#define TK_PI 3.14159265358979323846
+
+/* |a - b| <= tol, reporting both values when not (cmocka 1.1 has no assert_double_equal). */
+#define tk_assert_near(a, b, tol)                                                                        \
+    do {                                                                                                 \
+        const double tk_a_ = (a), tk_b_ = (b), tk_t_ = (tol);                                           \
+        if (!(fabs(tk_a_ - tk_b_) <= tk_t_))                                                             \
+            fail_msg("%s = %.12g, expected %s = %.12g within %.3g", #a, tk_a_, #b, tk_b_, tk_t_);       \
+    } while (0)
+
 /* A simulation on the CPU backend, failing the test if it cannot be made. */
 static inline cs_sim *tk_sim(const cs_scene *scene, const cs_params *params)
 {

@@ -1,0 +1,52 @@
+/* test_backend.c - choosing a backend by name. */
+#include "testkit.h"
+
+static void test_pick_by_name(void **unused)
+{
+    (void)unused;
+    const cs_backend *b = NULL;
+    char note[160];
+    assert_int_equal(cs_backend_pick("cpu", &b, note, sizeof note), CS_OK);
+    assert_ptr_equal(b, &cs_backend_cpu);
+    assert_int_equal(cs_backend_pick("bogus", &b, note, sizeof note), CS_E_INVALID);
+    assert_non_null(strstr(note, "bogus"));
+    /* auto takes CUDA only when this build has it and a device answers; else the CPU, saying why. */
+    assert_int_equal(cs_backend_pick("auto", &b, note, sizeof note), CS_OK);
+    char why[128];
+    const cs_backend *cuda = cs_backend_cuda();
+    if (cuda && cuda->available(why, sizeof why)) {
+        assert_ptr_equal(b, cuda);
+    } else {
+        assert_ptr_equal(b, &cs_backend_cpu);
+        assert_true(strlen(note) > strlen("auto: "));
+        assert_int_equal(cs_backend_pick("cuda", &b, note, sizeof note), CS_E_BACKEND);
+        assert_true(strlen(note) > strlen("cuda: "));
+    }
+    assert_int_equal(cs_backend_pick(NULL, &b, note, sizeof note), CS_OK);
+}
+
+static void test_sim_reports_its_backend(void **unused)
+{
+    (void)unused;
+    cs_sim *sim = NULL;
+    char err[200];
+    assert_int_equal(cs_sim_create(NULL, NULL, "auto", &sim, err, sizeof err), CS_OK);
+    assert_true(strlen(cs_sim_backend_note(sim)) > 0);
+    assert_true(strcmp(cs_sim_backend(sim), "cpu") == 0 || strcmp(cs_sim_backend(sim), "cuda") == 0);
+    assert_true(strlen(cs_sim_device(sim)) > 0);
+    cs_sim_destroy(sim);
+    if (!cs_backend_cuda()) {
+        assert_int_equal(cs_sim_create(NULL, NULL, "cuda", &sim, err, sizeof err), CS_E_BACKEND);
+        assert_null(sim);
+        assert_non_null(strstr(err, "CUDA"));
+    }
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_pick_by_name),
+        cmocka_unit_test(test_sim_reports_its_backend),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
