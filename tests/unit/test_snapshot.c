@@ -1,0 +1,557 @@
+/* test_snapshot.c - snapshots (snapshot.c): the whole state as a versioned, checksummed buffer.
+ *
+ * Round trip mid-run (rocks, torn and plastically grown springs, a grab, pins): the loaded state
+ * has the same hash, info, parameters, rocks, pins and grab, and continuing from it gives the
+ * same hash as the run that was never interrupted. A snapshot of another scene size switches the
+ * scene. Refusals - truncated, corrupted, another version, another magic, and buffers whose
+ * checksum is fixed up but which hold a NaN, a bad rest length or an out-of-range parameter -
+ * return CS_E_FORMAT or CS_E_VERSION and leave the simulation exactly as it was.
+ *
+ * The layout is rebuilt here from the format's documentation (snapshot.c's header comment):
+ * header "CSNP", u32 version, u64 layout id, u64 payload bytes, u64 FNV-1a 64 of the payload;
+ * payload: every table row as f64 per component, u64 step, f64 time, i32 grab, 3 f32 target,
+ * u32 rocks, u32 next id, 9 vertex arrays of n f32, 6 n f32 rest lengths, n u8 pins padded to 4,
+ * per rock u32 id, u32 kinematic, 21 f32. The checksum is this file's own FNV-1a. */
+#include "testkit.h"
+
+#define HEADER 32u
+
+/* ---- the format, independently ---- */
+
+static uint64_t fnv1a64(const unsigned char *p, size_t n)
+{
+    uint64_t h = 0xcbf29ce484222325ull;
+    for (size_t i = 0; i < n; i++) {
+        h ^= p[i];
+        h *= 0x100000001b3ull;
+    }
+    return h;
+}
+
+static uint64_t get_u64(const unsigned char *p)
+{
+    uint64_t u = 0;
+    for (int i = 0; i < 8; i++) u |= (uint64_t)p[i] << (8 * i);
+    return u;
+}
+
+static void put_u32(unsigned char *p, uint32_t u)
+{
+    for (int i = 0; i < 4; i++) p[i] = (unsigned char)(u >> (8 * i));
+}
+
+static void put_u64(unsigned char *p, uint64_t u)
+{
+    for (int i = 0; i < 8; i++) p[i] = (unsigned char)(u >> (8 * i));
+}
+
+static void put_f32(unsigned char *p, float f)
+{
+    uint32_t u;
+    memcpy(&u, &f, 4);
+    put_u32(p, u);
+}
+
+static float get_f32(const unsigned char *p)
+{
+    uint32_t u = 0;
+    for (int i = 0; i < 4; i++) u |= (uint32_t)p[i] << (8 * i);
+    float f;
+    memcpy(&f, &u, 4);
+    return f;
+}
+
+static void put_f64(unsigned char *p, double f)
+{
+    uint64_t u;
+    memcpy(&u, &f, 8);
+    put_u64(p, u);
+}
+
+static int components(const cs_param_info *p) { return p->type == CS_T_VEC3 ? 3 : 1; }
+
+/* Bytes of the parameter table in the payload; with name, the offset of that row instead. */
+static size_t table_offset(const char *name)
+{
+    size_t off = 0;
+    for (size_t i = 0; i < cs_param_count(); i++) {
+        const cs_param_info *p = cs_param_at(i);
+        if (name && strcmp(p->name, name) == 0) return off;
+        off += 8u * (size_t)components(p);
+    }
+    if (name) fail_msg("no parameter %s", name);
+    return off;
+}
+
+/* Offsets in the whole buffer (header included). */
+static size_t off_arrays(void) { return HEADER + table_offset(NULL) + 8 + 8 + 4 + 12 + 4 + 4; }
+static size_t off_x(size_t v) { return off_arrays() + 4 * v; }
+static size_t off_vz(size_t n, size_t v) { return off_arrays() + 4 * (5 * n + v); }
+static size_t off_rest(size_t n, size_t li) { return off_arrays() + 4 * (9 * n + li); }
+static size_t off_pins(size_t n) { return off_arrays() + 4 * (15 * n); }
+static size_t off_rock(size_t n, int r) { return off_pins(n) + (n + 3) / 4 * 4 + (size_t)r * (8 + 4 * 21); }
+
+static size_t expected_size(size_t n, size_t rocks)
+{
+    return off_pins(n) + (n + 3) / 4 * 4 + rocks * (8 + 4 * 21);
+}
+
+/* Recomputes the checksum after an edit of the payload. */
+static void fix_checksum(unsigned char *b, size_t len)
+{
+    put_u64(b + 24, fnv1a64(b + HEADER, len - HEADER));
+}
+
+/* ---- the scene ---- */
+
+static cs_sim *busy_sim(void)
+{
+    cs_scene sc;
+    cs_params p;
+    cs_scene_default(&sc);
+    cs_params_default(&p);
+    sc.nx = 13;
+    sc.ny = 10; /* n = 130: the pins need padding to 4 bytes */
+    sc.size_x = 1.2f;
+    sc.size_y = 0.9f;
+    sc.height = 0.5f;
+    sc.pins = CS_PINS_CORNERS;
+    p.tear_strain = 0.1f;
+    p.plastic_yield = 0.03f;
+    p.plastic_rate = 20.0f;
+    p.friction_model = CS_FRICTION_RESULTANT;
+    p.wind[1] = 0.5f;
+    cs_sim *sim = tk_sim(&sc, &p);
+    assert_int_equal(cs_sim_set_threads(sim, 1), CS_OK);
+    tk_add_rock(sim, 0.1f, 0.0f, 0.8f, 0.12f, 400.0f);
+    cs_rock_def d;
+    cs_rock_def_default(&d);
+    d.position[0] = -0.3f, d.position[1] = 0.2f, d.position[2] = 0.45f;
+    d.velocity[0] = 0.3f;
+    d.angular_velocity[2] = 1.5f;
+    d.radius = 0.07f;
+    d.kinematic = true;
+    assert_int_equal(cs_rock_add(sim, &d, NULL), CS_OK);
+    const int32_t pins[2] = {6, 5 * 13};
+    assert_int_equal(cs_pin(sim, pins, 2, true), CS_OK);
+    assert_int_equal(cs_sim_step_frames(sim, 10), CS_OK);
+    const float target[3] = {0.4f, 0.3f, 1.5f};
+    assert_int_equal(cs_grab(sim, 4 * 13 + 9, target), CS_OK);
+    assert_int_equal(cs_sim_step_frames(sim, 15), CS_OK);
+    return sim;
+}
+
+/* ---- what a refused load must leave alone ---- */
+
+typedef struct view {
+    uint64_t hash;
+    cs_info info;
+    cs_params params;
+    cs_scene scene;
+    int32_t n_rocks;
+    cs_rock rocks[4];
+    int32_t grab;
+    float target[3];
+    uint8_t pinned[512];
+} view;
+
+static void take_view(cs_sim *sim, view *v)
+{
+    memset(v, 0, sizeof *v);
+    v->hash = cs_state_hash(sim);
+    cs_sim_info(sim, &v->info);
+    cs_sim_params(sim, &v->params);
+    cs_sim_scene(sim, &v->scene);
+    v->n_rocks = cs_rock_count(sim);
+    assert_true(v->n_rocks <= 4);
+    for (int32_t r = 0; r < v->n_rocks; r++) assert_int_equal(cs_rock_at(sim, r, &v->rocks[r]), CS_OK);
+    v->grab = cs_grabbed(sim, v->target);
+    assert_true(v->info.n_vertices <= 512);
+    for (int32_t k = 0; k < v->info.n_vertices; k++) v->pinned[k] = cs_is_pinned(sim, k);
+}
+
+static void assert_same_view(const view *a, const view *b, const char *what)
+{
+    if (a->hash != b->hash) fail_msg("%s: the hash changed", what);
+    if (memcmp(&a->info, &b->info, sizeof a->info) != 0) fail_msg("%s: the info changed", what);
+    if (memcmp(&a->params, &b->params, sizeof a->params) != 0) fail_msg("%s: the parameters changed", what);
+    if (memcmp(&a->scene, &b->scene, sizeof a->scene) != 0) fail_msg("%s: the scene changed", what);
+    if (a->n_rocks != b->n_rocks || memcmp(a->rocks, b->rocks, sizeof a->rocks) != 0)
+        fail_msg("%s: the rocks changed", what);
+    if (a->grab != b->grab || memcmp(a->target, b->target, sizeof a->target) != 0) fail_msg("%s: the grab changed", what);
+    if (memcmp(a->pinned, b->pinned, sizeof a->pinned) != 0) fail_msg("%s: the pins changed", what);
+}
+
+static unsigned char *save(cs_sim *sim, size_t *len)
+{
+    const size_t size = cs_snapshot_size(sim);
+    unsigned char *buf = malloc(size + 16);
+    assert_non_null(buf);
+    assert_int_equal(cs_snapshot_save(sim, buf, size, len), CS_OK);
+    assert_int_equal(*len, size);
+    return buf;
+}
+
+/* ---- tests ---- */
+
+static void test_round_trip_mid_run(void **unused)
+{
+    (void)unused;
+    cs_sim *a = busy_sim();
+    view mid;
+    take_view(a, &mid);
+    /* The run has what the snapshot must carry. */
+    assert_true(mid.info.n_torn > 0);
+    assert_int_equal(mid.n_rocks, 2);
+    assert_true(mid.grab == 4 * 13 + 9);
+    assert_true(mid.pinned[6] && mid.pinned[65] && mid.pinned[0] && !mid.pinned[1]);
+    size_t len;
+    unsigned char *buf = save(a, &len);
+    assert_int_equal(len, expected_size(130, 2));
+    assert_memory_equal(buf, "CSNP", 4);
+    assert_true(get_u64(buf + 16) == len - HEADER);
+    assert_true(get_u64(buf + 24) == fnv1a64(buf + HEADER, len - HEADER));
+    /* The documented offsets do point at the state: x[7] and the second rock's radius. */
+    assert_true(get_f32(buf + off_x(7)) == a->state.x[7]);
+    assert_true(get_f32(buf + off_rock(130, 1) + 8 + 4 * 19) == 0.07f);
+    print_message("snapshot of 13 x 10 with 2 rocks: %zu bytes, %lld torn, step %llu\n", len,
+                  (long long)mid.info.n_torn, (unsigned long long)mid.info.step);
+
+    /* The uninterrupted run. */
+    tk_step(a, 400);
+    const uint64_t h_end = cs_state_hash(a);
+    assert_true(h_end != mid.hash);
+
+    /* Loaded into a simulation of another (smaller) scene: switches to the saved one. */
+    cs_scene small;
+    cs_scene_default(&small);
+    small.nx = 5;
+    small.ny = 7;
+    cs_sim *b = tk_sim(&small, NULL);
+    assert_int_equal(cs_sim_set_threads(b, 1), CS_OK);
+    assert_int_equal(cs_snapshot_load(b, buf, len), CS_OK);
+    view got;
+    take_view(b, &got);
+    assert_same_view(&mid, &got, "after load");
+    assert_int_equal(got.scene.nx, 13);
+    assert_int_equal(got.info.n_vertices, 130);
+    /* Saving again gives the same bytes. */
+    size_t len2;
+    unsigned char *buf2 = save(b, &len2);
+    assert_int_equal(len2, len);
+    assert_memory_equal(buf, buf2, len);
+    free(buf2);
+    /* Continuing gives the uninterrupted run's state. */
+    tk_step(b, 400);
+    assert_true(cs_state_hash(b) == h_end);
+
+    /* Loaded back into the run that went on: it returns to the snapshot and goes the same way. */
+    assert_int_equal(cs_snapshot_load(a, buf, len), CS_OK);
+    take_view(a, &got);
+    assert_same_view(&mid, &got, "reloaded");
+    tk_step(a, 400);
+    assert_true(cs_state_hash(a) == h_end);
+
+    /* And a snapshot of the small scene switches a back to 5 x 7. */
+    cs_sim *c = tk_sim(&small, NULL);
+    tk_step(c, 10);
+    view cv;
+    take_view(c, &cv);
+    size_t len3;
+    unsigned char *buf3 = save(c, &len3);
+    assert_int_equal(len3, expected_size(35, 0));
+    assert_int_equal(cs_snapshot_load(a, buf3, len3), CS_OK);
+    take_view(a, &got);
+    assert_same_view(&cv, &got, "small scene loaded");
+    assert_int_equal(got.info.n_vertices, 35);
+    assert_int_equal(cs_rock_count(a), 0);
+    free(buf3);
+    free(buf);
+    cs_sim_destroy(c);
+    cs_sim_destroy(b);
+    cs_sim_destroy(a);
+}
+
+/* Loads buf and expects the refusal want, with the simulation unchanged. */
+static void refuse(cs_sim *sim, const view *before, const unsigned char *buf, size_t len, cs_status want,
+                   const char *what)
+{
+    const cs_status st = cs_snapshot_load(sim, buf, len);
+    if (st != want)
+        fail_msg("%s: %s (%s), expected %s", what, cs_status_name(st), cs_sim_error(sim), cs_status_name(want));
+    assert_true(strlen(cs_sim_error(sim)) > 0);
+    view after;
+    take_view(sim, &after);
+    assert_same_view(before, &after, what);
+}
+
+static uint32_t rng = 4242;
+static size_t rnd(size_t below)
+{
+    rng = rng * 1664525u + 1013904223u;
+    return (size_t)(rng >> 8) % below;
+}
+
+static void test_truncated(void **unused)
+{
+    (void)unused;
+    cs_sim *src = busy_sim();
+    size_t len;
+    unsigned char *buf = save(src, &len);
+    /* The target is another simulation in a state of its own. */
+    cs_sim *sim = busy_sim();
+    tk_step(sim, 7);
+    view before;
+    take_view(sim, &before);
+    char what[64];
+    size_t lens[64];
+    int nl = 0;
+    const size_t fixed[] = {0, 1, 4, HEADER - 1, HEADER, HEADER + 1, HEADER + 8, HEADER + table_offset(NULL),
+                            off_arrays(), off_pins(130), off_rock(130, 1), len / 2, len - 84, len - 4, len - 1};
+    for (size_t k = 0; k < sizeof fixed / sizeof fixed[0]; k++) lens[nl++] = fixed[k];
+    while (nl < 45) lens[nl++] = 1 + rnd(len - 1);
+    for (int k = 0; k < nl; k++) {
+        snprintf(what, sizeof what, "truncated to %zu of %zu bytes", lens[k], len);
+        refuse(sim, &before, buf, lens[k], CS_E_FORMAT, what);
+    }
+    /* A truncated copy whose header is made to agree (payload length and checksum): still
+     * refused, since the arrays do not fit. */
+    for (size_t cut = 4; cut <= 64; cut *= 2) {
+        unsigned char *t = malloc(len);
+        memcpy(t, buf, len - cut);
+        put_u64(t + 16, len - cut - HEADER);
+        fix_checksum(t, len - cut);
+        snprintf(what, sizeof what, "cut by %zu with a consistent header", cut);
+        refuse(sim, &before, t, len - cut, CS_E_FORMAT, what);
+        free(t);
+    }
+    /* One byte too many. */
+    buf[len] = 0;
+    refuse(sim, &before, buf, len + 1, CS_E_FORMAT, "one byte too many");
+    refuse(sim, &before, NULL, 0, CS_E_FORMAT, "NULL");
+    /* The untouched buffer still loads. */
+    assert_int_equal(cs_snapshot_load(sim, buf, len), CS_OK);
+    free(buf);
+    cs_sim_destroy(sim);
+    cs_sim_destroy(src);
+}
+
+static void test_corrupted_byte(void **unused)
+{
+    (void)unused;
+    cs_sim *sim = busy_sim();
+    size_t len;
+    unsigned char *buf = save(sim, &len);
+    tk_step(sim, 5);
+    view before;
+    take_view(sim, &before);
+    unsigned char *t = malloc(len);
+    assert_non_null(t);
+    size_t offs[160];
+    int no = 0;
+    for (size_t k = 0; k < HEADER; k++) offs[no++] = k;
+    const size_t fixed[] = {HEADER, HEADER + table_offset("k_structural"), off_arrays() - 1, off_x(0), off_vz(130, 3),
+                            off_rest(130, 0), off_rest(130, 6 * 130 - 1), off_pins(130), off_pins(130) + 130,
+                            off_rock(130, 0), off_rock(130, 1) + 8, len - 1};
+    for (size_t k = 0; k < sizeof fixed / sizeof fixed[0]; k++) offs[no++] = fixed[k];
+    while (no < 140) offs[no++] = HEADER + rnd(len - HEADER);
+    const unsigned char flips[2] = {0x01, 0xa5};
+    char what[80];
+    for (int f = 0; f < 2; f++) {
+        for (int k = 0; k < no; k++) {
+            const size_t o = offs[k];
+            memcpy(t, buf, len);
+            t[o] ^= flips[f];
+            snprintf(what, sizeof what, "byte %zu of %zu xor 0x%02x", o, len, flips[f]);
+            const cs_status st = cs_snapshot_load(sim, t, len);
+            /* The version field: CS_E_VERSION; the layout id (which parameter table wrote it):
+             * either code; everything else, the magic, length, checksum and payload: CS_E_FORMAT. */
+            if (o >= 4 && o < 8) {
+                if (st != CS_E_VERSION) fail_msg("%s: %s, expected version", what, cs_status_name(st));
+            } else if (o >= 8 && o < 16) {
+                if (st != CS_E_VERSION && st != CS_E_FORMAT) fail_msg("%s: %s, expected version or format", what,
+                                                                     cs_status_name(st));
+            } else if (st != CS_E_FORMAT) {
+                fail_msg("%s: %s (%s), expected format", what, cs_status_name(st), cs_sim_error(sim));
+            }
+            view after;
+            take_view(sim, &after);
+            assert_same_view(&before, &after, what);
+        }
+    }
+    free(t);
+    free(buf);
+    cs_sim_destroy(sim);
+}
+
+static void test_version_and_magic(void **unused)
+{
+    (void)unused;
+    cs_sim *sim = busy_sim();
+    size_t len;
+    unsigned char *buf = save(sim, &len);
+    tk_step(sim, 3);
+    view before;
+    take_view(sim, &before);
+    unsigned char *t = malloc(len);
+    assert_non_null(t);
+    const uint32_t versions[] = {0, 2, 3, 0x100, 0xffffffffu};
+    char what[64];
+    for (size_t k = 0; k < sizeof versions / sizeof versions[0]; k++) {
+        memcpy(t, buf, len);
+        put_u32(t + 4, versions[k]);
+        snprintf(what, sizeof what, "version %u", versions[k]);
+        refuse(sim, &before, t, len, CS_E_VERSION, what);
+    }
+    const char *magics[] = {"CSNQ", "csnp", "PNSC", "\0\0\0\0", "CSN"};
+    for (size_t k = 0; k < sizeof magics / sizeof magics[0]; k++) {
+        memcpy(t, buf, len);
+        memcpy(t, magics[k], 4);
+        snprintf(what, sizeof what, "magic %zu", k);
+        refuse(sim, &before, t, len, CS_E_FORMAT, what);
+    }
+    /* Not a snapshot at all: zeros, and text. */
+    memset(t, 0, len);
+    refuse(sim, &before, t, len, CS_E_FORMAT, "zeros");
+    const char *text = "{\"this\": \"is not a snapshot, only some JSON that is long enough\"}";
+    refuse(sim, &before, (const unsigned char *)text, strlen(text), CS_E_FORMAT, "text");
+    free(t);
+    free(buf);
+    cs_sim_destroy(sim);
+}
+
+/* Edits with the checksum fixed up: a benign edit loads (so the fix-up is right), a NaN, an
+ * infinity, a bad rest length or rock, or an out-of-range parameter is refused. */
+static void test_fixed_up_checksum(void **unused)
+{
+    (void)unused;
+    cs_sim *src = busy_sim();
+    size_t len;
+    unsigned char *buf = save(src, &len);
+    const size_t n = 130;
+    unsigned char *t = malloc(len);
+    assert_non_null(t);
+
+    /* The control: x[7] moved by 1 cm and the checksum fixed: accepted, and x[7] reads back. */
+    const float x7 = get_f32(buf + off_x(7)) + 0.01f;
+    memcpy(t, buf, len);
+    put_f32(t + off_x(7), x7);
+    fix_checksum(t, len);
+    cs_sim *scratch = tk_sim(NULL, NULL);
+    assert_int_equal(cs_snapshot_load(scratch, t, len), CS_OK);
+    float *x = tk_positions(scratch);
+    assert_true(x[3 * 7] == x7);
+    free(x);
+    /* The same for a parameter: k_structural 500 loads and reads back. */
+    memcpy(t, buf, len);
+    put_f64(t + HEADER + table_offset("k_structural"), 500.0);
+    fix_checksum(t, len);
+    assert_int_equal(cs_snapshot_load(scratch, t, len), CS_OK);
+    cs_params got;
+    cs_sim_params(scratch, &got);
+    assert_true(got.k_structural == 500.0f);
+    cs_sim_destroy(scratch);
+
+    cs_sim *sim = busy_sim();
+    tk_step(sim, 11);
+    view before;
+    take_view(sim, &before);
+
+    struct {
+        const char *what;
+        size_t off;
+        int f64;
+        double value;
+    } edits[] = {
+        {"NaN x[0]", off_x(0), 0, NAN},
+        {"NaN x[129]", off_x(129), 0, NAN},
+        {"infinite vz[3]", off_vz(n, 3), 0, INFINITY},
+        {"NaN rest length", off_rest(n, 2), 0, NAN},
+        {"negative rest length", off_rest(n, 2), 0, -0.5},
+        {"zero rest length", off_rest(n, 2), 0, 0.0},
+        {"rest length where the grid has no spring", off_rest(n, 12), 0, 0.1}, /* SX owned by (12, 0), the last column */
+        {"NaN rock position", off_rock(n, 0) + 8, 0, NAN},
+        {"zero rock radius", off_rock(n, 0) + 8 + 4 * 19, 0, 0.0},
+        {"k_structural -1", HEADER + table_offset("k_structural"), 1, -1.0},
+        {"k_structural NaN", HEADER + table_offset("k_structural"), 1, NAN},
+        {"stability_safety 2", HEADER + table_offset("stability_safety"), 1, 2.0},
+        {"substeps 2.5", HEADER + table_offset("substeps"), 1, 2.5},
+        {"substeps above max_substeps", HEADER + table_offset("substeps"), 1, 5000.0},
+        {"integrator 7", HEADER + table_offset("integrator"), 1, 7.0},
+        {"ground 0.5", HEADER + table_offset("ground"), 1, 0.5},
+        {"gravity z -1e4", HEADER + table_offset("gravity") + 16, 1, -1e4},
+        {"nx 1", HEADER + table_offset("nx"), 1, 1.0},
+        {"areal_density 0", HEADER + table_offset("areal_density"), 1, 0.0},
+    };
+    /* A rest length where the grid has no spring must be CS_TORN: check the chosen one is absent. */
+    assert_true(get_f32(buf + off_rest(n, 12)) == CS_TORN);
+    for (size_t k = 0; k < sizeof edits / sizeof edits[0]; k++) {
+        memcpy(t, buf, len);
+        if (edits[k].f64) put_f64(t + edits[k].off, edits[k].value);
+        else put_f32(t + edits[k].off, (float)edits[k].value);
+        fix_checksum(t, len);
+        refuse(sim, &before, t, len, CS_E_FORMAT, edits[k].what);
+    }
+    /* A grab of a vertex that does not exist, and a rock id past the next id. */
+    const size_t clock = HEADER + table_offset(NULL);
+    memcpy(t, buf, len);
+    put_u32(t + clock + 16, 130);
+    fix_checksum(t, len);
+    refuse(sim, &before, t, len, CS_E_FORMAT, "grab of vertex 130 of 130");
+    memcpy(t, buf, len);
+    put_u32(t + off_rock(n, 1), 99);
+    fix_checksum(t, len);
+    refuse(sim, &before, t, len, CS_E_FORMAT, "rock id 99 past the next id 3");
+    memcpy(t, buf, len);
+    t[off_pins(n) + 10] = 2;
+    fix_checksum(t, len);
+    refuse(sim, &before, t, len, CS_E_FORMAT, "a pin byte of 2");
+
+    /* Parameters in range that the stability guard cannot serve (k_structural 1e8 needs far more
+     * than max_substeps 1000): refused too, as a parameter change would be. */
+    memcpy(t, buf, len);
+    put_f64(t + HEADER + table_offset("k_structural"), 1e8);
+    fix_checksum(t, len);
+    {
+        const cs_status st = cs_snapshot_load(sim, t, len);
+        if (st != CS_E_UNSTABLE && st != CS_E_FORMAT) fail_msg("unstable snapshot: %s", cs_status_name(st));
+        view after;
+        take_view(sim, &after);
+        assert_same_view(&before, &after, "unstable snapshot");
+    }
+
+    /* Still the original loads into it. */
+    assert_int_equal(cs_snapshot_load(sim, buf, len), CS_OK);
+    free(t);
+    free(buf);
+    cs_sim_destroy(sim);
+    cs_sim_destroy(src);
+}
+
+static void test_save_needs_room(void **unused)
+{
+    (void)unused;
+    cs_sim *sim = busy_sim();
+    const size_t size = cs_snapshot_size(sim);
+    unsigned char *buf = malloc(size);
+    size_t len = 12345;
+    assert_int_equal(cs_snapshot_save(sim, buf, size - 1, &len), CS_E_INVALID);
+    assert_int_equal(cs_snapshot_save(sim, NULL, size, &len), CS_E_INVALID);
+    assert_int_equal(cs_snapshot_save(sim, buf, size, &len), CS_OK);
+    assert_int_equal(len, size);
+    free(buf);
+    cs_sim_destroy(sim);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_round_trip_mid_run),
+        cmocka_unit_test(test_truncated),
+        cmocka_unit_test(test_corrupted_byte),
+        cmocka_unit_test(test_version_and_magic),
+        cmocka_unit_test(test_fixed_up_checksum),
+        cmocka_unit_test(test_save_needs_room),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
