@@ -54,9 +54,6 @@ typedef struct cpu_ctx {
     char device[160];
 } cpu_ctx;
 
-static const int32_t type_di[CS_NTYPES] = {1, 0, 1, -1, 2, 0};
-static const int32_t type_dj[CS_NTYPES] = {0, 1, 1, 1, 0, 2};
-
 static int cpu_available(char *why, size_t why_len)
 {
     if (why && why_len) why[0] = '\0';
@@ -208,8 +205,8 @@ static int owned_strain(const cs_phys *p, const cs_state *s, int32_t v0, int32_t
 static void owned_offsets(const cs_phys *p, int32_t i, int32_t r, int32_t off[CS_NTYPES])
 {
     for (int t = 0; t < CS_NTYPES; t++) {
-        const int32_t i2 = i + type_di[t], r2 = r + type_dj[t];
-        off[t] = (i2 >= 0 && i2 < p->nx && r2 < p->ny) ? type_di[t] + type_dj[t] * p->nx : 0;
+        const int32_t i2 = i + cs_type_di[t], r2 = r + cs_type_dj[t];
+        off[t] = (i2 >= 0 && i2 < p->nx && r2 < p->ny) ? cs_type_di[t] + cs_type_dj[t] * p->nx : 0;
     }
 }
 

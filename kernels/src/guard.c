@@ -29,10 +29,9 @@ void cs_guard_scene(cs_combos *out, const cs_scene *scene)
             int cnt[3] = {0, 0, 0};
             for (int t = 0; t < CS_NTYPES; t++) {
                 /* The vertex's own springs of type t and the one its neighbour at -(di, dj) owns. */
-                static const int di[CS_NTYPES] = {1, 0, 1, -1, 2, 0}, dj[CS_NTYPES] = {0, 1, 1, 1, 0, 2};
                 const int cls = t / 2;
                 cnt[cls] += cs_spring_exists(nx, ny, t, v);
-                const int32_t i2 = is[a] - di[t], j2 = js[b] - dj[t];
+                const int32_t i2 = is[a] - cs_type_di[t], j2 = js[b] - cs_type_dj[t];
                 if (i2 >= 0 && i2 < nx && j2 >= 0 && j2 < ny) cnt[cls]++;
             }
             out->c[out->n][0] = (uint8_t)cnt[0];

@@ -75,15 +75,14 @@ cs_status cs_energy_get(cs_sim *sim, cs_energy *out)
     const cs_state *s = &sim->state;
     const cs_phys *p = &sim->model.phys;
     const int32_t nx = p->nx, ny = p->ny, n = p->n;
-    static const int di[CS_NTYPES] = {1, 0, 1, -1, 2, 0}, dj[CS_NTYPES] = {0, 1, 1, 1, 0, 2};
     double ke = 0, pe = 0, ge = 0;
     const double gx = p->gravity.x, gy = p->gravity.y, gz = p->gravity.z, m = p->mass;
     for (int32_t v = 0; v < n; v++) {
         ke += 0.5 * m * ((double)s->vx[v] * s->vx[v] + (double)s->vy[v] * s->vy[v] + (double)s->vz[v] * s->vz[v]);
         ge -= m * (gx * s->x[v] + gy * s->y[v] + gz * s->z[v]);
         for (int t = 0; t < CS_NTYPES; t++) {
-            if (!cs_spring_exists(nx, ny, t, v)) continue;
-            const int32_t o = v + di[t] + dj[t] * nx;
+            const int32_t o = cs_spring_far_end(nx, ny, t, v);
+            if (o < 0) continue;
             pe += cs_spring_energy(cs_v3(s->x[v], s->y[v], s->z[v]), cs_v3(s->x[o], s->y[o], s->z[o]),
                                    s->L0[(size_t)t * n + v], p->k[t]);
         }

@@ -76,15 +76,18 @@ void cs_state_free(cs_state *s)
     s->grab = -1;
 }
 
-static const int cs_type_di[CS_NTYPES] = {1, 0, 1, -1, 2, 0};
-static const int cs_type_dj[CS_NTYPES] = {0, 1, 1, 1, 0, 2};
+#define CS_TYPE_DI(t, di, dj) di,
+#define CS_TYPE_DJ(t, di, dj) dj,
+const int cs_type_di[CS_NTYPES] = {CS_SPRING_TYPES(CS_TYPE_DI)};
+const int cs_type_dj[CS_NTYPES] = {CS_SPRING_TYPES(CS_TYPE_DJ)};
 
-int cs_spring_exists(int32_t nx, int32_t ny, int t, int32_t v)
+int32_t cs_spring_far_end(int32_t nx, int32_t ny, int t, int32_t v)
 {
-    const int32_t i = v % nx, j = v / nx;
-    const int32_t i2 = i + cs_type_di[t], j2 = j + cs_type_dj[t];
-    return i2 >= 0 && i2 < nx && j2 >= 0 && j2 < ny;
+    const int32_t i2 = v % nx + cs_type_di[t], j2 = v / nx + cs_type_dj[t];
+    return i2 >= 0 && i2 < nx && j2 >= 0 && j2 < ny ? j2 * nx + i2 : -1;
 }
+
+int cs_spring_exists(int32_t nx, int32_t ny, int t, int32_t v) { return cs_spring_far_end(nx, ny, t, v) >= 0; }
 
 void cs_scene_rest(const cs_scene *scene, float rest[CS_NTYPES])
 {
@@ -117,11 +120,8 @@ void cs_scene_build(const cs_scene *scene, cs_state *s)
     /* Rest lengths from the float positions themselves, so the cloth starts exactly at rest. */
     for (int t = 0; t < CS_NTYPES; t++) {
         for (int32_t v = 0; v < n; v++) {
-            float len = CS_TORN;
-            if (cs_spring_exists(nx, ny, t, v)) {
-                const int32_t o = v + cs_type_di[t] + cs_type_dj[t] * nx;
-                len = cs_len(cs_v3(s->x[o] - s->x[v], s->y[o] - s->y[v], s->z[o] - s->z[v]));
-            }
+            const int32_t o = cs_spring_far_end(nx, ny, t, v);
+            const float len = o < 0 ? CS_TORN : cs_len(cs_v3(s->x[o] - s->x[v], s->y[o] - s->y[v], s->z[o] - s->z[v]));
             s->L0[(size_t)t * n + v] = len;
         }
     }

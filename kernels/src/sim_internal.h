@@ -45,6 +45,10 @@ void cs_state_apply_preset(const cs_scene *scene, cs_state *s, cs_pins preset);
 /* Recomputes w from pins and grab; pinned or grabbed vertices get zero acceleration, pinned ones
  * zero velocity. */
 void cs_state_update_mask(cs_state *s);
+/* Grid offsets (di, dj) of each spring type, from CS_SPRING_TYPES. */
+extern const int cs_type_di[CS_NTYPES], cs_type_dj[CS_NTYPES];
+/* The far end of spring (type t, owner v) in an nx x ny grid, or -1 when the grid has none. */
+int32_t cs_spring_far_end(int32_t nx, int32_t ny, int t, int32_t v);
 /* Whether spring (type t, owner v) exists in an nx x ny grid. */
 int cs_spring_exists(int32_t nx, int32_t ny, int t, int32_t v);
 /* Grid rest length of each spring type. */

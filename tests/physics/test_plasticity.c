@@ -11,24 +11,7 @@
  *    (len - L0_{k-1}) / L0_{k-1} > yield can be evaluated by hand and in double precision. */
 #include "testkit.h"
 
-static const int di_of[CS_NTYPES] = {1, 0, 1, -1, 2, 0};
-static const int dj_of[CS_NTYPES] = {0, 1, 1, 1, 0, 2};
 
-/* Far end of spring (type t, owner v), or -1 when the grid has no such spring. */
-static int32_t far_end(int32_t nx, int32_t ny, int t, int32_t v)
-{
-    const int32_t i = v % nx + di_of[t], j = v / nx + dj_of[t];
-    return (i >= 0 && i < nx && j >= 0 && j < ny) ? j * nx + i : -1;
-}
-
-static float *rest_lengths(cs_sim *sim)
-{
-    const size_t n = (size_t)sim->state.n * CS_NTYPES;
-    float *L = malloc(n * sizeof(float));
-    assert_non_null(L);
-    assert_int_equal(cs_read_rest_lengths(sim, L, n), CS_OK);
-    return L;
-}
 
 /* ---- 1. the dent ---- */
 
@@ -61,7 +44,7 @@ static void run_dent(float plastic_yield, int integrator, int press, dent_result
     /* One thread: results do not depend on it (test_determinism), and OpenMP barriers at every
      * substep crawl when ctest runs tests side by side on two cores. */
     assert_int_equal(cs_sim_set_threads(sim, 1), CS_OK);
-    float *L_before = rest_lengths(sim);
+    float *L_before = tk_rest_lengths(sim);
 
     /* A kinematic rock (it presses as hard as it takes) comes down on the centre at 0.5 m/s for
      * 0.5 s, rests 0.25 s, and is removed. */
@@ -110,13 +93,13 @@ static void run_dent(float plastic_yield, int integrator, int press, dent_result
     }
     free(v);
 
-    float *L_after = rest_lengths(sim);
+    float *L_after = tk_rest_lengths(sim);
     out->grown = out->shrunk = out->torn = 0;
     out->max_growth = 0;
     for (int t = 0; t < CS_NTYPES; t++) {
         for (int32_t k = 0; k < (int32_t)n; k++) {
             const size_t li = (size_t)t * n + (size_t)k;
-            if (far_end(DENT_N, DENT_N, t, k) < 0) {
+            if (cs_spring_far_end(DENT_N, DENT_N, t, k) < 0) {
                 assert_true(L_after[li] == CS_TORN); /* absent at the border */
                 continue;
             }
@@ -205,13 +188,13 @@ static void test_rate_one_spring(void **unused)
         cs_sim *sim = frozen(2, 2, 1.0f, 0.15f, 60.0f, integ);
         const float x1[3] = {0.7f, -0.5f, 1.0f}, zero[3] = {0, 0, 0};
         tk_set_vertex(sim, 1, x1, zero);
-        float *L0 = rest_lengths(sim);
+        float *L0 = tk_rest_lengths(sim);
         assert_true(L0[CS_SX * 4 + 0] == 1.0f);
         double expect = 1.0;
         for (int k = 1; k <= 12; k++) {
             tk_step(sim, 1);
             if (k <= 8) expect += (1.2 - expect) / 30.0;
-            float *L = rest_lengths(sim);
+            float *L = tk_rest_lengths(sim);
             const double got = L[CS_SX * 4 + 0];
             if (fabs(got - expect) > 2e-6) fail_msg("integrator %d substep %d: L0 %.9f, expected %.9f", integ, k, got, expect);
             /* The other springs are below the yield: untouched, bit for bit. */
@@ -220,7 +203,7 @@ static void test_rate_one_spring(void **unused)
             free(L);
         }
         /* In closed form: 1.2 - 0.2 (29/30)^8. */
-        float *L = rest_lengths(sim);
+        float *L = tk_rest_lengths(sim);
         assert_true(fabs(L[0] - (1.2 - 0.2 * pow(29.0 / 30.0, 8))) < 2e-6);
         assert_true(fabs(L[0] - 1.0 - 0.2 / 30.0 * (1 + 29.0 / 30 + pow(29.0 / 30, 2) + pow(29.0 / 30, 3) +
                                                         pow(29.0 / 30, 4) + pow(29.0 / 30, 5) +
@@ -235,10 +218,10 @@ static void test_rate_one_spring(void **unused)
             sim = frozen(2, 2, 1.0f, 0.15f, rates[q], integ);
             tk_set_vertex(sim, 1, x1, zero);
             tk_step(sim, 1);
-            L = rest_lengths(sim);
+            L = tk_rest_lengths(sim);
             assert_true(fabs(L[0] - 1.2) < 1e-6);
             tk_step(sim, 3); /* strain 0 now: stays */
-            float *L2 = rest_lengths(sim);
+            float *L2 = tk_rest_lengths(sim);
             assert_memory_equal(L, L2, 4 * CS_NTYPES * sizeof(float));
             free(L2);
             free(L);
@@ -275,7 +258,7 @@ static void test_rate_every_spring(void **unused)
         }
         assert_int_equal(cs_sim_commit(sim), CS_OK);
         float *X = tk_positions(sim);
-        float *L0 = rest_lengths(sim);
+        float *L0 = tk_rest_lengths(sim);
         double *len = calloc((size_t)n * CS_NTYPES, sizeof(double));
         double *want = calloc((size_t)n * CS_NTYPES, sizeof(double));
         int *skip = calloc((size_t)n * CS_NTYPES, sizeof(int));
@@ -283,7 +266,7 @@ static void test_rate_every_spring(void **unused)
         for (int t = 0; t < CS_NTYPES; t++) {
             for (int32_t v = 0; v < n; v++) {
                 const size_t li = (size_t)t * n + v;
-                const int32_t o = far_end(nx, ny, t, v);
+                const int32_t o = cs_spring_far_end(nx, ny, t, v);
                 want[li] = L0[li];
                 if (o < 0) continue;
                 const double dx = (double)X[3 * o] - X[3 * v], dy = (double)X[3 * o + 1] - X[3 * v + 1],
@@ -293,11 +276,11 @@ static void test_rate_every_spring(void **unused)
         }
         for (int k = 1; k <= steps; k++) {
             tk_step(sim, 1);
-            float *L = rest_lengths(sim);
+            float *L = tk_rest_lengths(sim);
             for (int t = 0; t < CS_NTYPES; t++) {
                 for (int32_t v = 0; v < n; v++) {
                     const size_t li = (size_t)t * n + v;
-                    if (far_end(nx, ny, t, v) < 0) {
+                    if (cs_spring_far_end(nx, ny, t, v) < 0) {
                         assert_true(L[li] == CS_TORN);
                         continue;
                     }

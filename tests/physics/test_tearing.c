@@ -8,15 +8,6 @@
  * comparison (float and double may decide them differently); the tests report how many. */
 #include "testkit.h"
 
-static const int di_of[CS_NTYPES] = {1, 0, 1, -1, 2, 0};
-static const int dj_of[CS_NTYPES] = {0, 1, 1, 1, 0, 2};
-
-/* Far end of spring (type t, owner v), or -1 when the grid has no such spring. */
-static int32_t far_end(int32_t nx, int32_t ny, int t, int32_t v)
-{
-    const int32_t i = v % nx + di_of[t], j = v / nx + dj_of[t];
-    return (i >= 0 && i < nx && j >= 0 && j < ny) ? j * nx + i : -1;
-}
 
 /* Springs in an nx x ny grid: (nx-1) ny + nx (ny-1) structural, 2 (nx-1)(ny-1) shear,
  * (nx-2) ny + nx (ny-2) bend. */
@@ -26,14 +17,6 @@ static int64_t springs_in_grid(int64_t nx, int64_t ny)
            (ny > 2 ? nx * (ny - 2) : 0);
 }
 
-static float *rest_lengths(cs_sim *sim)
-{
-    const size_t n = (size_t)sim->state.n * CS_NTYPES;
-    float *L = malloc(n * sizeof(float));
-    assert_non_null(L);
-    assert_int_equal(cs_read_rest_lengths(sim, L, n), CS_OK);
-    return L;
-}
 
 static uint32_t rng = 99;
 static float frand(void) /* uniform in [-0.5, 0.5) */
@@ -73,11 +56,11 @@ static void step_and_check(cs_sim *sim, double tear, double yield, tally *tl)
     cs_scene sc;
     cs_sim_scene(sim, &sc);
     const int32_t nx = sc.nx, ny = sc.ny, n = nx * ny;
-    float *before = rest_lengths(sim);
+    float *before = tk_rest_lengths(sim);
     cs_info info0;
     cs_sim_info(sim, &info0);
     tk_step(sim, 1);
-    float *after = rest_lengths(sim);
+    float *after = tk_rest_lengths(sim);
     float *X = tk_positions(sim);
     int64_t torn_expected = 0; /* torn in all, as this test counts them */
     memset(tl, 0, sizeof *tl);
@@ -89,7 +72,7 @@ static void step_and_check(cs_sim *sim, double tear, double yield, tally *tl)
     for (int t = 0; t < CS_NTYPES; t++) {
         for (int32_t v = 0; v < n; v++) {
             const size_t li = (size_t)t * n + v;
-            const int32_t o = far_end(nx, ny, t, v);
+            const int32_t o = cs_spring_far_end(nx, ny, t, v);
             if (o < 0) {
                 assert_true(after[li] == CS_TORN); /* absent: stays marked absent */
                 continue;
@@ -271,7 +254,7 @@ static void test_torn_spring_stays_torn_and_exerts_no_force(void **unused)
         const float home[3] = {0.0f, 0.0f, sc.height}, zero[3] = {0, 0, 0};
         tk_set_vertex(sim, 4, home, zero);
         tk_step(sim, 30);
-        float *L = rest_lengths(sim);
+        float *L = tk_rest_lengths(sim);
         for (int k = 0; k < 8; k++) assert_true(L[want[k]] == CS_TORN);
         free(L);
         cs_sim_info(sim, &info);

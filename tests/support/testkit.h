@@ -92,6 +92,16 @@ static inline uint32_t tk_add_rock(cs_sim *sim, float x, float y, float z, float
     return id;
 }
 
+/* Rest lengths (6 n, type-major) as a freshly allocated array. */
+static inline float *tk_rest_lengths(cs_sim *sim)
+{
+    const size_t n = (size_t)sim->state.n * CS_NTYPES;
+    float *L = malloc(n * sizeof(float));
+    assert_non_null(L);
+    assert_int_equal(cs_read_rest_lengths(sim, L, n), CS_OK);
+    return L;
+}
+
 /* Positions as a freshly allocated xyz array. */
 static inline float *tk_positions(cs_sim *sim)
 {
