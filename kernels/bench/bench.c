@@ -135,11 +135,22 @@ int main(int argc, char **argv)
             const double vsps = sps * size * size;
             cs_info info;
             cs_sim_info(sim, &info);
+            cs_backend_stats bs;
+            cs_sim_backend_stats(sim, &bs);
+            /* Where the backend models its traffic: bytes per vertex-substep, and the share of the
+             * measured copy bandwidth that this speed amounts to. */
+            char traffic[160] = "";
+            if (bs.bytes_per_vertex_substep > 0 && bs.copy_bandwidth > 0)
+                snprintf(traffic, sizeof traffic, ",\"bytes_per_vertex_substep\":%.1f,\"copy_bandwidth_gb_s\":%.1f,"
+                         "\"fraction_of_copy_bandwidth\":%.3f",
+                         bs.bytes_per_vertex_substep, bs.copy_bandwidth / 1e9,
+                         vsps * bs.bytes_per_vertex_substep / bs.copy_bandwidth);
             if (json)
                 printf("{\"backend\":\"%s\",\"device\":\"%s\",\"nx\":%d,\"ny\":%d,\"rocks\":%d,\"integrator\":\"%s\","
-                       "\"substeps\":%lld,\"seconds\":%.3f,\"substeps_per_s\":%.1f,\"vertex_substeps_per_s\":%.0f}\n",
-                       cs_sim_backend(sim), cs_sim_device(sim), size, size, info.n_rocks, integrator,
-                       (long long)done, t - t0, sps, vsps);
+                       "\"substeps_per_frame\":%d,\"substeps\":%lld,\"seconds\":%.3f,\"substeps_per_s\":%.1f,"
+                       "\"vertex_substeps_per_s\":%.0f%s}\n",
+                       cs_sim_backend(sim), cs_sim_device(sim), size, size, info.n_rocks, integrator, info.substeps,
+                       (long long)done, t - t0, sps, vsps, traffic);
             else
                 printf("%-7s %4dx%-4d %5d %14.0f %22.0f\n", cs_sim_backend(sim), size, size, info.n_rocks, sps, vsps);
             fflush(stdout);

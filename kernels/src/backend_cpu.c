@@ -625,6 +625,20 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
 
 static const char *cpu_device(void *ctx) { return ((cpu_ctx *)ctx)->device; }
 
+static const char *cpu_error(void *ctx)
+{
+    (void)ctx;
+    return "out of memory for the CPU backend's scratch buffers";
+}
+
+static void cpu_stats(void *ctx, const cs_model *m, cs_backend_stats *out)
+{
+    (void)ctx, (void)m;
+    out->bytes_per_vertex_substep = 0;
+    out->copy_bandwidth = 0;
+}
+
 const cs_backend cs_backend_cpu = {
     "cpu", cpu_available, cpu_create, cpu_destroy, cpu_upload, cpu_download, cpu_refresh, cpu_step, cpu_device,
+    cpu_error, cpu_stats,
 };

@@ -11,20 +11,29 @@
 
 #include "sim_internal.h"
 
+cs_status cs_backend_fail(cs_sim *sim, cs_status st, const char *what)
+{
+    return cs_fail(sim, st, NULL, "the %s backend %s: %s", sim->backend->name, what, sim->backend->error(sim->ctx));
+}
+
 cs_status cs_sim_sync(cs_sim *sim, unsigned what)
 {
     if (!sim->host_stale) return CS_OK;
     const cs_status st = sim->backend->download(sim->ctx, &sim->model, &sim->state, what);
-    if (st != CS_OK) return cs_fail(sim, st, NULL, "could not read the state back from the %s backend", sim->backend->name);
+    if (st != CS_OK) return cs_backend_fail(sim, st, "could not hand the state back");
     if (what == CS_SYNC_ALL) sim->host_stale = 0;
     return CS_OK;
 }
+
+/* A device backend recomputes accelerations on its side; the host copy is then behind. */
+static int device_backend(const cs_sim *sim) { return sim->backend != &cs_backend_cpu; }
 
 cs_status cs_sim_commit(cs_sim *sim)
 {
     cs_status st = sim->backend->upload(sim->ctx, &sim->model, &sim->state);
     if (st == CS_OK) st = sim->backend->refresh(sim->ctx, &sim->model, &sim->state);
-    if (st != CS_OK) return cs_fail(sim, st, NULL, "the %s backend failed to take the new state", sim->backend->name);
+    if (st != CS_OK) return cs_backend_fail(sim, st, "failed to take the new state");
+    sim->host_stale = device_backend(sim);
     return CS_OK;
 }
 
@@ -69,13 +78,13 @@ static cs_status rebuild(cs_sim *sim, const cs_scene *scene, const cs_params *p)
     if (st != CS_OK) {
         cs_state_free(&fresh);
         if (sim->state.x && sim->backend->upload(sim->ctx, &sim->model, &sim->state) != CS_OK) st = CS_E_DEVICE;
-        return cs_fail(sim, st, NULL, "the %s backend could not take the new scene", sim->backend->name);
+        return cs_backend_fail(sim, st, "could not take the new scene");
     }
     cs_state_free(&sim->state);
     sim->state = fresh;
     sim->model = model;
     sim->combos = combos;
-    sim->host_stale = 0;
+    sim->host_stale = device_backend(sim);
     return CS_OK;
 }
 
@@ -141,6 +150,14 @@ const char *cs_sim_error_param(const cs_sim *sim) { return sim && sim->err_param
 const char *cs_sim_backend(const cs_sim *sim) { return sim->backend->name; }
 const char *cs_sim_device(const cs_sim *sim) { return sim->backend->device(sim->ctx); }
 const char *cs_sim_backend_note(const cs_sim *sim) { return sim->backend_note; }
+
+cs_status cs_sim_backend_stats(cs_sim *sim, cs_backend_stats *out)
+{
+    if (!sim || !out) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "out is NULL") : CS_E_INVALID;
+    sim->backend->stats(sim->ctx, &sim->model, out);
+    cs_ok(sim);
+    return CS_OK;
+}
 
 cs_status cs_sim_set_threads(cs_sim *sim, int threads)
 {
@@ -219,8 +236,8 @@ cs_status cs_sim_step(cs_sim *sim, int64_t substeps)
         const int32_t now = substeps > 100000 ? 100000 : (int32_t)substeps;
         cs_step_report rep = {0, 1};
         const cs_status st = sim->backend->step(sim->ctx, &sim->model, &sim->state, now, &rep);
-        if (st != CS_OK) return cs_fail(sim, st, NULL, "the %s backend failed while stepping", sim->backend->name);
-        sim->host_stale = sim->backend != &cs_backend_cpu;
+        if (st != CS_OK) return cs_backend_fail(sim, st, "failed while stepping");
+        sim->host_stale = device_backend(sim);
         sim->state.step += (uint64_t)now;
         sim->state.time += now * sim->model.dt;
         sim->state.n_torn += rep.torn;

@@ -71,6 +71,8 @@ void cs_model_derive(cs_model *m, const cs_scene *scene, const cs_params *p, int
 cs_status cs_backend_pick(const char *name, const cs_backend **out, char *note, size_t note_len);
 
 /* sim.c */
+/* Records a backend failure with the backend's own detail. */
+cs_status cs_backend_fail(cs_sim *sim, cs_status st, const char *what);
 /* Brings the host arrays up to date with the backend. */
 cs_status cs_sim_sync(cs_sim *sim, unsigned what);
 /* After a command changed the host state: hand it to the backend and recompute accelerations. */

@@ -309,7 +309,7 @@ cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
         st = sim->backend->upload(sim->ctx, &model, &s);
         if (st != CS_OK) {
             if (sim->backend->upload(sim->ctx, &sim->model, &sim->state) != CS_OK) st = CS_E_DEVICE;
-            cs_fail(sim, st, NULL, "the %s backend could not take the snapshot", sim->backend->name);
+            cs_backend_fail(sim, st, "could not take the snapshot");
         }
     }
     if (st != CS_OK) {

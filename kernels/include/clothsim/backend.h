@@ -89,6 +89,10 @@ typedef struct cs_backend {
     cs_status (*step)(void *ctx, const cs_model *m, cs_state *s, int32_t substeps, cs_step_report *rep);
     /* Human-readable device, e.g. the CPU model and thread count. */
     const char *(*device)(void *ctx);
+    /* Detail of the backend's last failure ("" when none). */
+    const char *(*error)(void *ctx);
+    /* What it knows of its speed for this model (zeros where nothing). */
+    void (*stats)(void *ctx, const cs_model *m, cs_backend_stats *out);
 } cs_backend;
 
 /* The CPU backend; always available. */

@@ -160,6 +160,14 @@ uint64_t cs_state_hash(cs_sim *sim);
 /* The hash as 16 lowercase hex digits and a NUL. */
 void cs_hash_hex(uint64_t hash, char out[17]);
 
+/* What the backend knows of its own speed (0 where it does not say). */
+typedef struct cs_backend_stats {
+    double bytes_per_vertex_substep; /* memory traffic per vertex and substep, by the kernels' design */
+    double copy_bandwidth;           /* measured device copy bandwidth, bytes/s (read + write) */
+} cs_backend_stats;
+/* Fills the stats; measuring the bandwidth takes a moment on the first call. */
+cs_status cs_sim_backend_stats(cs_sim *sim, cs_backend_stats *out);
+
 /* ---- snapshots: the whole state as a versioned, checksummed byte buffer ---- */
 size_t cs_snapshot_size(cs_sim *sim);
 /* Writes a snapshot into buf (cap bytes); *len receives its size. */

@@ -19,8 +19,9 @@
 
 #include "clothsim/params.h"
 
+/* Functions below are written `SIM_HD static inline`: host and device code under nvcc. */
 #ifdef __CUDACC__
-#define SIM_HD __host__ __device__ __forceinline__
+#define SIM_HD __host__ __device__
 #else
 #define SIM_HD
 #endif
