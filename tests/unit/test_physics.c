@@ -212,6 +212,27 @@ static void test_rock_force_sums_partials_then_gravity(void **unused)
     assert_v3(T, 44, 55, 66, 1e-6);
 }
 
+/* The chunk partials are summed in groups of CS_CHUNK_GROUP, then the groups: with 1 in chunk 0
+ * and +-1e8 in the next group, the groups give 1 + (1e8 - 1e8) = 1 where one running sum would
+ * give (1 + 1e8) - 1e8 = 0 (1e8 + 1 rounds to 1e8 in float). */
+static void test_rock_force_groups_chunks(void **unused)
+{
+    (void)unused;
+    cs_phys p = base();
+    cs_rock_state r;
+    memset(&r, 0, sizeof r);
+    r.radius = 0.1f, r.x = cs_v3(0, 0, 5);
+    enum { NCH = CS_CHUNK_GROUP + 2 };
+    float partials[NCH * 6];
+    memset(partials, 0, sizeof partials);
+    partials[0] = 1.0f;
+    partials[CS_CHUNK_GROUP * 6] = 1e8f;
+    partials[(CS_CHUNK_GROUP + 1) * 6] = -1e8f;
+    cs_vec3 F, T;
+    cs_rock_force(&r, 1, 0, partials, NCH, &p, &F, &T);
+    assert_true(F.x == 1.0f);
+}
+
 static void test_quaternion_and_grab(void **unused)
 {
     (void)unused;
@@ -239,6 +260,7 @@ int main(void)
         cmocka_unit_test(test_rock_ground_torque_sign),
         cmocka_unit_test(test_tree_sum_shape),
         cmocka_unit_test(test_rock_force_sums_partials_then_gravity),
+        cmocka_unit_test(test_rock_force_groups_chunks),
         cmocka_unit_test(test_quaternion_and_grab),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

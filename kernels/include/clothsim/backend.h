@@ -18,7 +18,8 @@
  *      non-contact resultant Ro; then each touching rock in index order, then the ground;
  *      a = F (inv_mass w). Springs the vertex owns get cs_strain_update into L0_next (when
  *      strain_on). Each rock's reaction is summed per chunk (cs_tree_sum).
- *   4. every rock: cs_rock_force, cs_rock_accel, cs_rock_kick(h). Swap L0 and L0_next.
+ *   4. every rock: cs_rock_force (chunk partials in groups, see CS_CHUNK_GROUP), cs_rock_accel,
+ *      cs_rock_kick(h). Swap L0 and L0_next.
  *   After the last substep: every vertex v += h a.
  * symplectic_euler, each substep:
  *   1. every vertex: a as in step 3 above (no strain update).

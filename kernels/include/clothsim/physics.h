@@ -245,16 +245,36 @@ SIM_HD static inline float cs_tree_sum(float *buf)
     return buf[0];
 }
 
-/* Total force and torque on rock r: the cloth's per-chunk partial sums (partials[(c nr + r) 6 +
- * 0..5] = force, torque) in chunk order, then the other rocks in index order, the ground, gravity. */
+/* Chunks per group in the sum of a rock's chunk partials: chunks are summed in order within a
+ * group, then the group sums in order - so a GPU may compute the groups in parallel and still
+ * match a CPU that does both in one loop. */
+#define CS_CHUNK_GROUP 64
+
+/* The sum of rock r's partials (partials[(c nr + r) 6 + 0..5] = force, torque) over chunks
+ * [c0, c1), in order: one group. */
+SIM_HD static inline void cs_rock_group_sum(const float *partials, int32_t nr, int32_t r, int32_t c0, int32_t c1,
+                                            cs_vec3 *F, cs_vec3 *T)
+{
+    cs_vec3 f = cs_v3(0.0f, 0.0f, 0.0f), t = f;
+    for (int32_t c = c0; c < c1; c++) {
+        const float *q = partials + ((size_t)c * (size_t)nr + (size_t)r) * 6;
+        f = cs_add(f, cs_v3(q[0], q[1], q[2]));
+        t = cs_add(t, cs_v3(q[3], q[4], q[5]));
+    }
+    *F = f;
+    *T = t;
+}
+
+/* Total force and torque on rock r: the cloth's (the group sums of cs_rock_group_sum, in group
+ * order), then the other rocks in index order, the ground, gravity. */
 SIM_HD static inline void cs_rock_force(const cs_rock_state *rocks, int32_t nr, int32_t r, const float *partials,
                                         int32_t nchunks, const cs_phys *p, cs_vec3 *F_out, cs_vec3 *T_out)
 {
     cs_vec3 F = cs_v3(0.0f, 0.0f, 0.0f), T = cs_v3(0.0f, 0.0f, 0.0f), f, t;
-    for (int32_t c = 0; c < nchunks; c++) {
-        const float *q = partials + ((size_t)c * (size_t)nr + (size_t)r) * 6;
-        F = cs_add(F, cs_v3(q[0], q[1], q[2]));
-        T = cs_add(T, cs_v3(q[3], q[4], q[5]));
+    for (int32_t g = 0; g < nchunks; g += CS_CHUNK_GROUP) {
+        cs_rock_group_sum(partials, nr, r, g, g + CS_CHUNK_GROUP < nchunks ? g + CS_CHUNK_GROUP : nchunks, &f, &t);
+        F = cs_add(F, f);
+        T = cs_add(T, t);
     }
     for (int32_t b = 0; b < nr; b++) {
         if (b != r && cs_rock_pair_contact(&rocks[r], &rocks[b], p, &f, &t)) {
