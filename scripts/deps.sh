@@ -4,4 +4,6 @@
 CLOTHD_APT_PACKAGES=(
   gcc make cmake pkg-config   # the build
   libcmocka-dev               # C unit and physics tests
+  libmicrohttpd-dev libjansson-dev   # clothd's HTTP server and JSON
+  nodejs                      # integration tests (node's test runner and fetch)
 )

@@ -1,0 +1,819 @@
+/* http.c - the HTTP API on libmicrohttpd (see http.h).
+ *
+ * One route table (method, pattern, handler) drives dispatch, 405 answers with Allow, metrics
+ * labels and `clothd routes`. libmicrohttpd calls the access handler several times per request:
+ * the first call only records the request (answering then would close a keep-alive connection),
+ * body calls append to a buffer counted against max_body (413 beyond), the last call dispatches.
+ * A handler either answers from published data at once, or queues a command to the sim thread
+ * and suspends the connection; the sim thread resumes it once the command has been applied, and
+ * the next call answers with the result. */
+#include <arpa/inet.h>
+#include <ctype.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <limits.h>
+#include <microhttpd.h>
+#include <netdb.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "http.h"
+#include "log.h"
+#include "pjson.h"
+
+#if MHD_VERSION < 0x00097002
+typedef int MHD_Result;
+#else
+typedef enum MHD_Result MHD_Result;
+#endif
+
+struct http_server {
+    struct MHD_Daemon *d;
+    simloop *sl;
+    metrics *m;
+    http_info info;
+    clothd_settings set;
+    char web_root[PATH_MAX]; /* resolved; empty when the directory does not exist */
+    int port;
+};
+
+typedef struct reply {
+    int status;
+    char *body; /* malloc'd */
+    size_t len;
+    const char *ctype;
+    char allow[64];
+} reply;
+
+typedef struct req req;
+typedef int (*handler_fn)(http_server *s, req *r, reply *out);
+
+/* A handler answers at once (NOW) or has queued r->cmd (LATER). */
+enum { NOW = 0, LATER = 1 };
+
+typedef struct route {
+    const char *method, *pattern;
+    handler_fn fn;
+    int created;          /* 201 on success */
+    const char *blob_type; /* content type of a binary result */
+} route;
+
+struct req {
+    http_server *s;
+    struct MHD_Connection *conn;
+    const route *rt;
+    const char *label; /* route pattern for metrics */
+    char method[8];
+    char url[512];
+    long long id;      /* the {id} of the path */
+    char *body;
+    size_t len, cap;
+    int too_large;
+    char request_id[129];
+    int phase; /* 0 new, 1 waiting for the sim thread, 2 its answer is in */
+    sim_cmd cmd;
+    json_t *cmd_body;
+};
+
+#define JSON_TYPE "application/json"
+#define PROBLEM_TYPE "application/problem+json"
+
+/* ---- replies ---- */
+
+static int reply_text(reply *out, int status, const char *ctype, char *body, size_t len)
+{
+    out->status = status;
+    out->ctype = ctype;
+    out->body = body;
+    out->len = len;
+    return NOW;
+}
+
+static int reply_json(reply *out, int status, json_t *o)
+{
+    char *s = json_dumps(o, PJSON_DUMP_FLAGS);
+    json_decref(o);
+    return reply_text(out, status, JSON_TYPE, s, s ? strlen(s) : 0);
+}
+
+static int reply_problem(reply *out, const problem *pr)
+{
+    char *s = problem_body(pr);
+    return reply_text(out, pr->status, PROBLEM_TYPE, s, s ? strlen(s) : 0);
+}
+
+static int reply_error(reply *out, int status, const char *slug, const char *param, const char *detail)
+{
+    problem pr;
+    problem_set(&pr, status, slug, param, "%s", detail);
+    return reply_problem(out, &pr);
+}
+
+/* ---- request helpers ---- */
+
+static const char *header(req *r, const char *name)
+{
+    return MHD_lookup_connection_value(r->conn, MHD_HEADER_KIND, name);
+}
+
+static const char *query(req *r, const char *name)
+{
+    return MHD_lookup_connection_value(r->conn, MHD_GET_ARGUMENT_KIND, name);
+}
+
+static int wants_binary(req *r)
+{
+    const char *a = header(r, "Accept");
+    return a && strstr(a, "application/octet-stream") != NULL;
+}
+
+/* The body as a JSON object: required, or optional (then absent means {} and no member may be
+ * given). */
+static int body_object(req *r, int required, json_t **out, reply *rep)
+{
+    *out = NULL;
+    size_t n = r->len;
+    while (n && isspace((unsigned char)r->body[n - 1])) n--;
+    if (n == 0) {
+        if (required) return reply_error(rep, 400, "invalid-json", NULL, "a JSON body is required"), -1;
+        *out = json_object();
+        return 0;
+    }
+    json_error_t err;
+    json_t *o = json_loadb(r->body, r->len, JSON_REJECT_DUPLICATES, &err);
+    if (!o) {
+        problem pr;
+        problem_set(&pr, 400, "invalid-json", NULL, "malformed JSON at line %d, column %d: %s", err.line, err.column,
+                    err.text);
+        reply_problem(rep, &pr);
+        return -1;
+    }
+    if (!json_is_object(o)) {
+        json_decref(o);
+        reply_error(rep, 400, "wrong-type", NULL, "the body must be a JSON object");
+        return -1;
+    }
+    if (!required && json_object_size(o)) {
+        const char *key = json_object_iter_key(json_object_iter(o));
+        problem pr;
+        problem_set(&pr, 400, "unknown-field", key, "this request takes no field ('%s' given)", key);
+        json_decref(o);
+        reply_problem(rep, &pr);
+        return -1;
+    }
+    *out = o;
+    return 0;
+}
+
+/* Queues a command for the sim thread (the connection is suspended by the caller). */
+static int later(req *r, sim_cmd_kind kind, json_t *body)
+{
+    memset(&r->cmd, 0, sizeof r->cmd);
+    r->cmd.kind = kind;
+    r->cmd.body = body;
+    r->cmd_body = body;
+    return LATER;
+}
+
+/* A command of commands.h: {"op": op, ...fields of extra}. */
+static int later_apply(req *r, const char *op, json_t *fields)
+{
+    json_t *c = fields ? fields : json_object();
+    json_object_set_new(c, "op", json_string(op));
+    return later(r, CMD_APPLY, c);
+}
+
+/* ---- handlers ---- */
+
+static int h_health(http_server *s, req *r, reply *out)
+{
+    (void)r;
+    const int ok = simloop_healthy(s->sl);
+    return reply_json(out, ok ? 200 : 503,
+                      json_pack("{s:s, s:s, s:s, s:s, s:s, s:n}", "status", ok ? "ok" : "unhealthy", "backend",
+                                s->info.backend, "device", s->info.device, "backend_note", s->info.backend_note,
+                                "version", s->info.version, "stream"));
+}
+
+static int h_sim(http_server *s, req *r, reply *out)
+{
+    const char *h = query(r, "hash");
+    if (h && (strcmp(h, "1") == 0 || strcmp(h, "true") == 0)) return later(r, CMD_HASH, NULL);
+    size_t len = 0;
+    char *j = simloop_sim_json(s->sl, &len);
+    return reply_text(out, 200, JSON_TYPE, j, len);
+}
+
+static int h_pause(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    json_t *b;
+    if (body_object(r, 0, &b, out) != 0) return NOW;
+    json_decref(b);
+    return later(r, CMD_PAUSE, NULL);
+}
+
+static int h_resume(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    json_t *b;
+    if (body_object(r, 0, &b, out) != 0) return NOW;
+    json_decref(b);
+    return later(r, CMD_RESUME, NULL);
+}
+
+static int h_step(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    json_t *b;
+    if (body_object(r, 1, &b, out) != 0) return NOW;
+    return later(r, CMD_STEP, b);
+}
+
+static int h_reset(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    json_t *b;
+    if (body_object(r, 0, &b, out) != 0) return NOW;
+    json_decref(b);
+    return later_apply(r, "reset", NULL);
+}
+
+static int h_params_get(http_server *s, req *r, reply *out)
+{
+    (void)r;
+    size_t len = 0;
+    char *j = simloop_params_json(s->sl, &len);
+    return reply_text(out, 200, JSON_TYPE, j, len);
+}
+
+static int h_params_patch(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    json_t *b;
+    if (body_object(r, 1, &b, out) != 0) return NOW;
+    /* Checked here too, so a bad request is refused without bothering the sim thread; the sim
+     * thread merges it with the parameters of the moment it applies it. */
+    cs_scene sc;
+    cs_params p;
+    cs_scene_default(&sc);
+    cs_params_default(&p);
+    problem pr;
+    if (params_from_json(b, CS_KIND_LIVE, &sc, &p, &pr) != 0 && pr.status == 400) {
+        json_decref(b);
+        return reply_problem(out, &pr);
+    }
+    return later_apply(r, "params", json_pack("{s:o}", "params", b));
+}
+
+static int h_schema(http_server *s, req *r, reply *out)
+{
+    (void)s, (void)r;
+    return reply_json(out, 200, schema_to_json());
+}
+
+static int h_scene_get(http_server *s, req *r, reply *out)
+{
+    (void)r;
+    size_t len = 0;
+    char *j = simloop_scene_json(s->sl, &len);
+    return reply_text(out, 200, JSON_TYPE, j, len);
+}
+
+static int h_scene_put(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    json_t *b;
+    if (body_object(r, 1, &b, out) != 0) return NOW;
+    return later_apply(r, "scene", json_pack("{s:o}", "scene", b));
+}
+
+static int h_rocks_get(http_server *s, req *r, reply *out)
+{
+    (void)r;
+    cs_rock *rocks;
+    const int n = simloop_rocks(s->sl, &rocks);
+    json_t *list = json_array();
+    for (int k = 0; k < n; k++) json_array_append_new(list, rock_to_json(&rocks[k]));
+    free(rocks);
+    return reply_json(out, 200, json_pack("{s:o}", "rocks", list));
+}
+
+static int h_rocks_post(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    json_t *b;
+    if (body_object(r, 1, &b, out) != 0) return NOW;
+    return later_apply(r, "rock_add", json_pack("{s:o}", "rock", b));
+}
+
+static int h_rocks_delete(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    json_t *b;
+    if (body_object(r, 0, &b, out) != 0) return NOW;
+    json_decref(b);
+    return later_apply(r, "rocks_clear", NULL);
+}
+
+static int h_rock_get(http_server *s, req *r, reply *out)
+{
+    cs_rock *rocks;
+    const int n = simloop_rocks(s->sl, &rocks);
+    for (int k = 0; k < n; k++) {
+        if (rocks[k].id == (uint32_t)r->id) {
+            json_t *o = rock_to_json(&rocks[k]);
+            free(rocks);
+            return reply_json(out, 200, o);
+        }
+    }
+    free(rocks);
+    problem pr;
+    problem_set(&pr, 404, "not-found", "id", "no rock with id %lld", r->id);
+    return reply_problem(out, &pr);
+}
+
+static int h_rock_patch(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    json_t *b;
+    if (body_object(r, 1, &b, out) != 0) return NOW;
+    return later_apply(r, "rock_set", json_pack("{s:I, s:o}", "id", (json_int_t)r->id, "rock", b));
+}
+
+static int h_rock_delete(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    json_t *b;
+    if (body_object(r, 0, &b, out) != 0) return NOW;
+    json_decref(b);
+    return later_apply(r, "rock_remove", json_pack("{s:I}", "id", (json_int_t)r->id));
+}
+
+static int h_pins(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    json_t *b;
+    if (body_object(r, 1, &b, out) != 0) return NOW;
+    return later_apply(r, "pins", b);
+}
+
+static int h_grab(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    json_t *b;
+    if (body_object(r, 1, &b, out) != 0) return NOW;
+    return later_apply(r, "grab", b);
+}
+
+static int h_release(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    json_t *b;
+    if (body_object(r, 0, &b, out) != 0) return NOW;
+    json_decref(b);
+    return later_apply(r, "release", NULL);
+}
+
+static int h_cloth_state(http_server *s, req *r, reply *out)
+{
+    (void)s, (void)out;
+    return later(r, CMD_CLOTH_STATE, json_pack("{s:b}", "binary", wants_binary(r)));
+}
+
+static int h_snapshot_get(http_server *s, req *r, reply *out)
+{
+    (void)s, (void)out;
+    return later(r, CMD_SNAPSHOT_GET, NULL);
+}
+
+static int h_snapshot_put(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    if (r->len == 0) return reply_error(out, 400, "bad-snapshot", NULL, "the body must be a snapshot (GET /v1/snapshot)");
+    later(r, CMD_SNAPSHOT_PUT, NULL);
+    r->cmd.blob_in = (const unsigned char *)r->body;
+    r->cmd.blob_in_len = r->len;
+    return LATER;
+}
+
+static int h_journal(http_server *s, req *r, reply *out)
+{
+    if (wants_binary(r)) return later(r, CMD_BUNDLE, NULL);
+    size_t len = 0;
+    char *j = journal_json(simloop_journal(s->sl), &len);
+    return reply_text(out, 200, JSON_TYPE, j, len);
+}
+
+static int h_metrics(http_server *s, req *r, reply *out)
+{
+    (void)r;
+    metrics_gauges g;
+    simloop_gauges(s->sl, &g);
+    size_t len = 0;
+    char *text = metrics_render(s->m, &g, NULL, &len);
+    return reply_text(out, 200, "text/plain; version=0.0.4; charset=utf-8", text, len);
+}
+
+#define OCTETS "application/octet-stream"
+
+static const route routes[] = {
+    {"GET", "/v1/health", h_health, 0, NULL},
+    {"GET", "/v1/sim", h_sim, 0, JSON_TYPE},
+    {"POST", "/v1/sim/pause", h_pause, 0, JSON_TYPE},
+    {"POST", "/v1/sim/resume", h_resume, 0, JSON_TYPE},
+    {"POST", "/v1/sim/step", h_step, 0, NULL},
+    {"POST", "/v1/sim/reset", h_reset, 0, NULL},
+    {"GET", "/v1/params", h_params_get, 0, NULL},
+    {"PATCH", "/v1/params", h_params_patch, 0, NULL},
+    {"GET", "/v1/params/schema", h_schema, 0, NULL},
+    {"GET", "/v1/scene", h_scene_get, 0, NULL},
+    {"PUT", "/v1/scene", h_scene_put, 0, NULL},
+    {"GET", "/v1/rocks", h_rocks_get, 0, NULL},
+    {"POST", "/v1/rocks", h_rocks_post, 1, NULL},
+    {"DELETE", "/v1/rocks", h_rocks_delete, 0, NULL},
+    {"GET", "/v1/rocks/{id}", h_rock_get, 0, NULL},
+    {"PATCH", "/v1/rocks/{id}", h_rock_patch, 0, NULL},
+    {"DELETE", "/v1/rocks/{id}", h_rock_delete, 0, NULL},
+    {"PUT", "/v1/pins", h_pins, 0, NULL},
+    {"PUT", "/v1/grab", h_grab, 0, NULL},
+    {"DELETE", "/v1/grab", h_release, 0, NULL},
+    {"GET", "/v1/cloth/state", h_cloth_state, 0, NULL},
+    {"GET", "/v1/snapshot", h_snapshot_get, 0, OCTETS},
+    {"PUT", "/v1/snapshot", h_snapshot_put, 0, NULL},
+    {"GET", "/v1/journal", h_journal, 0, OCTETS},
+    {"GET", "/metrics", h_metrics, 0, NULL},
+};
+#define NROUTES (sizeof routes / sizeof routes[0])
+
+void http_print_routes(FILE *out)
+{
+    for (size_t i = 0; i < NROUTES; i++) fprintf(out, "%s %s\n", routes[i].method, routes[i].pattern);
+}
+
+/* Whether url matches pattern; {id} takes one segment of digits (into *id, -1 if not digits). */
+static int path_matches(const char *pattern, const char *url, long long *id)
+{
+    const char *brace = strstr(pattern, "{id}");
+    if (!brace) return strcmp(pattern, url) == 0;
+    const size_t pre = (size_t)(brace - pattern);
+    if (strncmp(pattern, url, pre) != 0) return 0;
+    const char *seg = url + pre;
+    const char *slash = strchr(seg, '/');
+    const size_t seglen = slash ? (size_t)(slash - seg) : strlen(seg);
+    if (seglen == 0 || strcmp(slash ? slash : "", brace + 4) != 0) return 0;
+    *id = -1;
+    if (seglen <= 10) {
+        long long v = 0;
+        size_t k = 0;
+        for (; k < seglen && isdigit((unsigned char)seg[k]); k++) v = v * 10 + (seg[k] - '0');
+        if (k == seglen) *id = v;
+    }
+    return 1;
+}
+
+/* ---- static files ---- */
+
+static const char *content_type(const char *path)
+{
+    static const struct {
+        const char *ext, *type;
+    } types[] = {{".html", "text/html; charset=utf-8"}, {".js", "text/javascript; charset=utf-8"},
+                 {".mjs", "text/javascript; charset=utf-8"}, {".css", "text/css; charset=utf-8"},
+                 {".json", "application/json"}, {".map", "application/json"}, {".svg", "image/svg+xml"},
+                 {".png", "image/png"}, {".ico", "image/x-icon"}, {".wasm", "application/wasm"},
+                 {".txt", "text/plain; charset=utf-8"}};
+    const char *dot = strrchr(path, '.');
+    for (size_t i = 0; dot && i < sizeof types / sizeof types[0]; i++)
+        if (strcmp(dot, types[i].ext) == 0) return types[i].type;
+    return "application/octet-stream";
+}
+
+static const char placeholder[] =
+    "<!doctype html><meta charset=utf-8><title>clothd</title>"
+    "<h1>clothd is running</h1><p>The viewer is not built yet. The API is at <a href=/v1/sim>/v1/sim</a>; "
+    "see proto/PROTOCOL.md.</p>\n";
+
+/* Serves a file of web_root, or 404. The path may not leave web_root: no '..' segment, no
+ * backslash or NUL, and the resolved real path (links followed) must lie under web_root. */
+static struct MHD_Response *static_file(http_server *s, const char *url, int *status, int *fd_out)
+{
+    *fd_out = -1;
+    const char *path = strcmp(url, "/") == 0 ? "/index.html" : url;
+    int safe = path[0] == '/' && !strchr(path, '\\') && strlen(path) < 400;
+    for (const char *p = path; safe && (p = strstr(p, "..")); p += 2)
+        if ((p == path || p[-1] == '/') && (p[2] == '/' || p[2] == '\0')) safe = 0;
+    if (safe && s->web_root[0]) {
+        char full[PATH_MAX + 512], real[PATH_MAX];
+        snprintf(full, sizeof full, "%s%s", s->web_root, path);
+        const size_t rl = strlen(s->web_root);
+        if (realpath(full, real) && strncmp(real, s->web_root, rl) == 0 && real[rl] == '/') {
+            const int fd = open(real, O_RDONLY | O_CLOEXEC);
+            struct stat st;
+            if (fd >= 0 && fstat(fd, &st) == 0 && S_ISREG(st.st_mode)) {
+                struct MHD_Response *resp = MHD_create_response_from_fd((uint64_t)st.st_size, fd);
+                if (resp) {
+                    MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, content_type(real));
+                    *status = 200;
+                    return resp;
+                }
+            }
+            if (fd >= 0) close(fd);
+        }
+    }
+    if (safe && strcmp(path, "/index.html") == 0) {
+        struct MHD_Response *resp =
+            MHD_create_response_from_buffer(sizeof placeholder - 1, (void *)placeholder, MHD_RESPMEM_PERSISTENT);
+        MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, "text/html; charset=utf-8");
+        *status = 200;
+        return resp;
+    }
+    return NULL;
+}
+
+/* ---- libmicrohttpd glue ---- */
+
+static MHD_Result send_reply(req *r, reply *rep)
+{
+    struct MHD_Response *resp =
+        MHD_create_response_from_buffer(rep->body ? rep->len : 0, rep->body ? rep->body : (void *)"",
+                                         rep->body ? MHD_RESPMEM_MUST_FREE : MHD_RESPMEM_PERSISTENT);
+    if (!resp) {
+        free(rep->body);
+        return MHD_NO;
+    }
+    if (rep->ctype) MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, rep->ctype);
+    MHD_add_response_header(resp, MHD_HTTP_HEADER_CACHE_CONTROL, "no-store");
+    if (rep->allow[0]) MHD_add_response_header(resp, MHD_HTTP_HEADER_ALLOW, rep->allow);
+    if (r->request_id[0]) MHD_add_response_header(resp, "X-Request-Id", r->request_id);
+    const MHD_Result ret = MHD_queue_response(r->conn, (unsigned int)rep->status, resp);
+    MHD_destroy_response(resp);
+    metrics_http(r->s->m, r->label, r->method, rep->status);
+    return ret;
+}
+
+/* The answer of a command the sim thread has applied. */
+static void finish(req *r, reply *rep)
+{
+    sim_cmd *c = &r->cmd;
+    if (c->failed) {
+        reply_problem(rep, &c->pr);
+    } else if (c->blob) {
+        const char *type = r->rt->blob_type ? r->rt->blob_type : JSON_TYPE;
+        if (c->kind == CMD_CLOTH_STATE && wants_binary(r)) type = OCTETS;
+        reply_text(rep, 200, type, (char *)c->blob, c->blob_len);
+        c->blob = NULL;
+    } else {
+        reply_json(rep, r->rt->created ? 201 : 200, c->result ? c->result : json_object());
+        c->result = NULL;
+    }
+}
+
+static void resume_cb(sim_cmd *c, void *arg)
+{
+    (void)c;
+    req *r = arg;
+    r->phase = 2;
+    MHD_resume_connection(r->conn);
+}
+
+/* Finds the route; sets *allow to the methods of the path when the method does not match. */
+static const route *match(req *r, char *allow, size_t allow_len, int *path_known)
+{
+    *path_known = 0;
+    allow[0] = '\0';
+    for (size_t i = 0; i < NROUTES; i++) {
+        long long id = -1;
+        if (!path_matches(routes[i].pattern, r->url, &id)) continue;
+        *path_known = 1;
+        r->label = routes[i].pattern;
+        if (strcmp(routes[i].method, r->method) == 0) {
+            r->id = id;
+            allow[0] = '\0';
+            return &routes[i];
+        }
+        snprintf(allow + strlen(allow), allow_len - strlen(allow), "%s%s", allow[0] ? ", " : "", routes[i].method);
+    }
+    return NULL;
+}
+
+static void copy_request_id(req *r)
+{
+    const char *id = header(r, "X-Request-Id");
+    if (!id) return;
+    const size_t n = strlen(id);
+    if (n == 0 || n >= sizeof r->request_id) return;
+    for (size_t k = 0; k < n; k++)
+        if (!isalnum((unsigned char)id[k]) && !strchr("-_.:/+=", id[k])) return; /* not echoed */
+    memcpy(r->request_id, id, n + 1);
+}
+
+static MHD_Result dispatch(req *r)
+{
+    http_server *s = r->s;
+    reply rep = {0, NULL, 0, NULL, ""};
+    if (r->too_large) {
+        char d[96];
+        snprintf(d, sizeof d, "the body is larger than max_body (%d bytes)", (int)s->set.max_body);
+        reply_error(&rep, 413, "too-large", NULL, d);
+        return send_reply(r, &rep);
+    }
+    const int api = strncmp(r->url, "/v1/", 4) == 0 || strcmp(r->url, "/v1") == 0 || strcmp(r->url, "/metrics") == 0;
+    if (!api) {
+        r->label = "static";
+        if (strcmp(r->method, "GET") != 0 && strcmp(r->method, "HEAD") != 0) {
+            snprintf(rep.allow, sizeof rep.allow, "GET, HEAD");
+            reply_error(&rep, 405, "method-not-allowed", NULL, "static files are read with GET");
+            return send_reply(r, &rep);
+        }
+        int status = 404, fd;
+        struct MHD_Response *resp = static_file(s, r->url, &status, &fd);
+        if (!resp) {
+            reply_error(&rep, 404, "not-found", NULL, "no such file");
+            return send_reply(r, &rep);
+        }
+        MHD_add_response_header(resp, MHD_HTTP_HEADER_CACHE_CONTROL, "no-cache");
+        if (r->request_id[0]) MHD_add_response_header(resp, "X-Request-Id", r->request_id);
+        const MHD_Result ret = MHD_queue_response(r->conn, (unsigned int)status, resp);
+        MHD_destroy_response(resp);
+        metrics_http(s->m, r->label, r->method, status);
+        return ret;
+    }
+    int known;
+    r->label = "unknown";
+    const route *rt = match(r, rep.allow, sizeof rep.allow, &known);
+    if (!rt) {
+        if (known) {
+            problem pr;
+            problem_set(&pr, 405, "method-not-allowed", NULL, "%s is not allowed on %s (allowed: %s)", r->method, r->url,
+                        rep.allow);
+            reply_problem(&rep, &pr);
+        } else {
+            reply_error(&rep, 404, "not-found", NULL, "no such route");
+        }
+        return send_reply(r, &rep);
+    }
+    r->rt = rt;
+    if (strstr(rt->pattern, "{id}") && (r->id < 1 || r->id > 4294967295LL)) {
+        reply_error(&rep, 404, "not-found", "id", "no rock with that id");
+        return send_reply(r, &rep);
+    }
+    if (rt->fn(s, r, &rep) == NOW) return send_reply(r, &rep);
+    r->phase = 1;
+    r->cmd.done = resume_cb;
+    r->cmd.done_arg = r;
+    MHD_suspend_connection(r->conn); /* before submitting: the answer may come at once */
+    simloop_submit(s->sl, &r->cmd);
+    return MHD_YES;
+}
+
+static MHD_Result access_cb(void *cls, struct MHD_Connection *conn, const char *url, const char *method,
+                            const char *version, const char *upload_data, size_t *upload_data_size, void **con_cls)
+{
+    (void)version;
+    http_server *s = cls;
+    req *r = *con_cls;
+    if (!r) {
+        /* First call: record the request only (answering now would end keep-alive). */
+        r = calloc(1, sizeof *r);
+        if (!r) return MHD_NO;
+        r->s = s;
+        r->conn = conn;
+        r->label = "unknown";
+        snprintf(r->method, sizeof r->method, "%s", method);
+        snprintf(r->url, sizeof r->url, "%s", strlen(url) < sizeof r->url ? url : "/too-long");
+        copy_request_id(r);
+        const char *cl = header(r, MHD_HTTP_HEADER_CONTENT_LENGTH);
+        if (cl && strtoull(cl, NULL, 10) > (unsigned long long)s->set.max_body) r->too_large = 1;
+        *con_cls = r;
+        return MHD_YES;
+    }
+    if (*upload_data_size) {
+        /* Counted as it arrives; past max_body it is dropped and the answer is 413. */
+        if (!r->too_large) {
+            if (r->len + *upload_data_size > (size_t)s->set.max_body) {
+                r->too_large = 1;
+                free(r->body);
+                r->body = NULL;
+                r->len = r->cap = 0;
+            } else {
+                if (r->len + *upload_data_size + 1 > r->cap) {
+                    size_t cap = r->cap ? r->cap : 1024;
+                    while (cap < r->len + *upload_data_size + 1) cap *= 2;
+                    char *b = realloc(r->body, cap);
+                    if (!b) return MHD_NO;
+                    r->body = b;
+                    r->cap = cap;
+                }
+                memcpy(r->body + r->len, upload_data, *upload_data_size);
+                r->len += *upload_data_size;
+                r->body[r->len] = '\0';
+            }
+        }
+        *upload_data_size = 0;
+        return MHD_YES;
+    }
+    if (r->phase == 1) return MHD_YES; /* woken before its answer: keep waiting */
+    if (r->phase == 2) {
+        reply rep = {0, NULL, 0, NULL, ""};
+        finish(r, &rep);
+        r->phase = 3;
+        return send_reply(r, &rep);
+    }
+    if (!r->body) {
+        r->body = calloc(1, 1);
+        if (!r->body) return MHD_NO;
+    }
+    return dispatch(r);
+}
+
+static void completed_cb(void *cls, struct MHD_Connection *conn, void **con_cls, enum MHD_RequestTerminationCode toe)
+{
+    (void)cls, (void)conn, (void)toe;
+    req *r = *con_cls;
+    if (!r) return;
+    json_decref(r->cmd_body);
+    json_decref(r->cmd.result);
+    free(r->cmd.blob);
+    free(r->body);
+    free(r);
+    *con_cls = NULL;
+}
+
+static void mhd_log(void *cls, const char *fmt, va_list ap)
+{
+    (void)cls;
+    char line[512];
+    vsnprintf(line, sizeof line, fmt, ap);
+    const size_t n = strlen(line);
+    if (n && line[n - 1] == '\n') line[n - 1] = '\0';
+    log_msg("http: %s", line);
+}
+
+http_server *http_start(const clothd_settings *set, simloop *sl, metrics *m, const http_info *info, char *err,
+                        size_t err_len)
+{
+    http_server *s = calloc(1, sizeof *s);
+    if (!s) {
+        snprintf(err, err_len, "out of memory");
+        return NULL;
+    }
+    s->sl = sl;
+    s->m = m;
+    s->info = *info;
+    s->set = *set;
+    if (!realpath(set->web_root, s->web_root)) {
+        log_msg("web_root %s: %s; serving a placeholder page at /", set->web_root, strerror(errno));
+        s->web_root[0] = '\0';
+    }
+
+    struct addrinfo hints, *ai = NULL;
+    memset(&hints, 0, sizeof hints);
+    hints.ai_flags = AI_NUMERICHOST | AI_PASSIVE;
+    hints.ai_socktype = SOCK_STREAM;
+    char port[16];
+    snprintf(port, sizeof port, "%d", (int)set->port);
+    const int gai = getaddrinfo(set->listen, port, &hints, &ai);
+    if (gai != 0) {
+        snprintf(err, err_len, "listen address '%s': %s (give a numeric IPv4 or IPv6 address)", set->listen,
+                 gai_strerror(gai));
+        free(s);
+        return NULL;
+    }
+    unsigned int flags = MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_EPOLL | MHD_ALLOW_SUSPEND_RESUME | MHD_USE_ERROR_LOG;
+    if (ai->ai_family == AF_INET6) flags |= MHD_USE_IPv6;
+    s->d = MHD_start_daemon(flags, (uint16_t)set->port, NULL, NULL, access_cb, s, MHD_OPTION_EXTERNAL_LOGGER, mhd_log,
+                            s, MHD_OPTION_SOCK_ADDR, ai->ai_addr,
+                            MHD_OPTION_THREAD_POOL_SIZE, (unsigned int)set->http_threads, MHD_OPTION_CONNECTION_LIMIT,
+                            (unsigned int)set->max_connections, MHD_OPTION_CONNECTION_TIMEOUT,
+                            (unsigned int)set->connection_timeout, MHD_OPTION_NOTIFY_COMPLETED, completed_cb, s,
+                            MHD_OPTION_LISTENING_ADDRESS_REUSE, 1U,
+                            MHD_OPTION_END);
+    freeaddrinfo(ai);
+    if (!s->d) {
+        snprintf(err, err_len, "could not listen on %s port %d (in use, or not allowed?)", set->listen, (int)set->port);
+        free(s);
+        return NULL;
+    }
+    const union MHD_DaemonInfo *di = MHD_get_daemon_info(s->d, MHD_DAEMON_INFO_BIND_PORT);
+    s->port = di ? di->port : set->port;
+    return s;
+}
+
+int http_port(http_server *s) { return s->port; }
+
+void http_quiesce(http_server *s)
+{
+    const MHD_socket fd = MHD_quiesce_daemon(s->d);
+    if (fd != MHD_INVALID_SOCKET) close(fd);
+}
+
+void http_stop(http_server *s)
+{
+    if (!s) return;
+    MHD_stop_daemon(s->d);
+    free(s);
+}

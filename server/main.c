@@ -1,0 +1,341 @@
+/* main.c - clothd: the simulation daemon.
+ *
+ *   clothd [serve] [--flag value ...]   run the simulation and its HTTP API (default)
+ *   clothd replay FILE [--flag value]   rerun a journal bundle, print the final state hash
+ *   clothd routes                       print the HTTP route table
+ *   clothd --help | --version
+ *
+ * serve: settings from the config file, CLOTHD_* variables and flags; the engine on the chosen
+ * backend, resumed from --state-file when it exists; the sim thread; the HTTP server. SIGTERM or
+ * SIGINT stops accepting, finishes the frame, saves the state file (temp file, fsync, rename) and
+ * exits 0. A backend failure (SIGUSR1 from the sim thread) saves the last checkpoint and exits 3,
+ * for a supervisor to restart from the state file. */
+#include <errno.h>
+#include <fcntl.h>
+#include <libgen.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "commands.h"
+#include "http.h"
+#include "log.h"
+#include "metrics.h"
+#include "settings.h"
+#include "simloop.h"
+
+#ifndef CLOTHD_VERSION
+#define CLOTHD_VERSION "0.1.0"
+#endif
+
+static const char *const backend_names[] = {"auto", "cuda", "cpu"};
+
+static void usage(FILE *out)
+{
+    fprintf(out,
+            "clothd %s - a cloth-and-rock simulation service\n\n"
+            "usage: clothd [serve] [--flag value ...]   run the simulation and its HTTP API\n"
+            "       clothd replay FILE [--backend B]    rerun a journal bundle (GET /v1/journal with\n"
+            "                                           Accept: application/octet-stream); print the hash\n"
+            "       clothd routes                       print the HTTP routes\n"
+            "       clothd --help | --version\n\n",
+            CLOTHD_VERSION);
+    settings_usage(out);
+}
+
+static unsigned char *read_file(const char *path, size_t *len, char *why, size_t why_len)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        snprintf(why, why_len, "%s: %s", path, strerror(errno));
+        return NULL;
+    }
+    size_t cap = 1 << 16, n = 0;
+    unsigned char *buf = malloc(cap);
+    while (buf) {
+        const size_t got = fread(buf + n, 1, cap - n, f);
+        n += got;
+        if (n < cap) break;
+        unsigned char *g = realloc(buf, cap *= 2);
+        if (!g) free(buf);
+        buf = g;
+    }
+    const int bad = ferror(f);
+    fclose(f);
+    if (!buf || bad) {
+        free(buf);
+        snprintf(why, why_len, "%s: could not read it", path);
+        return NULL;
+    }
+    *len = n;
+    return buf;
+}
+
+/* Writes a file so that a crash leaves either the old or the new one: temp file, fsync, rename,
+ * fsync of the directory. */
+static int write_atomic(const char *path, const void *data, size_t len)
+{
+    char tmp[1100];
+    snprintf(tmp, sizeof tmp, "%s.tmp.%ld", path, (long)getpid());
+    const int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+    if (fd < 0) return -1;
+    const unsigned char *p = data;
+    size_t left = len;
+    while (left) {
+        const ssize_t w = write(fd, p, left);
+        if (w < 0 && errno == EINTR) continue;
+        if (w <= 0) {
+            close(fd);
+            unlink(tmp);
+            return -1;
+        }
+        p += w;
+        left -= (size_t)w;
+    }
+    if (fsync(fd) != 0 || close(fd) != 0 || rename(tmp, path) != 0) {
+        unlink(tmp);
+        return -1;
+    }
+    char dir[1100];
+    snprintf(dir, sizeof dir, "%s", path);
+    const int dfd = open(dirname(dir), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    if (dfd >= 0) {
+        fsync(dfd);
+        close(dfd);
+    }
+    return 0;
+}
+
+static int save_state(cs_sim *sim, const unsigned char *fallback, size_t fallback_len, const char *path)
+{
+    size_t len = cs_snapshot_size(sim);
+    unsigned char *buf = malloc(len);
+    int rc = -1;
+    if (buf && cs_snapshot_save(sim, buf, len, &len) == CS_OK) {
+        rc = write_atomic(path, buf, len);
+    } else if (fallback) {
+        log_msg("state file: the engine could not be read (%s); saving the last checkpoint", cs_sim_error(sim));
+        rc = write_atomic(path, fallback, fallback_len);
+    }
+    free(buf);
+    return rc;
+}
+
+static cs_sim *make_engine(const clothd_config *cfg)
+{
+    char err[300];
+    cs_sim *sim = NULL;
+    const cs_status st = cs_sim_create(&cfg->scene, &cfg->params, backend_names[cfg->set.backend], &sim, err, sizeof err);
+    if (st != CS_OK) {
+        log_msg("cannot start the simulation: %s", err);
+        return NULL;
+    }
+    cs_sim_set_threads(sim, cfg->set.threads);
+    return sim;
+}
+
+/* ---- replay ---- */
+
+static int replay(const char *file, const clothd_config *cfg)
+{
+    char why[300];
+    size_t len = 0;
+    unsigned char *buf = read_file(file, &len, why, sizeof why);
+    if (!buf) {
+        fprintf(stderr, "clothd replay: %s\n", why);
+        return 1;
+    }
+    /* The bundle: a snapshot (its header says how long it is) followed by the journal JSON. */
+    unsigned long long plen = 0;
+    for (int k = 0; k < 8 && len >= 32; k++) plen |= (unsigned long long)buf[16 + k] << (8 * k);
+    if (len < 32 || memcmp(buf, "CSNP", 4) != 0 || plen > len - 32) {
+        fprintf(stderr, "clothd replay: %s is not a journal bundle (GET /v1/journal with Accept: application/octet-stream)\n",
+                file);
+        free(buf);
+        return 1;
+    }
+    const size_t snap_len = 32 + (size_t)plen;
+    json_error_t jerr;
+    json_t *j = json_loadb((const char *)buf + snap_len, len - snap_len, JSON_REJECT_DUPLICATES, &jerr);
+    cs_sim *sim = j ? make_engine(cfg) : NULL;
+    int rc = 1;
+    if (!j) {
+        fprintf(stderr, "clothd replay: the journal in %s is not JSON: %s\n", file, jerr.text);
+    } else if (sim && cs_snapshot_load(sim, buf, snap_len) != CS_OK) {
+        fprintf(stderr, "clothd replay: the snapshot in %s is refused: %s\n", file, cs_sim_error(sim));
+    } else if (sim) {
+        const command_limits lim = {CS_MAX_ROCKS};
+        cs_info info;
+        size_t k;
+        json_t *e;
+        rc = 0;
+        json_array_foreach(json_object_get(j, "entries"), k, e)
+        {
+            const long long step = (long long)json_integer_value(json_object_get(e, "step"));
+            cs_sim_info(sim, &info);
+            json_t *journal = NULL, *result = NULL;
+            problem pr;
+            if (step < (long long)info.step || cs_sim_step(sim, step - (long long)info.step) != CS_OK ||
+                command_apply(sim, json_object_get(e, "command"), &lim, &journal, &result, &pr) != 0) {
+                fprintf(stderr, "clothd replay: entry %zu (step %lld) could not be replayed: %s\n", k, step,
+                        pr.detail[0] ? pr.detail : cs_sim_error(sim));
+                rc = 1;
+                break;
+            }
+            json_decref(journal);
+            json_decref(result);
+        }
+        const long long last = (long long)json_integer_value(json_object_get(j, "step"));
+        cs_sim_info(sim, &info);
+        if (rc == 0 && last > (long long)info.step && cs_sim_step(sim, last - (long long)info.step) != CS_OK) {
+            fprintf(stderr, "clothd replay: stepping to %lld failed: %s\n", last, cs_sim_error(sim));
+            rc = 1;
+        }
+        if (rc == 0) {
+            char hex[17];
+            cs_sim_info(sim, &info);
+            cs_hash_hex(cs_state_hash(sim), hex);
+            printf("%s\n", hex);
+            fprintf(stderr, "clothd replay: step %llu, state hash %s\n", (unsigned long long)info.step, hex);
+        }
+    }
+    json_decref(j);
+    cs_sim_destroy(sim);
+    free(buf);
+    return rc;
+}
+
+/* ---- serve ---- */
+
+static int serve(clothd_config *cfg)
+{
+    sigset_t sigs;
+    sigemptyset(&sigs);
+    sigaddset(&sigs, SIGINT);
+    sigaddset(&sigs, SIGTERM);
+    sigaddset(&sigs, SIGUSR1);
+    pthread_sigmask(SIG_BLOCK, &sigs, NULL); /* every thread inherits it; main waits for them */
+
+    cs_sim *sim = make_engine(cfg);
+    if (!sim) return 1;
+    if (strcmp(cs_sim_backend(sim), "cuda") == 0 && !cfg->scene_size_given) {
+        cs_scene sc = cfg->scene;
+        sc.nx = sc.ny = 256; /* a GPU takes a finer cloth in real time */
+        if (cs_sim_set_scene(sim, &sc) == CS_OK) cfg->scene = sc;
+    }
+    log_msg("backend: %s on %s (%s)", cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim));
+    if (cfg->set.state_file[0] && access(cfg->set.state_file, F_OK) == 0) {
+        char why[300];
+        size_t len = 0;
+        unsigned char *buf = read_file(cfg->set.state_file, &len, why, sizeof why);
+        if (!buf || cs_snapshot_load(sim, buf, len) != CS_OK) {
+            log_msg("cannot resume from the state file: %s", buf ? cs_sim_error(sim) : why);
+            free(buf);
+            cs_sim_destroy(sim);
+            return 1;
+        }
+        free(buf);
+        cs_info info;
+        cs_sim_info(sim, &info);
+        char hex[17];
+        cs_hash_hex(cs_state_hash(sim), hex);
+        log_msg("resumed from %s at step %llu, state hash %s", cfg->set.state_file, (unsigned long long)info.step, hex);
+    }
+    metrics *m = metrics_new();
+    simloop *sl = m ? simloop_new(sim, cfg, m) : NULL;
+    if (!sl) {
+        log_msg("out of memory");
+        cs_sim_destroy(sim);
+        metrics_free(m);
+        return 1;
+    }
+    char err[300];
+    const http_info info = {cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim), CLOTHD_VERSION};
+    http_server *http = http_start(&cfg->set, sl, m, &info, err, sizeof err);
+    if (!http) {
+        log_msg("%s", err);
+        simloop_free(sl);
+        metrics_free(m);
+        return 1;
+    }
+    if (simloop_start(sl) != 0) {
+        log_msg("cannot start the sim thread");
+        http_stop(http);
+        simloop_free(sl);
+        metrics_free(m);
+        return 1;
+    }
+    const char *host = strchr(cfg->set.listen, ':') ? "[::1]" : cfg->set.listen;
+    if (strcmp(cfg->set.listen, "0.0.0.0") == 0) host = "127.0.0.1";
+    log_msg("listening on http://%s:%d (API at /v1, viewer at /)", cfg->set.listen, http_port(http));
+    log_msg("try: curl -s http://%s:%d/v1/sim", host, http_port(http));
+
+    int sig = 0;
+    while (sigwait(&sigs, &sig) != 0) {
+    }
+    const int failed = sig == SIGUSR1;
+    log_msg(failed ? "backend failed: saving and exiting for a restart" : "signal %d: stopping", sig);
+    http_quiesce(http);
+    simloop_stop(sl);
+    http_stop(http);
+    int rc = failed ? 3 : 0;
+    if (cfg->set.state_file[0]) {
+        size_t cl = 0;
+        const unsigned char *cp = simloop_checkpoint(sl, &cl);
+        if (save_state(simloop_engine(sl), cp, cl, cfg->set.state_file) == 0) {
+            log_msg("state saved to %s", cfg->set.state_file);
+        } else {
+            log_msg("could not save the state to %s: %s", cfg->set.state_file, strerror(errno));
+            rc = rc ? rc : 1;
+        }
+    }
+    simloop_free(sl);
+    metrics_free(m);
+    return rc;
+}
+
+int main(int argc, char **argv, char **envp)
+{
+    signal(SIGPIPE, SIG_IGN);
+    const char *sub = "serve";
+    int first = 1;
+    if (argc > 1 && argv[1][0] != '-') {
+        sub = argv[1];
+        first = 2;
+    }
+    if (argc > 1 && (strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0)) {
+        usage(stdout);
+        return 0;
+    }
+    if (argc > 1 && strcmp(argv[1], "--version") == 0) {
+        printf("clothd %s (libclothsim %s)\n", CLOTHD_VERSION, CS_VERSION);
+        return 0;
+    }
+    if (strcmp(sub, "routes") == 0) {
+        http_print_routes(stdout);
+        return 0;
+    }
+    const char *file = NULL;
+    if (strcmp(sub, "replay") == 0) {
+        if (argc <= first) {
+            fprintf(stderr, "clothd replay: which file? (clothd --help)\n");
+            return 2;
+        }
+        file = argv[first++];
+    } else if (strcmp(sub, "serve") != 0) {
+        fprintf(stderr, "clothd: unknown command '%s' (clothd --help)\n", sub);
+        return 2;
+    }
+    clothd_config cfg;
+    settings_default(&cfg);
+    char why[600];
+    if (settings_load(&cfg, argc - first, argv + first, envp, why, sizeof why) != 0) {
+        fprintf(stderr, "clothd: %s\n", why);
+        return 2;
+    }
+    return file ? replay(file, &cfg) : serve(&cfg);
+}

@@ -1,0 +1,26 @@
+/* metrics.h - counters for GET /metrics (Prometheus text format 0.0.4). */
+#ifndef CLOTHD_METRICS_H
+#define CLOTHD_METRICS_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+typedef struct metrics metrics;
+
+/* Values the sim thread publishes, shown as gauges. */
+typedef struct metrics_gauges {
+    double realtime_factor;
+    int64_t rocks, vertices, torn;
+    int paused, healthy;
+} metrics_gauges;
+
+metrics *metrics_new(void);
+void metrics_free(metrics *m);
+/* A frame of `substeps` substeps took `seconds` of compute. */
+void metrics_frame(metrics *m, int32_t substeps, double seconds);
+/* One HTTP request answered: its route pattern (e.g. "/v1/rocks/{id}"), method and status. */
+void metrics_http(metrics *m, const char *route, const char *method, int status);
+/* The exposition text (malloc'd); `extra` (may be NULL) is appended as is. */
+char *metrics_render(metrics *m, const metrics_gauges *g, const char *extra, size_t *len);
+
+#endif

@@ -1,0 +1,332 @@
+/* pjson.c - JSON for the API, driven by the parameter table. */
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "pjson.h"
+#include "settings.h"
+
+static const struct {
+    const char *slug, *title;
+} titles[] = {
+    {"invalid-json", "Malformed JSON"},
+    {"unknown-field", "Unknown field"},
+    {"wrong-type", "Wrong type"},
+    {"out-of-range", "Value out of range"},
+    {"unstable", "Change would be unstable"},
+    {"limit", "Limit reached"},
+    {"not-found", "Not found"},
+    {"method-not-allowed", "Method not allowed"},
+    {"wrong-state", "Wrong state"},
+    {"too-large", "Request body too large"},
+    {"bad-snapshot", "Bad snapshot"},
+    {"unavailable", "Service unavailable"},
+    {"internal", "Internal error"},
+    {"unauthorized", "Unauthorized"},
+    {"forbidden", "Forbidden"},
+    {"rate-limited", "Too many requests"},
+};
+
+const char *problem_title(const char *slug)
+{
+    for (size_t i = 0; i < sizeof titles / sizeof titles[0]; i++)
+        if (strcmp(titles[i].slug, slug) == 0) return titles[i].title;
+    return "Error";
+}
+
+int problem_set(problem *pr, int status, const char *slug, const char *param, const char *fmt, ...)
+{
+    pr->status = status;
+    pr->slug = slug;
+    snprintf(pr->param, sizeof pr->param, "%s", param ? param : "");
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(pr->detail, sizeof pr->detail, fmt, ap);
+    va_end(ap);
+    return -1;
+}
+
+char *problem_body(const problem *pr)
+{
+    char type[96];
+    snprintf(type, sizeof type, "urn:clothd:problem:%s", pr->slug);
+    json_t *o = json_pack("{s:s, s:s, s:i, s:s}", "type", type, "title", problem_title(pr->slug), "status",
+                          pr->status, "detail", pr->detail);
+    if (pr->param[0]) json_object_set_new(o, "param", json_string(pr->param));
+    char *s = json_dumps(o, PJSON_DUMP_FLAGS);
+    json_decref(o);
+    return s;
+}
+
+int problem_from_engine(problem *pr, cs_status st, const char *error, const char *param)
+{
+    switch (st) {
+    case CS_E_NOT_FOUND: return problem_set(pr, 404, "not-found", param, "%s", error);
+    case CS_E_UNSTABLE: return problem_set(pr, 422, "unstable", param, "%s", error);
+    case CS_E_LIMIT: return problem_set(pr, 422, "limit", param, "%s", error);
+    case CS_E_INVALID:
+    case CS_E_RANGE: return problem_set(pr, 422, "out-of-range", param, "%s", error);
+    case CS_E_FORMAT:
+    case CS_E_VERSION: return problem_set(pr, 400, "bad-snapshot", param, "%s", error);
+    case CS_E_BACKEND:
+    case CS_E_DEVICE: return problem_set(pr, 503, "unavailable", param, "%s", error);
+    default: return problem_set(pr, 500, "internal", param, "%s", error);
+    }
+}
+
+json_t *json_float(float f)
+{
+    if (!isfinite(f)) return json_null();
+    char text[32];
+    for (int digits = 6; digits < 9; digits++) {
+        snprintf(text, sizeof text, "%.*g", digits, (double)f);
+        const double d = strtod(text, NULL);
+        if ((float)d == f) return json_real(d);
+    }
+    return json_real((double)f);
+}
+
+json_t *param_to_json(const cs_param_info *p, const void *base)
+{
+    switch (p->type) {
+    case CS_T_INT: return json_integer((json_int_t)cs_param_get(p, base, 0));
+    case CS_T_BOOL: return json_boolean(cs_param_get(p, base, 0) != 0);
+    case CS_T_ENUM: return json_string(p->choices[(int)cs_param_get(p, base, 0)]);
+    case CS_T_VEC3:
+        return json_pack("[o, o, o]", json_float((float)cs_param_get(p, base, 0)),
+                         json_float((float)cs_param_get(p, base, 1)), json_float((float)cs_param_get(p, base, 2)));
+    default: return json_float((float)cs_param_get(p, base, 0));
+    }
+}
+
+json_t *params_to_json(cs_param_kind kind, const cs_scene *scene, const cs_params *params)
+{
+    json_t *o = json_object();
+    for (size_t i = 0; i < cs_param_count(); i++) {
+        const cs_param_info *p = cs_param_at(i);
+        if (p->kind == kind) json_object_set_new(o, p->name, param_to_json(p, CS_PARAM_BASE(p, scene, params)));
+    }
+    return o;
+}
+
+static const char *type_word(const json_t *v)
+{
+    switch (json_typeof(v)) {
+    case JSON_OBJECT: return "an object";
+    case JSON_ARRAY: return "an array";
+    case JSON_STRING: return "a string";
+    case JSON_INTEGER:
+    case JSON_REAL: return "a number";
+    case JSON_TRUE:
+    case JSON_FALSE: return "a boolean";
+    default: return "null";
+    }
+}
+
+int vec3_from_json(const json_t *v, float out[3], const char *name, problem *pr)
+{
+    if (!json_is_array(v) || json_array_size(v) != 3)
+        return problem_set(pr, 400, "wrong-type", name, "%s must be an array of 3 numbers", name);
+    for (size_t k = 0; k < 3; k++) {
+        const json_t *e = json_array_get(v, k);
+        if (!json_is_number(e)) return problem_set(pr, 400, "wrong-type", name, "%s must be an array of 3 numbers", name);
+        const double d = json_number_value(e);
+        if (!isfinite(d) || !isfinite((float)d))
+            return problem_set(pr, 422, "out-of-range", name, "%s holds a number too large for a float", name);
+        out[k] = (float)d;
+    }
+    return 0;
+}
+
+int int_from_json(const json_t *v, double lo, double hi, const char *name, long long *out, problem *pr)
+{
+    if (!json_is_number(v)) return problem_set(pr, 400, "wrong-type", name, "%s must be a number, not %s", name, type_word(v));
+    const double d = json_number_value(v);
+    if (d != floor(d) || d < lo || d > hi)
+        return problem_set(pr, 422, "out-of-range", name, "%s must be a whole number from %.0f to %.0f", name, lo, hi);
+    *out = (long long)d;
+    return 0;
+}
+
+int only_fields(const json_t *obj, const char *const *allowed, problem *pr)
+{
+    const char *key;
+    json_t *v;
+    json_object_foreach((json_t *)obj, key, v) {
+        int ok = 0;
+        for (const char *const *a = allowed; *a && !ok; a++) ok = strcmp(*a, key) == 0;
+        if (!ok) return problem_set(pr, 400, "unknown-field", key, "unknown field '%s'", key);
+    }
+    return 0;
+}
+
+/* One member onto a parameter: type checked (400), then range checked by the table (422). */
+static int param_from_value(const cs_param_info *p, void *base, const json_t *v, problem *pr)
+{
+    double d[3] = {0, 0, 0};
+    char why[200];
+    switch (p->type) {
+    case CS_T_VEC3: {
+        float f[3];
+        if (vec3_from_json(v, f, p->name, pr) != 0) return -1;
+        for (int k = 0; k < 3; k++) d[k] = json_number_value(json_array_get(v, (size_t)k));
+        break;
+    }
+    case CS_T_BOOL:
+        if (!json_is_boolean(v)) return problem_set(pr, 400, "wrong-type", p->name, "%s must be true or false", p->name);
+        d[0] = json_is_true(v);
+        break;
+    case CS_T_ENUM: {
+        const int k = json_is_string(v) ? cs_param_choice(p, json_string_value(v)) : -2;
+        if (k == -2) return problem_set(pr, 400, "wrong-type", p->name, "%s must be a string", p->name);
+        if (k < 0) {
+            char list[160] = "";
+            for (int c = 0; p->choices[c]; c++)
+                snprintf(list + strlen(list), sizeof list - strlen(list), "%s%s", c ? ", " : "", p->choices[c]);
+            return problem_set(pr, 422, "out-of-range", p->name, "%s must be one of %s", p->name, list);
+        }
+        d[0] = k;
+        break;
+    }
+    default:
+        if (!json_is_number(v))
+            return problem_set(pr, 400, "wrong-type", p->name, "%s must be a number, not %s", p->name, type_word(v));
+        d[0] = json_number_value(v);
+        break;
+    }
+    if (cs_param_set(p, base, d, why, sizeof why) != 0) return problem_set(pr, 422, "out-of-range", p->name, "%s", why);
+    return 0;
+}
+
+int params_from_json(const json_t *obj, cs_param_kind kind, cs_scene *scene, cs_params *params, problem *pr)
+{
+    if (!json_is_object(obj)) return problem_set(pr, 400, "wrong-type", NULL, "the body must be a JSON object");
+    cs_scene s = *scene;
+    cs_params p = *params;
+    const char *key;
+    json_t *v;
+    json_object_foreach((json_t *)obj, key, v) {
+        const cs_param_info *info = cs_param_find(key);
+        if (!info) return problem_set(pr, 400, "unknown-field", key, "unknown parameter '%s'", key);
+        if (info->kind != kind)
+            return problem_set(pr, 400, "unknown-field", key, "%s is a %s parameter: change it with %s", key,
+                               cs_param_kind_name(info->kind),
+                               info->kind == CS_KIND_SCENE ? "PUT /v1/scene" : "PATCH /v1/params");
+        if (param_from_value(info, CS_PARAM_BASE(info, &s, &p), v, pr) != 0) return -1;
+    }
+    char why[200];
+    const char *bad = NULL;
+    if (kind == CS_KIND_LIVE && cs_params_validate(&p, &bad, why, sizeof why) != 0)
+        return problem_set(pr, 422, "out-of-range", bad, "%s", why);
+    *scene = s;
+    *params = p;
+    return 0;
+}
+
+json_t *schema_to_json(void)
+{
+    cs_scene sc;
+    cs_params pp;
+    cs_scene_default(&sc);
+    cs_params_default(&pp);
+    json_t *list = json_array();
+    for (size_t i = 0; i < cs_param_count(); i++) {
+        const cs_param_info *p = cs_param_at(i);
+        json_t *choices = json_null();
+        if (p->choices) {
+            choices = json_array();
+            for (int c = 0; p->choices[c]; c++) json_array_append_new(choices, json_string(p->choices[c]));
+        }
+        const int ranged = p->type != CS_T_ENUM && p->type != CS_T_BOOL;
+        json_array_append_new(
+            list, json_pack("{s:s, s:s, s:s, s:o, s:o, s:o, s:o, s:s, s:s}", "name", p->name, "type",
+                            cs_param_type_name(p->type), "unit", p->unit, "default",
+                            param_to_json(p, CS_PARAM_BASE(p, &sc, &pp)), "min", ranged ? json_real(p->min) : json_null(),
+                            "max", ranged ? json_real(p->max) : json_null(), "choices", choices, "kind",
+                            cs_param_kind_name(p->kind), "help", p->help));
+    }
+    for (size_t i = 0; i < settings_count(); i++) {
+        const setting_info *s = settings_at(i);
+        json_t *choices = json_null(), *def;
+        if (s->choices) {
+            choices = json_array();
+            char buf[128];
+            snprintf(buf, sizeof buf, "%s", s->choices);
+            char *save = NULL;
+            for (char *t = strtok_r(buf, "|", &save); t; t = strtok_r(NULL, "|", &save))
+                json_array_append_new(choices, json_string(t));
+        }
+        if (strcmp(s->type, "string") == 0) def = json_string(s->def_text);
+        else if (strcmp(s->type, "enum") == 0) def = json_incref(json_array_get(choices, (size_t)s->def_number));
+        else if (strcmp(s->type, "bool") == 0) def = json_boolean(s->def_number != 0);
+        else def = json_integer((json_int_t)s->def_number);
+        const int ranged = strcmp(s->type, "int") == 0;
+        json_array_append_new(list, json_pack("{s:s, s:s, s:s, s:o, s:o, s:o, s:o, s:s, s:s}", "name", s->name, "type",
+                                              s->type, "unit", "-", "default", def, "min",
+                                              ranged ? json_real(s->min) : json_null(), "max",
+                                              ranged ? json_real(s->max) : json_null(), "choices", choices, "kind",
+                                              "startup", "help", s->help));
+    }
+    return json_pack("{s:o}", "params", list);
+}
+
+static json_t *floats(const float *v, int n)
+{
+    json_t *a = json_array();
+    for (int k = 0; k < n; k++) json_array_append_new(a, json_float(v[k]));
+    return a;
+}
+
+json_t *rock_to_json(const cs_rock *r)
+{
+    const cs_rock_def *d = &r->def;
+    return json_pack("{s:I, s:b, s:o, s:o, s:o, s:o, s:o, s:o, s:o}", "id", (json_int_t)r->id, "kinematic",
+                     d->kinematic, "position", floats(d->position, 3), "velocity", floats(d->velocity, 3),
+                     "angular_velocity", floats(d->angular_velocity, 3), "orientation", floats(d->orientation, 4),
+                     "radius", json_float(d->radius), "density", json_float(d->density), "mass", json_float(r->mass));
+}
+
+static int positive_float(const json_t *v, const char *name, float *out, problem *pr)
+{
+    if (!json_is_number(v)) return problem_set(pr, 400, "wrong-type", name, "%s must be a number", name);
+    const double d = json_number_value(v);
+    if (!(d > 0) || !isfinite((float)d)) return problem_set(pr, 422, "out-of-range", name, "%s must be a positive number", name);
+    *out = (float)d;
+    return 0;
+}
+
+int rock_from_json(const json_t *obj, cs_rock_def *def, int creating, problem *pr)
+{
+    static const char *const fields[] = {"position", "velocity", "angular_velocity", "orientation", "radius",
+                                         "density",  "kinematic", NULL};
+    if (!json_is_object(obj)) return problem_set(pr, 400, "wrong-type", NULL, "the body must be a JSON object");
+    if (only_fields(obj, fields, pr) != 0) return -1;
+    if (creating && !json_object_get(obj, "position")) return problem_set(pr, 422, "out-of-range", "position", "position is required");
+    if (creating && !json_object_get(obj, "radius")) return problem_set(pr, 422, "out-of-range", "radius", "radius is required");
+    cs_rock_def d = *def;
+    const json_t *v;
+    if ((v = json_object_get(obj, "position")) && vec3_from_json(v, d.position, "position", pr) != 0) return -1;
+    if ((v = json_object_get(obj, "velocity")) && vec3_from_json(v, d.velocity, "velocity", pr) != 0) return -1;
+    if ((v = json_object_get(obj, "angular_velocity")) && vec3_from_json(v, d.angular_velocity, "angular_velocity", pr) != 0)
+        return -1;
+    if ((v = json_object_get(obj, "orientation"))) {
+        if (!json_is_array(v) || json_array_size(v) != 4)
+            return problem_set(pr, 400, "wrong-type", "orientation", "orientation must be an array of 4 numbers");
+        for (size_t k = 0; k < 4; k++) {
+            const json_t *e = json_array_get(v, k);
+            if (!json_is_number(e))
+                return problem_set(pr, 400, "wrong-type", "orientation", "orientation must be an array of 4 numbers");
+            d.orientation[k] = (float)json_number_value(e);
+        }
+    }
+    if ((v = json_object_get(obj, "radius")) && positive_float(v, "radius", &d.radius, pr) != 0) return -1;
+    if ((v = json_object_get(obj, "density")) && positive_float(v, "density", &d.density, pr) != 0) return -1;
+    if ((v = json_object_get(obj, "kinematic"))) {
+        if (!json_is_boolean(v)) return problem_set(pr, 400, "wrong-type", "kinematic", "kinematic must be true or false");
+        d.kinematic = json_is_true(v);
+    }
+    *def = d;
+    return 0;
+}

@@ -1,0 +1,709 @@
+/* simloop.c - the sim thread (see simloop.h). */
+#include <errno.h>
+#include <math.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "commands.h"
+#include "log.h"
+#include "simloop.h"
+
+#define PUBLISH_EVERY 0.016  /* s of wall time between publications while running */
+#define ENERGY_EVERY 0.1     /* s of wall time between energy evaluations while running */
+#define RTF_WINDOW 0.5       /* s of wall time over which the real-time factor is measured */
+#define MAX_LAG 0.25         /* s of wall time the loop may fall behind before it stops catching up */
+
+struct simloop {
+    cs_sim *sim;
+    clothd_config cfg;
+    command_limits lim;
+    metrics *m;
+    journal *j;
+    pthread_t thread;
+    int started;
+
+    pthread_mutex_t qlock;
+    pthread_cond_t qcond;
+    sim_cmd *head, *tail;
+    int stop;
+
+    /* the sim thread's own */
+    int paused;
+    uint64_t frame;
+    double due, last_publish, last_energy, rtf, rtf_wall, rtf_sim;
+    cs_energy energy;
+    unsigned char *checkpoint;
+    size_t checkpoint_len, checkpoint_cap;
+    uint64_t frames_since_checkpoint;
+    uint64_t rng;
+    int32_t seed;
+    double next_drop;
+    uint32_t autos[CS_MAX_ROCKS];
+    int n_autos;
+    json_t *last_event;
+
+    /* published */
+    pthread_mutex_t plock;
+    char *sim_json, *params_json, *scene_json;
+    size_t sim_len, params_len, scene_len;
+    cs_rock *rocks;
+    int n_rocks;
+    metrics_gauges gauges;
+    int healthy;
+};
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* splitmix64: the auto drops' random numbers, from `seed`. */
+static uint64_t next_u64(uint64_t *s)
+{
+    uint64_t z = (*s += 0x9e3779b97f4a7c15ull);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    return z ^ (z >> 31);
+}
+static double uniform(uint64_t *s) { return (double)(next_u64(s) >> 11) * (1.0 / 9007199254740992.0); }
+
+static cs_params params_of(const simloop *sl)
+{
+    cs_params p;
+    cs_sim_params(sl->sim, &p);
+    return p;
+}
+
+/* Restart the automatic drops: seeded afresh, the first one within a second. */
+static void reseed(simloop *sl)
+{
+    const cs_params p = params_of(sl);
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    sl->seed = p.seed;
+    sl->rng = (uint64_t)p.seed;
+    sl->n_autos = 0;
+    sl->next_drop = info.time + (p.auto_drop_interval < 1.0f ? p.auto_drop_interval : 1.0);
+}
+
+static void take_checkpoint(simloop *sl)
+{
+    const size_t need = cs_snapshot_size(sl->sim);
+    if (need > sl->checkpoint_cap) {
+        unsigned char *b = realloc(sl->checkpoint, need);
+        if (!b) {
+            log_msg("checkpoint: out of memory (%zu bytes); keeping the previous one", need);
+            return;
+        }
+        sl->checkpoint = b;
+        sl->checkpoint_cap = need;
+    }
+    if (cs_snapshot_save(sl->sim, sl->checkpoint, sl->checkpoint_cap, &sl->checkpoint_len) != CS_OK)
+        log_msg("checkpoint failed: %s", cs_sim_error(sl->sim));
+    sl->frames_since_checkpoint = 0;
+}
+
+/* The journal starts afresh from the current state (which is also the new checkpoint). */
+static void rebase(simloop *sl)
+{
+    take_checkpoint(sl);
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    if (journal_rebase(sl->j, sl->checkpoint, sl->checkpoint_len, info.step) != 0)
+        log_msg("journal: out of memory while starting afresh");
+}
+
+static void set_event(simloop *sl, json_t *event)
+{
+    json_decref(sl->last_event);
+    sl->last_event = event;
+}
+
+/* ---- publishing ---- */
+
+static void publish(simloop *sl, int with_hash)
+{
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    const double t = now_s();
+    if (sl->paused || t - sl->last_energy >= ENERGY_EVERY) {
+        cs_energy_get(sl->sim, &sl->energy);
+        sl->last_energy = t;
+    }
+    char hex[17];
+    json_t *hash = json_null();
+    if (with_hash) {
+        cs_hash_hex(cs_state_hash(sl->sim), hex);
+        hash = json_string(hex);
+    }
+    json_t *o = json_pack(
+        "{s:s, s:I, s:I, s:f, s:f, s:f, s:i, s:f, s:s, s:i, s:i, s:I, s:i,"
+        " s:{s:f, s:f, s:f, s:f}, s:o, s:O}",
+        "state", sl->paused ? "paused" : "running", "step", (json_int_t)info.step, "frame", (json_int_t)sl->frame,
+        "sim_time", info.time, "dt", info.dt, "dt_max", info.dt_max, "substeps", (int)info.substeps,
+        "realtime_factor", sl->paused ? 0.0 : sl->rtf, "backend", cs_sim_backend(sl->sim), "n_vertices",
+        (int)info.n_vertices, "n_springs", (int)info.n_springs, "n_torn", (json_int_t)info.n_torn, "n_rocks",
+        (int)info.n_rocks, "energy", "kinetic", sl->energy.kinetic, "spring", sl->energy.spring, "gravity",
+        sl->energy.gravity, "total", sl->energy.total, "state_hash", hash, "last_event",
+        sl->last_event ? sl->last_event : json_null());
+    size_t sim_len = 0, params_len = 0, scene_len = 0;
+    char *sim_json = json_dumps(o, PJSON_DUMP_FLAGS);
+    json_decref(o);
+    if (sim_json) sim_len = strlen(sim_json);
+
+    cs_scene sc;
+    cs_params p;
+    cs_sim_scene(sl->sim, &sc);
+    cs_sim_params(sl->sim, &p);
+    json_t *pj = params_to_json(CS_KIND_LIVE, &sc, &p), *sj = params_to_json(CS_KIND_SCENE, &sc, &p);
+    char *params_json = json_dumps(pj, PJSON_DUMP_FLAGS), *scene_json = json_dumps(sj, PJSON_DUMP_FLAGS);
+    json_decref(pj);
+    json_decref(sj);
+    if (params_json) params_len = strlen(params_json);
+    if (scene_json) scene_len = strlen(scene_json);
+
+    const int n_rocks = cs_rock_count(sl->sim);
+    cs_rock *rocks = n_rocks ? malloc(sizeof *rocks * (size_t)n_rocks) : NULL;
+    for (int r = 0; rocks && r < n_rocks; r++) cs_rock_at(sl->sim, r, &rocks[r]);
+
+    pthread_mutex_lock(&sl->plock);
+    char *old[3] = {sl->sim_json, sl->params_json, sl->scene_json};
+    cs_rock *old_rocks = sl->rocks;
+    if (sim_json) sl->sim_json = sim_json, sl->sim_len = sim_len;
+    else old[0] = NULL;
+    if (params_json) sl->params_json = params_json, sl->params_len = params_len;
+    else old[1] = NULL;
+    if (scene_json) sl->scene_json = scene_json, sl->scene_len = scene_len;
+    else old[2] = NULL;
+    if (rocks || n_rocks == 0) sl->rocks = rocks, sl->n_rocks = n_rocks;
+    else old_rocks = NULL;
+    sl->gauges.realtime_factor = sl->paused ? 0.0 : sl->rtf;
+    sl->gauges.rocks = n_rocks;
+    sl->gauges.vertices = info.n_vertices;
+    sl->gauges.torn = info.n_torn;
+    sl->gauges.paused = sl->paused;
+    pthread_mutex_unlock(&sl->plock);
+    for (int k = 0; k < 3; k++) free(old[k]);
+    free(old_rocks);
+    sl->last_publish = t;
+}
+
+static char *copy_text(simloop *sl, char *const *src, const size_t *src_len, size_t *len)
+{
+    pthread_mutex_lock(&sl->plock);
+    char *s = *src ? malloc(*src_len + 1) : NULL;
+    if (s) {
+        memcpy(s, *src, *src_len + 1);
+        *len = *src_len;
+    }
+    pthread_mutex_unlock(&sl->plock);
+    return s;
+}
+
+char *simloop_sim_json(simloop *sl, size_t *len) { return copy_text(sl, &sl->sim_json, &sl->sim_len, len); }
+char *simloop_params_json(simloop *sl, size_t *len) { return copy_text(sl, &sl->params_json, &sl->params_len, len); }
+char *simloop_scene_json(simloop *sl, size_t *len) { return copy_text(sl, &sl->scene_json, &sl->scene_len, len); }
+
+int simloop_rocks(simloop *sl, cs_rock **out)
+{
+    pthread_mutex_lock(&sl->plock);
+    const int n = sl->n_rocks;
+    *out = n ? malloc(sizeof **out * (size_t)n) : NULL;
+    if (*out) memcpy(*out, sl->rocks, sizeof **out * (size_t)n);
+    pthread_mutex_unlock(&sl->plock);
+    return *out || n == 0 ? n : 0;
+}
+
+void simloop_gauges(simloop *sl, metrics_gauges *g)
+{
+    pthread_mutex_lock(&sl->plock);
+    *g = sl->gauges;
+    g->healthy = sl->healthy;
+    pthread_mutex_unlock(&sl->plock);
+}
+
+int simloop_healthy(simloop *sl)
+{
+    pthread_mutex_lock(&sl->plock);
+    const int h = sl->healthy;
+    pthread_mutex_unlock(&sl->plock);
+    return h;
+}
+
+journal *simloop_journal(simloop *sl) { return sl->j; }
+
+const unsigned char *simloop_checkpoint(simloop *sl, size_t *len)
+{
+    *len = sl->checkpoint_len;
+    return sl->checkpoint;
+}
+cs_sim *simloop_engine(simloop *sl) { return sl->sim; }
+
+/* ---- commands ---- */
+
+/* Applies a state-changing command and journals it. */
+static int apply(simloop *sl, const json_t *cmd, json_t **result, problem *pr)
+{
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    json_t *entry = NULL;
+    const int32_t seed_before = params_of(sl).seed;
+    if (command_apply(sl->sim, cmd, &sl->lim, &entry, result, pr) != 0) return -1;
+    const char *op = json_string_value(json_object_get(entry, "op"));
+    if (command_rebuilds(op)) {
+        sl->frame = 0;
+        reseed(sl);
+        rebase(sl);
+    } else {
+        journal_append(sl->j, info.step, entry);
+        if (journal_full(sl->j)) rebase(sl);
+        if (params_of(sl).seed != seed_before) reseed(sl);
+        const cs_params p = params_of(sl);
+        if (p.auto_drop_interval > 0 && sl->next_drop > info.time + p.auto_drop_interval)
+            sl->next_drop = info.time + p.auto_drop_interval;
+    }
+    if (*result) json_object_set_new(*result, "applied_step", json_integer((json_int_t)info.step));
+    json_decref(entry);
+    return 0;
+}
+
+static void fail_cmd(sim_cmd *c, int status, const char *slug, const char *fmt, const char *arg)
+{
+    c->failed = 1;
+    problem_set(&c->pr, status, slug, NULL, fmt, arg);
+}
+
+/* The non-finite state guard: back to the last checkpoint, paused, event published. */
+static void roll_back(simloop *sl)
+{
+    cs_info bad;
+    cs_sim_info(sl->sim, &bad);
+    const cs_status st = cs_snapshot_load(sl->sim, sl->checkpoint, sl->checkpoint_len);
+    cs_info now;
+    cs_sim_info(sl->sim, &now);
+    sl->paused = 1;
+    set_event(sl, json_pack("{s:s, s:I, s:I, s:s}", "type", "instability", "step", (json_int_t)bad.step,
+                            "restored_step", (json_int_t)now.step, "detail",
+                            st == CS_OK ? "the state stopped being finite; rolled back to the last checkpoint and paused"
+                                        : "the state stopped being finite and the checkpoint could not be restored"));
+    log_msg("instability at step %llu: rolled back to step %llu and paused", (unsigned long long)bad.step,
+            (unsigned long long)now.step);
+    rebase(sl);
+}
+
+/* A failure that loses the backend: unhealthy, and main is asked to save and exit. */
+static void backend_lost(simloop *sl)
+{
+    log_msg("backend failure: %s", cs_sim_error(sl->sim));
+    pthread_mutex_lock(&sl->plock);
+    sl->healthy = 0;
+    pthread_mutex_unlock(&sl->plock);
+    sl->paused = 1;
+    set_event(sl, json_pack("{s:s, s:s}", "type", "backend_failure", "detail", cs_sim_error(sl->sim)));
+    kill(getpid(), SIGUSR1);
+}
+
+static void auto_drop(simloop *sl);
+
+/* One frame, with what follows it: checkpoints, drops, the guard. Returns the engine status. */
+static cs_status run_frame(simloop *sl)
+{
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    const double t0 = now_s();
+    const cs_status st = cs_sim_step_frames(sl->sim, 1);
+    metrics_frame(sl->m, info.substeps, now_s() - t0);
+    if (st == CS_E_NONFINITE) {
+        roll_back(sl);
+        return st;
+    }
+    if (st != CS_OK) {
+        backend_lost(sl);
+        return st;
+    }
+    sl->frame++;
+    auto_drop(sl);
+    const cs_params p = params_of(sl);
+    if (++sl->frames_since_checkpoint >= (uint64_t)p.checkpoint_interval) take_checkpoint(sl);
+    return CS_OK;
+}
+
+static void step_paused(simloop *sl, sim_cmd *c)
+{
+    static const char *const fields[] = {"frames", "substeps", NULL};
+    const json_t *frames = json_object_get(c->body, "frames"), *subs = json_object_get(c->body, "substeps");
+    long long n = 0;
+    if (!sl->paused) {
+        fail_cmd(c, 409, "wrong-state", "%s", "step only while paused: POST /v1/sim/pause first");
+        return;
+    }
+    if (!json_is_object(c->body) || only_fields(c->body, fields, &c->pr) != 0 || (frames && subs) || (!frames && !subs)) {
+        if (!c->pr.slug) problem_set(&c->pr, 400, "wrong-type", NULL, "give either {\"frames\": N} or {\"substeps\": N}");
+        c->failed = 1;
+        return;
+    }
+    if (int_from_json(frames ? frames : subs, 1, 100000, frames ? "frames" : "substeps", &n, &c->pr) != 0) {
+        c->failed = 1;
+        return;
+    }
+    json_t *before_event = json_incref(sl->last_event);
+    if (frames) {
+        for (long long k = 0; k < n; k++)
+            if (run_frame(sl) != CS_OK) break;
+    } else {
+        const cs_status st = cs_sim_step(sl->sim, n);
+        if (st == CS_E_NONFINITE) roll_back(sl);
+        else if (st != CS_OK) backend_lost(sl);
+    }
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    char hex[17];
+    cs_hash_hex(cs_state_hash(sl->sim), hex);
+    c->result = json_pack("{s:I, s:I, s:f, s:s}", "step", (json_int_t)info.step, "frame", (json_int_t)sl->frame,
+                          "sim_time", info.time, "state_hash", hex);
+    if (sl->last_event && sl->last_event != before_event) json_object_set(c->result, "event", sl->last_event);
+    json_decref(before_event);
+}
+
+static void cloth_state(simloop *sl, sim_cmd *c)
+{
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    cs_scene sc;
+    cs_sim_scene(sl->sim, &sc);
+    const size_t n = (size_t)info.n_vertices;
+    float *pos = malloc(sizeof(float) * 3 * n), *vel = malloc(sizeof(float) * 3 * n);
+    if (!pos || !vel || cs_read_positions(sl->sim, pos, 3 * n) != CS_OK || cs_read_velocities(sl->sim, vel, 3 * n) != CS_OK) {
+        free(pos);
+        free(vel);
+        fail_cmd(c, 500, "internal", "%s", "could not read the cloth's state");
+        return;
+    }
+    if (json_is_true(json_object_get(c->body, "binary"))) {
+        c->blob_len = sizeof(float) * 6 * n;
+        c->blob = malloc(c->blob_len);
+        if (c->blob) {
+            memcpy(c->blob, pos, sizeof(float) * 3 * n);
+            memcpy(c->blob + sizeof(float) * 3 * n, vel, sizeof(float) * 3 * n);
+        }
+    } else {
+        /* Formatted by hand: jansson would build n small arrays twice over. */
+        const size_t cap = 128 + n * 2 * 3 * 18;
+        char *s = malloc(cap);
+        if (s) {
+            size_t at = (size_t)snprintf(s, cap, "{\"step\":%llu,\"nx\":%d,\"ny\":%d,\"positions\":[",
+                                         (unsigned long long)info.step, (int)sc.nx, (int)sc.ny);
+            for (int part = 0; part < 2; part++) {
+                const float *a = part ? vel : pos;
+                if (part) at += (size_t)snprintf(s + at, cap - at, "],\"velocities\":[");
+                for (size_t v = 0; v < n; v++)
+                    at += (size_t)snprintf(s + at, cap - at, "%s[%.9g,%.9g,%.9g]", v ? "," : "", a[3 * v], a[3 * v + 1],
+                                           a[3 * v + 2]);
+            }
+            at += (size_t)snprintf(s + at, cap - at, "]}");
+            c->blob = (unsigned char *)s;
+            c->blob_len = at;
+        }
+    }
+    if (!c->blob) fail_cmd(c, 500, "internal", "%s", "out of memory");
+    free(pos);
+    free(vel);
+}
+
+static void snapshot_put(simloop *sl, sim_cmd *c)
+{
+    const cs_status st = cs_snapshot_load(sl->sim, c->blob_in, c->blob_in_len);
+    if (st != CS_OK) {
+        c->failed = 1;
+        problem_from_engine(&c->pr, st, cs_sim_error(sl->sim), cs_sim_error_param(sl->sim));
+        return;
+    }
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    sl->frame = info.step / (uint64_t)info.substeps;
+    reseed(sl);
+    rebase(sl);
+    char hex[17];
+    cs_hash_hex(cs_state_hash(sl->sim), hex);
+    c->result = json_pack("{s:I, s:I, s:s}", "applied_step", (json_int_t)info.step, "step", (json_int_t)info.step,
+                          "state_hash", hex);
+}
+
+/* Runs one command. PAUSE, RESUME and HASH answer with GET /v1/sim's JSON, filled after the
+ * publication that follows. */
+static void handle(simloop *sl, sim_cmd *c)
+{
+    cs_info info;
+    switch (c->kind) {
+    case CMD_APPLY:
+        if (apply(sl, c->body, &c->result, &c->pr) != 0) c->failed = 1;
+        break;
+    case CMD_PAUSE: sl->paused = 1; break;
+    case CMD_RESUME:
+        if (!simloop_healthy(sl)) {
+            fail_cmd(c, 503, "unavailable", "%s", "the backend has failed; the daemon is shutting down");
+            break;
+        }
+        sl->paused = 0;
+        sl->due = now_s();
+        sl->rtf_wall = sl->due;
+        cs_sim_info(sl->sim, &info);
+        sl->rtf_sim = info.time;
+        break;
+    case CMD_STEP: step_paused(sl, c); break;
+    case CMD_HASH: break;
+    case CMD_SNAPSHOT_GET: {
+        const size_t need = cs_snapshot_size(sl->sim);
+        c->blob = malloc(need);
+        if (!c->blob || cs_snapshot_save(sl->sim, c->blob, need, &c->blob_len) != CS_OK)
+            fail_cmd(c, 500, "internal", "%s", "could not write the snapshot");
+        break;
+    }
+    case CMD_SNAPSHOT_PUT: snapshot_put(sl, c); break;
+    case CMD_CLOTH_STATE: cloth_state(sl, c); break;
+    case CMD_BUNDLE:
+        cs_sim_info(sl->sim, &info);
+        c->blob = journal_bundle(sl->j, info.step, &c->blob_len);
+        if (!c->blob) fail_cmd(c, 500, "internal", "%s", "out of memory");
+        break;
+    }
+}
+
+/* Waits (while paused: for a command; while running: until `until` on the monotonic clock, or a
+ * command), then runs the queued commands, publishes and answers them. Returns 1 when stopping. */
+static int drain(simloop *sl, int wait, double until)
+{
+    pthread_mutex_lock(&sl->qlock);
+    if (wait && !sl->head && !sl->stop) {
+        if (until <= 0) {
+            pthread_cond_wait(&sl->qcond, &sl->qlock);
+        } else {
+            struct timespec ts;
+            ts.tv_sec = (time_t)until;
+            ts.tv_nsec = (long)((until - (double)ts.tv_sec) * 1e9);
+            pthread_cond_timedwait(&sl->qcond, &sl->qlock, &ts);
+        }
+    }
+    sim_cmd *list = sl->head;
+    sl->head = sl->tail = NULL;
+    const int stop = sl->stop;
+    pthread_mutex_unlock(&sl->qlock);
+    if (!list) return stop;
+    int want_hash = 0;
+    for (sim_cmd *c = list; c; c = c->next) {
+        c->failed = 0;
+        c->result = NULL;
+        c->blob = NULL;
+        c->blob_len = 0;
+        memset(&c->pr, 0, sizeof c->pr);
+        handle(sl, c);
+        want_hash |= c->kind == CMD_HASH;
+    }
+    /* Publish (with the hash while paused, or when asked), then answer: reads that follow the
+     * answers see the commands. */
+    publish(sl, want_hash || sl->paused);
+    for (sim_cmd *c = list, *next; c; c = next) {
+        next = c->next;
+        if (!c->failed && (c->kind == CMD_PAUSE || c->kind == CMD_RESUME || c->kind == CMD_HASH))
+            c->blob = (unsigned char *)simloop_sim_json(sl, &c->blob_len);
+        c->done(c, c->done_arg);
+    }
+    return stop;
+}
+
+static void update_rtf(simloop *sl, double t)
+{
+    if (t - sl->rtf_wall < RTF_WINDOW) return;
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    sl->rtf = (info.time - sl->rtf_sim) / (t - sl->rtf_wall);
+    sl->rtf_wall = t;
+    sl->rtf_sim = info.time;
+}
+
+static void *run(void *arg)
+{
+    simloop *sl = arg;
+    sigset_t all;
+    sigfillset(&all);
+    pthread_sigmask(SIG_BLOCK, &all, NULL);
+    sl->due = now_s();
+    sl->rtf_wall = sl->due;
+    for (;;) {
+        const double t = now_s();
+        const cs_params p = params_of(sl);
+        const int running = !sl->paused;
+        /* Wait for commands while paused, or until the next frame is due. */
+        const int wait = !running || (!p.max_speed && t < sl->due);
+        if (drain(sl, wait, running ? sl->due : 0)) break;
+        if (sl->paused || (!p.max_speed && now_s() < sl->due)) continue;
+        if (run_frame(sl) != CS_OK) {
+            publish(sl, 1);
+            continue;
+        }
+        const double after = now_s();
+        const double frame_wall = 1.0 / ((double)p.frame_rate * (double)p.time_scale);
+        sl->due += frame_wall;
+        if (after - sl->due > MAX_LAG) sl->due = after; /* too slow to keep up: do not try to catch up */
+        update_rtf(sl, after);
+        if (!p.max_speed || after - sl->last_publish >= PUBLISH_EVERY) publish(sl, 0);
+    }
+    return NULL;
+}
+
+/* ---- automatic drops ---- */
+
+static void auto_drop(simloop *sl)
+{
+    const cs_params p = params_of(sl);
+    if (p.seed != sl->seed) reseed(sl);
+    if (p.auto_drop_interval <= 0 || p.auto_drop_max <= 0) return;
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    if (info.time < sl->next_drop) return;
+    sl->next_drop = info.time + p.auto_drop_interval;
+    json_t *result = NULL;
+    problem pr;
+    /* The oldest automatic rocks go first. */
+    while (sl->n_autos > 0 && sl->n_autos >= p.auto_drop_max) {
+        json_t *cmd = json_pack("{s:s, s:I, s:s}", "op", "rock_remove", "id", (json_int_t)sl->autos[0], "by", "auto");
+        if (apply(sl, cmd, &result, &pr) == 0) json_decref(result);
+        json_decref(cmd);
+        memmove(sl->autos, sl->autos + 1, sizeof sl->autos[0] * (size_t)(sl->n_autos - 1));
+        sl->n_autos--;
+    }
+    if (cs_rock_count(sl->sim) >= sl->lim.max_rocks) return;
+    cs_scene sc;
+    cs_sim_scene(sl->sim, &sc);
+    const double size = sc.size_x < sc.size_y ? sc.size_x : sc.size_y;
+    const double u = uniform(&sl->rng), v = uniform(&sl->rng), w = uniform(&sl->rng);
+    const double radius = (0.025 + 0.035 * w) * size;
+    json_t *rock;
+    if (sc.orientation == CS_HORIZONTAL) {
+        /* Dropped from above, anywhere over the middle 70% of the net. */
+        const double z = sc.height + 0.4 * (sc.size_x > sc.size_y ? sc.size_x : sc.size_y);
+        rock = json_pack("{s:[f,f,f], s:f, s:[f,f,f]}", "position", (u - 0.5) * 0.7 * sc.size_x,
+                         (v - 0.5) * 0.7 * sc.size_y, z, "radius", radius, "angular_velocity", 4.0 * (u - 0.5),
+                         4.0 * (v - 0.5), 0.0);
+    } else {
+        /* Thrown at the hanging curtain from in front of it. */
+        rock = json_pack("{s:[f,f,f], s:f, s:[f,f,f]}", "position", (u - 0.5) * 0.7 * sc.size_x, -0.5 * sc.size_y,
+                         sc.height + (v - 0.5) * 0.6 * sc.size_y, "radius", radius, "velocity", 0.0, 4.0, 1.0);
+    }
+    json_t *cmd = json_pack("{s:s, s:o, s:s}", "op", "rock_add", "rock", rock, "by", "auto");
+    if (apply(sl, cmd, &result, &pr) == 0) {
+        sl->autos[sl->n_autos++] = (uint32_t)json_integer_value(json_object_get(result, "id"));
+        json_decref(result);
+    } else {
+        log_msg("automatic drop refused: %s", pr.detail);
+    }
+    json_decref(cmd);
+}
+
+/* ---- lifecycle ---- */
+
+simloop *simloop_new(cs_sim *sim, const clothd_config *cfg, metrics *m)
+{
+    simloop *sl = calloc(1, sizeof *sl);
+    if (!sl) return NULL;
+    sl->sim = sim;
+    sl->cfg = *cfg;
+    sl->lim.max_rocks = cfg->set.max_rocks;
+    sl->m = m;
+    sl->healthy = 1;
+    sl->paused = cfg->set.paused;
+    sl->j = journal_new((size_t)cfg->set.journal_max);
+    pthread_mutex_init(&sl->qlock, NULL);
+    pthread_condattr_t ca;
+    pthread_condattr_init(&ca);
+    pthread_condattr_setclock(&ca, CLOCK_MONOTONIC); /* waits are until a monotonic deadline */
+    pthread_cond_init(&sl->qcond, &ca);
+    pthread_condattr_destroy(&ca);
+    pthread_mutex_init(&sl->plock, NULL);
+    if (!sl->j) {
+        simloop_free(sl);
+        return NULL;
+    }
+    cs_info info;
+    cs_sim_info(sim, &info);
+    sl->frame = info.step / (uint64_t)info.substeps;
+    reseed(sl);
+    rebase(sl);
+    publish(sl, sl->paused);
+    return sl;
+}
+
+int simloop_start(simloop *sl)
+{
+    if (pthread_create(&sl->thread, NULL, run, sl) != 0) return -1;
+    sl->started = 1;
+    return 0;
+}
+
+void simloop_submit(simloop *sl, sim_cmd *cmd)
+{
+    cmd->next = NULL;
+    pthread_mutex_lock(&sl->qlock);
+    if (sl->stop) {
+        pthread_mutex_unlock(&sl->qlock);
+        cmd->failed = 1;
+        cmd->result = NULL;
+        cmd->blob = NULL;
+        problem_set(&cmd->pr, 503, "unavailable", NULL, "clothd is shutting down");
+        cmd->done(cmd, cmd->done_arg);
+        return;
+    }
+    if (sl->tail) sl->tail->next = cmd;
+    else sl->head = cmd;
+    sl->tail = cmd;
+    pthread_cond_signal(&sl->qcond);
+    pthread_mutex_unlock(&sl->qlock);
+}
+
+void simloop_stop(simloop *sl)
+{
+    pthread_mutex_lock(&sl->qlock);
+    sl->stop = 1;
+    pthread_cond_signal(&sl->qcond);
+    pthread_mutex_unlock(&sl->qlock);
+    if (sl->started) pthread_join(sl->thread, NULL);
+    sl->started = 0;
+    /* Whatever arrived meanwhile: refused. */
+    pthread_mutex_lock(&sl->qlock);
+    sim_cmd *list = sl->head;
+    sl->head = sl->tail = NULL;
+    pthread_mutex_unlock(&sl->qlock);
+    for (sim_cmd *c = list, *next; c; c = next) {
+        next = c->next;
+        c->failed = 1;
+        c->result = NULL;
+        c->blob = NULL;
+        problem_set(&c->pr, 503, "unavailable", NULL, "clothd is shutting down");
+        c->done(c, c->done_arg);
+    }
+}
+
+void simloop_free(simloop *sl)
+{
+    if (!sl) return;
+    if (sl->started) simloop_stop(sl);
+    cs_sim_destroy(sl->sim);
+    journal_free(sl->j);
+    free(sl->checkpoint);
+    json_decref(sl->last_event);
+    free(sl->sim_json);
+    free(sl->params_json);
+    free(sl->scene_json);
+    free(sl->rocks);
+    pthread_mutex_destroy(&sl->qlock);
+    pthread_cond_destroy(&sl->qcond);
+    pthread_mutex_destroy(&sl->plock);
+    free(sl);
+}

@@ -1,0 +1,77 @@
+/* simloop.h - the sim thread: the only owner of the engine.
+ *
+ * It runs the simulation continuously at time_scale (or max_speed), applies queued commands at
+ * frame boundaries (at once while paused), journals each with the step it applied at, drops
+ * rocks into the default scene, keeps in-memory checkpoints and rolls back to the last one when
+ * the state stops being finite, and publishes what readers need (GET /v1/sim's JSON, params,
+ * scene, rocks) after every frame and every command, so that readers never touch the engine and
+ * never wait for it. A command's submitter is called back once it has been applied and the
+ * result published, so a read that follows sees it. */
+#ifndef CLOTHD_SIMLOOP_H
+#define CLOTHD_SIMLOOP_H
+
+#include <jansson.h>
+
+#include "clothsim/clothsim.h"
+#include "journal.h"
+#include "metrics.h"
+#include "pjson.h"
+#include "settings.h"
+
+typedef enum sim_cmd_kind {
+    CMD_APPLY,        /* body: a command of commands.h */
+    CMD_PAUSE,
+    CMD_RESUME,
+    CMD_STEP,         /* body: {frames: N} or {substeps: N}, while paused */
+    CMD_SNAPSHOT_GET, /* blob: the snapshot */
+    CMD_SNAPSHOT_PUT, /* blob_in: a snapshot to restore */
+    CMD_CLOTH_STATE,  /* blob: positions then velocities; body {"binary": bool} */
+    CMD_HASH,         /* blob: GET /v1/sim's JSON with the state hash of this moment */
+    CMD_BUNDLE        /* blob: the journal bundle for clothd replay */
+} sim_cmd_kind;
+
+typedef struct sim_cmd sim_cmd;
+struct sim_cmd {
+    sim_cmd_kind kind;
+    json_t *body;                 /* the request (owned by the submitter) */
+    const unsigned char *blob_in; /* CMD_SNAPSHOT_PUT */
+    size_t blob_in_len;
+    /* results, set by the sim thread before done() */
+    int failed;
+    problem pr;
+    json_t *result;               /* response JSON (the submitter frees it) */
+    unsigned char *blob;          /* binary or preformatted response (the submitter frees it) */
+    size_t blob_len;
+    void (*done)(sim_cmd *cmd, void *arg);
+    void *done_arg;
+    sim_cmd *next;
+};
+
+typedef struct simloop simloop;
+
+/* Takes the engine (the loop owns and destroys it). The state is published and journaled from
+ * its current step. */
+simloop *simloop_new(cs_sim *sim, const clothd_config *cfg, metrics *m);
+int simloop_start(simloop *sl);
+/* Queues a command; done() is called from the sim thread. While stopping, it fails at once. */
+void simloop_submit(simloop *sl, sim_cmd *cmd);
+/* Finishes the frame in progress, fails the queued commands (503), joins the thread. */
+void simloop_stop(simloop *sl);
+/* The engine, for the owner once the loop has stopped (state file). */
+cs_sim *simloop_engine(simloop *sl);
+/* The last in-memory checkpoint (a snapshot), for when the engine cannot be read any more. */
+const unsigned char *simloop_checkpoint(simloop *sl, size_t *len);
+void simloop_free(simloop *sl);
+
+/* Published reads (malloc'd copies). */
+char *simloop_sim_json(simloop *sl, size_t *len);
+char *simloop_params_json(simloop *sl, size_t *len);
+char *simloop_scene_json(simloop *sl, size_t *len);
+/* A copy of the rocks; returns how many (the array is malloc'd, possibly NULL when none). */
+int simloop_rocks(simloop *sl, cs_rock **out);
+journal *simloop_journal(simloop *sl);
+void simloop_gauges(simloop *sl, metrics_gauges *g);
+/* 0 once the backend has failed for good (CS_E_DEVICE). */
+int simloop_healthy(simloop *sl);
+
+#endif

@@ -1,0 +1,98 @@
+// harness.mjs - starts the real clothd on 127.0.0.1 with --port 0 and the CPU backend, and talks
+// to it over real sockets with fetch. Used by every tests/server/*.test.mjs.
+import { spawn } from 'node:child_process';
+import { mkdtempSync, rmSync } from 'node:fs';
+import { tmpdir } from 'node:os';
+import { join } from 'node:path';
+
+export const CLOTHD = process.env.CLOTHD_BIN;
+if (!CLOTHD) throw new Error('CLOTHD_BIN must name the clothd binary (ctest sets it)');
+
+export function tempDir() {
+  return mkdtempSync(join(tmpdir(), 'clothd-test-'));
+}
+
+// Starts clothd and resolves once it logs the port it listens on. Extra flags follow the
+// defaults, so they win. The daemon's log is kept in daemon.log for failure messages.
+export function start(flags = [], { env = {}, webRoot } = {}) {
+  const dir = tempDir();
+  const args = ['--port', '0', '--backend', 'cpu', '--threads', '1', '--web-root', webRoot ?? dir, ...flags];
+  const base = Object.fromEntries(Object.entries(process.env).filter(([k]) => !k.startsWith('CLOTHD_')));
+  const proc = spawn(CLOTHD, args, {
+    stdio: ['ignore', 'pipe', 'pipe'],
+    env: { ...base, OMP_WAIT_POLICY: 'passive', ...env },
+  });
+  const daemon = { proc, dir, log: '', url: null, exited: null };
+  daemon.exitPromise = new Promise((resolve) => {
+    proc.on('exit', (code, signal) => {
+      daemon.exited = { code, signal };
+      resolve(daemon.exited);
+    });
+  });
+  return new Promise((resolve, reject) => {
+    proc.stderr.setEncoding('utf8');
+    proc.stderr.on('data', (chunk) => {
+      daemon.log += chunk;
+      const m = /listening on http:\/\/([0-9.]+):(\d+)/.exec(daemon.log);
+      if (m && !daemon.url) {
+        daemon.url = `http://${m[1]}:${m[2]}`;
+        resolve(daemon);
+      }
+    });
+    daemon.exitPromise.then((e) => {
+      if (!daemon.url) reject(new Error(`clothd exited (${JSON.stringify(e)}) before listening:\n${daemon.log}`));
+    });
+  });
+}
+
+// Stops the daemon with a signal and waits for it to exit; returns its exit status.
+export async function stop(daemon, signal = 'SIGTERM') {
+  if (!daemon.exited) daemon.proc.kill(signal);
+  const e = await daemon.exitPromise;
+  rmSync(daemon.dir, { recursive: true, force: true });
+  return e;
+}
+
+// One request. body: an object (sent as JSON), a string or a Buffer (sent as is).
+export async function call(daemon, method, path, body, headers = {}) {
+  const init = { method, headers: { ...headers } };
+  if (body !== undefined) {
+    init.body = typeof body === 'string' || body instanceof Uint8Array ? body : JSON.stringify(body);
+  }
+  const res = await fetch(daemon.url + path, init);
+  const buf = Buffer.from(await res.arrayBuffer());
+  const type = res.headers.get('content-type') || '';
+  let json;
+  if (type.includes('json')) json = JSON.parse(buf.toString('utf8'));
+  return { status: res.status, headers: res.headers, type, buf, text: buf.toString('utf8'), json };
+}
+
+export async function ok(daemon, method, path, body, headers) {
+  const r = await call(daemon, method, path, body, headers);
+  if (r.status >= 300) throw new Error(`${method} ${path} -> ${r.status}: ${r.text}`);
+  return r.json ?? r;
+}
+
+export async function pause(daemon) {
+  return ok(daemon, 'POST', '/v1/sim/pause');
+}
+
+// The state hash of a paused daemon (published with every change while paused).
+export async function hash(daemon) {
+  const sim = await ok(daemon, 'GET', '/v1/sim');
+  if (sim.state !== 'paused') throw new Error('hash() needs a paused daemon');
+  return sim.state_hash;
+}
+
+// Waits for a condition by polling it (a condition, not a guess at how long something takes).
+export async function until(what, fn, { timeout = 20000, every = 20 } = {}) {
+  const t0 = Date.now();
+  for (;;) {
+    const v = await fn();
+    if (v) return v;
+    if (Date.now() - t0 > timeout) throw new Error(`timed out waiting for ${what}`);
+    await new Promise((r) => setTimeout(r, every));
+  }
+}
+
+export const PROBLEM = 'application/problem+json';
