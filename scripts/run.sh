@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
-# The main job: installs what is missing, builds, and runs the physics core on its default scene
-# sizes with the benchmark (until the daemon exists), printing vertex-substeps per second.
+# The main job: installs what is missing, builds, and starts clothd on its default scene (the
+# viewer's files from web/, the API at http://127.0.0.1:8080/v1). Extra arguments go to clothd,
+# e.g. scripts/run.sh --port 9000 --backend cpu. Ctrl-C stops it (and saves --state-file if set).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 "$root/scripts/setup.sh"
 "$root/scripts/build.sh"
-exec "$root/build/kernels/clothd-bench" "$@"
+cd "$root"
+echo "clothd: API at http://127.0.0.1:8080/v1 (try: curl -s http://127.0.0.1:8080/v1/sim)" >&2
+exec "$root/build/server/clothd" --web-root "$root/web" "$@"

@@ -1,0 +1,59 @@
+// spec.test.mjs - proto/openapi.yaml and the daemon agree: the same routes and methods as
+// `clothd routes`, and the same parameter and scene fields as the live API.
+import { test } from 'node:test';
+import assert from 'node:assert/strict';
+import { execFile } from 'node:child_process';
+import { readFileSync } from 'node:fs';
+import { join } from 'node:path';
+import { promisify } from 'node:util';
+import { start, stop, ok, CLOTHD } from './harness.mjs';
+
+const spec = readFileSync(join(process.env.CLOTHD_SOURCE, 'proto', 'openapi.yaml'), 'utf8').split('\n');
+
+// The routes under `paths:` (two-space keys) and their methods (four-space keys).
+function specRoutes() {
+  const out = [];
+  let inPaths = false, path = null;
+  for (const line of spec) {
+    if (/^\S/.test(line)) inPaths = line.startsWith('paths:');
+    if (!inPaths) continue;
+    let m = /^ {2}(\/\S*):\s*$/.exec(line);
+    if (m) path = m[1];
+    m = /^ {4}(get|put|post|patch|delete):/.exec(line);
+    if (m && path) out.push(`${m[1].toUpperCase()} ${path}`);
+  }
+  return out.sort();
+}
+
+// The property names of a component schema (six-space keys under `    Name:` ... `properties:`).
+function schemaProperties(name) {
+  const start = spec.findIndex((l) => l === `    ${name}:`);
+  assert.ok(start > 0, `schema ${name} in openapi.yaml`);
+  const props = [];
+  let inProps = false;
+  for (const line of spec.slice(start + 1)) {
+    if (/^ {4}\S/.test(line)) break;
+    if (/^ {6}properties:/.test(line)) inProps = true;
+    else if (/^ {6}\S/.test(line)) inProps = false;
+    const m = /^ {8}([a-z_]+):/.exec(line);
+    if (inProps && m) props.push(m[1]);
+  }
+  return props.sort();
+}
+
+test('openapi.yaml lists exactly the routes and methods of the route table', async () => {
+  const { stdout } = await promisify(execFile)(CLOTHD, ['routes']);
+  const table = stdout.trim().split('\n').sort();
+  assert.ok(table.length >= 25);
+  assert.deepEqual(specRoutes(), table);
+});
+
+test('openapi.yaml names every parameter and scene field the API has', async () => {
+  const d = await start(['--paused']);
+  assert.deepEqual(schemaProperties('Params'), Object.keys(await ok(d, 'GET', '/v1/params')).sort());
+  assert.deepEqual(schemaProperties('Scene'), Object.keys(await ok(d, 'GET', '/v1/scene')).sort());
+  const rock = (await ok(d, 'POST', '/v1/rocks', { position: [0, 0, 3], radius: 0.1 })).rock;
+  assert.deepEqual(schemaProperties('Rock'), Object.keys(rock).sort());
+  assert.deepEqual(schemaProperties('Sim'), Object.keys(await ok(d, 'GET', '/v1/sim')).sort());
+  await stop(d);
+});
