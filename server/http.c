@@ -17,7 +17,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 
 #include "http.h"
@@ -670,12 +672,25 @@ static MHD_Result dispatch(req *r)
     return MHD_YES;
 }
 
+/* The simulation comes first: under overload, HTTP threads give way to the sim thread and its
+ * workers instead of slowing the simulation below real time. Each libmicrohttpd thread lowers
+ * its own priority on its first request (Linux priorities are per thread). */
+static void lower_priority_once(int nice_value)
+{
+    static _Thread_local int done;
+    if (done) return;
+    done = 1;
+    if (setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), nice_value) != 0)
+        log_msg("http: could not lower this thread's priority: %s", strerror(errno));
+}
+
 static MHD_Result access_cb(void *cls, struct MHD_Connection *conn, const char *url, const char *method,
                             const char *version, const char *upload_data, size_t *upload_data_size, void **con_cls)
 {
     (void)version;
     http_server *s = cls;
     req *r = *con_cls;
+    lower_priority_once(s->set.http_nice);
     if (!r) {
         /* First call: record the request only (answering now would end keep-alive). */
         r = calloc(1, sizeof *r);

@@ -215,8 +215,8 @@ static int load_file(clothd_config *c, const char *path, char *why, size_t why_l
     return rc;
 }
 
-/* Whether an item takes no value on the command line when none follows (booleans). */
-static int is_bool(const char *name)
+/* What a command-line name is: -1 unknown, 1 a boolean (may go without a value), 0 other. */
+static int kind_of(const char *name)
 {
     char key[128];
     snprintf(key, sizeof key, "%s", name);
@@ -224,7 +224,7 @@ static int is_bool(const char *name)
     const srow *r = find_row(key);
     if (r) return r->type == T_BOOL;
     const cs_param_info *p = cs_param_find(key);
-    return p && p->type == CS_T_BOOL;
+    return p ? p->type == CS_T_BOOL : -1;
 }
 
 int settings_load(clothd_config *c, int argc, char **argv, char **env, char *why, size_t why_len)
@@ -278,8 +278,13 @@ int settings_load(clothd_config *c, int argc, char **argv, char **env, char *why
             value = eq + 1;
         } else {
             snprintf(name, sizeof name, "%s", a + 2);
+            const int kind = kind_of(name);
+            if (kind < 0) {
+                snprintf(why, why_len, "unknown setting '%s' (clothd --help lists them)", name);
+                return -1;
+            }
             if (i + 1 < argc && strncmp(argv[i + 1], "--", 2) != 0) value = argv[++i];
-            else if (is_bool(name)) value = "true";
+            else if (kind == 1) value = "true";
             else {
                 snprintf(why, why_len, "--%s needs a value", name);
                 return -1;

@@ -28,6 +28,7 @@
     X(paused, BOOL, 0, 0, 1, NULL, "Start paused (POST /v1/sim/resume runs it)")                      \
     X(threads, INT, 0, 0, 256, NULL, "CPU backend threads; 0 = one per core")                         \
     X(http_threads, INT, 2, 1, 64, NULL, "Threads serving HTTP")                                      \
+    X(http_nice, INT, 10, 0, 19, NULL, "Niceness of the HTTP threads: under overload the simulation keeps the CPU") \
     X(max_body, INT, 1048576, 1024, 1073741824, NULL, "Largest request body in bytes (413 beyond)")    \
     X(max_connections, INT, 512, 1, 100000, NULL, "Most HTTP connections at once")                    \
     X(connection_timeout, INT, 60, 1, 86400, NULL, "Seconds an idle HTTP connection stays open")       \

@@ -519,12 +519,18 @@ static void swap_rest(cs_state *s)
     s->L0_next = t;
 }
 
+/* Rows per block handed to a thread at a time. Blocks are taken as threads come free (dynamic):
+ * a thread the OS preempts holds up one block, not half the cloth. Each block starts by
+ * evaluating the two rows above it again (16 rows: 12% more spring work than static halves, for
+ * robustness on a busy machine; no slower on an idle one, as measured). */
+#define ROW_BLOCK 16
+
 /* Inside a parallel region: the force pass over every row. */
 static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain)
 {
     thread_buf *tb = c->tb[thread_id()];
     tb->last_row = -3;
-#pragma omp for schedule(static)
+#pragma omp for schedule(dynamic, ROW_BLOCK)
     for (int32_t j = 0; j < p->ny; j++) force_row(p, s, tb, j, c->partials, strain);
 }
 
@@ -577,22 +583,27 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
     const int threads = threads_of(m), verlet = p->integrator == CS_VELOCITY_VERLET;
     const int strain = p->strain_on != 0;
     const int32_t ny = p->ny;
+    /* Velocity Verlet's steps 1 and 2 for the rocks and the grab (backend.h) run in the single
+     * section that ends the previous substep: one barrier fewer per substep. */
+    if (verlet && substeps > 0) {
+        grab_motion(p, s);
+        rocks_move(s, p->hdt, p->dt);
+    }
 #pragma omp parallel num_threads(threads)
     {
         for (int32_t it = 0; it < substeps; it++) {
             if (verlet) {
-#pragma omp single
-                {
-                    grab_motion(p, s);
-                    rocks_move(s, p->hdt, p->dt);
-                }
-#pragma omp for schedule(static)
+#pragma omp for schedule(dynamic, ROW_BLOCK)
                 for (int32_t j = 0; j < ny; j++) move_row(s, p, j, it > 0, p->hdt, p->dt);
                 force_pass(c, p, s, strain);
 #pragma omp single
                 {
                     rocks_forces(p, s, c->partials, p->hdt);
                     if (strain) swap_rest(s);
+                    if (it + 1 < substeps) {
+                        grab_motion(p, s);
+                        rocks_move(s, p->hdt, p->dt);
+                    }
                 }
             } else {
                 force_pass(c, p, s, 0);

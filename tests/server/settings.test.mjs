@@ -1,0 +1,70 @@
+// settings.test.mjs - one table, four sources: defaults, the config file, CLOTHD_* variables and
+// flags, in that order of precedence, for startup settings and engine parameters alike.
+import { test } from 'node:test';
+import assert from 'node:assert/strict';
+import { execFile } from 'node:child_process';
+import { writeFileSync } from 'node:fs';
+import { join } from 'node:path';
+import { promisify } from 'node:util';
+import { start, stop, ok, tempDir, CLOTHD } from './harness.mjs';
+
+const run = promisify(execFile);
+
+test('config file < environment < flags', async () => {
+  const dir = tempDir();
+  const conf = join(dir, 'clothd.conf');
+  writeFileSync(conf, [
+    '# a comment',
+    'k_bend = 11',
+    'k_shear = 44       # trailing comment',
+    'gravity = 0, 0, -3',
+    'integrator = symplectic_euler',
+    'nx = 10',
+    'ny = 9',
+    'auto_drop_interval = 0',
+    'max_rocks = 3',
+  ].join('\n'));
+  const d = await start(['--config', conf, '--k-shear', '55', '--paused'], { env: { CLOTHD_K_BEND: '22', CLOTHD_NY: '7' } });
+  const p = await ok(d, 'GET', '/v1/params');
+  assert.equal(p.k_bend, 22); // environment over the file
+  assert.equal(p.k_shear, 55); // flag over the file
+  assert.deepEqual(p.gravity, [0, 0, -3]);
+  assert.equal(p.integrator, 'symplectic_euler');
+  const s = await ok(d, 'GET', '/v1/scene');
+  assert.equal(s.nx, 10);
+  assert.equal(s.ny, 7);
+  // A startup setting from the file: max_rocks = 3.
+  for (let k = 0; k < 3; k++) await ok(d, 'POST', '/v1/rocks', { position: [k, 0, 3], radius: 0.1 });
+  const r = await fetch(`${d.url}/v1/rocks`, { method: 'POST', body: JSON.stringify({ position: [0, 0, 4], radius: 0.1 }) });
+  assert.equal(r.status, 422);
+  assert.equal((await r.json()).param, 'max_rocks');
+  await stop(d);
+});
+
+test('bad settings stop the start with a clear reason', async () => {
+  const dir = tempDir();
+  const conf = join(dir, 'bad.conf');
+  writeFileSync(conf, 'k_bend = 10\nwarp_speed = 9\n');
+  await assert.rejects(run(CLOTHD, ['--config', conf]), /bad\.conf:2: unknown setting 'warp_speed'/);
+  await assert.rejects(run(CLOTHD, ['--port', '70000']), /port must be a whole number from 0 to 65535/);
+  await assert.rejects(run(CLOTHD, ['--k-bend', 'soft']), /k_bend must be a number/);
+  await assert.rejects(run(CLOTHD, ['--gravity', '1,2']), /gravity must be three numbers/);
+  await assert.rejects(run(CLOTHD, ['--backend', 'tpu']), /backend must be one of auto\|cuda\|cpu/);
+  await assert.rejects(run(CLOTHD, ['--listen', 'not-an-address', '--port', '0']), /listen address 'not-an-address'/);
+  await assert.rejects(run(CLOTHD, ['--nope']), /unknown setting 'nope'/);
+  await assert.rejects(run(CLOTHD, ['--config', join(dir, 'missing.conf')]), /missing\.conf: No such file/);
+});
+
+test('--help lists every setting and parameter; routes and version', async () => {
+  const { stdout } = await run(CLOTHD, ['--help']);
+  for (const flag of ['--port', '--state-file', '--web-root', '--k-structural', '--auto-drop-interval', '--integrator'])
+    assert.ok(stdout.includes(flag), flag);
+  assert.match((await run(CLOTHD, ['--version'])).stdout, /^clothd \d+\.\d+\.\d+/);
+  assert.match((await run(CLOTHD, ['routes'])).stdout, /^GET \/v1\/health$/m);
+});
+
+test('an unknown CLOTHD_ variable is ignored with a warning', async () => {
+  const d = await start(['--paused'], { env: { CLOTHD_NOT_A_SETTING: '1' } });
+  assert.match(d.log, /ignoring environment variable CLOTHD_NOT_A_SETTING/);
+  await stop(d);
+});
