@@ -7,5 +7,4 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 "$root/scripts/setup.sh"
 "$root/scripts/build.sh"
 cd "$root"
-echo "clothd: API at http://127.0.0.1:8080/v1 (try: curl -s http://127.0.0.1:8080/v1/sim)" >&2
 exec "$root/build/server/clothd" --web-root "$root/web" "$@"
