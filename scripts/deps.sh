@@ -5,5 +5,9 @@ CLOTHD_APT_PACKAGES=(
   gcc make cmake pkg-config   # the build
   libcmocka-dev               # C unit and physics tests
   libmicrohttpd-dev libjansson-dev   # clothd's HTTP server and JSON
+  libwebsockets-dev libmeshoptimizer-dev   # clothd's stream
   nodejs                      # integration tests (node's test runner and fetch)
 )
+# npm: Debian's nodejs needs the npm package, NodeSource's nodejs bundles npm (and would conflict
+# with Debian's). Installed only when the command is missing.
+CLOTHD_APT_IF_NO_NPM=(npm)

@@ -25,6 +25,7 @@
 #include "http.h"
 #include "log.h"
 #include "pjson.h"
+#include "stream.h"
 
 #if MHD_VERSION < 0x00097002
 typedef int MHD_Result;
@@ -194,10 +195,13 @@ static int h_health(http_server *s, req *r, reply *out)
 {
     (void)r;
     const int ok = simloop_healthy(s->sl);
+    json_t *stream = s->info.stream ? json_pack("{s:i, s:s, s:s}", "port", s->info.stream_port, "path", "/stream",
+                                                "protocol", "clothd.v1")
+                                    : json_null();
     return reply_json(out, ok ? 200 : 503,
-                      json_pack("{s:s, s:s, s:s, s:s, s:s, s:n}", "status", ok ? "ok" : "unhealthy", "backend",
+                      json_pack("{s:s, s:s, s:s, s:s, s:s, s:o}", "status", ok ? "ok" : "unhealthy", "backend",
                                 s->info.backend, "device", s->info.device, "backend_note", s->info.backend_note,
-                                "version", s->info.version, "stream"));
+                                "version", s->info.version, "stream", stream));
 }
 
 static int h_sim(http_server *s, req *r, reply *out)
@@ -416,7 +420,9 @@ static int h_metrics(http_server *s, req *r, reply *out)
     metrics_gauges g;
     simloop_gauges(s->sl, &g);
     size_t len = 0;
-    char *text = metrics_render(s->m, &g, NULL, &len);
+    char *extra = s->info.stream ? stream_metrics(s->info.stream) : NULL;
+    char *text = metrics_render(s->m, &g, extra, &len);
+    free(extra);
     return reply_text(out, 200, "text/plain; version=0.0.4; charset=utf-8", text, len);
 }
 
@@ -665,6 +671,7 @@ static MHD_Result dispatch(req *r)
     }
     if (rt->fn(s, r, &rep) == NOW) return send_reply(r, &rep);
     r->phase = 1;
+    memcpy(r->cmd.request_id, r->request_id, sizeof r->cmd.request_id);
     r->cmd.done = resume_cb;
     r->cmd.done_arg = r;
     MHD_suspend_connection(r->conn); /* before submitting: the answer may come at once */

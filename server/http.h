@@ -12,8 +12,12 @@
 
 typedef struct http_server http_server;
 
+struct stream;
+
 typedef struct http_info {
     const char *backend, *device, *backend_note, *version;
+    struct stream *stream; /* NULL when there is none */
+    int stream_port;
 } http_info;
 
 /* Starts listening (settings: listen, port, http_threads, max_body, max_connections,

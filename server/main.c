@@ -27,6 +27,7 @@
 #include "metrics.h"
 #include "settings.h"
 #include "simloop.h"
+#include "stream.h"
 
 #ifndef CLOTHD_VERSION
 #define CLOTHD_VERSION "0.1.0"
@@ -254,10 +255,20 @@ static int serve(clothd_config *cfg)
         return 1;
     }
     char err[300];
-    const http_info info = {cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim), CLOTHD_VERSION};
+    stream *st = stream_start(&cfg->set, sl, err, sizeof err);
+    if (!st) {
+        log_msg("%s", err);
+        simloop_free(sl);
+        metrics_free(m);
+        return 1;
+    }
+    simloop_attach_stream(sl, st);
+    const http_info info = {cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim), CLOTHD_VERSION, st,
+                            stream_port(st)};
     http_server *http = http_start(&cfg->set, sl, m, &info, err, sizeof err);
     if (!http) {
         log_msg("%s", err);
+        stream_stop(st);
         simloop_free(sl);
         metrics_free(m);
         return 1;
@@ -265,12 +276,14 @@ static int serve(clothd_config *cfg)
     if (simloop_start(sl) != 0) {
         log_msg("cannot start the sim thread");
         http_stop(http);
+        stream_stop(st);
         simloop_free(sl);
         metrics_free(m);
         return 1;
     }
     const char *host = strchr(cfg->set.listen, ':') ? "[::1]" : cfg->set.listen;
     if (strcmp(cfg->set.listen, "0.0.0.0") == 0) host = "127.0.0.1";
+    log_msg("stream on ws://%s:%d/stream (subprotocol clothd.v1)", cfg->set.listen, stream_port(st));
     log_msg("listening on http://%s:%d (API at /v1, viewer at /)", cfg->set.listen, http_port(http));
     log_msg("try: curl -s http://%s:%d/v1/sim", host, http_port(http));
 
@@ -282,6 +295,7 @@ static int serve(clothd_config *cfg)
     http_quiesce(http);
     simloop_stop(sl);
     http_stop(http);
+    stream_stop(st);
     int rc = failed ? 3 : 0;
     if (cfg->set.state_file[0]) {
         size_t cl = 0;

@@ -33,6 +33,9 @@
     X(max_connections, INT, 512, 1, 100000, NULL, "Most HTTP connections at once")                    \
     X(connection_timeout, INT, 60, 1, 86400, NULL, "Seconds an idle HTTP connection stays open")       \
     X(max_rocks, INT, 256, 1, 1024, NULL, "Most rocks in the simulation")                             \
+    X(stream_max_clients, INT, 64, 1, 10000, NULL, "Most WebSocket clients at once")                  \
+    X(stream_max_message, INT, 4096, 64, 1048576, NULL, "Largest message a stream client may send, in bytes") \
+    X(stream_stall_timeout, INT, 30, 1, 3600, NULL, "Seconds a stream client may leave a new frame unread before it is disconnected") \
     X(journal_max, INT, 100000, 10, 10000000, NULL, "Journal entries kept before it restarts from a new base snapshot")
 
 typedef struct clothd_settings {

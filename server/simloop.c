@@ -9,9 +9,11 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "clothsim/physics.h"
 #include "commands.h"
 #include "log.h"
 #include "simloop.h"
+#include "stream.h"
 
 #define PUBLISH_EVERY 0.016  /* s of wall time between publications while running */
 #define ENERGY_EVERY 0.1     /* s of wall time between energy evaluations while running */
@@ -46,11 +48,16 @@ struct simloop {
     uint32_t autos[CS_MAX_ROCKS];
     int n_autos;
     json_t *last_event;
+    struct stream *stream;
+    uint32_t *torn;      /* ids of the torn springs, ascending */
+    int64_t n_torn, torn_cap;
+    float *scratch;      /* velocities or rest lengths for the stream's scalars */
+    size_t scratch_cap;
 
     /* published */
     pthread_mutex_t plock;
-    char *sim_json, *params_json, *scene_json;
-    size_t sim_len, params_len, scene_len;
+    char *sim_json, *params_json, *scene_json, *torn_json;
+    size_t sim_len, params_len, scene_len, torn_len;
     cs_rock *rocks;
     int n_rocks;
     metrics_gauges gauges;
@@ -126,6 +133,136 @@ static void set_event(simloop *sl, json_t *event)
     sl->last_event = event;
 }
 
+/* ---- the stream: events and frames ---- */
+
+/* Sends an event to every stream client (steals ev). */
+static void emit(simloop *sl, json_t *ev, const char *request_id)
+{
+    if (!sl->stream) {
+        json_decref(ev);
+        return;
+    }
+    json_object_set_new(ev, "type", json_string("event"));
+    json_object_set_new(ev, "request_id", request_id && request_id[0] ? json_string(request_id) : json_null());
+    char *text = json_dumps(ev, PJSON_DUMP_FLAGS);
+    json_decref(ev);
+    if (text) stream_event(sl->stream, text);
+    free(text);
+}
+
+/* Keeps the list of torn springs; returns the newly torn ones as a JSON array (NULL when none are
+ * new: a rebuild or restore only replaces the list). */
+static json_t *update_torn(simloop *sl)
+{
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    if (info.n_torn == sl->n_torn) return NULL;
+    uint32_t *now = malloc(sizeof *now * (size_t)(info.n_torn ? info.n_torn : 1));
+    if (!now) return NULL;
+    const int64_t n = cs_read_torn(sl->sim, now, (size_t)info.n_torn);
+    json_t *fresh = n > sl->n_torn ? json_array() : NULL;
+    for (int64_t a = 0, b = 0; fresh && a < n; a++) {
+        while (b < sl->n_torn && sl->torn[b] < now[a]) b++;
+        if (b >= sl->n_torn || sl->torn[b] != now[a]) json_array_append_new(fresh, json_integer(now[a]));
+    }
+    free(sl->torn);
+    sl->torn = now;
+    sl->n_torn = n;
+    json_t *all = json_array();
+    for (int64_t k = 0; k < n; k++) json_array_append_new(all, json_integer(now[k]));
+    char *text = json_dumps(all, PJSON_DUMP_FLAGS);
+    json_decref(all);
+    pthread_mutex_lock(&sl->plock);
+    char *old = sl->torn_json;
+    sl->torn_json = text;
+    sl->torn_len = text ? strlen(text) : 0;
+    pthread_mutex_unlock(&sl->plock);
+    free(old);
+    return fresh;
+}
+
+static float *scratch(simloop *sl, size_t floats)
+{
+    if (floats > sl->scratch_cap) {
+        float *g = realloc(sl->scratch, sizeof(float) * floats);
+        if (!g) return NULL;
+        sl->scratch = g;
+        sl->scratch_cap = floats;
+    }
+    return sl->scratch;
+}
+
+/* The stream's scalars: speed (255 at SCALAR_SPEED_FULL) and strain, the largest stretch of a
+ * vertex's intact structural springs (255 at SCALAR_STRAIN_FULL). */
+static void fill_scalars(simloop *sl, raw_frame *f, unsigned want, int32_t nx)
+{
+    const int32_t n = f->n;
+    float *buf;
+    f->has[SCALAR_SPEED] = f->has[SCALAR_STRAIN] = 0;
+    if ((want & (1u << SCALAR_SPEED)) && (buf = scratch(sl, 3 * (size_t)n)) &&
+        cs_read_velocities(sl->sim, buf, 3 * (size_t)n) == CS_OK) {
+        for (int32_t v = 0; v < n; v++) {
+            const float s = sqrtf(buf[3 * v] * buf[3 * v] + buf[3 * v + 1] * buf[3 * v + 1] + buf[3 * v + 2] * buf[3 * v + 2]);
+            const float q = s / SCALAR_SPEED_FULL * 255.0f;
+            f->scalar[SCALAR_SPEED][v] = (uint8_t)(q < 255.0f ? q : 255.0f);
+        }
+        f->has[SCALAR_SPEED] = 1;
+    }
+    if ((want & (1u << SCALAR_STRAIN)) && (buf = scratch(sl, (size_t)CS_NTYPES * n)) &&
+        cs_read_rest_lengths(sl->sim, buf, (size_t)CS_NTYPES * n) == CS_OK) {
+        memset(f->scalar[SCALAR_STRAIN], 0, (size_t)n);
+        const float *x = f->xyz;
+        for (int t = CS_SX; t <= CS_SY; t++) {
+            const int32_t off = t == CS_SX ? 1 : nx;
+            for (int32_t v = 0; v < n; v++) {
+                const float L0 = buf[(size_t)t * n + v];
+                if (!(L0 > 0.0f)) continue; /* torn, or off the grid */
+                const int32_t o = v + off;
+                const float dx = x[3 * o] - x[3 * v], dy = x[3 * o + 1] - x[3 * v + 1], dz = x[3 * o + 2] - x[3 * v + 2];
+                const float e = (sqrtf(dx * dx + dy * dy + dz * dz) - L0) / L0;
+                float q = e / SCALAR_STRAIN_FULL * 255.0f;
+                q = q < 0.0f ? 0.0f : (q > 255.0f ? 255.0f : q);
+                if ((uint8_t)q > f->scalar[SCALAR_STRAIN][v]) f->scalar[SCALAR_STRAIN][v] = (uint8_t)q;
+                if ((uint8_t)q > f->scalar[SCALAR_STRAIN][o]) f->scalar[SCALAR_STRAIN][o] = (uint8_t)q;
+            }
+        }
+        f->has[SCALAR_STRAIN] = 1;
+    }
+}
+
+/* Hands the current positions, rocks and scalars to the stream (when a client listens). */
+static void publish_frame(simloop *sl, const cs_info *info, const cs_rock *rocks, int n_rocks)
+{
+    unsigned want = 0;
+    raw_frame *f = sl->stream ? stream_frame_begin(sl->stream, &want) : NULL;
+    if (!f) return;
+    cs_scene sc;
+    cs_sim_scene(sl->sim, &sc);
+    if (raw_frame_reserve(f, info->n_vertices, n_rocks) != 0 ||
+        cs_read_positions(sl->sim, f->xyz, 3 * (size_t)info->n_vertices) != CS_OK) {
+        stream_frame_publish(sl->stream, f); /* an empty frame is skipped */
+        return;
+    }
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    f->wall_ns = (uint64_t)ts.tv_sec * 1000000000ull + (uint64_t)ts.tv_nsec;
+    f->frame = sl->frame;
+    f->step = info->step;
+    f->sim_time = info->time;
+    f->n = info->n_vertices;
+    f->n_rocks = n_rocks;
+    for (int r = 0; r < n_rocks; r++) {
+        frame_rock *k = &f->rocks[r];
+        k->id = rocks[r].id;
+        memcpy(k->position, rocks[r].def.position, sizeof k->position);
+        k->radius = rocks[r].def.radius;
+        memcpy(k->orientation, rocks[r].def.orientation, sizeof k->orientation);
+    }
+    raw_frame_bbox(f);
+    fill_scalars(sl, f, want, sc.nx);
+    stream_frame_publish(sl->stream, f);
+}
+
 /* ---- publishing ---- */
 
 static void publish(simloop *sl, int with_hash)
@@ -172,6 +309,9 @@ static void publish(simloop *sl, int with_hash)
     const int n_rocks = cs_rock_count(sl->sim);
     cs_rock *rocks = n_rocks ? malloc(sizeof *rocks * (size_t)n_rocks) : NULL;
     for (int r = 0; rocks && r < n_rocks; r++) cs_rock_at(sl->sim, r, &rocks[r]);
+    json_t *torn = update_torn(sl);
+    if (torn) emit(sl, json_pack("{s:s, s:I, s:o}", "event", "torn", "step", (json_int_t)info.step, "springs", torn), NULL);
+    publish_frame(sl, &info, rocks, rocks ? n_rocks : 0);
 
     pthread_mutex_lock(&sl->plock);
     char *old[3] = {sl->sim_json, sl->params_json, sl->scene_json};
@@ -210,6 +350,7 @@ static char *copy_text(simloop *sl, char *const *src, const size_t *src_len, siz
 char *simloop_sim_json(simloop *sl, size_t *len) { return copy_text(sl, &sl->sim_json, &sl->sim_len, len); }
 char *simloop_params_json(simloop *sl, size_t *len) { return copy_text(sl, &sl->params_json, &sl->params_len, len); }
 char *simloop_scene_json(simloop *sl, size_t *len) { return copy_text(sl, &sl->scene_json, &sl->scene_len, len); }
+char *simloop_torn_json(simloop *sl, size_t *len) { return copy_text(sl, &sl->torn_json, &sl->torn_len, len); }
 
 int simloop_rocks(simloop *sl, cs_rock **out)
 {
@@ -248,8 +389,8 @@ cs_sim *simloop_engine(simloop *sl) { return sl->sim; }
 
 /* ---- commands ---- */
 
-/* Applies a state-changing command and journals it. */
-static int apply(simloop *sl, const json_t *cmd, json_t **result, problem *pr)
+/* Applies a state-changing command, journals it and tells the stream. */
+static int apply(simloop *sl, const json_t *cmd, const char *request_id, json_t **result, problem *pr)
 {
     cs_info info;
     cs_sim_info(sl->sim, &info);
@@ -270,6 +411,9 @@ static int apply(simloop *sl, const json_t *cmd, json_t **result, problem *pr)
             sl->next_drop = info.time + p.auto_drop_interval;
     }
     if (*result) json_object_set_new(*result, "applied_step", json_integer((json_int_t)info.step));
+    emit(sl, json_pack("{s:s, s:I, s:O, s:O}", "event", op, "applied_step", (json_int_t)info.step, "command", entry,
+                       "result", *result ? *result : json_null()),
+         request_id);
     json_decref(entry);
     return 0;
 }
@@ -293,6 +437,7 @@ static void roll_back(simloop *sl)
                             "restored_step", (json_int_t)now.step, "detail",
                             st == CS_OK ? "the state stopped being finite; rolled back to the last checkpoint and paused"
                                         : "the state stopped being finite and the checkpoint could not be restored"));
+    emit(sl, json_pack("{s:s, s:O}", "event", "instability", "detail", sl->last_event), NULL);
     log_msg("instability at step %llu: rolled back to step %llu and paused", (unsigned long long)bad.step,
             (unsigned long long)now.step);
     rebase(sl);
@@ -434,6 +579,28 @@ static void snapshot_put(simloop *sl, sim_cmd *c)
     cs_hash_hex(cs_state_hash(sl->sim), hex);
     c->result = json_pack("{s:I, s:I, s:s}", "applied_step", (json_int_t)info.step, "step", (json_int_t)info.step,
                           "state_hash", hex);
+    /* Everything may have changed: the event carries what a viewer needs to redraw, like hello. */
+    cs_scene sc;
+    cs_params p;
+    cs_sim_scene(sl->sim, &sc);
+    cs_sim_params(sl->sim, &p);
+    json_t *rocks = json_array();
+    for (int32_t r = 0; r < cs_rock_count(sl->sim); r++) {
+        cs_rock k;
+        if (cs_rock_at(sl->sim, r, &k) == CS_OK) json_array_append_new(rocks, rock_to_json(&k));
+    }
+    const int64_t n_torn = cs_read_torn(sl->sim, NULL, 0);
+    uint32_t *ids = malloc(sizeof *ids * (size_t)(n_torn ? n_torn : 1));
+    json_t *torn = json_array();
+    if (ids) {
+        cs_read_torn(sl->sim, ids, (size_t)n_torn);
+        for (int64_t k = 0; k < n_torn; k++) json_array_append_new(torn, json_integer(ids[k]));
+        free(ids);
+    }
+    emit(sl, json_pack("{s:s, s:I, s:o, s:o, s:o, s:o}", "event", "snapshot_restored", "applied_step",
+                       (json_int_t)info.step, "scene", params_to_json(CS_KIND_SCENE, &sc, &p), "params",
+                       params_to_json(CS_KIND_LIVE, &sc, &p), "rocks", rocks, "torn", torn),
+         c->request_id);
 }
 
 /* Runs one command. PAUSE, RESUME and HASH answer with GET /v1/sim's JSON, filled after the
@@ -443,9 +610,13 @@ static void handle(simloop *sl, sim_cmd *c)
     cs_info info;
     switch (c->kind) {
     case CMD_APPLY:
-        if (apply(sl, c->body, &c->result, &c->pr) != 0) c->failed = 1;
+        if (apply(sl, c->body, c->request_id, &c->result, &c->pr) != 0) c->failed = 1;
         break;
-    case CMD_PAUSE: sl->paused = 1; break;
+    case CMD_PAUSE:
+        sl->paused = 1;
+        cs_sim_info(sl->sim, &info);
+        emit(sl, json_pack("{s:s, s:I}", "event", "paused", "step", (json_int_t)info.step), c->request_id);
+        break;
     case CMD_RESUME:
         if (!simloop_healthy(sl)) {
             fail_cmd(c, 503, "unavailable", "%s", "the backend has failed; the daemon is shutting down");
@@ -456,9 +627,19 @@ static void handle(simloop *sl, sim_cmd *c)
         sl->rtf_wall = sl->due;
         cs_sim_info(sl->sim, &info);
         sl->rtf_sim = info.time;
+        emit(sl, json_pack("{s:s, s:I}", "event", "resumed", "step", (json_int_t)info.step), c->request_id);
         break;
-    case CMD_STEP: step_paused(sl, c); break;
-    case CMD_HASH: break;
+    case CMD_STEP:
+        step_paused(sl, c);
+        if (!c->failed) {
+            cs_sim_info(sl->sim, &info);
+            emit(sl, json_pack("{s:s, s:I, s:I}", "event", "stepped", "step", (json_int_t)info.step, "frame",
+                               (json_int_t)sl->frame),
+                 c->request_id);
+        }
+        break;
+    case CMD_HASH:
+    case CMD_PUBLISH: break;
     case CMD_SNAPSHOT_GET: {
         const size_t need = cs_snapshot_size(sl->sim);
         c->blob = malloc(need);
@@ -574,7 +755,7 @@ static void auto_drop(simloop *sl)
     /* The oldest automatic rocks go first. */
     while (sl->n_autos > 0 && sl->n_autos >= p.auto_drop_max) {
         json_t *cmd = json_pack("{s:s, s:I, s:s}", "op", "rock_remove", "id", (json_int_t)sl->autos[0], "by", "auto");
-        if (apply(sl, cmd, &result, &pr) == 0) json_decref(result);
+        if (apply(sl, cmd, NULL, &result, &pr) == 0) json_decref(result);
         json_decref(cmd);
         memmove(sl->autos, sl->autos + 1, sizeof sl->autos[0] * (size_t)(sl->n_autos - 1));
         sl->n_autos--;
@@ -598,7 +779,7 @@ static void auto_drop(simloop *sl)
                          sc.height + (v - 0.5) * 0.6 * sc.size_y, "radius", radius, "velocity", 0.0, 4.0, 1.0);
     }
     json_t *cmd = json_pack("{s:s, s:o, s:s}", "op", "rock_add", "rock", rock, "by", "auto");
-    if (apply(sl, cmd, &result, &pr) == 0) {
+    if (apply(sl, cmd, NULL, &result, &pr) == 0) {
         sl->autos[sl->n_autos++] = (uint32_t)json_integer_value(json_object_get(result, "id"));
         json_decref(result);
     } else {
@@ -639,6 +820,8 @@ simloop *simloop_new(cs_sim *sim, const clothd_config *cfg, metrics *m)
     publish(sl, sl->paused);
     return sl;
 }
+
+void simloop_attach_stream(simloop *sl, struct stream *st) { sl->stream = st; }
 
 int simloop_start(simloop *sl)
 {
@@ -701,6 +884,9 @@ void simloop_free(simloop *sl)
     free(sl->sim_json);
     free(sl->params_json);
     free(sl->scene_json);
+    free(sl->torn_json);
+    free(sl->torn);
+    free(sl->scratch);
     free(sl->rocks);
     pthread_mutex_destroy(&sl->qlock);
     pthread_cond_destroy(&sl->qcond);

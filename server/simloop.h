@@ -27,13 +27,15 @@ typedef enum sim_cmd_kind {
     CMD_SNAPSHOT_PUT, /* blob_in: a snapshot to restore */
     CMD_CLOTH_STATE,  /* blob: positions then velocities; body {"binary": bool} */
     CMD_HASH,         /* blob: GET /v1/sim's JSON with the state hash of this moment */
-    CMD_BUNDLE        /* blob: the journal bundle for clothd replay */
+    CMD_BUNDLE,       /* blob: the journal bundle for clothd replay */
+    CMD_PUBLISH       /* nothing but a publication (a new stream client wants a frame now) */
 } sim_cmd_kind;
 
 typedef struct sim_cmd sim_cmd;
 struct sim_cmd {
     sim_cmd_kind kind;
     json_t *body;                 /* the request (owned by the submitter) */
+    char request_id[129];         /* the request's X-Request-Id, echoed in the stream's event */
     const unsigned char *blob_in; /* CMD_SNAPSHOT_PUT */
     size_t blob_in_len;
     /* results, set by the sim thread before done() */
@@ -48,10 +50,13 @@ struct sim_cmd {
 };
 
 typedef struct simloop simloop;
+struct stream;
 
 /* Takes the engine (the loop owns and destroys it). The state is published and journaled from
  * its current step. */
 simloop *simloop_new(cs_sim *sim, const clothd_config *cfg, metrics *m);
+/* Frames and events go to this stream from now on (before simloop_start). */
+void simloop_attach_stream(simloop *sl, struct stream *st);
 int simloop_start(simloop *sl);
 /* Queues a command; done() is called from the sim thread. While stopping, it fails at once. */
 void simloop_submit(simloop *sl, sim_cmd *cmd);
@@ -67,6 +72,8 @@ void simloop_free(simloop *sl);
 char *simloop_sim_json(simloop *sl, size_t *len);
 char *simloop_params_json(simloop *sl, size_t *len);
 char *simloop_scene_json(simloop *sl, size_t *len);
+/* The ids of the torn springs (type n + v) as a JSON array. */
+char *simloop_torn_json(simloop *sl, size_t *len);
 /* A copy of the rocks; returns how many (the array is malloc'd, possibly NULL when none). */
 int simloop_rocks(simloop *sl, cs_rock **out);
 journal *simloop_journal(simloop *sl);

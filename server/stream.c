@@ -1,0 +1,763 @@
+/* stream.c - the WebSocket stream (see stream.h).
+ *
+ * Threads: the sim thread calls stream_frame_begin/publish and stream_event; libwebsockets runs
+ * in its own service thread, which alone touches the sessions and the encoded frames. Handing a
+ * frame over is a pointer swap under a mutex among three buffers (one the sim thread fills, the
+ * newest, one the service thread encodes), then lws_cancel_service, whose
+ * LWS_CALLBACK_EVENT_WAIT_CANCELLED wakes every client with lws_callback_on_writable_all_protocol;
+ * each client is written to in LWS_CALLBACK_SERVER_WRITEABLE, one message per callback.
+ *
+ * Memory per client is bounded: it holds no frame of its own (the encoded frame is shared and
+ * replaced by the next one), lws keeps at most the unsent rest of one message, and pending text is
+ * limited (errors and acks to 8; events are read from a shared ring, and a client that falls further behind
+ * than the ring is disconnected). A client whose newest frame has been waiting longer than
+ * stream_stall_timeout is disconnected.
+ *
+ * LWS_CALLBACK_HTTP_CONFIRM_UPGRADE is deliberately not handled (CVE-2025-11677 in 4.1.6):
+ * connections are checked in LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION instead. */
+#include <libwebsockets.h>
+#include <math.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include <jansson.h>
+
+#include "clothd_frame.h"
+#include "log.h"
+#include "pjson.h"
+#include "simloop.h"
+#include "stream.h"
+
+#define PROTOCOL_NAME "clothd.v1"
+#define STREAM_PATH "/stream"
+#define EVENT_RING 1024
+#define MAX_TEXTS 8 /* queued text messages (errors, acks) per client */
+#define N_ENC 3
+
+static const char *const enc_names[N_ENC] = {"f32", "q16", "meshopt"};
+static const char *const scalar_names[SCALAR_KINDS] = {"none", "speed", "strain"};
+
+typedef struct wire {
+    unsigned char *buf; /* LWS_PRE bytes of headroom, then the frame */
+    size_t len, cap;
+    uint64_t seq;       /* of the raw frame it encodes */
+} wire;
+
+typedef struct session session;
+struct session {
+    struct lws *wsi;
+    uint64_t id;
+    session *next;
+    int encoding, scalar, max_fps;
+    uint64_t last_frame; /* seq of the last frame sent */
+    double last_send, behind_since;
+    uint64_t next_event;
+    char *hello;
+    char *texts[MAX_TEXTS];
+    int n_texts;
+    char *rx;
+    size_t rx_len;
+    int rx_bad; /* 1 too large, 2 binary */
+    int grab_in_flight;
+    json_t *grab_pending; /* the newest grab or release asked while one was in flight */
+    int dead;
+};
+
+/* A grab or release on its way to the sim thread; the answer comes back through `done`. */
+typedef struct grab_req {
+    sim_cmd cmd;
+    json_t *body;
+    uint64_t client;
+    struct grab_req *next;
+} grab_req;
+
+struct stream {
+    struct lws_context *ctx;
+    const struct lws_protocols *protocol;
+    simloop *sl;
+    pthread_t thread;
+    atomic_int stop;
+    int port;
+    int max_clients, max_message;
+    double stall_timeout;
+
+    /* frame handover */
+    pthread_mutex_t flock;
+    raw_frame *latest, *spare[2];
+    uint64_t seq, taken;
+
+    /* events */
+    pthread_mutex_t elock;
+    char *ring[EVENT_RING];
+    uint64_t event_seq; /* of the next event; event k is ring[k % EVENT_RING] */
+
+    /* answers to grabs */
+    pthread_mutex_t glock;
+    grab_req *answered;
+
+    atomic_int clients;
+    atomic_uint scalars_wanted;
+
+    /* the service thread's own */
+    session *sessions;
+    uint64_t next_id;
+    wire wires[N_ENC][SCALAR_KINDS];
+    raw_frame *current;     /* the newest frame taken over, kept to encode for a new subscription */
+    uint64_t current_seq;
+
+    /* metrics */
+    atomic_ullong encoded[N_ENC], sent[N_ENC], skipped[N_ENC], bytes_sent, stalled, refused;
+};
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* ---- from the sim thread ---- */
+
+raw_frame *stream_frame_begin(stream *st, unsigned *scalars)
+{
+    if (atomic_load(&st->clients) == 0) return NULL;
+    pthread_mutex_lock(&st->flock);
+    raw_frame *f = NULL;
+    for (int k = 0; k < 2 && !f; k++) {
+        if (st->spare[k]) {
+            f = st->spare[k];
+            st->spare[k] = NULL;
+        }
+    }
+    pthread_mutex_unlock(&st->flock);
+    if (!f) f = calloc(1, sizeof *f);
+    *scalars = atomic_load(&st->scalars_wanted);
+    return f;
+}
+
+static void give_back(stream *st, raw_frame *f)
+{
+    /* Caller holds flock. */
+    for (int k = 0; k < 2; k++) {
+        if (!st->spare[k]) {
+            st->spare[k] = f;
+            return;
+        }
+    }
+    raw_frame_free(f);
+    free(f);
+}
+
+void stream_frame_publish(stream *st, raw_frame *f)
+{
+    pthread_mutex_lock(&st->flock);
+    if (st->latest) give_back(st, st->latest);
+    st->latest = f;
+    st->seq++;
+    pthread_mutex_unlock(&st->flock);
+    lws_cancel_service(st->ctx);
+}
+
+void stream_event(stream *st, const char *json)
+{
+    char *copy = strdup(json);
+    if (!copy) return;
+    pthread_mutex_lock(&st->elock);
+    char **slot = &st->ring[st->event_seq % EVENT_RING];
+    free(*slot);
+    *slot = copy;
+    st->event_seq++;
+    pthread_mutex_unlock(&st->elock);
+    lws_cancel_service(st->ctx);
+}
+
+/* ---- messages to one client ---- */
+
+static int send_text(struct lws *wsi, const char *text, stream *st)
+{
+    const size_t len = strlen(text);
+    unsigned char *buf = malloc(LWS_PRE + len);
+    if (!buf) return -1;
+    memcpy(buf + LWS_PRE, text, len);
+    const int n = lws_write(wsi, buf + LWS_PRE, len, LWS_WRITE_TEXT);
+    free(buf);
+    if (n < (int)len) return -1;
+    atomic_fetch_add(&st->bytes_sent, len);
+    return 0;
+}
+
+/* Queues an error for the client; a client that lets 8 pile up is closed. */
+static void client_error(stream *st, session *s, const char *about, int status, const char *param, const char *fmt, ...)
+    __attribute__((format(printf, 6, 7)));
+static void client_error(stream *st, session *s, const char *about, int status, const char *param, const char *fmt, ...)
+{
+    (void)st;
+    char detail[256];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(detail, sizeof detail, fmt, ap);
+    va_end(ap);
+    json_t *o = json_pack("{s:s, s:i, s:s, s:s}", "type", "error", "status", status, "detail", detail, "about", about);
+    if (param) json_object_set_new(o, "param", json_string(param));
+    char *text = json_dumps(o, PJSON_DUMP_FLAGS);
+    json_decref(o);
+    if (s->n_texts == MAX_TEXTS) {
+        free(text);
+        s->dead = 1;
+        lws_set_timeout(s->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
+        return;
+    }
+    s->texts[s->n_texts++] = text;
+    lws_callback_on_writable(s->wsi);
+}
+
+static char *hello_text(stream *st)
+{
+    size_t len;
+    char *scene = simloop_scene_json(st->sl, &len), *params = simloop_params_json(st->sl, &len);
+    char *sim = simloop_sim_json(st->sl, &len), *torn = simloop_torn_json(st->sl, &len);
+    cs_rock *rocks;
+    const int n = simloop_rocks(st->sl, &rocks);
+    json_t *list = json_array();
+    for (int k = 0; k < n; k++) json_array_append_new(list, rock_to_json(&rocks[k]));
+    free(rocks);
+    json_t *sj = sim ? json_loads(sim, 0, NULL) : NULL;
+    json_t *o = json_pack("{s:s, s:s, s:o, s:o, s:o, s:o, s:o, s:o, s:o}", "type", "hello", "protocol", PROTOCOL_NAME,
+                          "scene", scene ? json_loads(scene, 0, NULL) : json_null(), "params",
+                          params ? json_loads(params, 0, NULL) : json_null(), "rocks", list, "torn",
+                          torn ? json_loads(torn, 0, NULL) : json_array(), "state",
+                          json_incref(json_object_get(sj, "state")), "step", json_incref(json_object_get(sj, "step")),
+                          "subscription", json_pack("{s:s, s:i, s:s}", "encoding", "f32", "max_fps", 60, "scalar", "none"));
+    json_decref(sj);
+    free(scene);
+    free(params);
+    free(sim);
+    free(torn);
+    char *text = json_dumps(o, PJSON_DUMP_FLAGS);
+    json_decref(o);
+    return text;
+}
+
+/* ---- grabs, through the sim thread ---- */
+
+static void submit_grab(stream *st, session *s, json_t *body);
+
+static void answered_cb(sim_cmd *cmd, void *arg)
+{
+    stream *st = arg;
+    grab_req *g = (grab_req *)cmd; /* cmd is the first member */
+    pthread_mutex_lock(&st->glock);
+    g->next = st->answered;
+    st->answered = g;
+    pthread_mutex_unlock(&st->glock);
+    lws_cancel_service(st->ctx);
+}
+
+static void submit_grab(stream *st, session *s, json_t *body)
+{
+    if (s->grab_in_flight) {
+        json_decref(s->grab_pending);
+        s->grab_pending = body;
+        return;
+    }
+    grab_req *g = calloc(1, sizeof *g);
+    if (!g) {
+        json_decref(body);
+        return;
+    }
+    g->body = body;
+    g->client = s->id;
+    g->cmd.kind = CMD_APPLY;
+    g->cmd.body = body;
+    g->cmd.done = answered_cb;
+    g->cmd.done_arg = st;
+    snprintf(g->cmd.request_id, sizeof g->cmd.request_id, "stream-%llu", (unsigned long long)s->id);
+    s->grab_in_flight = 1;
+    simloop_submit(st->sl, &g->cmd);
+}
+
+static void free_cmd(sim_cmd *cmd, void *arg)
+{
+    (void)arg;
+    free(cmd);
+}
+
+/* Asks the sim thread to publish now (a paused simulation publishes only after commands). */
+static void request_frame(stream *st)
+{
+    sim_cmd *c = calloc(1, sizeof *c);
+    if (!c) return;
+    c->kind = CMD_PUBLISH;
+    c->done = free_cmd;
+    simloop_submit(st->sl, c);
+}
+
+static session *find(stream *st, uint64_t id)
+{
+    for (session *s = st->sessions; s; s = s->next)
+        if (s->id == id) return s;
+    return NULL;
+}
+
+static void take_answers(stream *st)
+{
+    pthread_mutex_lock(&st->glock);
+    grab_req *list = st->answered;
+    st->answered = NULL;
+    pthread_mutex_unlock(&st->glock);
+    while (list) {
+        grab_req *g = list;
+        list = g->next;
+        session *s = find(st, g->client);
+        if (s) {
+            s->grab_in_flight = 0;
+            if (g->cmd.failed)
+                client_error(st, s, json_string_value(json_object_get(g->body, "op")), g->cmd.pr.status,
+                             g->cmd.pr.param[0] ? g->cmd.pr.param : NULL, "%s", g->cmd.pr.detail);
+            if (s->grab_pending) {
+                json_t *next = s->grab_pending;
+                s->grab_pending = NULL;
+                submit_grab(st, s, next);
+            }
+        }
+        json_decref(g->body);
+        json_decref(g->cmd.result);
+        free(g->cmd.blob);
+        free(g);
+    }
+}
+
+/* ---- client messages ---- */
+
+static void handle_subscribe(stream *st, session *s, json_t *m)
+{
+    static const char *const fields[] = {"type", "encoding", "max_fps", "scalar", NULL};
+    problem pr;
+    if (only_fields(m, fields, &pr) != 0) {
+        client_error(st, s, "subscribe", pr.status, pr.param, "%s", pr.detail);
+        return;
+    }
+    int enc = s->encoding, sc = s->scalar, fps = s->max_fps;
+    const json_t *e = json_object_get(m, "encoding"), *f = json_object_get(m, "max_fps"), *c = json_object_get(m, "scalar");
+    if (e) {
+        enc = -1;
+        for (int k = 0; k < N_ENC; k++)
+            if (json_is_string(e) && strcmp(json_string_value(e), enc_names[k]) == 0) enc = k;
+        if (enc < 0) {
+            client_error(st, s, "subscribe", 422, "encoding", "encoding must be f32, q16 or meshopt");
+            return;
+        }
+    }
+    if (f) {
+        long long v;
+        if (int_from_json(f, 1, 240, "max_fps", &v, &pr) != 0) {
+            client_error(st, s, "subscribe", pr.status, "max_fps", "%s", pr.detail);
+            return;
+        }
+        fps = (int)v;
+    }
+    if (c) {
+        sc = -1;
+        for (int k = 0; k < SCALAR_KINDS; k++)
+            if (json_is_string(c) && strcmp(json_string_value(c), scalar_names[k]) == 0) sc = k;
+        if (sc < 0) {
+            client_error(st, s, "subscribe", 422, "scalar", "scalar must be none, speed or strain");
+            return;
+        }
+    }
+    s->encoding = enc;
+    s->scalar = sc;
+    s->max_fps = fps;
+    unsigned want = 0;
+    for (session *o = st->sessions; o; o = o->next)
+        if (o->scalar) want |= 1u << o->scalar;
+    atomic_store(&st->scalars_wanted, want);
+    s->last_frame = 0; /* the next frame in the new encoding at once */
+    if (sc != SCALAR_NONE && (!st->current || !st->current->has[sc])) request_frame(st); /* frames lack it */
+    json_t *ack = json_pack("{s:s, s:s, s:i, s:s}", "type", "subscribed", "encoding", enc_names[enc], "max_fps", fps,
+                            "scalar", scalar_names[sc]);
+    char *text = json_dumps(ack, PJSON_DUMP_FLAGS);
+    json_decref(ack);
+    if (s->n_texts < MAX_TEXTS) s->texts[s->n_texts++] = text; /* the same queue, in order */
+    else free(text);
+    lws_callback_on_writable(s->wsi);
+}
+
+static void handle_message(stream *st, session *s)
+{
+    if (s->rx_bad) {
+        client_error(st, s, "message", s->rx_bad == 1 ? 413 : 400, NULL,
+                     s->rx_bad == 1 ? "a message may hold at most %d bytes" : "binary messages are not understood (%d)",
+                     st->max_message);
+        return;
+    }
+    json_error_t err;
+    json_t *m = json_loadb(s->rx, s->rx_len, JSON_REJECT_DUPLICATES, &err);
+    if (!m || !json_is_object(m)) {
+        client_error(st, s, "message", 400, NULL, "a message must be a JSON object%s%s", m ? "" : ": ", m ? "" : err.text);
+        json_decref(m);
+        return;
+    }
+    const char *type = json_string_value(json_object_get(m, "type"));
+    problem pr;
+    if (!type) {
+        client_error(st, s, "message", 400, "type", "a message needs a string type");
+    } else if (strcmp(type, "subscribe") == 0) {
+        handle_subscribe(st, s, m);
+    } else if (strcmp(type, "grab") == 0) {
+        static const char *const fields[] = {"type", "vertex", "target", NULL};
+        float target[3];
+        if (only_fields(m, fields, &pr) != 0 || !json_object_get(m, "vertex") ||
+            vec3_from_json(json_object_get(m, "target"), target, "target", &pr) != 0) {
+            if (!json_object_get(m, "vertex")) problem_set(&pr, 400, "wrong-type", "vertex", "vertex is required");
+            client_error(st, s, "grab", pr.status, pr.param, "%s", pr.detail);
+        } else {
+            submit_grab(st, s, json_pack("{s:s, s:O, s:O}", "op", "grab", "vertex", json_object_get(m, "vertex"), "target",
+                                         json_object_get(m, "target")));
+        }
+    } else if (strcmp(type, "release") == 0) {
+        static const char *const fields[] = {"type", NULL};
+        if (only_fields(m, fields, &pr) != 0) client_error(st, s, "release", pr.status, pr.param, "%s", pr.detail);
+        else submit_grab(st, s, json_pack("{s:s}", "op", "release"));
+    } else {
+        client_error(st, s, type, 400, "type", "unknown message type '%.64s'", type);
+    }
+    json_decref(m);
+}
+
+/* ---- frames ---- */
+
+/* Makes sure the wire frame of (encoding, scalar) holds the current frame: encoded once per
+ * frame, whoever asks first. */
+static const wire *wire_for(stream *st, int e, int k)
+{
+    wire *w = &st->wires[e][k];
+    raw_frame *f = st->current;
+    if (!f || w->seq == st->current_seq || f->n == 0) return w;
+    const size_t need = LWS_PRE + frame_bound(f, e, k);
+    if (need > w->cap) {
+        unsigned char *b = realloc(w->buf, need);
+        if (!b) return w;
+        w->buf = b;
+        w->cap = need;
+    }
+    w->len = frame_encode(f, e, k, w->buf + LWS_PRE);
+    w->seq = st->current_seq;
+    atomic_fetch_add(&st->encoded[e], 1);
+    return w;
+}
+
+/* Takes over the newest raw frame the sim thread published, and encodes it for every encoding
+ * and scalar some client uses. */
+static void take_newest(stream *st)
+{
+    pthread_mutex_lock(&st->flock);
+    raw_frame *f = NULL;
+    if (st->latest && st->seq != st->taken) {
+        f = st->latest;
+        st->latest = NULL;
+        st->taken = st->seq;
+        if (st->current) give_back(st, st->current);
+        st->current = f;
+        st->current_seq = st->seq;
+    }
+    pthread_mutex_unlock(&st->flock);
+    if (!f) return;
+    for (session *s = st->sessions; s; s = s->next) wire_for(st, s->encoding, s->scalar);
+}
+
+/* Stalled clients (their newest frame waiting too long) are closed. */
+static void sweep(stream *st)
+{
+    const double t = now_s();
+    for (session *s = st->sessions; s; s = s->next) {
+        const wire *w = &st->wires[s->encoding][s->scalar];
+        if (s->dead || w->seq <= s->last_frame) {
+            s->behind_since = 0;
+            continue;
+        }
+        if (s->behind_since == 0) s->behind_since = t;
+        else if (t - s->behind_since > st->stall_timeout) {
+            log_msg("stream: client %llu stalled for %.0f s: disconnected", (unsigned long long)s->id, st->stall_timeout);
+            atomic_fetch_add(&st->stalled, 1);
+            s->dead = 1;
+            lws_set_timeout(s->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
+        }
+    }
+}
+
+/* One message to a client that can take it: hello, errors and acks, events, then the newest
+ * frame (when its rate allows). */
+static int writeable(stream *st, session *s)
+{
+    if (s->dead) return -1;
+    if (lws_send_pipe_choked(s->wsi)) {
+        lws_callback_on_writable(s->wsi);
+        return 0;
+    }
+    if (s->hello) {
+        const int rc = send_text(s->wsi, s->hello, st);
+        free(s->hello);
+        s->hello = NULL;
+        lws_callback_on_writable(s->wsi);
+        return rc;
+    }
+    if (s->n_texts) {
+        const int rc = send_text(s->wsi, s->texts[0], st);
+        free(s->texts[0]);
+        memmove(s->texts, s->texts + 1, sizeof s->texts[0] * (size_t)(--s->n_texts));
+        lws_callback_on_writable(s->wsi);
+        return rc;
+    }
+    pthread_mutex_lock(&st->elock);
+    char *event = NULL;
+    if (s->next_event < st->event_seq) {
+        if (st->event_seq - s->next_event > EVENT_RING) {
+            pthread_mutex_unlock(&st->elock);
+            log_msg("stream: client %llu fell %d events behind: disconnected", (unsigned long long)s->id, EVENT_RING);
+            atomic_fetch_add(&st->stalled, 1);
+            return -1;
+        }
+        event = strdup(st->ring[s->next_event % EVENT_RING]);
+        s->next_event++;
+    }
+    pthread_mutex_unlock(&st->elock);
+    if (event) {
+        const int rc = send_text(s->wsi, event, st);
+        free(event);
+        lws_callback_on_writable(s->wsi);
+        return rc;
+    }
+    const wire *w = wire_for(st, s->encoding, s->scalar);
+    if (w->seq > s->last_frame && w->len) {
+        const double t = now_s(), wait = 1.0 / s->max_fps - (t - s->last_send);
+        if (wait > 0.0005) {
+            lws_set_timer_usecs(s->wsi, (lws_usec_t)(wait * 1e6));
+            return 0;
+        }
+        const int n = lws_write(s->wsi, w->buf + LWS_PRE, w->len, LWS_WRITE_BINARY);
+        if (n < (int)w->len) return -1;
+        if (s->last_frame && w->seq > s->last_frame + 1) atomic_fetch_add(&st->skipped[s->encoding], w->seq - s->last_frame - 1);
+        atomic_fetch_add(&st->sent[s->encoding], 1);
+        atomic_fetch_add(&st->bytes_sent, w->len);
+        s->last_frame = w->seq;
+        s->last_send = t;
+        s->behind_since = 0;
+    }
+    return 0;
+}
+
+/* ---- libwebsockets ---- */
+
+static int path_ok(struct lws *wsi)
+{
+    char uri[128];
+    if (lws_hdr_copy(wsi, uri, sizeof uri, WSI_TOKEN_GET_URI) <= 0) return 0;
+    return strcmp(uri, STREAM_PATH) == 0;
+}
+
+static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in, size_t len)
+{
+    stream *st = lws_context_user(lws_get_context(wsi));
+    session *s = user;
+    switch (reason) {
+    case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION:
+        /* Before the upgrade completes: the path, then the client limit. */
+        if (!path_ok(wsi)) return -1;
+        if (atomic_load(&st->clients) >= st->max_clients) {
+            atomic_fetch_add(&st->refused, 1);
+            return -1;
+        }
+        return 0;
+    case LWS_CALLBACK_ESTABLISHED:
+        memset(s, 0, sizeof *s);
+        s->wsi = wsi;
+        s->id = ++st->next_id;
+        s->max_fps = 60;
+        s->encoding = CLF_F32;
+        s->scalar = SCALAR_NONE;
+        pthread_mutex_lock(&st->elock);
+        s->next_event = st->event_seq; /* events from here on; hello shows the state before */
+        pthread_mutex_unlock(&st->elock);
+        s->hello = hello_text(st);
+        s->next = st->sessions;
+        st->sessions = s;
+        if (atomic_fetch_add(&st->clients, 1) == 0 || !st->current) request_frame(st);
+        lws_callback_on_writable(wsi);
+        return 0;
+    case LWS_CALLBACK_CLOSED:
+        for (session **p = &st->sessions; *p; p = &(*p)->next) {
+            if (*p == s) {
+                *p = s->next;
+                break;
+            }
+        }
+        atomic_fetch_sub(&st->clients, 1);
+        free(s->hello);
+        for (int k = 0; k < s->n_texts; k++) free(s->texts[k]);
+        free(s->rx);
+        json_decref(s->grab_pending);
+        s->rx = NULL;
+        return 0;
+    case LWS_CALLBACK_RECEIVE: {
+        if (lws_is_first_fragment(wsi) && s->rx_len == 0) s->rx_bad = lws_frame_is_binary(wsi) ? 2 : 0;
+        if (!s->rx_bad && s->rx_len + len > (size_t)st->max_message) {
+            s->rx_bad = 1;
+        } else if (!s->rx_bad) {
+            char *b = realloc(s->rx, s->rx_len + len + 1);
+            if (!b) return -1;
+            s->rx = b;
+            memcpy(s->rx + s->rx_len, in, len);
+            s->rx_len += len;
+        }
+        if (lws_is_final_fragment(wsi) && lws_remaining_packet_payload(wsi) == 0) {
+            handle_message(st, s);
+            s->rx_len = 0;
+            s->rx_bad = 0;
+        }
+        return 0;
+    }
+    case LWS_CALLBACK_SERVER_WRITEABLE: return writeable(st, s);
+    case LWS_CALLBACK_TIMER: lws_callback_on_writable(wsi); return 0;
+    case LWS_CALLBACK_EVENT_WAIT_CANCELLED:
+        take_answers(st);
+        take_newest(st);
+        sweep(st);
+        lws_callback_on_writable_all_protocol(lws_get_context(wsi), st->protocol);
+        return 0;
+    default: return lws_callback_http_dummy(wsi, reason, user, in, len);
+    }
+}
+
+static struct lws_protocols protocols[] = {
+    {PROTOCOL_NAME, callback, sizeof(session), 4096, 0, NULL, 0},
+    {NULL, NULL, 0, 0, 0, NULL, 0},
+};
+
+static void lws_log(int level, const char *line)
+{
+    char text[512];
+    snprintf(text, sizeof text, "%s", line);
+    const size_t n = strlen(text);
+    if (n && text[n - 1] == '\n') text[n - 1] = '\0';
+    log_msg("stream: %s%s", level == LLL_ERR ? "error: " : "", text);
+}
+
+static void *service(void *arg)
+{
+    stream *st = arg;
+    sigset_t all;
+    sigfillset(&all);
+    pthread_sigmask(SIG_BLOCK, &all, NULL);
+    while (!atomic_load(&st->stop))
+        if (lws_service(st->ctx, 0) < 0) break;
+    return NULL;
+}
+
+/* Ping after 10 s without traffic, hang up after 30 s without an answer. */
+static const lws_retry_bo_t keepalive = {.secs_since_valid_ping = 10, .secs_since_valid_hangup = 30};
+
+stream *stream_start(const clothd_settings *set, simloop *sl, char *err, size_t err_len)
+{
+    stream *st = calloc(1, sizeof *st);
+    if (!st) {
+        snprintf(err, err_len, "out of memory");
+        return NULL;
+    }
+    st->sl = sl;
+    st->protocol = &protocols[0];
+    st->max_clients = set->stream_max_clients;
+    st->max_message = set->stream_max_message;
+    st->stall_timeout = set->stream_stall_timeout;
+    pthread_mutex_init(&st->flock, NULL);
+    pthread_mutex_init(&st->elock, NULL);
+    pthread_mutex_init(&st->glock, NULL);
+    lws_set_log_level(LLL_ERR | LLL_WARN, lws_log);
+    struct lws_context_creation_info info;
+    memset(&info, 0, sizeof info);
+    info.port = set->stream_port ? set->stream_port : CONTEXT_PORT_NO_LISTEN_SERVER;
+    info.iface = set->listen;
+    info.protocols = protocols;
+    info.user = st;
+    info.retry_and_idle_policy = &keepalive;
+    info.options = LWS_SERVER_OPTION_VALIDATE_UTF8;
+    if (!strchr(set->listen, ':')) info.options |= LWS_SERVER_OPTION_DISABLE_IPV6;
+    if (set->stream_port == 0) info.port = 0;
+    st->ctx = lws_create_context(&info);
+    if (!st->ctx) {
+        snprintf(err, err_len, "could not listen for the stream on %s port %d", set->listen, (int)set->stream_port);
+        free(st);
+        return NULL;
+    }
+    struct lws_vhost *vh = lws_get_vhost_by_name(st->ctx, "default");
+    st->port = vh ? lws_get_vhost_listen_port(vh) : set->stream_port;
+    if (pthread_create(&st->thread, NULL, service, st) != 0) {
+        lws_context_destroy(st->ctx);
+        snprintf(err, err_len, "could not start the stream thread");
+        free(st);
+        return NULL;
+    }
+    return st;
+}
+
+int stream_port(stream *st) { return st->port; }
+
+void stream_stop(stream *st)
+{
+    if (!st) return;
+    atomic_store(&st->stop, 1);
+    lws_cancel_service(st->ctx);
+    pthread_join(st->thread, NULL);
+    lws_context_destroy(st->ctx);
+    take_answers(st);
+    for (int e = 0; e < N_ENC; e++)
+        for (int k = 0; k < SCALAR_KINDS; k++) free(st->wires[e][k].buf);
+    raw_frame *frames[4] = {st->latest, st->spare[0], st->spare[1], st->current};
+    for (int k = 0; k < 4; k++) {
+        if (frames[k]) {
+            raw_frame_free(frames[k]);
+            free(frames[k]);
+        }
+    }
+    for (int k = 0; k < EVENT_RING; k++) free(st->ring[k]);
+    pthread_mutex_destroy(&st->flock);
+    pthread_mutex_destroy(&st->elock);
+    pthread_mutex_destroy(&st->glock);
+    free(st);
+}
+
+char *stream_metrics(stream *st)
+{
+    char *out = NULL;
+    size_t len = 0;
+    FILE *f = open_memstream(&out, &len);
+    if (!f) return NULL;
+    fprintf(f, "# HELP clothd_stream_clients WebSocket clients connected.\n# TYPE clothd_stream_clients gauge\n"
+               "clothd_stream_clients %d\n", atomic_load(&st->clients));
+    const char *what[3] = {"encoded", "sent", "skipped"};
+    atomic_ullong *arrays[3] = {st->encoded, st->sent, st->skipped};
+    for (int a = 0; a < 3; a++) {
+        fprintf(f, "# HELP clothd_stream_frames_%s_total Frames %s, by encoding.\n# TYPE clothd_stream_frames_%s_total counter\n",
+                what[a], what[a], what[a]);
+        for (int e = 0; e < N_ENC; e++)
+            fprintf(f, "clothd_stream_frames_%s_total{encoding=\"%s\"} %llu\n", what[a], enc_names[e],
+                    (unsigned long long)atomic_load(&arrays[a][e]));
+    }
+    fprintf(f, "# HELP clothd_stream_bytes_sent_total Bytes written to stream clients.\n"
+               "# TYPE clothd_stream_bytes_sent_total counter\nclothd_stream_bytes_sent_total %llu\n",
+            (unsigned long long)atomic_load(&st->bytes_sent));
+    fprintf(f, "# HELP clothd_stream_disconnected_total Clients disconnected for stalling.\n"
+               "# TYPE clothd_stream_disconnected_total counter\nclothd_stream_disconnected_total %llu\n",
+            (unsigned long long)atomic_load(&st->stalled));
+    fprintf(f, "# HELP clothd_stream_refused_total Connections refused (client limit).\n"
+               "# TYPE clothd_stream_refused_total counter\nclothd_stream_refused_total %llu\n",
+            (unsigned long long)atomic_load(&st->refused));
+    fclose(f);
+    return out;
+}

@@ -1,0 +1,39 @@
+/* stream.h - the WebSocket stream of DESIGN.md section 4 on libwebsockets, on its own port and
+ * its own service thread.
+ *
+ * The sim thread hands over raw frames (stream_frame_begin/publish) and event messages
+ * (stream_event) without waiting; the service thread encodes each frame once per encoding in use
+ * and writes the newest one to each client when its socket can take it (latest frame wins: a slow
+ * client skips frames and never grows a queue). Clients subscribe to an encoding, a frame rate and
+ * a scalar, and may grab and release a vertex (queued to the sim thread, coalesced per client). */
+#ifndef CLOTHD_STREAM_H
+#define CLOTHD_STREAM_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "frame.h"
+#include "settings.h"
+
+struct simloop;
+typedef struct stream stream;
+
+/* Starts listening (settings: listen, stream_port, stream_max_clients, stream_max_message,
+ * stream_stall_timeout); NULL and the reason in err on failure. */
+stream *stream_start(const clothd_settings *set, struct simloop *sl, char *err, size_t err_len);
+int stream_port(stream *st);
+/* Stops the service thread and closes every client. */
+void stream_stop(stream *st);
+
+/* From the sim thread: a frame buffer to fill, or NULL when no client listens. *scalars gets the
+ * scalars someone subscribed to (bit SCALAR_SPEED, bit SCALAR_STRAIN). */
+raw_frame *stream_frame_begin(stream *st, unsigned *scalars);
+/* Hands the filled frame over (it becomes the newest; the service thread is woken). */
+void stream_frame_publish(stream *st, raw_frame *f);
+/* A text message for every client (an event); copied. */
+void stream_event(stream *st, const char *json);
+
+/* The stream's Prometheus metrics (malloc'd text). */
+char *stream_metrics(stream *st);
+
+#endif

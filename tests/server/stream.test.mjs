@@ -1,0 +1,247 @@
+// stream.test.mjs - the WebSocket stream of the real clothd, read with the npm `ws` client and
+// decoded with proto/frame.mjs: hello for late joiners, the frame header, all three encodings
+// against GET /v1/cloth/state, events, a stalled client, grabs, and bad messages.
+import { test } from 'node:test';
+import assert from 'node:assert/strict';
+import { readFileSync } from 'node:fs';
+import { join } from 'node:path';
+import WebSocket from 'ws';
+import { MeshoptDecoder } from 'meshoptimizer';
+import { start, stop, call, ok, pause, hash, until } from './harness.mjs';
+
+const { decodeFrame, HEADER_SIZE } = await import(join(process.env.CLOTHD_SOURCE, 'proto', 'frame.mjs'));
+await MeshoptDecoder.ready;
+
+// A client that keeps every message: texts parsed, frames decoded.
+function connect(d, { path = '/stream', protocol = 'clothd.v1' } = {}) {
+  return new Promise((resolve, reject) => {
+    const ws = new WebSocket(`ws://127.0.0.1:${d.streamPort}${path}`, protocol);
+    const c = { ws, texts: [], frames: [], closed: false, waiters: [] };
+    ws.on('message', (data, binary) => {
+      if (binary) c.frames.push(decodeFrame(data, { meshopt: MeshoptDecoder }));
+      else c.texts.push(JSON.parse(data.toString()));
+      for (const w of c.waiters.splice(0)) w();
+    });
+    ws.on('close', () => {
+      c.closed = true;
+      for (const w of c.waiters.splice(0)) w();
+    });
+    ws.on('open', () => resolve(c));
+    ws.on('error', reject);
+  });
+}
+
+// Waits for a message matching pred, among those from index `from` on (by default all, the ones
+// already there first).
+async function next(c, kind, pred = () => true, timeout = 15000, from = 0) {
+  const list = kind === 'frame' ? c.frames : c.texts;
+  let seen = from;
+  const t0 = Date.now();
+  for (;;) {
+    for (; seen < list.length; seen++) if (pred(list[seen])) return list[seen];
+    if (c.closed) throw new Error('the stream closed');
+    if (Date.now() - t0 > timeout) throw new Error(`no ${kind} matching ${pred} in time`);
+    await new Promise((r) => {
+      c.waiters.push(r);
+      setTimeout(r, 200);
+    });
+  }
+}
+
+async function daemon(flags) {
+  const d = await start(['--stream-port', '0', ...flags]);
+  d.streamPort = (await ok(d, 'GET', '/v1/health')).stream.port;
+  return d;
+}
+
+test('a late joiner gets hello, then frames that match the scene', async () => {
+  const d = await daemon(['--nx', '20', '--ny', '14', '--auto-drop-interval', '0.2']);
+  await until('rocks', async () => (await ok(d, 'GET', '/v1/sim')).n_rocks >= 2);
+  await ok(d, 'PATCH', '/v1/params', { tear_strain: 0.05 }); // tears quickly under the rocks
+  await until('torn springs', async () => (await ok(d, 'GET', '/v1/sim')).n_torn > 0);
+  const health = await ok(d, 'GET', '/v1/health');
+  assert.deepEqual(health.stream, { port: d.streamPort, path: '/stream', protocol: 'clothd.v1' });
+  const c = await connect(d);
+  const hello = await next(c, 'text');
+  assert.equal(hello.type, 'hello');
+  assert.equal(hello.protocol, 'clothd.v1');
+  assert.equal(hello.scene.nx, 20);
+  assert.equal(hello.params.tear_strain, 0.05);
+  assert.ok(hello.rocks.length >= 2);
+  assert.ok(hello.torn.length > 0 && hello.torn.every(Number.isInteger));
+  assert.deepEqual(hello.subscription, { encoding: 'f32', max_fps: 60, scalar: 'none' });
+  const f = await next(c, 'frame');
+  assert.equal(c.texts[0].type, 'hello'); // hello came first
+  assert.equal(f.encoding, 'f32');
+  assert.equal(f.nVertices, 280);
+  assert.equal(f.positions.length, 840);
+  assert.ok(f.nRocks >= 2);
+  assert.ok(f.rocks.every((r) => r.radius > 0 && Math.abs(Math.hypot(...r.orientation) - 1) < 1e-5));
+  assert.ok(f.bboxMin.every((v, k) => v <= f.bboxMax[k]));
+  // Frames carry increasing frame and step numbers, and sim time.
+  const later = await next(c, 'frame', (g) => g.frame >= f.frame + 5);
+  assert.ok(later.step > f.step && later.simTime > f.simTime);
+  for (let k = 1; k < c.frames.length; k++) {
+    assert.ok(c.frames[k].frame > c.frames[k - 1].frame);
+    assert.ok(c.frames[k].step > c.frames[k - 1].step);
+  }
+  c.ws.close();
+  await stop(d);
+});
+
+test('all three encodings decode to the cloth state, within the quantization bound', async () => {
+  const d = await daemon(['--nx', '33', '--ny', '21', '--auto-drop-interval', '0']);
+  await ok(d, 'POST', '/v1/rocks', { position: [0.1, 0.2, 1.5], radius: 0.15, velocity: [0, 0, -3] });
+  await until('a deformed cloth', async () => (await ok(d, 'GET', '/v1/sim')).step > 3000);
+  await pause(d);
+  const state = await ok(d, 'GET', '/v1/cloth/state');
+  const want = state.positions.flat();
+  const c = await connect(d);
+  await next(c, 'text', (m) => m.type === 'hello');
+  const sizes = {};
+  for (const encoding of ['f32', 'q16', 'meshopt']) {
+    c.ws.send(JSON.stringify({ type: 'subscribe', encoding }));
+    const ack = await next(c, 'text', (m) => m.type === 'subscribed' && m.encoding === encoding);
+    assert.equal(ack.max_fps, 60);
+    const f = await next(c, 'frame', (g) => g.encoding === encoding);
+    assert.equal(f.step, state.step);
+    const bound = f.bboxMax.map((hi, k) => (hi - f.bboxMin[k]) / 65535); // one quantization step
+    for (let i = 0; i < want.length; i++) {
+      const err = Math.abs(f.positions[i] - want[i]);
+      if (encoding === 'f32') assert.equal(f.positions[i], Math.fround(want[i]));
+      else assert.ok(err <= bound[i % 3] * 0.5 + 1e-6, `${encoding} ${i}: ${err} > ${bound[i % 3] / 2}`);
+    }
+    sizes[encoding] = f.bytes;
+  }
+  const n = 33 * 21, rocks = 36;
+  assert.equal(sizes.f32, HEADER_SIZE + 12 * n + rocks);
+  assert.equal(sizes.q16, HEADER_SIZE + Math.ceil((6 * n) / 4) * 4 + rocks);
+  assert.ok(sizes.meshopt < sizes.q16, JSON.stringify(sizes));
+  // Scalars: speed and strain as one byte per vertex.
+  c.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'q16', scalar: 'strain' }));
+  const sf = await next(c, 'frame', (g) => g.scalar !== null);
+  assert.equal(sf.scalar.length, n);
+  assert.ok(sf.scalar.some((v) => v > 0), 'the rock strains the cloth');
+  c.ws.send(JSON.stringify({ type: 'subscribe', scalar: 'speed' }));
+  await next(c, 'text', (m) => m.type === 'subscribed' && m.scalar === 'speed');
+  c.ws.close();
+  await stop(d);
+});
+
+test('a rock spawned over HTTP is an event and is in the next frames', async () => {
+  const d = await daemon(['--nx', '16', '--ny', '16', '--auto-drop-interval', '0']);
+  const c = await connect(d);
+  await next(c, 'frame');
+  const r = await call(d, 'POST', '/v1/rocks', { position: [0.3, 0.3, 1.7], radius: 0.1 }, { 'X-Request-Id': 'spawn-1' });
+  assert.equal(r.status, 201);
+  const ev = await next(c, 'text', (m) => m.type === 'event' && m.event === 'rock_add');
+  assert.equal(ev.request_id, 'spawn-1');
+  assert.equal(ev.applied_step, r.json.applied_step);
+  assert.equal(ev.result.id, r.json.id);
+  assert.deepEqual(ev.command.rock.position, [0.3, 0.3, 1.7]);
+  const f = await next(c, 'frame', (g) => g.rocks.some((k) => k.id === r.json.id));
+  assert.ok(f.step >= r.json.applied_step);
+  const rock = f.rocks.find((k) => k.id === r.json.id);
+  assert.ok(Math.abs(rock.radius - 0.1) < 1e-7);
+  // Other commands are events too.
+  await ok(d, 'PATCH', '/v1/params', { k_bend: 21 }, { 'X-Request-Id': 'p-2' });
+  const pe = await next(c, 'text', (m) => m.type === 'event' && m.event === 'params');
+  assert.equal(pe.result.params.k_bend, 21);
+  assert.equal(pe.request_id, 'p-2');
+  await pause(d);
+  assert.equal((await next(c, 'text', (m) => m.event === 'paused')).type, 'event');
+  c.ws.close();
+  await stop(d);
+});
+
+test('a grab message moves the vertex', async () => {
+  const d = await daemon(['--nx', '12', '--ny', '12', '--auto-drop-interval', '0']);
+  const c = await connect(d);
+  await next(c, 'frame');
+  const before = (await ok(d, 'GET', '/v1/cloth/state')).positions[66];
+  c.ws.send(JSON.stringify({ type: 'grab', vertex: 66, target: [before[0], before[1], before[2] + 0.5] }));
+  const ev = await next(c, 'text', (m) => m.event === 'grab');
+  assert.equal(ev.command.vertex, 66);
+  await until('the vertex rose', async () => (await ok(d, 'GET', '/v1/cloth/state')).positions[66][2] > before[2] + 0.3);
+  c.ws.send(JSON.stringify({ type: 'release' }));
+  await next(c, 'text', (m) => m.event === 'release');
+  c.ws.close();
+  await stop(d);
+});
+
+test('bad messages get an error and change nothing', async () => {
+  const d = await daemon(['--nx', '10', '--ny', '10', '--paused', '--stream-max-message', '256']);
+  const c = await connect(d);
+  await next(c, 'frame');
+  const h0 = await hash(d);
+  const bad = [
+    ['{', 400], ['[1]', 400], ['"subscribe"', 400], ['{"type": 7}', 400], ['{"type": "dance"}', 400],
+    [JSON.stringify({ type: 'subscribe', encoding: 'png' }), 422],
+    [JSON.stringify({ type: 'subscribe', max_fps: 0 }), 422],
+    [JSON.stringify({ type: 'subscribe', max_fps: 100000 }), 422],
+    [JSON.stringify({ type: 'subscribe', scalar: 'colour' }), 422],
+    [JSON.stringify({ type: 'subscribe', extra: 1 }), 400],
+    [JSON.stringify({ type: 'grab', vertex: 5 }), 400],
+    [JSON.stringify({ type: 'grab', vertex: 5, target: [0, 0] }), 400],
+    [JSON.stringify({ type: 'subscribe', pad: 'x'.repeat(300) }), 413],
+    ['{"type": "release", "type": "grab"}', 400],
+  ];
+  const answer = async (message) => {
+    const from = c.texts.length;
+    c.ws.send(message);
+    return next(c, 'text', (m) => m.type === 'error', 15000, from);
+  };
+  for (const [text, status] of bad) {
+    const e = await answer(text);
+    assert.equal(e.status, status, `${text.slice(0, 40)}: ${JSON.stringify(e)}`);
+  }
+  // A grab of a vertex out of range is refused by the sim thread; the error comes back too.
+  const ge = await answer(JSON.stringify({ type: 'grab', vertex: 100, target: [0, 0, 1] }));
+  assert.equal(ge.about, 'grab');
+  assert.equal(ge.status, 422);
+  assert.equal(ge.param, 'vertex');
+  const be = await answer(Buffer.from([1, 2, 3])); // binary
+  assert.equal(be.status, 400);
+  assert.match(be.detail, /binary/);
+  assert.equal(await hash(d), h0);
+  // The client is still served.
+  c.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'q16' }));
+  await next(c, 'frame', (g) => g.encoding === 'q16');
+  c.ws.close();
+  await stop(d);
+});
+
+test('only /stream upgrades', async () => {
+  const d = await daemon(['--paused']);
+  await assert.rejects(connect(d, { path: '/other' }));
+  const c = await connect(d);
+  await next(c, 'text', (m) => m.type === 'hello');
+  c.ws.close();
+  await stop(d);
+});
+
+function rssKiB(pid) {
+  return Number(/VmRSS:\s+(\d+)/.exec(readFileSync(`/proc/${pid}/status`, 'utf8'))[1]);
+}
+
+test('a client that reads nothing stays within its memory bound, the others keep their frames, and it is cut off',
+  async () => {
+    const d = await daemon(['--nx', '128', '--ny', '128', '--auto-drop-interval', '0', '--stream-stall-timeout', '12']);
+    const slow = await connect(d), fast = await connect(d);
+    await next(slow, 'frame');
+    await next(fast, 'frame');
+    slow.ws._socket.pause(); // reads nothing from now on
+    const rss0 = rssKiB(d.proc.pid);
+    const framesBefore = fast.frames.length;
+    await new Promise((r) => setTimeout(r, 10000)); // the ten seconds of the requirement
+    const grown = rssKiB(d.proc.pid) - rss0;
+    // A 128 x 128 f32 frame is 197 kB; ten seconds of queued frames would be 118 MB.
+    assert.ok(grown < 16 * 1024, `the daemon grew by ${grown} KiB`);
+    assert.ok(fast.frames.length - framesBefore > 300, `the other client got ${fast.frames.length - framesBefore} frames`);
+    await until('the stalled client is disconnected', async () => (await call(d, 'GET', '/metrics')).text.includes('clothd_stream_disconnected_total 1'));
+    const m = (await call(d, 'GET', '/metrics')).text;
+    assert.match(m, /clothd_stream_frames_skipped_total\{encoding="f32"\} [1-9]/);
+    assert.match(m, /clothd_stream_clients 1/);
+    fast.ws.close();
+    await stop(d);
+  });
