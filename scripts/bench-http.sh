@@ -12,7 +12,7 @@ bin="$root/build/server/clothd"
 [ -x "$bin" ] || "$root/scripts/build.sh" >/dev/null
 command -v wrk >/dev/null || { echo "bench-http: wrk is missing (apt install wrk)" >&2; exit 2; }
 work=$(mktemp -d)
-"$bin" --port 0 --backend cpu --nx 128 --ny 128 --auto-drop-interval 1 --web-root /nonexistent 2>"$work/log" &
+"$bin" --port 0 --stream-port 0 --backend cpu --nx 128 --ny 128 --auto-drop-interval 1 --web-root /nonexistent 2>"$work/log" &
 pid=$!
 trap 'kill $pid 2>/dev/null; rm -rf "$work"' EXIT
 for _ in $(seq 100); do grep -q "listening on" "$work/log" && break; sleep 0.1; done

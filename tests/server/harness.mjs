@@ -1,5 +1,6 @@
-// harness.mjs - starts the real clothd on 127.0.0.1 with --port 0 and the CPU backend, and talks
-// to it over real sockets with fetch. Used by every tests/server/*.test.mjs.
+// harness.mjs - starts the real clothd on 127.0.0.1 with ephemeral ports (--port 0,
+// --stream-port 0) and the CPU backend, and talks to it over real sockets with fetch. Used by
+// every tests/server/*.test.mjs.
 import { spawn } from 'node:child_process';
 import { mkdtempSync, rmSync } from 'node:fs';
 import { tmpdir } from 'node:os';
@@ -16,7 +17,8 @@ export function tempDir() {
 // defaults, so they win. The daemon's log is kept in daemon.log for failure messages.
 export function start(flags = [], { env = {}, webRoot } = {}) {
   const dir = tempDir();
-  const args = ['--port', '0', '--backend', 'cpu', '--threads', '1', '--web-root', webRoot ?? dir, ...flags];
+  const args = ['--port', '0', '--stream-port', '0', '--backend', 'cpu', '--threads', '1', '--web-root', webRoot ?? dir,
+    ...flags];
   const base = Object.fromEntries(Object.entries(process.env).filter(([k]) => !k.startsWith('CLOTHD_')));
   const proc = spawn(CLOTHD, args, {
     stdio: ['ignore', 'pipe', 'pipe'],

@@ -49,7 +49,7 @@ async function next(c, kind, pred = () => true, timeout = 15000, from = 0) {
 }
 
 async function daemon(flags) {
-  const d = await start(['--stream-port', '0', ...flags]);
+  const d = await start(flags);
   d.streamPort = (await ok(d, 'GET', '/v1/health')).stream.port;
   return d;
 }
