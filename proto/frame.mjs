@@ -2,6 +2,10 @@
 // PROTOCOL.md), in the browser and in node. No dependencies: meshopt frames need the decoder of
 // the npm package `meshoptimizer`, passed in (`import { MeshoptDecoder } from 'meshoptimizer';
 // await MeshoptDecoder.ready; decodeFrame(data, { meshopt: MeshoptDecoder })`).
+//
+// A viewer decoding 60 frames a second passes its own arrays (options.positions, .scalar,
+// .scratch), which are used when large enough: nothing is allocated per frame then but the
+// result object.
 
 export const MAGIC = 'CLF1';
 export const HEADER_SIZE = 72;
@@ -9,12 +13,15 @@ export const ENCODINGS = ['f32', 'q16', 'meshopt'];
 export const ROCK_SIZE = 36;
 export const MESHOPT_STRIDE = 8;
 export const FLAG_SCALAR = 4;
+/** The most vertices a frame may claim: clothd's largest cloth, 4096 x 4096. */
+export const MAX_VERTICES = 4096 * 4096;
 
 const align4 = (n) => (n + 3) & ~3;
 
 /**
  * @param {ArrayBuffer|ArrayBufferView} data one binary message
- * @param {{meshopt?: {decodeVertexBuffer: Function}}} [options]
+ * @param {{meshopt?: {decodeVertexBuffer: Function}, positions?: Float32Array, scalar?: Uint8Array,
+ *   scratch?: Uint8Array}} [options] the decoder for meshopt frames; arrays to decode into
  * @returns {{frame: number, step: number, simTime: number, wallNs: bigint, encoding: string,
  *   nVertices: number, nRocks: number, bboxMin: number[], bboxMax: number[],
  *   positions: Float32Array, scalar: Uint8Array|null, bytes: number,
@@ -35,8 +42,14 @@ export function decodeFrame(data, options = {}) {
   const nRocks = dv.getUint32(44, true);
   const bboxMin = [0, 1, 2].map((c) => dv.getFloat32(48 + 4 * c, true));
   const bboxMax = [0, 1, 2].map((c) => dv.getFloat32(60 + 4 * c, true));
-  const positions = new Float32Array(3 * n);
+  const reuse = (given, length, Type) => (given && given.length >= length ? given.subarray(0, length) : new Type(length));
   let at = headerSize;
+  const need = (count, what) => {
+    if (at + count > bytes.length) throw new Error(`frame of ${bytes.length} bytes is truncated: its ${what} need ${at + count}`);
+  };
+  if (n > MAX_VERTICES) throw new Error(`frame claims ${n} vertices, more than ${MAX_VERTICES}`);
+  need(encoding === 'f32' ? 12 * n : encoding === 'q16' ? 6 * n : 4, 'positions');
+  const positions = reuse(options.positions, 3 * n, Float32Array);
 
   // q16: bbox min .. max mapped to 0 .. 65535 per axis; a flat axis is all 0.
   const ext = [0, 1, 2].map((c) => bboxMax[c] - bboxMin[c]);
@@ -50,14 +63,15 @@ export function decodeFrame(data, options = {}) {
     for (let k = 0; k < 3 * n; k++) positions[k] = dv.getFloat32(at + 4 * k, true);
     at += 12 * n;
   } else if (encoding === 'q16') {
-    const q = new Uint16Array(3 * n);
-    for (let k = 0; k < 3 * n; k++) q[k] = dv.getUint16(at + 2 * k, true);
-    dequantize(q, 3);
+    for (let v = 0; v < n; v++)
+      for (let c = 0; c < 3; c++) positions[3 * v + c] = bboxMin[c] + dv.getUint16(at + 6 * v + 2 * c, true) * step[c];
     at += 6 * n;
   } else {
     if (!options.meshopt) throw new Error('a meshopt frame needs options.meshopt (MeshoptDecoder of the meshoptimizer package)');
     const len = dv.getUint32(at, true);
-    const target = new Uint8Array(n * MESHOPT_STRIDE);
+    need(4 + len, 'positions');
+    const target = reuse(options.scratch && options.scratch.byteOffset % 2 === 0 ? options.scratch : null,
+      n * MESHOPT_STRIDE, Uint8Array);
     options.meshopt.decodeVertexBuffer(target, n, MESHOPT_STRIDE, bytes.subarray(at + 4, at + 4 + len));
     const q = new Uint16Array(target.buffer, target.byteOffset, 4 * n); // little-endian hosts
     dequantize(q, 4);
@@ -67,9 +81,12 @@ export function decodeFrame(data, options = {}) {
 
   let scalar = null;
   if (flags & FLAG_SCALAR) {
-    scalar = bytes.slice(at, at + n);
+    need(n, 'scalars');
+    scalar = reuse(options.scalar, n, Uint8Array);
+    scalar.set(bytes.subarray(at, at + n));
     at = align4(at + n);
   }
+  need(ROCK_SIZE * nRocks, 'rocks');
   const rocks = [];
   for (let r = 0; r < nRocks; r++, at += ROCK_SIZE) {
     const f = (k) => dv.getFloat32(at + 4 * k, true);

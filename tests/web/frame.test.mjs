@@ -1,0 +1,230 @@
+// frame.test.mjs - unit tests of decodeFrame (proto/frame.mjs) against frames built by hand from
+// the "Binary frames" table of proto/PROTOCOL.md, never by an encoder under test: a literal f32
+// frame, q16 quantization, a meshopt payload made once with Debian's libmeshoptimizer, the scalar
+// section and its padding, caller-supplied arrays, and malformed input.
+// Run: node --test tests/web/frame.test.mjs
+import { test } from 'node:test';
+import assert from 'node:assert/strict';
+import { MeshoptDecoder } from 'meshoptimizer';
+import { decodeFrame } from '../../proto/frame.mjs';
+
+await MeshoptDecoder.ready;
+
+// "43 4c // comment" lines -> bytes.
+const hex = (s) => Uint8Array.from(s.replace(/\/\/.*$/gm, '').match(/[0-9a-f]{2}/gi).map((b) => parseInt(b, 16)));
+const near = (a, b, tol = 1e-6 * Math.max(1, Math.abs(b))) => Math.abs(a - b) <= tol;
+const assertNear = (actual, expected, tol) => {
+  assert.equal(actual.length, expected.length);
+  for (let k = 0; k < expected.length; k++)
+    assert.ok(near(actual[k], expected[k], tol), `[${k}]: ${actual[k]} vs ${expected[k]}`);
+};
+
+// The 72-byte header, field by field at the offsets of the spec table.
+function header({ encoding, scalar = false, frame = 1, step = 2, simTime = 0.5, wallNs = 3n, n, nRocks = 0, min, max }) {
+  const dv = new DataView(new ArrayBuffer(72));
+  [...'CLF1'].forEach((ch, k) => dv.setUint8(k, ch.charCodeAt(0)));
+  dv.setUint16(4, 72, true);
+  dv.setUint16(6, encoding | (scalar ? 4 : 0), true);
+  dv.setBigUint64(8, BigInt(frame), true);
+  dv.setBigUint64(16, BigInt(step), true);
+  dv.setFloat64(24, simTime, true);
+  dv.setBigUint64(32, wallNs, true);
+  dv.setUint32(40, n, true);
+  dv.setUint32(44, nRocks, true);
+  for (let c = 0; c < 3; c++) dv.setFloat32(48 + 4 * c, min[c], true), dv.setFloat32(60 + 4 * c, max[c], true);
+  return new Uint8Array(dv.buffer);
+}
+// Sections in order, each zero-padded to a 4-byte boundary.
+function frameOf(...sections) {
+  const out = new Uint8Array(sections.reduce((s, b) => s + ((b.length + 3) & ~3), 0));
+  let at = 0;
+  for (const b of sections) out.set(b, at), (at += (b.length + 3) & ~3);
+  return out;
+}
+const u16s = (values) => new Uint8Array(Uint16Array.from(values).buffer); // little-endian host
+const f32s = (values) => new Uint8Array(Float32Array.from(values).buffer);
+const rockBytes = (rocks) => frameOf(...rocks.map((r) => {
+  const b = new Uint8Array(36), dv = new DataView(b.buffer);
+  dv.setUint32(0, r.id, true);
+  [...r.position, r.radius, ...r.orientation].forEach((v, k) => dv.setFloat32(4 + 4 * k, v, true));
+  return b;
+}));
+
+// A complete f32 frame, 2 vertices + 1 rock, written out byte by byte (132 bytes).
+const F32_FRAME = hex(`
+  43 4c 46 31                          // 0   magic "CLF1"
+  48 00                                // 4   header size 72
+  00 00                                // 6   flags: encoding 0 (f32), no scalar
+  07 00 00 00 00 00 00 00              // 8   frame 7
+  2c 01 00 00 00 00 00 00              // 16  step 300
+  00 00 00 00 00 00 f8 3f              // 24  sim_time 1.5 (f64 0x3ff8000000000000)
+  15 cd 85 3d fe 9c 97 17              // 32  wall ns 1700000000123456789 (0x17979cfe3d85cd15, > 2^53)
+  02 00 00 00                          // 40  n_vertices 2
+  01 00 00 00                          // 44  n_rocks 1
+  00 00 80 bf 00 00 00 00 00 00 00 3f  // 48  bbox min (-1, 0, 0.5)
+  00 00 80 3f 00 00 00 40 00 00 40 3f  // 60  bbox max (1, 2, 0.75)
+  00 00 80 bf 00 00 00 00 00 00 40 3f  // 72  vertex 0 (-1, 0, 0.75)
+  00 00 80 3e 00 00 00 40 00 00 00 3f  // 84  vertex 1 (0.25, 2, 0.5)
+  09 00 00 00                          // 96  rock id 9
+  00 00 00 00 00 00 00 bf 00 00 80 40  // 100 position (0, -0.5, 4)
+  00 00 80 3e                          // 112 radius 0.25
+  00 00 00 3f 00 00 00 bf 00 00 00 3f 00 00 00 3f  // 116 orientation (0.5, -0.5, 0.5, 0.5)
+`);                                    // 132 end
+
+test('f32: a literal frame decodes field by field', () => {
+  assert.equal(F32_FRAME.length, 132);
+  const unaligned = new Uint8Array(3 + 132);
+  unaligned.set(F32_FRAME, 3); // a view at an odd byte offset, as a pooled node Buffer may be
+  for (const data of [F32_FRAME, F32_FRAME.slice().buffer, unaligned.subarray(3)]) {
+    const f = decodeFrame(data);
+    assert.equal(f.frame, 7);
+    assert.equal(f.step, 300);
+    assert.equal(f.simTime, 1.5);
+    assert.equal(f.wallNs, 1700000000123456789n);
+    assert.equal(f.encoding, 'f32');
+    assert.equal(f.nVertices, 2);
+    assert.equal(f.nRocks, 1);
+    assert.deepEqual(f.bboxMin, [-1, 0, 0.5]);
+    assert.deepEqual(f.bboxMax, [1, 2, 0.75]);
+    assert.ok(f.positions instanceof Float32Array);
+    assert.deepEqual(f.positions, Float32Array.from([-1, 0, 0.75, 0.25, 2, 0.5]));
+    assert.equal(f.scalar, null);
+    assert.deepEqual(f.rocks, [{ id: 9, position: [0, -0.5, 4], radius: 0.25, orientation: [0.5, -0.5, 0.5, 0.5] }]);
+    assert.equal(f.bytes, 132);
+  }
+  // The same frame from the DataView helper: the helper follows the table too.
+  const built = frameOf(header({ encoding: 0, frame: 7, step: 300, simTime: 1.5, wallNs: 1700000000123456789n,
+    n: 2, nRocks: 1, min: [-1, 0, 0.5], max: [1, 2, 0.75] }), f32s([-1, 0, 0.75, 0.25, 2, 0.5]),
+  rockBytes([{ id: 9, position: [0, -0.5, 4], radius: 0.25, orientation: [0.5, -0.5, 0.5, 0.5] }]));
+  assert.deepEqual(built, F32_FRAME);
+});
+
+test('q16: hand-quantized values, a flat axis, and the half-step bound', () => {
+  // x in 0..10, y in -1..1, z flat at 2: (2.5, 0.3, 2) and (10, -1, 2).
+  // x: 2.5/10*65535 = 16383.75 -> 16384; y: 1.3/2*65535 = 42597.75 -> 42598; z: flat -> 0.
+  const min = [0, -1, 2], max = [10, 1, 2];
+  const q = [16384, 42598, 0, 65535, 0, 0];
+  const f = decodeFrame(frameOf(header({ encoding: 1, n: 2, min, max }), u16s(q)));
+  assert.equal(f.encoding, 'q16');
+  assert.equal(f.bytes, 72 + 12);
+  assertNear(f.positions, q.map((v, k) => (max[k % 3] - min[k % 3] >= 1e-9 ? min[k % 3] + v * (max[k % 3] - min[k % 3]) / 65535 : min[k % 3])));
+  assertNear(f.positions, [2.5, 0.3, 2, 10, -1, 2], 10 / 65535 / 2 + 1e-6);
+  assert.equal(f.positions[2], 2); // flat axis: exactly min
+  // An extent below 1e-9 m (but not 0) is flat too.
+  const tiny = decodeFrame(frameOf(header({ encoding: 1, n: 1, min: [0, 0, 0], max: [5e-10, 1, 1] }), u16s([0, 0, 65535])));
+  assert.deepEqual(tiny.positions, Float32Array.from([0, 0, 1]));
+
+  // Property: random positions in a bbox, quantized per the spec formula, decode to within half a step.
+  let seed = 12345; // mulberry32
+  const rand = () => { seed = (seed + 0x6d2b79f5) | 0; let t = Math.imul(seed ^ (seed >>> 15), 1 | seed);
+    t = (t + Math.imul(t ^ (t >>> 7), 61 | t)) ^ t; return ((t ^ (t >>> 14)) >>> 0) / 4294967296; };
+  const bmin = [-3.2, 0.1, -0.7].map(Math.fround), bmax = [4.9, 2.6, 0.3].map(Math.fround);
+  const n = 1000, xs = [], qs = [];
+  for (let k = 0; k < 3 * n; k++) {
+    const c = k % 3, x = Math.fround(bmin[c] + rand() * (bmax[c] - bmin[c]));
+    xs.push(x);
+    qs.push(Math.round((x - bmin[c]) / (bmax[c] - bmin[c]) * 65535));
+  }
+  const g = decodeFrame(frameOf(header({ encoding: 1, n, min: bmin, max: bmax }), u16s(qs)));
+  for (let k = 0; k < 3 * n; k++) {
+    const c = k % 3, half = (bmax[c] - bmin[c]) / 65535 / 2;
+    assert.ok(Math.abs(g.positions[k] - xs[k]) <= half + 1e-6, `[${k}] ${g.positions[k]} vs ${xs[k]}`);
+  }
+});
+
+// MESHOPT_Q (5 vertices, x, y, z, 0 as uint16_t q[5][4]) encoded once by a small C program
+// against Debian's libmeshoptimizer 0.18 (gcc enc.c -lmeshoptimizer -lstdc++ -lm):
+//   meshopt_encodeVertexVersion(0); len = meshopt_encodeVertexBuffer(out, 256, q, 5, 8);
+// which gave 82 bytes, printed with printf("%02x") and pasted here.
+const MESHOPT_Q = [0, 0, 65535, 0, 65535, 32768, 0, 0, 1000, 65535, 300, 0, 12345, 54321, 40000, 0, 65535, 0, 7, 0];
+const MESHOPT_BYTES = hex(`
+  a0011fc000002da273011fc00000085a610107c000006461013fc00000fffe5558012fc00000582871012bc00000c9c8
+  000000000000000000000000000000000000000000000000000000000000ffff0000
+`);
+
+test('meshopt: libmeshoptimizer bytes decode to the dequantized q16 values', () => {
+  assert.equal(MESHOPT_BYTES.length, 82);
+  const min = [-2, 0, 1], max = [2, 3, 1.5];
+  const len = new Uint8Array(4);
+  new DataView(len.buffer).setUint32(0, MESHOPT_BYTES.length, true);
+  const data = frameOf(header({ encoding: 2, n: 5, nRocks: 1, min, max }), frameOf(len, MESHOPT_BYTES),
+    rockBytes([{ id: 1, position: [1, 2, 3], radius: 0.5, orientation: [0, 0, 0, 1] }]));
+  assert.equal(data.length, 72 + 88 + 36); // 4 + 82 = 86 bytes, padded to 88
+  const f = decodeFrame(data, { meshopt: MeshoptDecoder });
+  assert.equal(f.encoding, 'meshopt');
+  assert.equal(f.nVertices, 5);
+  const expected = [];
+  for (let v = 0; v < 5; v++)
+    for (let c = 0; c < 3; c++) expected.push(min[c] + MESHOPT_Q[4 * v + c] * (max[c] - min[c]) / 65535);
+  assertNear(f.positions, expected);
+  assert.deepEqual(f.rocks, [{ id: 1, position: [1, 2, 3], radius: 0.5, orientation: [0, 0, 0, 1] }]);
+  assert.throws(() => decodeFrame(data), /meshopt/);
+});
+
+test('scalar section: padded to 4 bytes, rocks after it', () => {
+  const rock = { id: 42, position: [0.5, 1, -1], radius: 2, orientation: [0, 1, 0, 0] };
+  const min = [0, 0, 0], max = [1, 1, 1];
+  // f32: positions 72..108, scalar 108..111, 1 pad byte, rock at 112.
+  // q16: positions 72..90, 2 pad bytes, scalar 92..95, 1 pad byte, rock at 96.
+  for (const [encoding, positions, rockAt] of [[0, f32s([0, 0, 0, 1, 1, 1, 0.5, 0.25, 0]), 112],
+    [1, u16s([0, 0, 0, 65535, 65535, 65535, 0, 0, 0]), 96]]) {
+    const data = frameOf(header({ encoding, scalar: true, n: 3, nRocks: 1, min, max }), positions,
+      Uint8Array.from([0, 128, 255]), rockBytes([rock]));
+    assert.equal(data.length, rockAt + 36);
+    assert.equal(new DataView(data.buffer).getUint32(rockAt, true), 42);
+    const f = decodeFrame(data);
+    assert.deepEqual(f.scalar, Uint8Array.from([0, 128, 255]));
+    assert.deepEqual(f.rocks, [rock]);
+    assert.equal(f.positions[3], 1);
+  }
+});
+
+test('caller arrays: used in place when large enough, left alone when too small', () => {
+  const data = frameOf(header({ encoding: 0, scalar: true, n: 2, min: [0, 0, 0], max: [1, 1, 1] }),
+    f32s([1, 2, 3, 4, 5, 6]), Uint8Array.from([7, 9]));
+  const positions = new Float32Array(10).fill(-1), scalar = new Uint8Array(4).fill(99);
+  const f = decodeFrame(data, { positions, scalar });
+  assert.equal(f.positions.buffer, positions.buffer);
+  assert.equal(f.scalar.buffer, scalar.buffer);
+  assert.deepEqual(f.positions, Float32Array.from([1, 2, 3, 4, 5, 6]));
+  assert.deepEqual(f.scalar, Uint8Array.from([7, 9]));
+  assert.deepEqual(positions, Float32Array.from([1, 2, 3, 4, 5, 6, -1, -1, -1, -1]));
+  assert.deepEqual(scalar, Uint8Array.from([7, 9, 99, 99]));
+  const exact = new Float32Array(6), exactScalar = new Uint8Array(2); // exactly large enough
+  const e = decodeFrame(data, { positions: exact, scalar: exactScalar });
+  assert.equal(e.positions.buffer, exact.buffer);
+  assert.equal(e.scalar.buffer, exactScalar.buffer);
+  assert.deepEqual(exact, Float32Array.from([1, 2, 3, 4, 5, 6]));
+
+  const small = new Float32Array(5).fill(-1), smallScalar = new Uint8Array(1).fill(99);
+  const g = decodeFrame(data, { positions: small, scalar: smallScalar });
+  assert.notEqual(g.positions.buffer, small.buffer);
+  assert.notEqual(g.scalar.buffer, smallScalar.buffer);
+  assert.deepEqual(g.positions, Float32Array.from([1, 2, 3, 4, 5, 6]));
+  assert.deepEqual(small, new Float32Array(5).fill(-1));
+  assert.deepEqual(smallScalar, Uint8Array.from([99]));
+});
+
+test('bad input throws a clear Error', () => {
+  assert.throws(() => decodeFrame(F32_FRAME.subarray(0, 71)), { name: 'Error', message: /71 bytes.*header/ });
+  assert.throws(() => decodeFrame(new Uint8Array(0)), { name: 'Error', message: /header/ });
+  const magic = F32_FRAME.slice();
+  magic[3] = 0x32; // "CLF2"
+  assert.throws(() => decodeFrame(magic), { name: 'Error', message: /magic/ });
+  const enc3 = F32_FRAME.slice();
+  enc3[6] = 3;
+  assert.throws(() => decodeFrame(enc3), { name: 'Error', message: /unknown encoding 3/ });
+  const trailing = new Uint8Array(136);
+  trailing.set(F32_FRAME);
+  assert.throws(() => decodeFrame(trailing), { name: 'Error', message: /136 bytes/ });
+});
+
+// A short payload is refused by the length checks before any read past the end (which would be a
+// bare RangeError), and a frame claiming more vertices than any cloth has allocates nothing.
+test('truncated payload throws a clear Error', () => {
+  for (const cut of [1, 36, 60])
+    assert.throws(() => decodeFrame(F32_FRAME.subarray(0, 132 - cut)), { name: 'Error', message: /truncated/ });
+  const huge = F32_FRAME.slice();
+  new DataView(huge.buffer).setUint32(40, 0xffffffff, true);
+  assert.throws(() => decodeFrame(huge), { name: 'Error', message: /more than/ });
+});
