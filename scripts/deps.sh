@@ -7,6 +7,7 @@ CLOTHD_APT_PACKAGES=(
   libmicrohttpd-dev libjansson-dev   # clothd's HTTP server and JSON
   libwebsockets-dev libmeshoptimizer-dev   # clothd's stream
   nodejs                      # integration tests (node's test runner and fetch)
+  chromium chromium-driver    # the viewer's end-to-end tests (headless, driven by playwright-core)
 )
 # npm: Debian's nodejs needs the npm package, NodeSource's nodejs bundles npm (and would conflict
 # with Debian's). Installed only when the command is missing.

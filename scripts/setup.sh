@@ -25,8 +25,9 @@ if ! command -v npm >/dev/null; then
   DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${CLOTHD_APT_IF_NO_NPM[@]}" >/dev/null
 fi
 
-# npm packages, from the lock files, when they are missing or older than the lock.
-for dir in "$here/.."; do
+# npm packages from the lock files (the test tools at the root, the viewer's in web/), when
+# they are missing or older than the lock.
+for dir in "$here/.." "$here/../web"; do
   if [ -f "$dir/package-lock.json" ] && { [ ! -f "$dir/node_modules/.package-lock.json" ] ||
       [ "$dir/package-lock.json" -nt "$dir/node_modules/.package-lock.json" ]; }; then
     echo "setup: npm ci in $(cd "$dir" && pwd)" >&2

@@ -13,6 +13,11 @@
 
 #include "clothsim/params.h"
 
+/* The viewer assembled by the build (build/web); an installed clothd is told --web-root. */
+#ifndef CLOTHD_WEB_ROOT
+#define CLOTHD_WEB_ROOT "web"
+#endif
+
 /* X(field, TYPE, default, min, max, choices, help): TYPE is STR, INT, BOOL or ENUM (choices a
  * string "a|b|c", default an index). */
 #define CLOTHD_SETTINGS(X)                                                                             \
@@ -24,7 +29,7 @@
     X(token_file, STR, "", 0, 0, NULL, "File holding the control token (all routes)")                 \
     X(view_token_file, STR, "", 0, 0, NULL, "File holding the view token (GET routes and the stream)") \
     X(state_file, STR, "", 0, 0, NULL, "State saved here on SIGTERM/SIGINT and resumed from at start") \
-    X(web_root, STR, "web", 0, 0, NULL, "Directory of the viewer's static files, served at /")         \
+    X(web_root, STR, CLOTHD_WEB_ROOT, 0, 0, NULL, "Directory of the viewer's static files, served at /")         \
     X(paused, BOOL, 0, 0, 1, NULL, "Start paused (POST /v1/sim/resume runs it)")                      \
     X(threads, INT, 0, 0, 256, NULL, "CPU backend threads; 0 = one per core")                         \
     X(http_threads, INT, 2, 1, 64, NULL, "Threads serving HTTP")                                      \

@@ -1,0 +1,55 @@
+# assemble.cmake - puts the viewer together in one directory that clothd serves at /:
+#   cmake -DSRC=<repo>/web -DPROTO=<repo>/proto -DOUT=<build>/web -P assemble.cmake
+# The page's own files (index.html, style.css, src/*.js) are copied as they are; the npm packages
+# of web/package-lock.json (installed by scripts/setup.sh: npm ci in web/) are copied to vendor/,
+# and proto/frame.mjs to proto/. index.html's import map names these paths. No bundler: the
+# browser loads ES modules, nothing comes from a CDN. Without web/node_modules the page cannot
+# work, so nothing is assembled and clothd serves its placeholder page.
+set(vendor
+  "three/build/three.module.js" "three.module.js"
+  "three/build/three.core.js" "three.core.js"
+  "three/examples/jsm/controls/OrbitControls.js" "OrbitControls.js"
+  "lil-gui/dist/lil-gui.esm.js" "lil-gui.esm.js"
+  "uplot/dist/uPlot.esm.js" "uPlot.esm.js"
+  "uplot/dist/uPlot.min.css" "uPlot.min.css"
+  "meshoptimizer/meshopt_decoder.mjs" "meshopt_decoder.mjs"
+  "three/LICENSE" "LICENSE.three"
+  "lil-gui/LICENSE.md" "LICENSE.lil-gui"
+  "uplot/LICENSE" "LICENSE.uplot"
+  "meshoptimizer/LICENSE.md" "LICENSE.meshoptimizer")
+
+foreach(v SRC PROTO OUT)
+  if(NOT DEFINED ${v})
+    message(FATAL_ERROR "assemble.cmake needs -D${v}=...")
+  endif()
+endforeach()
+
+set(missing "")
+list(LENGTH vendor n)
+math(EXPR last "${n} - 1")
+foreach(i RANGE 0 ${last} 2)
+  list(GET vendor ${i} from)
+  if(NOT EXISTS "${SRC}/node_modules/${from}")
+    list(APPEND missing "${from}")
+  endif()
+endforeach()
+if(missing)
+  message(WARNING "viewer not assembled: web/node_modules lacks ${missing} (run scripts/setup.sh, "
+                  "or npm ci in web/); clothd serves a placeholder page at /")
+  file(REMOVE_RECURSE "${OUT}")
+  return()
+endif()
+
+file(REMOVE_RECURSE "${OUT}/src") # a page file removed from web/ goes from here too
+file(MAKE_DIRECTORY "${OUT}/vendor" "${OUT}/proto" "${OUT}/src")
+file(GLOB page RELATIVE "${SRC}" "${SRC}/*.html" "${SRC}/*.css" "${SRC}/src/*.js")
+foreach(f ${page})
+  file(COPY_FILE "${SRC}/${f}" "${OUT}/${f}" ONLY_IF_DIFFERENT)
+endforeach()
+foreach(i RANGE 0 ${last} 2)
+  list(GET vendor ${i} from)
+  math(EXPR j "${i} + 1")
+  list(GET vendor ${j} to)
+  file(COPY_FILE "${SRC}/node_modules/${from}" "${OUT}/vendor/${to}" ONLY_IF_DIFFERENT)
+endforeach()
+file(COPY_FILE "${PROTO}/frame.mjs" "${OUT}/proto/frame.mjs" ONLY_IF_DIFFERENT)

@@ -1,0 +1,291 @@
+// main.js - the clothd viewer: wires the HTTP API (api.js), the stream (stream.js), the 3D view
+// (view.js), the mouse (interact.js), the panel (panel.js), the chart (chart.js) and the HUD.
+// Everything goes through the public API and stream of PROTOCOL.md; no physics here.
+import { Api } from './api.js';
+import { Stream } from './stream.js';
+import { View, MODES } from './view.js';
+import { Interaction } from './interact.js';
+import { Panel } from './panel.js';
+import { EnergyChart } from './chart.js';
+
+const $ = (id) => document.getElementById(id);
+
+// ---- messages: the connection state, and problems (refused calls, bad frames) for a while ----
+const problems = [];
+function problem(text, level = 'warn') {
+  console[level === 'info' ? 'info' : 'warn'](`clothd viewer: ${text}`);
+  problems.push({ text, at: Date.now() });
+  const el = document.createElement('div');
+  el.textContent = text;
+  $('problems').appendChild(el);
+  while ($('problems').children.length > 4) $('problems').firstChild.remove();
+  setTimeout(() => el.remove(), 8000);
+}
+function status(text) {
+  $('status').textContent = text;
+  $('status').classList.toggle('show', !!text);
+}
+
+function askToken(reason) {
+  const form = $('token');
+  $('token-reason').textContent = `${reason} Enter the token (clothd --token-file).`;
+  form.hidden = false;
+  $('token-input').focus();
+  return new Promise((resolve) => {
+    form.onsubmit = (e) => {
+      e.preventDefault();
+      form.hidden = true;
+      resolve($('token-input').value.trim() || null);
+    };
+  });
+}
+
+const api = new Api({ askToken });
+const refused = (what) => (e) => problem(`${what} refused: ${e.message}`);
+
+// ---- state mirrored from the server ----
+const state = { framed: false, scene: null, params: {}, torn: new Set(), running: true, health: null, sim: null, subscribed: null };
+const rockSpeed = { id: null, last: null, speed: null };
+
+const view = new View($('view'));
+const viewValues = { mode: 'surface', camera: 'orbit', encoding: 'q16', dropRadius: 0.1, dropDensity: 300, chart: true };
+let chart = null, panel = null;
+
+function applyScene(scene, torn, rocks) {
+  const rebuild = !view.cloth || !state.scene || view.cloth.nx !== scene.nx || view.cloth.ny !== scene.ny;
+  const reframe = !state.scene || ['nx', 'ny', 'size_x', 'size_y', 'height', 'orientation'].some((k) => state.scene[k] !== scene[k]);
+  state.scene = { ...scene };
+  delete state.scene.applied_step;
+  state.torn = new Set(torn);
+  if (rocks) {
+    view.rockInfo.clear();
+    for (const r of rocks) view.rockInfo.set(r.id, { kinematic: r.kinematic });
+  }
+  if (rebuild) view.buildCloth(scene.nx, scene.ny, state.torn);
+  else view.setTorn(state.torn);
+  if (reframe) {
+    view.frameScene(state.scene);
+    // The curtain is seed 004's scene: the first one shown opens in 2D, springs and points
+    // coloured by speed.
+    if (!state.framed && scene.orientation === 'vertical') {
+      setViewValue('camera', '2d');
+      setViewValue('mode', 'springs');
+    }
+    state.framed = true;
+  }
+  stream.targets = view.frameTargets();
+  panel?.setScene(state.scene);
+}
+
+function applyParams(params) {
+  Object.assign(state.params, params);
+  view.setGround(state.params.ground, state.params.ground_z);
+  panel?.setParams(params);
+}
+
+function setRunning(running) {
+  state.running = running;
+  panel?.setRunning(running);
+}
+
+function setViewValue(name, value) {
+  viewValues[name] = value;
+  if (name === 'mode') {
+    view.setMode(value);
+    stream.subscribe({ scalar: MODES[value] });
+  } else if (name === 'camera') view.setCamera2d(value === '2d');
+  else if (name === 'encoding') stream.subscribe({ encoding: value });
+  else if (name === 'chart') $('chart').hidden = !value;
+  panel?.gui.controllersRecursive().forEach((c) => c.object === viewValues && c.updateDisplay());
+}
+
+// ---- the stream ----
+const stream = new Stream(api, {
+  onStatus(s, detail) {
+    status(s === 'open' ? '' : s === 'connecting' ? 'connecting to clothd…' : `disconnected: ${detail}`);
+  },
+  onHello(h) {
+    applyScene(h.scene, h.torn, h.rocks);
+    applyParams(h.params);
+    setRunning(h.state === 'running');
+  },
+  onFrame(f) {
+    if (!view.showFrame(f)) return;
+    if (rockSpeed.id !== null) {
+      const r = f.rocks.find((x) => x.id === rockSpeed.id);
+      if (r && rockSpeed.last && f.simTime > rockSpeed.last.t) {
+        const p = rockSpeed.last.p;
+        rockSpeed.speed = Math.hypot(r.position[0] - p[0], r.position[1] - p[1], r.position[2] - p[2]) / (f.simTime - rockSpeed.last.t);
+      }
+      rockSpeed.last = r ? { t: f.simTime, p: r.position } : null;
+      if (!r) rockSpeed.speed = null;
+    }
+  },
+  onEvent(ev) {
+    const res = ev.result ?? {};
+    switch (ev.event) {
+      case 'params': applyParams(res.params ?? {}); break;
+      case 'scene': applyScene(res, [], []); chart?.clear(); break;
+      case 'reset': applyScene(state.scene, [], []); chart?.clear(); break;
+      case 'snapshot_restored': applyScene(ev.scene, ev.torn, ev.rocks); applyParams(ev.params); chart?.clear(); break;
+      case 'rock_add': case 'rock_set':
+        if (res.rock) view.rockInfo.set(res.rock.id, { kinematic: res.rock.kinematic });
+        break;
+      case 'rock_remove': view.rockInfo.delete(res.id ?? ev.command?.id); break;
+      case 'rocks_clear': view.rockInfo.clear(); break;
+      case 'paused': setRunning(false); break;
+      case 'resumed': setRunning(true); break;
+      case 'torn':
+        for (const id of ev.springs ?? []) state.torn.add(id);
+        view.setTorn(state.torn);
+        break;
+      case 'instability': problem(`instability: ${typeof ev.detail === 'string' ? ev.detail : JSON.stringify(ev.detail)}`); break;
+      default: break; // pins, grab, release, stepped: the frames show them
+    }
+  },
+  onMessage(m) {
+    if (m.type === 'subscribed') state.subscribed = m;
+    else if (m.type === 'error') problem(`stream refused ${m.about ?? 'a message'}: ${m.detail}`);
+  },
+  onProblem(text) { problem(text); },
+});
+
+// ---- actions of the panel and the mouse ----
+const actions = {
+  async playPause() {
+    const res = await api.post(state.running ? '/v1/sim/pause' : '/v1/sim/resume').catch(refused('pause/resume'));
+    if (res) setRunning(res.state === 'running');
+  },
+  async step() {
+    if (state.running) {
+      const res = await api.post('/v1/sim/pause').catch(refused('pause'));
+      if (!res) return;
+      setRunning(false);
+    }
+    await api.post('/v1/sim/step', { frames: 1 }).catch(refused('step'));
+  },
+  reset: () => api.post('/v1/sim/reset').catch(refused('reset')),
+  clearRocks: () => api.delete('/v1/rocks').catch(refused('remove rocks')),
+  async download() {
+    const res = await api.request('GET', '/v1/snapshot', undefined, { accept: 'application/octet-stream', raw: true }).catch(refused('snapshot'));
+    if (!res) return;
+    const a = document.createElement('a');
+    a.href = URL.createObjectURL(await res.blob());
+    a.download = `clothd-step-${state.sim?.step ?? 0}.snapshot`;
+    a.click();
+    setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+  },
+  upload() {
+    const input = $('snapshot-file');
+    input.value = '';
+    input.onchange = async () => {
+      const file = input.files[0];
+      if (file) await api.put('/v1/snapshot', await file.arrayBuffer()).catch(refused('snapshot upload'));
+    };
+    input.click();
+  },
+};
+
+let rockMove = null; // {id, position, busy}: the newest position wins
+const mouse = {
+  dropRock(point, dir) {
+    const r = viewValues.dropRadius;
+    const back = r * 1.5 + 0.05; // just in front of the surface, toward the camera
+    const position = point.map((x, k) => x - dir[k] * back);
+    return api.post('/v1/rocks', { position, radius: r, density: viewValues.dropDensity }).catch(refused('rock'));
+  },
+  selectRock(id) {
+    rockSpeed.id = rockSpeed.id === id ? null : id;
+    rockSpeed.last = null;
+    rockSpeed.speed = null;
+    view.select(rockSpeed.id);
+  },
+  grab: (vertex, target) => stream.grab(vertex, target),
+  release: () => stream.release(),
+  async moveRock(id, position) {
+    if (rockMove?.busy) { rockMove.next = position; return; }
+    rockMove = { busy: true, next: null };
+    for (let p = position; p; p = rockMove.next, rockMove.next = null)
+      await api.patch(`/v1/rocks/${id}`, { position: p }).catch(refused('rock move'));
+    rockMove = null;
+  },
+  groundZ: () => (state.params.ground ? state.params.ground_z : null),
+};
+const interaction = new Interaction(view, $('view'), mouse);
+
+// ---- HUD and chart: the received and drawn rates, GET /v1/sim four times a second ----
+const rates = { at: performance.now(), frames: 0, bytes: 0, drawn: 0, received: 0, drawnRate: 0, bytesRate: 0 };
+function hud() {
+  const now = performance.now(), dt = (now - rates.at) / 1000;
+  const s = stream.stats;
+  rates.received = (s.frames - rates.frames) / dt;
+  rates.bytesRate = (s.bytes - rates.bytes) / dt;
+  rates.drawnRate = (view.drawn - rates.drawn) / dt;
+  Object.assign(rates, { at: now, frames: s.frames, bytes: s.bytes, drawn: view.drawn });
+  const sim = state.sim, h = state.health;
+  const kb = rates.bytesRate / 1024;
+  $('hud').textContent = [
+    `frames  ${rates.received.toFixed(1)}/s received, ${rates.drawnRate.toFixed(1)}/s drawn`,
+    `sim     ${sim ? `${sim.state}, step ${sim.step}, ${sim.realtime_factor != null ? `${sim.realtime_factor.toFixed(2)}x real time` : ''}` : '-'}`,
+    `backend ${h ? `${h.backend}: ${h.device}` : '-'}`,
+    `cloth   ${sim ? `${sim.n_vertices} vertices, ${sim.n_torn} torn springs, ${sim.n_rocks} rocks` : '-'}`,
+    `stream  ${kb >= 1024 ? `${(kb / 1024).toFixed(2)} MB/s` : `${kb.toFixed(0)} kB/s`}, ${state.subscribed?.encoding ?? stream.subscription.encoding}`,
+  ].join('\n');
+}
+
+async function pollSim() {
+  try {
+    state.sim = await api.get('/v1/sim');
+    if (state.sim.state === 'running' !== state.running) setRunning(state.sim.state === 'running');
+    if (viewValues.chart && chart) chart.push(state.sim.sim_time, state.sim.energy, rockSpeed.speed);
+  } catch {
+    state.sim = null; // the stream's status says why
+  }
+}
+
+function loop() {
+  stream.takeFrame();
+  view.draw();
+  requestAnimationFrame(loop);
+}
+
+// ---- start: the schema for the panel, then the stream ----
+async function start() {
+  let schema;
+  for (let wait = 500; ; wait = Math.min(wait * 2, 8000)) {
+    try {
+      [schema, state.health] = await Promise.all([api.get('/v1/params/schema'), api.get('/v1/health')]);
+      break;
+    } catch (e) {
+      status(`cannot reach clothd (${e.message}); trying again`);
+      await new Promise((r) => setTimeout(r, wait));
+    }
+  }
+  panel = new Panel($('panel'), schema, {
+    patchParams: (p) => api.patch('/v1/params', p),
+    putScene: (s) => api.put('/v1/scene', s),
+    actions,
+    view: { values: viewValues, onChange: setViewValue },
+  });
+  chart = new EnergyChart($('chart'));
+  if (state.scene) panel.setScene(state.scene);
+  panel.setParams(state.params);
+  panel.setRunning(state.running);
+  setInterval(hud, 500);
+  setInterval(pollSim, 250);
+  setInterval(() => api.get('/v1/health').then((h) => (state.health = h), () => {}), 5000);
+  window.__clothd.panel = panel;
+  window.__clothd.ready = true;
+}
+
+// Hooks for the tests and the benchmark (tests/web/e2e.test.mjs): read-only views of the page's
+// own state, and inject() to feed the stream a message as if the server had sent it.
+window.__clothd = {
+  ready: false, api, stream, view, interaction, state, rates, problems,
+  inject: (data) => stream.inject(data),
+  setView: setViewValue,
+};
+
+stream.start();
+requestAnimationFrame(loop);
+start();

@@ -1,0 +1,330 @@
+// view.js - the three.js scene: the cloth (lit surface, springs and points coloured by speed, or a
+// strain heat map), the rocks (marked spheres; kinematic ones in wireframe), the ground, an orbit
+// camera and a 2D orthographic one. It draws only when something changed (a frame, the camera),
+// and a frame is written into the GPU buffers in place: the stream decodes straight into the
+// position attribute's array.
+import * as THREE from 'three';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+import { triangleIndices, springIndices, vertexNormals } from './topology.js';
+import { lut, applyLut, speedRgb, heatRgb } from './colors.js';
+
+export const MODES = { surface: 'none', springs: 'speed', strain: 'strain' }; // mode -> scalar it needs
+const SPEED_LUT = lut(speedRgb), HEAT_LUT = lut(heatRgb);
+
+/** The rock sphere, with a beach-ball marking (alternate octants) so its spin shows. */
+function rockGeometry() {
+  const g = new THREE.SphereGeometry(1, 32, 16);
+  const p = g.attributes.position;
+  const rgb = new Float32Array(3 * p.count);
+  const a = new THREE.Color(0xd9a441), b = new THREE.Color(0x3b4b8c);
+  for (let k = 0; k < p.count; k++) {
+    const c = p.getX(k) * p.getY(k) * p.getZ(k) >= 0 ? a : b;
+    rgb.set([c.r, c.g, c.b], 3 * k);
+  }
+  g.setAttribute('color', new THREE.BufferAttribute(rgb, 3));
+  return g;
+}
+
+/**
+ * The cloth's two-sided surface, lit per vertex (a hemisphere sky and one sun, as the rocks' lights)
+ * with the normals of each frame: per-fragment lighting of 32 000 small triangles costs a software
+ * renderer a third of its frame rate (headless Chromium: 21 -> 29 frames/s for a bare 128 x 128
+ * cloth), and per-vertex lighting looks the same at this density. vertexColors: the strain map's
+ * colours instead of the cloth's own.
+ */
+function clothMaterial(vertexColors) {
+  return new THREE.ShaderMaterial({
+    side: THREE.DoubleSide,
+    defines: vertexColors ? { USE_STRAIN: 1 } : {},
+    uniforms: { base: { value: new THREE.Color(0xc8553d) }, sun: { value: new THREE.Vector3(4, -2, 3).normalize() } },
+    vertexShader: `
+      uniform vec3 base;
+      uniform vec3 sun;
+      varying vec3 vFront;
+      varying vec3 vBack;
+      #ifdef USE_STRAIN
+      attribute vec3 color;
+      #endif
+      vec3 lit(vec3 n, vec3 c) {
+        vec3 sky = mix(vec3(0.12, 0.11, 0.1), vec3(0.38, 0.42, 0.5), 0.5 + 0.5 * n.z);
+        return c * (sky + 1.1 * max(dot(n, sun), 0.0));
+      }
+      void main() {
+        #ifdef USE_STRAIN
+        vec3 c = color;
+        #else
+        vec3 c = base;
+        #endif
+        vFront = lit(normal, c);
+        vBack = lit(-normal, c);
+        gl_Position = projectionMatrix * modelViewMatrix * vec4(position, 1.0);
+      }`,
+    fragmentShader: `
+      varying vec3 vFront;
+      varying vec3 vBack;
+      void main() {
+        gl_FragColor = vec4(gl_FrontFacing ? vFront : vBack, 1.0);
+        #include <colorspace_fragment>
+      }`,
+  });
+}
+
+/** Whether WebGL runs on the CPU (SwiftShader, llvmpipe): no GPU, every pixel costs. */
+function isSoftwareWebGL() {
+  const gl = document.createElement('canvas').getContext('webgl2');
+  if (!gl) return true;
+  const info = gl.getExtension('WEBGL_debug_renderer_info');
+  const name = info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER);
+  gl.getExtension('WEBGL_lose_context')?.loseContext();
+  return /swiftshader|llvmpipe|software/i.test(String(name));
+}
+
+export class View {
+  constructor(container) {
+    this.container = container;
+    this.software = isSoftwareWebGL();
+    // Multisampling doubles a software renderer's cost (SwiftShader, a browser without a GPU).
+    this.renderer = new THREE.WebGLRenderer({ antialias: !this.software, powerPreference: 'high-performance' });
+    this.renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
+    this.renderer.setClearColor(0x1b1f27);
+    container.appendChild(this.renderer.domElement);
+
+    this.scene = new THREE.Scene();
+    this.scene.add(new THREE.HemisphereLight(0xdfe8ff, 0x302820, 1.4));
+    const sun = new THREE.DirectionalLight(0xffffff, 2.0);
+    sun.position.set(4, -2, 3);
+    this.scene.add(sun);
+
+    THREE.Object3D.DEFAULT_UP.set(0, 0, 1); // z up, as the simulation
+    this.perspective = new THREE.PerspectiveCamera(45, 1, 0.01, 500);
+    this.perspective.up.set(0, 0, 1);
+    this.ortho = new THREE.OrthographicCamera(-1, 1, 1, -1, -100, 100);
+    this.ortho.up.set(0, 0, 1);
+    this.orbit = new OrbitControls(this.perspective, this.renderer.domElement);
+    this.pan2d = new OrbitControls(this.ortho, this.renderer.domElement);
+    this.pan2d.enableRotate = false;
+    this.pan2d.screenSpacePanning = true;
+    for (const c of [this.orbit, this.pan2d]) c.addEventListener('change', () => (this.dirty = true));
+    this.camera2d = false;
+    this.setCamera2d(false);
+
+    // Ground: a grid 5 cloth sizes wide (frameScene scales it) at ground_z while `ground` is on.
+    // Lines, not a filled plane: filling the screen with a plane halves the frame rate of a
+    // software renderer (measured in headless Chromium: 48 -> 22 frames/s).
+    this.ground = new THREE.GridHelper(1, 20, 0x7d8a74, 0x4d5548);
+    this.ground.rotation.x = Math.PI / 2;
+    this.scene.add(this.ground);
+
+    // Cloth: one position and one colour attribute shared by the surface, the lines and the points.
+    this.surfaceMaterial = clothMaterial(false);
+    this.strainMaterial = clothMaterial(true);
+    this.cloth = null;
+    this.mode = 'surface';
+
+    this.rockGeometry = rockGeometry();
+    this.rockMaterial = new THREE.MeshLambertMaterial({ vertexColors: true });
+    this.kinematicMaterial = new THREE.MeshBasicMaterial({ vertexColors: true, wireframe: true });
+    this.selectMaterial = new THREE.MeshBasicMaterial({ color: 0xffee55, side: THREE.BackSide });
+    this.rocks = new Map(); // id -> {mesh, seen}
+    this.rockInfo = new Map(); // id -> {kinematic} from the hello and the events
+    this.selected = null;
+
+    this.dirty = true;
+    this.drawn = 0;
+    this.resize();
+    new ResizeObserver(() => this.resize()).observe(container);
+  }
+
+  resize() {
+    const w = Math.max(1, this.container.clientWidth), h = Math.max(1, this.container.clientHeight);
+    this.renderer.setSize(w, h, false);
+    this.renderer.domElement.style.width = '100%';
+    this.renderer.domElement.style.height = '100%';
+    this.perspective.aspect = w / h;
+    this.perspective.updateProjectionMatrix();
+    this.fitOrtho();
+    this.dirty = true;
+  }
+
+  get camera() { return this.camera2d ? this.ortho : this.perspective; }
+  get controls() { return this.camera2d ? this.pan2d : this.orbit; }
+
+  setCamera2d(on) {
+    this.camera2d = on;
+    this.orbit.enabled = !on;
+    this.pan2d.enabled = on;
+    this.dirty = true;
+  }
+
+  /** Places both cameras to see the whole cloth of a scene (GET /v1/scene). */
+  frameScene(scene) {
+    this.sceneInfo = scene;
+    const s = Math.max(scene.size_x, scene.size_y);
+    const vertical = scene.orientation === 'vertical';
+    const c = new THREE.Vector3(0, 0, vertical ? scene.height : scene.height * 0.6);
+    this.orbit.target.copy(c);
+    this.perspective.position.set(c.x + 0.9 * s, c.y - 1.5 * s, c.z + (vertical ? 0.3 : 0.9) * s);
+    this.orbit.update();
+    // 2D: look at the cloth's plane (along +y for a curtain in xz, down -z for a horizontal one).
+    this.pan2d.target.copy(c);
+    if (vertical) this.ortho.position.set(c.x, c.y - 10, c.z);
+    else this.ortho.position.set(c.x, c.y - 1e-3, c.z + 10);
+    this.orthoSpan = 0.65 * s;
+    this.ground.scale.setScalar(5 * s);
+    this.ortho.zoom = 1;
+    this.pan2d.update();
+    this.fitOrtho();
+    this.dirty = true;
+  }
+
+  fitOrtho() {
+    const span = this.orthoSpan ?? 1.3;
+    const aspect = this.perspective.aspect;
+    Object.assign(this.ortho, { left: -span * aspect, right: span * aspect, top: span, bottom: -span });
+    this.ortho.updateProjectionMatrix();
+  }
+
+  /** Builds the cloth of nx x ny vertices with the torn springs (a Set of ids) left out. */
+  buildCloth(nx, ny, torn) {
+    this.disposeCloth();
+    const n = nx * ny;
+    const geometry = new THREE.BufferGeometry();
+    const position = new THREE.BufferAttribute(new Float32Array(3 * n), 3).setUsage(THREE.DynamicDrawUsage);
+    const color = new THREE.BufferAttribute(new Uint8Array(3 * n).fill(160), 3, true).setUsage(THREE.DynamicDrawUsage);
+    geometry.setAttribute('position', position);
+    const normal = new THREE.BufferAttribute(new Float32Array(3 * n), 3).setUsage(THREE.DynamicDrawUsage);
+    geometry.setAttribute('normal', normal);
+    geometry.setAttribute('color', color);
+    geometry.boundingSphere = new THREE.Sphere();
+    const lines = new THREE.BufferGeometry();
+    lines.setAttribute('position', position);
+    lines.setAttribute('color', color);
+    lines.boundingSphere = geometry.boundingSphere;
+    const mesh = new THREE.Mesh(geometry, this.surfaceMaterial);
+    const springs = new THREE.LineSegments(lines, new THREE.LineBasicMaterial({ vertexColors: true, transparent: true, opacity: 0.7 }));
+    const points = new THREE.Points(lines, new THREE.PointsMaterial({ vertexColors: true, size: 4, sizeAttenuation: false }));
+    for (const o of [mesh, springs, points]) o.frustumCulled = false;
+    this.scene.add(mesh, springs, points);
+    this.cloth = { nx, ny, n, geometry, lines, mesh, springs, points, position, normal, color, scalar: new Uint8Array(n), hasFrame: false };
+    this.setTorn(torn);
+    this.setMode(this.mode);
+  }
+
+  disposeCloth() {
+    if (!this.cloth) return;
+    const { mesh, springs, points, geometry, lines } = this.cloth;
+    this.scene.remove(mesh, springs, points);
+    geometry.dispose(); lines.dispose();
+    springs.material.dispose(); points.material.dispose();
+    this.cloth = null;
+  }
+
+  /** Rebuilds the indices after springs tore (or a reset mended them). */
+  setTorn(torn) {
+    const c = this.cloth;
+    if (!c) return;
+    c.index = triangleIndices(c.nx, c.ny, torn).slice();
+    c.geometry.setIndex(new THREE.BufferAttribute(c.index, 1));
+    c.lines.setIndex(new THREE.BufferAttribute(springIndices(c.nx, c.ny, torn), 1));
+    this.dirty = true;
+  }
+
+  setMode(mode) {
+    this.mode = mode;
+    const c = this.cloth;
+    if (!c) return;
+    c.mesh.visible = mode !== 'springs';
+    c.mesh.material = mode === 'strain' ? this.strainMaterial : this.surfaceMaterial;
+    c.springs.visible = c.points.visible = mode === 'springs';
+    this.dirty = true;
+  }
+
+  /** The arrays the next frame may decode into (PROTOCOL.md frames, proto/frame.mjs). */
+  frameTargets() {
+    return this.cloth ? { positions: this.cloth.position.array, scalar: this.cloth.scalar } : {};
+  }
+
+  /** Shows one decoded frame; false when it does not fit the cloth (a new scene is on its way). */
+  showFrame(f) {
+    const c = this.cloth;
+    if (!c || f.nVertices !== c.n) return false;
+    if (f.positions.buffer !== c.position.array.buffer) c.position.array.set(f.positions);
+    c.position.needsUpdate = true;
+    if (f.scalar && this.mode !== 'surface') {
+      applyLut(this.mode === 'strain' ? HEAT_LUT : SPEED_LUT, f.scalar, c.color.array, c.n);
+      c.color.needsUpdate = true;
+    }
+    if (c.mesh.visible) {
+      vertexNormals(c.position.array, c.index, c.normal.array);
+      c.normal.needsUpdate = true;
+    }
+    const [x0, y0, z0] = f.bboxMin, [x1, y1, z1] = f.bboxMax;
+    c.geometry.boundingSphere.center.set((x0 + x1) / 2, (y0 + y1) / 2, (z0 + z1) / 2);
+    c.geometry.boundingSphere.radius = Math.hypot(x1 - x0, y1 - y0, z1 - z0) / 2 + 1e-6;
+    c.hasFrame = true;
+    this.lastStep = f.step;
+    this.showRocks(f.rocks);
+    this.dirty = true;
+    return true;
+  }
+
+  showRocks(rocks) {
+    for (const r of this.rocks.values()) r.seen = false;
+    for (const r of rocks) {
+      let entry = this.rocks.get(r.id);
+      const kinematic = !!this.rockInfo.get(r.id)?.kinematic;
+      if (!entry) {
+        const mesh = new THREE.Mesh(this.rockGeometry, this.rockMaterial);
+        mesh.userData.rockId = r.id;
+        entry = { mesh, outline: null };
+        this.rocks.set(r.id, entry);
+        this.scene.add(mesh);
+      }
+      const m = entry.mesh;
+      m.material = kinematic ? this.kinematicMaterial : this.rockMaterial;
+      m.position.fromArray(r.position);
+      m.quaternion.fromArray(r.orientation);
+      m.scale.setScalar(r.radius);
+      entry.seen = true;
+      entry.radius = r.radius;
+      this.markSelected(entry, r.id === this.selected);
+    }
+    for (const [id, r] of this.rocks) {
+      if (r.seen) continue;
+      this.scene.remove(r.mesh);
+      this.rocks.delete(id);
+    }
+  }
+
+  markSelected(entry, on) {
+    if (on && !entry.outline) {
+      entry.outline = new THREE.Mesh(this.rockGeometry, this.selectMaterial);
+      entry.outline.scale.setScalar(1.12);
+      entry.mesh.add(entry.outline);
+    } else if (!on && entry.outline) {
+      entry.mesh.remove(entry.outline);
+      entry.outline = null;
+    }
+  }
+
+  select(id) {
+    this.selected = id;
+    for (const [rid, r] of this.rocks) this.markSelected(r, rid === id);
+    this.dirty = true;
+  }
+
+  setGround(on, z) {
+    this.ground.visible = !!on;
+    this.ground.position.z = z ?? 0;
+    this.dirty = true;
+  }
+
+  /** Draws if anything changed; answers whether it drew. */
+  draw() {
+    if (!this.dirty) return false;
+    this.dirty = false;
+    this.renderer.render(this.scene, this.camera);
+    this.drawn++;
+    return true;
+  }
+}
