@@ -1,13 +1,14 @@
 // e2e.test.mjs - the viewer in real headless Chromium against a real clothd (127.0.0.1, ephemeral
 // ports, CPU backend), through the page's own mouse and panel: it loads without console errors
-// and draws; a click drops a rock; a drag pulls the cloth through the stream; a panel edit
+// and draws; a click drops a rock; a drag pulls the cloth through the stream; shift-drag moves a
+// kinematic rock; snapshots go down and up through the panel; a panel edit
 // reaches GET /v1/params and a second page; a refused value shows why and snaps back; the scene
 // panel rebuilds the cloth; bad stream input is reported and the page goes on; after the daemon
 // restarts the page reconnects. Screenshots go to $CLOTHD_ARTIFACTS (build/test-artifacts).
 import { after, before, test } from 'node:test';
 import assert from 'node:assert/strict';
-import { writeFileSync } from 'node:fs';
-import { start, stop, ok, until } from '../server/harness.mjs';
+import { readFileSync, writeFileSync } from 'node:fs';
+import { start, stop, ok, call, until } from '../server/harness.mjs';
 import { WEB_ROOT, missing, launch, openViewer, artifact, pixelStats, screenOf, vertexOf } from './browser.mjs';
 
 const why = missing();
@@ -95,6 +96,51 @@ test('a drag on the cloth grabs the nearest vertex through the stream', opts, as
   assert.ok(grabs.length >= 1, 'grabs in the journal');
   assert.ok(grabs.every((e) => Math.abs(e.command.vertex - vertex) <= 65), `grabbed ${grabs[0].command.vertex}, pressed ${vertex}`);
   await until('the release', async () => (await ok(daemon, 'GET', '/v1/journal')).entries.some((e) => e.command.op === 'release'));
+  assert.deepEqual(page.errors, []);
+});
+
+test('shift-drag moves a kinematic rock', opts, async () => {
+  await pauseAndSettle();
+  const { id } = await ok(daemon, 'POST', '/v1/rocks', { position: [0.4, 0, 1.5], radius: 0.15, kinematic: true });
+  await until('the rock in the page', () => page.evaluate((i) => window.__clothd.view.rocks.has(i), id));
+  const at = await screenOf(page, [0.4, 0, 1.5]);
+  await page.keyboard.down('Shift');
+  await page.mouse.move(at.x, at.y);
+  await page.mouse.down();
+  for (let k = 1; k <= 10; k++) await page.mouse.move(at.x - 10 * k, at.y);
+  await page.mouse.up();
+  await page.keyboard.up('Shift');
+  // Dragged leftwards on the screen, in the plane facing the camera through the rock's centre.
+  const { rock } = await until('the rock to move', async () => {
+    const r = await ok(daemon, 'GET', `/v1/rocks/${id}`);
+    return Math.hypot(r.position[0] - 0.4, r.position[1]) > 0.1 ? { rock: r } : null;
+  });
+  const left = await screenOf(page, rock.position);
+  assert.ok(left.x < at.x - 50, `on screen from ${at.x.toFixed(0)} to ${left.x.toFixed(0)}`);
+  assert.ok(Math.abs(left.y - at.y) < 10, `stayed at the mouse's height: ${at.y.toFixed(0)} -> ${left.y.toFixed(0)}`);
+  assert.equal(rock.kinematic, true);
+  await ok(daemon, 'DELETE', '/v1/rocks');
+  await ok(daemon, 'POST', '/v1/sim/resume');
+  assert.deepEqual(page.errors, []);
+});
+
+test('snapshot download and upload from the panel', opts, async () => {
+  await pauseAndSettle();
+  const [download] = await Promise.all([page.waitForEvent('download'), page.click('text=Download snapshot')]);
+  const file = artifact('viewer.snapshot');
+  await download.saveAs(file);
+  const saved = readFileSync(file);
+  const current = await call(daemon, 'GET', '/v1/snapshot');
+  assert.equal(saved.length, current.buf.length);
+  assert.ok(saved.equals(current.buf), 'the download is GET /v1/snapshot of the paused state');
+  const { state_hash: hash } = await ok(daemon, 'GET', '/v1/sim');
+  await ok(daemon, 'PUT', '/v1/scene', { nx: 24 });
+  const [chooser] = await Promise.all([page.waitForEvent('filechooser'), page.click('text=Upload snapshot')]);
+  await chooser.setFiles(file);
+  await until('the snapshot restored', async () => (await ok(daemon, 'GET', '/v1/scene')).nx === 64);
+  assert.equal((await ok(daemon, 'GET', '/v1/sim')).state_hash, hash);
+  await until('the page to follow', () => page.evaluate(() => window.__clothd.view.cloth.n === 64 * 64));
+  await ok(daemon, 'POST', '/v1/sim/resume');
   assert.deepEqual(page.errors, []);
 });
 
