@@ -693,7 +693,7 @@ static void cuda_stats(void *ctx, const cs_model *m, cs_backend_stats *out)
     out->copy_bandwidth = c->copy_bandwidth;
 }
 
-static const char *cuda_device(void *ctx) { return ((cuda_ctx *)ctx)->device; }
+static const char *cuda_device(void *ctx, const cs_model *) { return ((cuda_ctx *)ctx)->device; }
 static const char *cuda_error(void *ctx) { return ((cuda_ctx *)ctx)->err; }
 
 static const cs_backend cuda_backend = {

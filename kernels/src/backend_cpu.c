@@ -87,11 +87,6 @@ static cs_status cpu_create(void **out, char *err, size_t err_len)
         snprintf(err, err_len, "out of memory");
         return CS_E_NOMEM;
     }
-#ifdef _OPENMP
-    snprintf(c->device, sizeof c->device, "cpu (OpenMP, %d threads)", max_threads());
-#else
-    snprintf(c->device, sizeof c->device, "cpu (1 thread, built without OpenMP)");
-#endif
     *out = c;
     return CS_OK;
 }
@@ -634,7 +629,18 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
     return CS_OK;
 }
 
-static const char *cpu_device(void *ctx) { return ((cpu_ctx *)ctx)->device; }
+static const char *cpu_device(void *ctx, const cs_model *m)
+{
+    cpu_ctx *c = ctx;
+#ifdef _OPENMP
+    const int t = threads_of(m);
+    snprintf(c->device, sizeof c->device, "cpu (OpenMP, %d thread%s)", t, t == 1 ? "" : "s");
+#else
+    (void)m;
+    snprintf(c->device, sizeof c->device, "cpu (1 thread, built without OpenMP)");
+#endif
+    return c->device;
+}
 
 static const char *cpu_error(void *ctx)
 {

@@ -148,7 +148,7 @@ void cs_sim_destroy(cs_sim *sim)
 const char *cs_sim_error(const cs_sim *sim) { return sim ? sim->err : "sim is NULL"; }
 const char *cs_sim_error_param(const cs_sim *sim) { return sim && sim->err_param ? sim->err_param : ""; }
 const char *cs_sim_backend(const cs_sim *sim) { return sim->backend->name; }
-const char *cs_sim_device(const cs_sim *sim) { return sim->backend->device(sim->ctx); }
+const char *cs_sim_device(const cs_sim *sim) { return sim->backend->device(sim->ctx, &sim->model); }
 const char *cs_sim_backend_note(const cs_sim *sim) { return sim->backend_note; }
 
 cs_status cs_sim_backend_stats(cs_sim *sim, cs_backend_stats *out)

@@ -88,8 +88,8 @@ typedef struct cs_backend {
     cs_status (*refresh)(void *ctx, const cs_model *m, cs_state *s);
     /* Advance the given number of substeps. Counters (step, time) are the core's. */
     cs_status (*step)(void *ctx, const cs_model *m, cs_state *s, int32_t substeps, cs_step_report *rep);
-    /* Human-readable device, e.g. the CPU model and thread count. */
-    const char *(*device)(void *ctx);
+    /* Human-readable device, e.g. the CPU backend and the threads it uses for this model. */
+    const char *(*device)(void *ctx, const cs_model *m);
     /* Detail of the backend's last failure ("" when none). */
     const char *(*error)(void *ctx);
     /* What it knows of its speed for this model (zeros where nothing). */

@@ -57,7 +57,8 @@ void cs_sim_destroy(cs_sim *sim);
 const char *cs_sim_error(const cs_sim *sim);
 /* Name of the parameter the last refusal is about, or "" when none. */
 const char *cs_sim_error_param(const cs_sim *sim);
-/* Backend in use ("cpu" or "cuda"), and the device it runs on. */
+/* Backend in use ("cpu" or "cuda"), and the device it runs on (for the CPU backend: the threads
+ * cs_sim_set_threads gave it). The device string stays valid until the next call. */
 const char *cs_sim_backend(const cs_sim *sim);
 const char *cs_sim_device(const cs_sim *sim);
 /* Why this backend was chosen (for "auto": whether a CUDA device was found). */
