@@ -151,6 +151,11 @@ test('a panel edit reaches GET /v1/params and a second page', opts, async () => 
     await input.fill('31.5');
     await input.press('Enter');
     await until('k_bend 31.5', async () => (await ok(daemon, 'GET', '/v1/params')).k_bend === 31.5);
+    // A slider's box keeps every digit typed (no rounding to the slider's step).
+    const mu = page.locator('[data-param="mu"] input');
+    await mu.fill('0.5375');
+    await mu.press('Enter');
+    await until('mu 0.5375', async () => (await ok(daemon, 'GET', '/v1/params')).mu === 0.5375);
     // The second page learns it from the stream's params event.
     await until('the second page to show it', async () => (await second.inputValue('[data-param="k_bend"] input')) === '31.5');
     assert.deepEqual(second.errors, []);

@@ -72,9 +72,9 @@ export class Panel {
     } else {
       let ctrl;
       if (c.widget === 'select') ctrl = folder.add(obj, c.name, c.choices);
-      else if (c.widget === 'slider') ctrl = folder.add(obj, c.name, c.min, c.max, c.step);
-      else if (c.widget === 'number') ctrl = folder.add(obj, c.name).step(c.step ?? 0.001);
+      else if (c.widget === 'slider') ctrl = folder.add(obj, c.name, c.min, c.max, c.step ?? undefined);
       else ctrl = folder.add(obj, c.name);
+      if (c.widget === 'number' && c.step) ctrl.step(c.step);
       ctrl.name(c.label);
       ctrl.domElement.title = c.help;
       ctrl.domElement.dataset.param = c.name;
@@ -129,14 +129,23 @@ export class Panel {
     }
   }
 
-  /** The server's live parameters (GET /v1/params, an event, the hello). */
+  /**
+   * The server's live parameters (GET /v1/params, an answer, an event, the hello). A control
+   * being typed into keeps what is typed: its edit, when committed, goes to the server as usual.
+   */
   setParams(params) {
     this.serverParams = { ...(this.serverParams ?? {}), ...structuredClone(params) };
     for (const [name, value] of Object.entries(params)) {
       if (!(name in this.params)) continue;
+      if (this.isEditing(name)) continue;
       this.params[name] = structuredClone(value);
       for (const ctrl of this.byName.get(name).ctrls) ctrl.updateDisplay();
     }
+  }
+
+  /** Whether a control of this name has the keyboard focus (is being typed into). */
+  isEditing(name) {
+    return this.byName.get(name).ctrls.some((ctrl) => ctrl.domElement.contains(document.activeElement));
   }
 
   /** The server's scene (GET /v1/scene, an event, the hello). */
@@ -144,7 +153,7 @@ export class Panel {
     this.serverScene = { ...(this.serverScene ?? {}), ...scene };
     this.sceneButton.name('Apply scene');
     for (const c of this.controls.scene) {
-      if (!(c.name in scene)) continue;
+      if (!(c.name in scene) || this.isEditing(c.name)) continue;
       this.sceneEdit[c.name] = scene[c.name];
       for (const ctrl of this.byName.get(c.name).ctrls) ctrl.updateDisplay();
     }

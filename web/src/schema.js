@@ -2,22 +2,14 @@
 // parameter of the table appears in the viewer with no change here. No DOM, no three.js: node's
 // tests import it as it is.
 //
-// A control: {name, kind: 'live'|'scene', widget, label, unit, help, default, min, max, step,
-// choices}. widget is
+// A control: {name, kind: 'live'|'scene', widget, label, unit, help, default, min, max, step (1
+// for ints, else null), choices}. widget is
 //   'checkbox' for bool, 'select' for enum (choices), 'vector' for vec3 (three numbers),
 //   'slider' for an int or float whose range is bounded and not wider than SLIDER_SPAN,
 //   'number' for the rest (a box: a slider over 0 .. 1e9 N/m could not set 400).
 // `startup` settings and strings are left out: they cannot change while clothd runs.
 
 export const SLIDER_SPAN = 1000;
-
-/** The step of a slider over [min, max]: a power of ten near a thousandth of the span. */
-export function sliderStep(min, max, type) {
-  if (type === 'int') return 1;
-  const span = max - min;
-  if (!(span > 0)) return 0.001;
-  return Number(`1e${Math.floor(Math.log10(span / 1000))}`); // exact, where 10 ** -4 is not
-}
 
 /** Label shown in the panel: the name, with its unit unless it has none. */
 export function controlLabel(p) {
@@ -44,8 +36,9 @@ export function controlsFromSchema(schema) {
       name: p.name, kind: p.kind, widget, label: controlLabel(p), unit: p.unit, help: p.help ?? '',
       default: p.default, min: p.min ?? null, max: p.max ?? null, choices: p.choices ?? null, step: null,
     };
-    if (widget === 'slider' || widget === 'number' || widget === 'vector')
-      c.step = p.type === 'int' ? 1 : widget === 'slider' ? sliderStep(p.min, p.max, p.type) : null;
+    // Whole numbers only for ints; a float keeps every digit typed (an explicit step would make
+    // lil-gui round what is typed to it: 0.0001 on a step of 0.001 would become 0).
+    if (p.type === 'int') c.step = 1;
     out[p.kind].push(c);
   }
   return out;
