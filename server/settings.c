@@ -184,6 +184,49 @@ static char *trim(char *s)
     return s;
 }
 
+int settings_parse_config(clothd_config *c, const char *text, size_t len, const char *name, char *why,
+                          size_t why_len)
+{
+    /* One NUL-terminated copy to cut into lines in place: a line may be of any length. */
+    char *copy = malloc(len + 1);
+    if (!copy) {
+        snprintf(why, why_len, "%s: out of memory", name);
+        return -1;
+    }
+    if (len) memcpy(copy, text, len);
+    copy[len] = '\0';
+    char inner[512];
+    int lineno = 0, rc = 0;
+    for (char *line = copy, *end = copy + len; rc == 0 && line < end;) {
+        char *nl = memchr(line, '\n', (size_t)(end - line));
+        char *next = nl ? nl + 1 : end;
+        if (nl) *nl = '\0';
+        lineno++;
+        if (strlen(line) != (size_t)((nl ? nl : end) - line)) {
+            snprintf(why, why_len, "%s:%d: holds a NUL byte", name, lineno);
+            rc = -1;
+            break;
+        }
+        line[strcspn(line, "#")] = '\0';
+        char *s = trim(line);
+        line = next;
+        if (!*s) continue;
+        char *eq = strchr(s, '=');
+        if (!eq) {
+            snprintf(why, why_len, "%s:%d: expected 'name = value'", name, lineno);
+            rc = -1;
+            break;
+        }
+        *eq = '\0';
+        if (settings_set_text(c, trim(s), trim(eq + 1), inner, sizeof inner) != 0) {
+            snprintf(why, why_len, "%s:%d: %s", name, lineno, inner);
+            rc = -1;
+        }
+    }
+    free(copy);
+    return rc;
+}
+
 static int load_file(clothd_config *c, const char *path, char *why, size_t why_len)
 {
     FILE *f = fopen(path, "r");
@@ -191,27 +234,16 @@ static int load_file(clothd_config *c, const char *path, char *why, size_t why_l
         snprintf(why, why_len, "config file %s: %s", path, strerror(errno));
         return -1;
     }
-    char line[1024], inner[512];
-    int lineno = 0, rc = 0;
-    while (rc == 0 && fgets(line, sizeof line, f)) {
-        lineno++;
-        char *hash = strchr(line, '#');
-        if (hash) *hash = '\0';
-        char *s = trim(line);
-        if (!*s) continue;
-        char *eq = strchr(s, '=');
-        if (!eq) {
-            snprintf(why, why_len, "%s:%d: expected 'name = value'", path, lineno);
-            rc = -1;
-            break;
-        }
-        *eq = '\0';
-        if (settings_set_text(c, trim(s), trim(eq + 1), inner, sizeof inner) != 0) {
-            snprintf(why, why_len, "%s:%d: %s", path, lineno, inner);
-            rc = -1;
-        }
-    }
+    /* Read whole (up to a bound no config file comes near), then parsed as text. */
+    char *text = malloc(CONFIG_MAX_BYTES + 1);
+    const size_t len = text ? fread(text, 1, CONFIG_MAX_BYTES + 1, f) : 0;
+    const int bad = !text || ferror(f);
     fclose(f);
+    int rc = -1;
+    if (bad) snprintf(why, why_len, "config file %s: could not read it", path);
+    else if (len > CONFIG_MAX_BYTES) snprintf(why, why_len, "config file %s: larger than %d bytes", path, CONFIG_MAX_BYTES);
+    else rc = settings_parse_config(c, text, len, path, why, why_len);
+    free(text);
     return rc;
 }
 

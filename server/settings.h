@@ -69,6 +69,15 @@ void settings_default(clothd_config *c);
  * choice names, and "x,y,z" for vectors. Returns 0, or -1 with a reason. */
 int settings_set_text(clothd_config *c, const char *name, const char *text, char *why, size_t why_len);
 
+/* Largest config file read (a real one is a few hundred bytes). */
+#define CONFIG_MAX_BYTES (1 << 20)
+
+/* Applies a config file's text: 'name = value' lines, '#' starts a comment, blank lines are
+ * skipped; len bytes, not NUL-terminated. `name` (the file's) prefixes a reason: "NAME:LINE: ...".
+ * Returns 0, or -1 with the reason at the first bad line (the lines before it stay applied). */
+int settings_parse_config(clothd_config *c, const char *text, size_t len, const char *name, char *why,
+                          size_t why_len);
+
 /* Applies, in order of precedence, the config file (--config or CLOTHD_CONFIG), CLOTHD_*
  * variables of env (one that names no setting is ignored with a warning), then argv flags
  * (--name value or --name=value; dashes and underscores alike). Returns 0, or -1 with the reason

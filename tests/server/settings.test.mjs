@@ -55,6 +55,23 @@ test('bad settings stop the start with a clear reason', async () => {
   await assert.rejects(run(CLOTHD, ['--config', join(dir, 'missing.conf')]), /missing\.conf: No such file/);
 });
 
+test('a config file line may be of any length; CRLF works; a bad line is named', async () => {
+  const dir = tempDir();
+  const conf = join(dir, 'long.conf');
+  // Once read 1023 bytes at a time: the rest of a long comment became a line of its own.
+  writeFileSync(conf, `# ${'x'.repeat(2000)}\r\nnx = 9\r\nny = 8   # ${'y'.repeat(1500)}\r\n\r\nauto_drop_interval = 0`);
+  const d = await start(['--config', conf, '--paused']);
+  const s = await ok(d, 'GET', '/v1/scene');
+  assert.equal(s.nx, 9);
+  assert.equal(s.ny, 8);
+  await stop(d);
+  const bad = join(dir, 'bad.conf');
+  writeFileSync(bad, `nx = 9\n# ${'z'.repeat(3000)}\n\nno equals sign here\n`);
+  await assert.rejects(run(CLOTHD, ['--config', bad]), /bad\.conf:4: expected 'name = value'/);
+  writeFileSync(bad, 'nx = 9\nny = 9\0 junk\n');
+  await assert.rejects(run(CLOTHD, ['--config', bad]), /bad\.conf:2: holds a NUL byte/);
+});
+
 test('--help lists every setting and parameter; routes and version', async () => {
   const { stdout } = await run(CLOTHD, ['--help']);
   for (const flag of ['--port', '--state-file', '--web-root', '--k-structural', '--auto-drop-interval', '--integrator'])
