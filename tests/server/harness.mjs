@@ -1,13 +1,26 @@
 // harness.mjs - starts the real clothd on 127.0.0.1 with ephemeral ports (--port 0,
 // --stream-port 0) and the CPU backend, and talks to it over real sockets with fetch. Used by
 // every tests/server/*.test.mjs.
-import { spawn } from 'node:child_process';
+import { execFile, spawn } from 'node:child_process';
 import { mkdtempSync, rmSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
+import { promisify } from 'node:util';
 
 export const CLOTHD = process.env.CLOTHD_BIN;
 if (!CLOTHD) throw new Error('CLOTHD_BIN must name the clothd binary (ctest sets it)');
+
+// A sanitizer's report in clothd's stderr (the AddressSanitizer/UndefinedBehaviorSanitizer build
+// that scripts/test.sh also runs the suite on): from the report on, or null. start(), stop() and
+// execChecked() fail on one, whatever the exit status, so no report goes unseen.
+const REPORT = /^.*(==\d+==ERROR: \w+Sanitizer|runtime error: |SUMMARY: \w+Sanitizer)/m;
+export function sanitizerReport(text) {
+  const m = REPORT.exec(text ?? '');
+  return m ? text.slice(m.index) : null;
+}
+function reportError(what, report) {
+  return new Error(`${what}: sanitizer report from clothd:\n${report}`);
+}
 
 export function tempDir() {
   return mkdtempSync(join(tmpdir(), 'clothd-test-'));
@@ -25,8 +38,10 @@ export function start(flags = [], { env = {}, webRoot } = {}) {
     env: { ...base, OMP_WAIT_POLICY: 'passive', ...env },
   });
   const daemon = { proc, dir, log: '', url: null, exited: null };
+  proc.stdout.resume();
   daemon.exitPromise = new Promise((resolve) => {
-    proc.on('exit', (code, signal) => {
+    // 'close', not 'exit': by then stderr has been read to its end (a report is last).
+    proc.on('close', (code, signal) => {
       daemon.exited = { code, signal };
       resolve(daemon.exited);
     });
@@ -42,7 +57,9 @@ export function start(flags = [], { env = {}, webRoot } = {}) {
       }
     });
     daemon.exitPromise.then((e) => {
-      if (!daemon.url) reject(new Error(`clothd exited (${JSON.stringify(e)}) before listening:\n${daemon.log}`));
+      const report = sanitizerReport(daemon.log);
+      if (!daemon.url && report) reject(reportError(`clothd exited (${JSON.stringify(e)}) before listening`, report));
+      else if (!daemon.url) reject(new Error(`clothd exited (${JSON.stringify(e)}) before listening:\n${daemon.log}`));
     });
   });
 }
@@ -52,7 +69,25 @@ export async function stop(daemon, signal = 'SIGTERM') {
   if (!daemon.exited) daemon.proc.kill(signal);
   const e = await daemon.exitPromise;
   rmSync(daemon.dir, { recursive: true, force: true });
+  const report = sanitizerReport(daemon.log);
+  if (report) throw reportError(`clothd (${JSON.stringify(e)})`, report);
   return e;
+}
+
+// Runs clothd to its end (a subcommand, a start that is refused): promisified execFile's
+// signature and result, but a sanitizer report fails it even where the test expects a refusal.
+const execFileP = promisify(execFile);
+export async function execChecked(file, args, options) {
+  let r;
+  try {
+    r = await execFileP(file, args, options);
+  } catch (e) {
+    const report = sanitizerReport(e.stderr);
+    throw report ? reportError(`${file} ${args.join(' ')}`, report) : e;
+  }
+  const report = sanitizerReport(r.stderr);
+  if (report) throw reportError(`${file} ${args.join(' ')}`, report);
+  return r;
 }
 
 // One request. body: an object (sent as JSON), a string or a Buffer (sent as is).

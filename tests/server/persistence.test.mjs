@@ -3,13 +3,11 @@
 // API, and paused commands visible in the very next read.
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { execFile } from 'node:child_process';
 import { existsSync, writeFileSync, readdirSync } from 'node:fs';
 import { join } from 'node:path';
-import { promisify } from 'node:util';
-import { start, stop, call, ok, pause, hash, until, tempDir, CLOTHD } from './harness.mjs';
+import { start, stop, call, ok, pause, hash, until, tempDir, execChecked, CLOTHD } from './harness.mjs';
 
-const run = promisify(execFile);
+const run = execChecked; // execFile, and a sanitizer report fails the test
 
 test('SIGTERM saves the state file and a restart resumes at the same hash', async () => {
   const dir = tempDir();

@@ -2,13 +2,11 @@
 // flags, in that order of precedence, for startup settings and engine parameters alike.
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { execFile } from 'node:child_process';
 import { writeFileSync } from 'node:fs';
 import { join } from 'node:path';
-import { promisify } from 'node:util';
-import { start, stop, ok, tempDir, CLOTHD } from './harness.mjs';
+import { start, stop, ok, tempDir, execChecked, CLOTHD } from './harness.mjs';
 
-const run = promisify(execFile);
+const run = execChecked; // execFile, and a sanitizer report fails the test
 
 test('config file < environment < flags', async () => {
   const dir = tempDir();

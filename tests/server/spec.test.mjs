@@ -2,11 +2,9 @@
 // `clothd routes`, and the same parameter and scene fields as the live API.
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { execFile } from 'node:child_process';
 import { readFileSync } from 'node:fs';
 import { join } from 'node:path';
-import { promisify } from 'node:util';
-import { start, stop, ok, CLOTHD } from './harness.mjs';
+import { start, stop, ok, execChecked, CLOTHD } from './harness.mjs';
 
 const spec = readFileSync(join(process.env.CLOTHD_SOURCE, 'proto', 'openapi.yaml'), 'utf8').split('\n');
 
@@ -42,7 +40,7 @@ function schemaProperties(name) {
 }
 
 test('openapi.yaml lists exactly the routes and methods of the route table', async () => {
-  const { stdout } = await promisify(execFile)(CLOTHD, ['routes']);
+  const { stdout } = await execChecked(CLOTHD, ['routes']);
   const table = stdout.trim().split('\n').sort();
   assert.ok(table.length >= 25);
   assert.deepEqual(specRoutes(), table);
