@@ -33,15 +33,13 @@
 #include "pjson.h"
 #include "simloop.h"
 #include "stream.h"
+#include "stream_msg.h"
 
 #define PROTOCOL_NAME "clothd.v1"
 #define STREAM_PATH "/stream"
 #define EVENT_RING 1024
 #define MAX_TEXTS 8 /* queued text messages (errors, acks) per client */
-#define N_ENC 3
-
-static const char *const enc_names[N_ENC] = {"f32", "q16", "meshopt"};
-static const char *const scalar_names[SCALAR_KINDS] = {"none", "speed", "strain"};
+#define N_ENC STREAM_ENCODINGS
 
 typedef struct wire {
     unsigned char *buf; /* LWS_PRE bytes of headroom, then the frame */
@@ -335,42 +333,10 @@ static void take_answers(stream *st)
 
 /* ---- client messages ---- */
 
-static void handle_subscribe(stream *st, session *s, json_t *m)
+static void handle_subscribe(stream *st, session *s, const stream_msg *m)
 {
-    static const char *const fields[] = {"type", "encoding", "max_fps", "scalar", NULL};
-    problem pr;
-    if (only_fields(m, fields, &pr) != 0) {
-        client_error(st, s, "subscribe", pr.status, pr.param, "%s", pr.detail);
-        return;
-    }
-    int enc = s->encoding, sc = s->scalar, fps = s->max_fps;
-    const json_t *e = json_object_get(m, "encoding"), *f = json_object_get(m, "max_fps"), *c = json_object_get(m, "scalar");
-    if (e) {
-        enc = -1;
-        for (int k = 0; k < N_ENC; k++)
-            if (json_is_string(e) && strcmp(json_string_value(e), enc_names[k]) == 0) enc = k;
-        if (enc < 0) {
-            client_error(st, s, "subscribe", 422, "encoding", "encoding must be f32, q16 or meshopt");
-            return;
-        }
-    }
-    if (f) {
-        long long v;
-        if (int_from_json(f, 1, 240, "max_fps", &v, &pr) != 0) {
-            client_error(st, s, "subscribe", pr.status, "max_fps", "%s", pr.detail);
-            return;
-        }
-        fps = (int)v;
-    }
-    if (c) {
-        sc = -1;
-        for (int k = 0; k < SCALAR_KINDS; k++)
-            if (json_is_string(c) && strcmp(json_string_value(c), scalar_names[k]) == 0) sc = k;
-        if (sc < 0) {
-            client_error(st, s, "subscribe", 422, "scalar", "scalar must be none, speed or strain");
-            return;
-        }
-    }
+    const int enc = m->encoding >= 0 ? m->encoding : s->encoding, sc = m->scalar >= 0 ? m->scalar : s->scalar;
+    const int fps = m->max_fps >= 0 ? m->max_fps : s->max_fps;
     s->encoding = enc;
     s->scalar = sc;
     s->max_fps = fps;
@@ -380,8 +346,8 @@ static void handle_subscribe(stream *st, session *s, json_t *m)
     atomic_store(&st->scalars_wanted, want);
     s->last_frame = 0; /* the next frame in the new encoding at once */
     if (sc != SCALAR_NONE && (!st->current || !st->current->has[sc])) request_frame(st); /* frames lack it */
-    json_t *ack = json_pack("{s:s, s:s, s:i, s:s}", "type", "subscribed", "encoding", enc_names[enc], "max_fps", fps,
-                            "scalar", scalar_names[sc]);
+    json_t *ack = json_pack("{s:s, s:s, s:i, s:s}", "type", "subscribed", "encoding", stream_encoding_names[enc],
+                            "max_fps", fps, "scalar", stream_scalar_names[sc]);
     char *text = json_dumps(ack, PJSON_DUMP_FLAGS);
     json_decref(ack);
     if (s->n_texts < MAX_TEXTS) s->texts[s->n_texts++] = text; /* the same queue, in order */
@@ -397,38 +363,18 @@ static void handle_message(stream *st, session *s)
                      st->max_message);
         return;
     }
-    json_error_t err;
-    json_t *m = json_loadb(s->rx, s->rx_len, JSON_REJECT_DUPLICATES, &err);
-    if (!m || !json_is_object(m)) {
-        client_error(st, s, "message", 400, NULL, "a message must be a JSON object%s%s", m ? "" : ": ", m ? "" : err.text);
-        json_decref(m);
-        return;
+    stream_msg m;
+    switch (stream_msg_parse(s->rx, s->rx_len, &m)) {
+    case STREAM_MSG_REFUSED:
+        client_error(st, s, m.about, m.pr.status, m.has_param ? m.pr.param : NULL, "%s", m.pr.detail);
+        break;
+    case STREAM_MSG_SUBSCRIBE: handle_subscribe(st, s, &m); break;
+    case STREAM_MSG_COMMAND:
+        submit_grab(st, s, m.cmd);
+        m.cmd = NULL; /* submit_grab owns it */
+        break;
     }
-    const char *type = json_string_value(json_object_get(m, "type"));
-    problem pr;
-    if (!type) {
-        client_error(st, s, "message", 400, "type", "a message needs a string type");
-    } else if (strcmp(type, "subscribe") == 0) {
-        handle_subscribe(st, s, m);
-    } else if (strcmp(type, "grab") == 0) {
-        static const char *const fields[] = {"type", "vertex", "target", NULL};
-        float target[3];
-        if (only_fields(m, fields, &pr) != 0 || !json_object_get(m, "vertex") ||
-            vec3_from_json(json_object_get(m, "target"), target, "target", &pr) != 0) {
-            if (!json_object_get(m, "vertex")) problem_set(&pr, 400, "wrong-type", "vertex", "vertex is required");
-            client_error(st, s, "grab", pr.status, pr.param, "%s", pr.detail);
-        } else {
-            submit_grab(st, s, json_pack("{s:s, s:O, s:O}", "op", "grab", "vertex", json_object_get(m, "vertex"), "target",
-                                         json_object_get(m, "target")));
-        }
-    } else if (strcmp(type, "release") == 0) {
-        static const char *const fields[] = {"type", NULL};
-        if (only_fields(m, fields, &pr) != 0) client_error(st, s, "release", pr.status, pr.param, "%s", pr.detail);
-        else submit_grab(st, s, json_pack("{s:s}", "op", "release"));
-    } else {
-        client_error(st, s, type, 400, "type", "unknown message type '%.64s'", type);
-    }
-    json_decref(m);
+    stream_msg_free(&m);
 }
 
 /* ---- frames ---- */
@@ -746,7 +692,7 @@ char *stream_metrics(stream *st)
         fprintf(f, "# HELP clothd_stream_frames_%s_total Frames %s, by encoding.\n# TYPE clothd_stream_frames_%s_total counter\n",
                 what[a], what[a], what[a]);
         for (int e = 0; e < N_ENC; e++)
-            fprintf(f, "clothd_stream_frames_%s_total{encoding=\"%s\"} %llu\n", what[a], enc_names[e],
+            fprintf(f, "clothd_stream_frames_%s_total{encoding=\"%s\"} %llu\n", what[a], stream_encoding_names[e],
                     (unsigned long long)atomic_load(&arrays[a][e]));
     }
     fprintf(f, "# HELP clothd_stream_bytes_sent_total Bytes written to stream clients.\n"
