@@ -133,42 +133,13 @@ static int wants_binary(req *r)
     return a && strstr(a, "application/octet-stream") != NULL;
 }
 
-/* The body as a JSON object: required, or optional (then absent means {} and no member may be
- * given). */
+/* The body as a JSON object (request_body_object); on refusal, the answer is in rep. */
 static int body_object(req *r, int required, json_t **out, reply *rep)
 {
-    *out = NULL;
-    size_t n = r->len;
-    while (n && isspace((unsigned char)r->body[n - 1])) n--;
-    if (n == 0) {
-        if (required) return reply_error(rep, 400, "invalid-json", NULL, "a JSON body is required"), -1;
-        *out = json_object();
-        return 0;
-    }
-    json_error_t err;
-    json_t *o = json_loadb(r->body, r->len, JSON_REJECT_DUPLICATES, &err);
-    if (!o) {
-        problem pr;
-        problem_set(&pr, 400, "invalid-json", NULL, "malformed JSON at line %d, column %d: %s", err.line, err.column,
-                    err.text);
-        reply_problem(rep, &pr);
-        return -1;
-    }
-    if (!json_is_object(o)) {
-        json_decref(o);
-        reply_error(rep, 400, "wrong-type", NULL, "the body must be a JSON object");
-        return -1;
-    }
-    if (!required && json_object_size(o)) {
-        const char *key = json_object_iter_key(json_object_iter(o));
-        problem pr;
-        problem_set(&pr, 400, "unknown-field", key, "this request takes no field ('%s' given)", key);
-        json_decref(o);
-        reply_problem(rep, &pr);
-        return -1;
-    }
-    *out = o;
-    return 0;
+    problem pr;
+    if (request_body_object(r->body, r->len, required, out, &pr) == 0) return 0;
+    reply_problem(rep, &pr);
+    return -1;
 }
 
 /* Queues a command for the sim thread (the connection is suspended by the caller). */

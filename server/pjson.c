@@ -1,4 +1,5 @@
 /* pjson.c - JSON for the API, driven by the parameter table. */
+#include <ctype.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -159,6 +160,35 @@ int only_fields(const json_t *obj, const char *const *allowed, problem *pr)
         for (const char *const *a = allowed; *a && !ok; a++) ok = strcmp(*a, key) == 0;
         if (!ok) return problem_set(pr, 400, "unknown-field", key, "unknown field '%s'", key);
     }
+    return 0;
+}
+
+int request_body_object(const char *body, size_t len, int required, json_t **out, problem *pr)
+{
+    *out = NULL;
+    size_t n = len;
+    while (n && isspace((unsigned char)body[n - 1])) n--;
+    if (n == 0) {
+        if (required) return problem_set(pr, 400, "invalid-json", NULL, "a JSON body is required");
+        *out = json_object();
+        return 0;
+    }
+    json_error_t err;
+    json_t *o = json_loadb(body, len, JSON_REJECT_DUPLICATES, &err);
+    if (!o)
+        return problem_set(pr, 400, "invalid-json", NULL, "malformed JSON at line %d, column %d: %s", err.line,
+                           err.column, err.text);
+    if (!json_is_object(o)) {
+        json_decref(o);
+        return problem_set(pr, 400, "wrong-type", NULL, "the body must be a JSON object");
+    }
+    if (!required && json_object_size(o)) {
+        const char *key = json_object_iter_key(json_object_iter(o));
+        problem_set(pr, 400, "unknown-field", key, "this request takes no field ('%s' given)", key);
+        json_decref(o);
+        return -1;
+    }
+    *out = o;
     return 0;
 }
 

@@ -31,6 +31,11 @@ char *problem_body(const problem *pr);
 /* The problem for a refused engine call (its status, error text and parameter). */
 int problem_from_engine(problem *pr, cs_status st, const char *error, const char *param);
 
+/* A request body as a JSON object, whatever its Content-Type: required, or optional (then an
+ * empty or blank body means {} and no member may be given). 0 with *out (a new reference), or -1
+ * with the problem (400). */
+int request_body_object(const char *body, size_t len, int required, json_t **out, problem *pr);
+
 /* A float as the shortest decimal that reads back as the same float (9.81f is 9.81, not
  * 9.81000042). */
 json_t *json_float(float f);
