@@ -4,14 +4,12 @@
 // rebinding) and the Origin of stream connections.
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { execFile } from 'node:child_process';
 import { chmodSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
-import { promisify } from 'node:util';
-import { CLOTHD, start, stop, call, tempDir, until } from './harness.mjs';
+import { CLOTHD, start, stop, call, tempDir, until, execChecked } from './harness.mjs';
 import { connect, next } from './wsclient.mjs';
 
-const run = promisify(execFile);
+const run = execChecked; // execFile, and a sanitizer report fails the test
 const CONTROL = 'c0ntrol-t0ken-0123456789abcdef';
 const VIEW = 'view-t0ken-0123456789abcdef';
 
@@ -25,7 +23,10 @@ function tokenFile(dir, name, text) {
 // The reason a start is refused (clothd exits non-zero and says why on stderr).
 async function refusal(args) {
   const err = await run(CLOTHD, ['--port', '0', '--stream-port', '0', '--backend', 'cpu', ...args]).then(
-    () => null, (e) => e);
+    () => null, (e) => {
+      if (e.sanitizerReport) throw e; // a refusal, but not that one
+      return e;
+    });
   assert.ok(err, `clothd ${args.join(' ')} started`);
   assert.notEqual(err.code, 0);
   return err.stderr;

@@ -19,7 +19,9 @@ export function sanitizerReport(text) {
   return m ? text.slice(m.index) : null;
 }
 function reportError(what, report) {
-  return new Error(`${what}: sanitizer report from clothd:\n${report}`);
+  const e = new Error(`${what}: sanitizer report from clothd:\n${report}`);
+  e.sanitizerReport = report; // a test that expects clothd to fail rethrows this one
+  return e;
 }
 
 export function tempDir() {
