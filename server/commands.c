@@ -220,3 +220,71 @@ int command_apply(cs_sim *sim, const json_t *cmd, const command_limits *lim, jso
         return op_simple(sim, cmd, op, journal, result, pr);
     return problem_set(pr, 400, "unknown-field", "op", "unknown op '%s'", op);
 }
+
+/* ---- requests ---- */
+
+static const struct request_op {
+    const char *op;
+    int body;           /* 1: a JSON object is required; 0: an empty body or {} */
+    const char *member; /* the member the body becomes; NULL: its members are the command's */
+    int takes_id;       /* the {id} of the path */
+} request_ops[] = {
+    {"params", 1, "params", 0},   {"scene", 1, "scene", 0},      {"rock_add", 1, "rock", 0},
+    {"rock_set", 1, "rock", 1},   {"rock_remove", 0, NULL, 1},   {"rocks_clear", 0, NULL, 0},
+    {"reset", 0, NULL, 0},        {"pins", 1, NULL, 0},          {"grab", 1, NULL, 0},
+    {"release", 0, NULL, 0},
+};
+
+int command_from_request(const char *op, const char *body, size_t len, long long id, json_t **cmd, problem *pr)
+{
+    *cmd = NULL;
+    const struct request_op *ro = NULL;
+    for (size_t k = 0; k < sizeof request_ops / sizeof request_ops[0] && !ro; k++)
+        if (strcmp(request_ops[k].op, op) == 0) ro = &request_ops[k];
+    if (!ro) return problem_set(pr, 500, "internal", NULL, "no request makes the op '%s'", op);
+    json_t *b;
+    if (request_body_object(body, len, ro->body, &b, pr) != 0) return -1;
+    if (strcmp(op, "params") == 0) {
+        /* Refused here without bothering the sim thread; the sim thread merges the patch with the
+         * parameters of the moment it applies it (so a 422 there may be no 422 here). */
+        cs_scene sc;
+        cs_params p;
+        cs_scene_default(&sc);
+        cs_params_default(&p);
+        if (params_from_json(b, CS_KIND_LIVE, &sc, &p, pr) != 0 && pr->status == 400) {
+            json_decref(b);
+            return -1;
+        }
+    }
+    json_t *c;
+    if (ro->member) {
+        c = json_object();
+        json_object_set_new(c, ro->member, b);
+    } else if (ro->body) {
+        c = b;
+    } else {
+        json_decref(b);
+        c = json_object();
+    }
+    if (ro->takes_id) json_object_set_new(c, "id", json_integer((json_int_t)id));
+    if (!c || json_object_set_new(c, "op", json_string(op)) != 0) {
+        json_decref(c);
+        return problem_set(pr, 500, "internal", NULL, "out of memory");
+    }
+    *cmd = c;
+    return 0;
+}
+
+int step_from_json(const json_t *body, int *frames, long long *n, problem *pr)
+{
+    static const char *const fields[] = {"frames", "substeps", NULL};
+    if (!json_is_object(body) || only_fields(body, fields, pr) != 0) {
+        if (!json_is_object(body)) problem_set(pr, 400, "wrong-type", NULL, "give either {\"frames\": N} or {\"substeps\": N}");
+        return -1;
+    }
+    const json_t *f = json_object_get(body, "frames"), *s = json_object_get(body, "substeps");
+    if ((f && s) || (!f && !s)) return problem_set(pr, 400, "wrong-type", NULL, "give either {\"frames\": N} or {\"substeps\": N}");
+    if (int_from_json(f ? f : s, 1, 100000, f ? "frames" : "substeps", n, pr) != 0) return -1;
+    *frames = f != NULL;
+    return 0;
+}

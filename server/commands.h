@@ -28,4 +28,17 @@ int command_apply(cs_sim *sim, const json_t *cmd, const command_limits *lim, jso
 /* Whether an op rebuilds the cloth (the journal starts afresh after it). */
 int command_rebuilds(const char *op);
 
+/* The command an API request makes of its body (len bytes, any Content-Type; see
+ * request_body_object): params {params: body} (PATCH /v1/params), scene {scene: body},
+ * rock_add {rock: body}, rock_set {id, rock: body}, pins and grab {the body's members}, and
+ * rock_remove {id}, rocks_clear, reset, release with an empty body or {}. id is the {id} of the
+ * path (rock_set, rock_remove). What can be checked without the simulation is checked here (a
+ * bad body, a params patch of unknown names or wrong types); command_apply checks the rest on
+ * the sim thread. 0 with *cmd (a new reference), or -1 with the problem. */
+int command_from_request(const char *op, const char *body, size_t len, long long id, json_t **cmd, problem *pr);
+
+/* The body of POST /v1/sim/step: {"frames": N} or {"substeps": N}, N from 1 to 100000. 0 with
+ * *frames (1 for frames, 0 for substeps) and *n, or -1 with the problem. */
+int step_from_json(const json_t *body, int *frames, long long *n, problem *pr);
+
 #endif

@@ -24,6 +24,7 @@
 #include <unistd.h>
 
 #include "access.h"
+#include "commands.h"
 #include "http.h"
 #include "log.h"
 #include "pjson.h"
@@ -158,11 +159,12 @@ static int later(req *r, sim_cmd_kind kind, json_t *body)
     return LATER;
 }
 
-/* A command of commands.h: {"op": op, ...fields of extra}. */
-static int later_apply(req *r, const char *op, json_t *fields)
+/* A command of commands.h made of the request's body (command_from_request). */
+static int later_apply(req *r, const char *op, reply *out)
 {
-    json_t *c = fields ? fields : json_object();
-    json_object_set_new(c, "op", json_string(op));
+    json_t *c;
+    problem pr;
+    if (command_from_request(op, r->body, r->len, r->id, &c, &pr) != 0) return reply_problem(out, &pr);
     return later(r, CMD_APPLY, c);
 }
 
@@ -219,10 +221,7 @@ static int h_step(http_server *s, req *r, reply *out)
 static int h_reset(http_server *s, req *r, reply *out)
 {
     (void)s;
-    json_t *b;
-    if (body_object(r, 0, &b, out) != 0) return NOW;
-    json_decref(b);
-    return later_apply(r, "reset", NULL);
+    return later_apply(r, "reset", out);
 }
 
 static int h_params_get(http_server *s, req *r, reply *out)
@@ -236,20 +235,7 @@ static int h_params_get(http_server *s, req *r, reply *out)
 static int h_params_patch(http_server *s, req *r, reply *out)
 {
     (void)s;
-    json_t *b;
-    if (body_object(r, 1, &b, out) != 0) return NOW;
-    /* Checked here too, so a bad request is refused without bothering the sim thread; the sim
-     * thread merges it with the parameters of the moment it applies it. */
-    cs_scene sc;
-    cs_params p;
-    cs_scene_default(&sc);
-    cs_params_default(&p);
-    problem pr;
-    if (params_from_json(b, CS_KIND_LIVE, &sc, &p, &pr) != 0 && pr.status == 400) {
-        json_decref(b);
-        return reply_problem(out, &pr);
-    }
-    return later_apply(r, "params", json_pack("{s:o}", "params", b));
+    return later_apply(r, "params", out);
 }
 
 static int h_schema(http_server *s, req *r, reply *out)
@@ -269,9 +255,7 @@ static int h_scene_get(http_server *s, req *r, reply *out)
 static int h_scene_put(http_server *s, req *r, reply *out)
 {
     (void)s;
-    json_t *b;
-    if (body_object(r, 1, &b, out) != 0) return NOW;
-    return later_apply(r, "scene", json_pack("{s:o}", "scene", b));
+    return later_apply(r, "scene", out);
 }
 
 static int h_rocks_get(http_server *s, req *r, reply *out)
@@ -288,18 +272,13 @@ static int h_rocks_get(http_server *s, req *r, reply *out)
 static int h_rocks_post(http_server *s, req *r, reply *out)
 {
     (void)s;
-    json_t *b;
-    if (body_object(r, 1, &b, out) != 0) return NOW;
-    return later_apply(r, "rock_add", json_pack("{s:o}", "rock", b));
+    return later_apply(r, "rock_add", out);
 }
 
 static int h_rocks_delete(http_server *s, req *r, reply *out)
 {
     (void)s;
-    json_t *b;
-    if (body_object(r, 0, &b, out) != 0) return NOW;
-    json_decref(b);
-    return later_apply(r, "rocks_clear", NULL);
+    return later_apply(r, "rocks_clear", out);
 }
 
 static int h_rock_get(http_server *s, req *r, reply *out)
@@ -322,43 +301,31 @@ static int h_rock_get(http_server *s, req *r, reply *out)
 static int h_rock_patch(http_server *s, req *r, reply *out)
 {
     (void)s;
-    json_t *b;
-    if (body_object(r, 1, &b, out) != 0) return NOW;
-    return later_apply(r, "rock_set", json_pack("{s:I, s:o}", "id", (json_int_t)r->id, "rock", b));
+    return later_apply(r, "rock_set", out);
 }
 
 static int h_rock_delete(http_server *s, req *r, reply *out)
 {
     (void)s;
-    json_t *b;
-    if (body_object(r, 0, &b, out) != 0) return NOW;
-    json_decref(b);
-    return later_apply(r, "rock_remove", json_pack("{s:I}", "id", (json_int_t)r->id));
+    return later_apply(r, "rock_remove", out);
 }
 
 static int h_pins(http_server *s, req *r, reply *out)
 {
     (void)s;
-    json_t *b;
-    if (body_object(r, 1, &b, out) != 0) return NOW;
-    return later_apply(r, "pins", b);
+    return later_apply(r, "pins", out);
 }
 
 static int h_grab(http_server *s, req *r, reply *out)
 {
     (void)s;
-    json_t *b;
-    if (body_object(r, 1, &b, out) != 0) return NOW;
-    return later_apply(r, "grab", b);
+    return later_apply(r, "grab", out);
 }
 
 static int h_release(http_server *s, req *r, reply *out)
 {
     (void)s;
-    json_t *b;
-    if (body_object(r, 0, &b, out) != 0) return NOW;
-    json_decref(b);
-    return later_apply(r, "release", NULL);
+    return later_apply(r, "release", out);
 }
 
 static int h_cloth_state(http_server *s, req *r, reply *out)

@@ -482,19 +482,13 @@ static cs_status run_frame(simloop *sl)
 
 static void step_paused(simloop *sl, sim_cmd *c)
 {
-    static const char *const fields[] = {"frames", "substeps", NULL};
-    const json_t *frames = json_object_get(c->body, "frames"), *subs = json_object_get(c->body, "substeps");
     long long n = 0;
+    int frames = 0;
     if (!sl->paused) {
         fail_cmd(c, 409, "wrong-state", "%s", "step only while paused: POST /v1/sim/pause first");
         return;
     }
-    if (!json_is_object(c->body) || only_fields(c->body, fields, &c->pr) != 0 || (frames && subs) || (!frames && !subs)) {
-        if (!c->pr.slug) problem_set(&c->pr, 400, "wrong-type", NULL, "give either {\"frames\": N} or {\"substeps\": N}");
-        c->failed = 1;
-        return;
-    }
-    if (int_from_json(frames ? frames : subs, 1, 100000, frames ? "frames" : "substeps", &n, &c->pr) != 0) {
+    if (step_from_json(c->body, &frames, &n, &c->pr) != 0) {
         c->failed = 1;
         return;
     }

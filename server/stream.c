@@ -206,10 +206,7 @@ static void client_error(stream *st, session *s, const char *about, int status, 
     va_start(ap, fmt);
     vsnprintf(detail, sizeof detail, fmt, ap);
     va_end(ap);
-    json_t *o = json_pack("{s:s, s:i, s:s, s:s}", "type", "error", "status", status, "detail", detail, "about", about);
-    if (param) json_object_set_new(o, "param", json_string(param));
-    char *text = json_dumps(o, PJSON_DUMP_FLAGS);
-    json_decref(o);
+    char *text = stream_msg_error(about, status, param, detail);
     if (s->n_texts == MAX_TEXTS) {
         free(text);
         s->dead = 1;

@@ -92,3 +92,13 @@ void stream_msg_free(stream_msg *m)
     m->cmd = m->root = NULL;
     m->about = NULL;
 }
+
+char *stream_msg_error(const char *about, int status, const char *param, const char *detail)
+{
+    json_t *o = json_pack("{s:s, s:i, s:s, s:s}", "type", "error", "status", status, "detail", detail, "about",
+                          about ? about : "message");
+    if (param) json_object_set_new(o, "param", json_string(param));
+    char *text = json_dumps(o, PJSON_DUMP_FLAGS);
+    json_decref(o);
+    return text;
+}

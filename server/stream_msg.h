@@ -41,4 +41,8 @@ stream_msg_kind stream_msg_parse(const char *text, size_t len, stream_msg *m);
 /* Releases what m holds (cmd, unless the caller took it and set it to NULL). */
 void stream_msg_free(stream_msg *m);
 
+/* The text of an error message to a client: {"type": "error", "status", "detail", "about"} and
+ * "param" when not NULL (malloc'd; NULL only when out of memory). */
+char *stream_msg_error(const char *about, int status, const char *param, const char *detail);
+
 #endif
