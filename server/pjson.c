@@ -49,13 +49,64 @@ int problem_set(problem *pr, int status, const char *slug, const char *param, co
     return -1;
 }
 
+/* The length of the well-formed UTF-8 sequence s starts with (RFC 3629: no overlong forms, no
+ * surrogates, nothing past U+10FFFF), or 0 when it starts with none. Reads no byte past a NUL. */
+static size_t utf8_sequence(const unsigned char *s)
+{
+    const unsigned c = s[0];
+    if (c < 0x80) return 1;
+    size_t n;
+    unsigned lo = 0x80, hi = 0xBF; /* the range of the second byte */
+    if (c >= 0xC2 && c <= 0xDF) {
+        n = 2;
+    } else if (c >= 0xE0 && c <= 0xEF) {
+        n = 3;
+        if (c == 0xE0) lo = 0xA0;
+        if (c == 0xED) hi = 0x9F;
+    } else if (c >= 0xF0 && c <= 0xF4) {
+        n = 4;
+        if (c == 0xF0) lo = 0x90;
+        if (c == 0xF4) hi = 0x8F;
+    } else {
+        return 0;
+    }
+    if (s[1] < lo || s[1] > hi) return 0;
+    for (size_t k = 2; k < n; k++)
+        if (s[k] < 0x80 || s[k] > 0xBF) return 0;
+    return n;
+}
+
+json_t *json_text(const char *s)
+{
+    json_t *j = json_string(s);
+    if (j || !s) return j;
+    const size_t len = strlen(s);
+    char *copy = malloc(len + 1);
+    if (!copy) return NULL;
+    size_t out = 0;
+    for (const unsigned char *p = (const unsigned char *)s; *p;) {
+        const size_t n = utf8_sequence(p);
+        if (n == 0) {
+            p++; /* a byte of a cut character: dropped */
+            continue;
+        }
+        memcpy(copy + out, p, n);
+        out += n;
+        p += n;
+    }
+    copy[out] = '\0';
+    j = json_string(copy);
+    free(copy);
+    return j;
+}
+
 char *problem_body(const problem *pr)
 {
     char type[96];
     snprintf(type, sizeof type, "urn:clothd:problem:%s", pr->slug);
-    json_t *o = json_pack("{s:s, s:s, s:i, s:s}", "type", type, "title", problem_title(pr->slug), "status",
-                          pr->status, "detail", pr->detail);
-    if (pr->param[0]) json_object_set_new(o, "param", json_string(pr->param));
+    json_t *o = json_pack("{s:s, s:s, s:i, s:o}", "type", type, "title", problem_title(pr->slug), "status",
+                          pr->status, "detail", json_text(pr->detail));
+    if (pr->param[0]) json_object_set_new(o, "param", json_text(pr->param));
     char *s = json_dumps(o, PJSON_DUMP_FLAGS);
     json_decref(o);
     return s;

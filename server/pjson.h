@@ -36,6 +36,12 @@ int problem_from_engine(problem *pr, cs_status st, const char *error, const char
  * with the problem (400). */
 int request_body_object(const char *body, size_t len, int required, json_t **out, problem *pr);
 
+/* A JSON string of s without the bytes that are not part of well-formed UTF-8 (jansson refuses
+ * the whole string otherwise). Texts that quote a client's input are cut to a fixed size (a
+ * problem's detail and param, "%.64s"), and a cut may fall inside a character. NULL only when
+ * out of memory. */
+json_t *json_text(const char *s);
+
 /* A float as the shortest decimal that reads back as the same float (9.81f is 9.81, not
  * 9.81000042). */
 json_t *json_float(float f);

@@ -207,6 +207,7 @@ static void client_error(stream *st, session *s, const char *about, int status, 
     vsnprintf(detail, sizeof detail, fmt, ap);
     va_end(ap);
     char *text = stream_msg_error(about, status, param, detail);
+    if (!text) return; /* out of memory: no message rather than a NULL in the queue */
     if (s->n_texts == MAX_TEXTS) {
         free(text);
         s->dead = 1;
@@ -358,7 +359,7 @@ static void handle_subscribe(stream *st, session *s, const stream_msg *m)
                             "max_fps", fps, "scalar", stream_scalar_names[sc]);
     char *text = json_dumps(ack, PJSON_DUMP_FLAGS);
     json_decref(ack);
-    if (s->n_texts < MAX_TEXTS) s->texts[s->n_texts++] = text; /* the same queue, in order */
+    if (text && s->n_texts < MAX_TEXTS) s->texts[s->n_texts++] = text; /* the same queue, in order */
     else free(text);
     lws_callback_on_writable(s->wsi);
 }

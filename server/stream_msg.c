@@ -95,9 +95,9 @@ void stream_msg_free(stream_msg *m)
 
 char *stream_msg_error(const char *about, int status, const char *param, const char *detail)
 {
-    json_t *o = json_pack("{s:s, s:i, s:s, s:s}", "type", "error", "status", status, "detail", detail, "about",
-                          about ? about : "message");
-    if (param) json_object_set_new(o, "param", json_string(param));
+    json_t *o = json_pack("{s:s, s:i, s:o, s:o}", "type", "error", "status", status, "detail", json_text(detail),
+                          "about", json_text(about ? about : "message"));
+    if (param) json_object_set_new(o, "param", json_text(param));
     char *text = json_dumps(o, PJSON_DUMP_FLAGS);
     json_decref(o);
     return text;

@@ -56,6 +56,15 @@ test('duplicate keys and unknown fields are 400, naming the field', async () => 
   await refused('POST', '/v1/sim/pause', { now: true }, 400, 'now');
 });
 
+test('a long field name cut inside a character still makes a problem body', async () => {
+  // detail (300 bytes) and param (64) are cut to size; a cut inside a character drops its bytes,
+  // else the problem is not UTF-8 and there is no body at all.
+  let p = await refused('PATCH', '/v1/params', { ['é'.repeat(200)]: 1 }, 400);
+  assert.equal(p.param, 'é'.repeat(31));
+  p = await refused('PATCH', '/v1/params', { [`a${'é'.repeat(200)}`]: 1 }, 400);
+  assert.equal(p.detail, `unknown parameter 'a${'é'.repeat(139)}`);
+});
+
 test('wrong types are 400', async () => {
   await refused('PATCH', '/v1/params', { k_bend: '10' }, 400, 'k_bend');
   await refused('PATCH', '/v1/params', { ground: 1 }, 400, 'ground');

@@ -161,6 +161,12 @@ test('bad messages get an error and change nothing', async () => {
   assert.equal(ge.about, 'grab');
   assert.equal(ge.status, 422);
   assert.equal(ge.param, 'vertex');
+  // The detail quotes at most 64 bytes of an unknown type; cut inside a character, it loses that
+  // character's bytes (an error that is not UTF-8 could not be sent at all).
+  const le = await answer(JSON.stringify({ type: `${'a'.repeat(63)}é` }));
+  assert.equal(le.status, 400);
+  assert.equal(le.detail, `unknown message type '${'a'.repeat(63)}'`);
+  assert.equal(le.about, `${'a'.repeat(63)}é`);
   const be = await answer(Buffer.from([1, 2, 3])); // binary
   assert.equal(be.status, 400);
   assert.match(be.detail, /binary/);
