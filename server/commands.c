@@ -55,8 +55,12 @@ static int op_scene(cs_sim *sim, const json_t *cmd, json_t **journal, json_t **r
     cs_params p;
     cs_sim_scene(sim, &sc);
     cs_sim_params(sim, &p);
+    /* No scene member (a journal written by hand): a patch of nothing. */
     const json_t *patch = json_object_get(cmd, "scene");
-    if (params_from_json(patch ? patch : json_object(), CS_KIND_SCENE, &sc, &p, pr) != 0) return -1;
+    json_t *none = patch ? NULL : json_object();
+    const int bad = params_from_json(patch ? patch : none, CS_KIND_SCENE, &sc, &p, pr);
+    json_decref(none);
+    if (bad) return -1;
     const cs_status st = cs_sim_set_scene(sim, &sc);
     if (st != CS_OK) return refused(sim, st, pr);
     json_t *full = params_to_json(CS_KIND_SCENE, &sc, &p);
@@ -98,7 +102,10 @@ static int op_rock_set(cs_sim *sim, const json_t *cmd, json_t **journal, json_t 
     cs_status st = cs_rock_get(sim, id, &r);
     if (st != CS_OK) return refused(sim, st, pr);
     const json_t *patch = json_object_get(cmd, "rock");
-    if (rock_from_json(patch ? patch : json_object(), &r.def, 0, pr) != 0) return -1;
+    json_t *none = patch ? NULL : json_object();
+    const int bad = rock_from_json(patch ? patch : none, &r.def, 0, pr);
+    json_decref(none);
+    if (bad) return -1;
     if ((st = cs_rock_set(sim, id, &r.def)) != CS_OK) return refused(sim, st, pr);
     *journal = json_pack("{s:s, s:I, s:o}", "op", "rock_set", "id", (json_int_t)id, "rock", rock_def_json(&r.def));
     cs_rock_get(sim, id, &r);
