@@ -45,8 +45,9 @@ export async function next(c, kind, pred = () => true, timeout = 15000, from = 0
   }
 }
 
-export async function daemon(flags) {
-  const d = await start(flags);
+// start() (options too), and the stream's port.
+export async function daemon(flags, options) {
+  const d = await start(flags, options);
   d.streamPort = (await ok(d, 'GET', '/v1/health')).stream.port;
   return d;
 }
