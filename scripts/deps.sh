@@ -3,6 +3,7 @@
 # for a user, .ci/run for CI.
 CLOTHD_APT_PACKAGES=(
   gcc make cmake pkg-config   # the build
+  clang                       # libFuzzer and the fuzz targets' sanitizers (scripts/fuzz.sh)
   libcmocka-dev               # C unit and physics tests
   libmicrohttpd-dev libjansson-dev   # clothd's HTTP server and JSON
   libwebsockets-dev libmeshoptimizer-dev   # clothd's stream

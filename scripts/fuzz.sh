@@ -21,6 +21,16 @@ if ! command -v clang >/dev/null; then
 fi
 
 build="$root/build-fuzz"
+mkdir -p "$build"
+# libFuzzer's runtime is a package of its own on Debian (libclang-rt-14-dev, which clang
+# recommends): said plainly rather than as a link error.
+probe="$build/probe"
+if ! printf 'int LLVMFuzzerTestOneInput(const char *d, unsigned long n) { return (void)d, (void)n, 0; }\n' |
+    clang -x c -fsanitize=fuzzer,address,undefined -o "$probe" - >/dev/null 2>&1; then
+  echo "fuzz: clang cannot link libFuzzer (Debian: apt install libclang-rt-14-dev)" >&2
+  exit 1
+fi
+rm -f "$probe"
 cmake -S "$root" -B "$build" -DCMAKE_C_COMPILER=clang -DCMAKE_BUILD_TYPE=Debug -DCLOTHD_FUZZ=ON \
   -DBUILD_TESTING=OFF >/dev/null
 cmake --build "$build" -j "$(nproc)" --target fuzz >/dev/null
