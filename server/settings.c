@@ -145,6 +145,10 @@ static int set_engine(clothd_config *c, const cs_param_info *p, const char *text
         }
     } else if (p->type == CS_T_VEC3) {
         char buf[256];
+        if (strlen(text) >= sizeof buf) { /* cut, its tail would go unread: "1,2,3<spaces>,4" */
+            snprintf(why, why_len, "%s must be three numbers 'x,y,z' (got %zu characters)", p->name, strlen(text));
+            return -1;
+        }
         snprintf(buf, sizeof buf, "%s", text);
         char *save = NULL, *tok = strtok_r(buf, ",", &save);
         int k = 0;

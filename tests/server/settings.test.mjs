@@ -47,6 +47,9 @@ test('bad settings stop the start with a clear reason', async () => {
   await assert.rejects(run(CLOTHD, ['--port', '70000']), /port must be a whole number from 0 to 65535/);
   await assert.rejects(run(CLOTHD, ['--k-bend', 'soft']), /k_bend must be a number/);
   await assert.rejects(run(CLOTHD, ['--gravity', '1,2']), /gravity must be three numbers/);
+  // Too long a vector is refused whole, not cut (to "1,2,3   ...", which reads as three numbers).
+  await assert.rejects(run(CLOTHD, ['replay', join(dir, 'none'), '--gravity', `1,2,3${' '.repeat(300)},4`]),
+    /gravity must be three numbers/);
   await assert.rejects(run(CLOTHD, ['--backend', 'tpu']), /backend must be one of auto\|cuda\|cpu/);
   await assert.rejects(run(CLOTHD, ['--listen', 'not-an-address', '--port', '0']), /listen address 'not-an-address'/);
   await assert.rejects(run(CLOTHD, ['--nope']), /unknown setting 'nope'/);
