@@ -3,7 +3,7 @@
  *   clothd [serve] [--flag value ...]   run the simulation and its HTTP API (default)
  *   clothd replay FILE [--flag value]   rerun a journal bundle, print the final state hash
  *   clothd routes                       print the HTTP route table
- *   clothd --help | --version
+ *   clothd --help | --help-markdown | --version
  *
  * serve: settings from the config file, CLOTHD_* variables and flags; the engine on the chosen
  * backend, resumed from --state-file when it exists; the sim thread; the HTTP server. SIGTERM or
@@ -44,7 +44,8 @@ static void usage(FILE *out)
             "       clothd replay FILE [--backend B]    rerun a journal bundle (GET /v1/journal with\n"
             "                                           Accept: application/octet-stream); print the hash\n"
             "       clothd routes                       print the HTTP routes\n"
-            "       clothd --help | --version\n\n",
+            "       clothd --help | --version\n"
+            "       clothd --help-markdown              the startup settings as a Markdown table\n\n",
             CLOTHD_VERSION);
     settings_usage(out);
 }
@@ -297,6 +298,7 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     log_msg("listening on http://%s:%d (API at /v1, viewer at /)%s", cfg->set.listen, http_port(http),
             access_required(acc) ? "; a token is needed (Authorization: Bearer)" : "");
     log_msg("try: curl -s http://%s:%d/v1/sim", host, http_port(http));
+    log_msg("viewer: http://%s:%d/", host, http_port(http));
 
     int sig = 0;
     while (sigwait(&sigs, &sig) != 0) {
@@ -348,6 +350,10 @@ int main(int argc, char **argv, char **envp)
     }
     if (argc > 1 && (strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0)) {
         usage(stdout);
+        return 0;
+    }
+    if (argc > 1 && strcmp(argv[1], "--help-markdown") == 0) {
+        settings_markdown(stdout);
         return 0;
     }
     if (argc > 1 && strcmp(argv[1], "--version") == 0) {

@@ -86,6 +86,9 @@ int settings_load(clothd_config *c, int argc, char **argv, char **env, char *why
 /* Help text of every flag, for --help. */
 void settings_usage(FILE *out);
 
+/* The startup settings as a Markdown table (clothd --help-markdown), for README. */
+void settings_markdown(FILE *out);
+
 /* The startup rows for the schema: name, type name, default text, min, max, choices, help. */
 typedef struct setting_info {
     const char *name, *type, *help, *choices;
