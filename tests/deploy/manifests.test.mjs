@@ -284,6 +284,10 @@ test('Kubernetes: a StatefulSet of scenes, one GPU each, a volume each for the s
   assert.equal(pod.securityContext.runAsNonRoot, true);
   assert.ok(pod.securityContext.runAsUser > 0);
   assert.equal(pod.securityContext.fsGroup, pod.securityContext.runAsGroup);
+  assert.equal(c.securityContext.allowPrivilegeEscalation, false);
+  assert.deepEqual(c.securityContext.capabilities.drop, ['ALL']);
+  assert.equal(c.securityContext.readOnlyRootFilesystem, true);
+  assert.equal(pod.automountServiceAccountToken, false);
   for (const e of c.env) checkSettingVar(e.name, e.value);
   for (const f of kust.resources) assert.ok(existsSync(docker(`k8s/${f}`)), f);
 });
