@@ -41,7 +41,7 @@ struct simloop {
     cs_energy energy;
     unsigned char *checkpoint;
     size_t checkpoint_len, checkpoint_cap;
-    uint64_t frames_since_checkpoint;
+    uint64_t checkpoint_frame, frames_since_checkpoint;
     uint64_t rng;
     int32_t seed;
     double next_drop;
@@ -112,8 +112,10 @@ static void take_checkpoint(simloop *sl)
         sl->checkpoint = b;
         sl->checkpoint_cap = need;
     }
-    if (cs_snapshot_save(sl->sim, sl->checkpoint, sl->checkpoint_cap, &sl->checkpoint_len) != CS_OK)
-        log_msg("checkpoint failed: %s", cs_sim_error(sl->sim));
+    if (cs_snapshot_save(sl->sim, sl->checkpoint, sl->checkpoint_cap, &sl->checkpoint_len) == CS_OK)
+        sl->checkpoint_frame = sl->frame;
+    else
+        log_msg("checkpoint failed: %s; keeping the previous one", cs_sim_error(sl->sim));
     sl->frames_since_checkpoint = 0;
 }
 
@@ -430,6 +432,7 @@ static void roll_back(simloop *sl)
     cs_info bad;
     cs_sim_info(sl->sim, &bad);
     const cs_status st = cs_snapshot_load(sl->sim, sl->checkpoint, sl->checkpoint_len);
+    if (st == CS_OK) sl->frame = sl->checkpoint_frame;
     cs_info now;
     cs_sim_info(sl->sim, &now);
     sl->paused = 1;
