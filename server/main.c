@@ -7,9 +7,10 @@
  *
  * serve: settings from the config file, CLOTHD_* variables and flags; the engine on the chosen
  * backend, resumed from --state-file when it exists; the sim thread; the HTTP server. SIGTERM or
- * SIGINT stops accepting, finishes the frame, saves the state file (temp file, fsync, rename) and
- * exits 0. A backend failure (SIGUSR1 from the sim thread) saves the last checkpoint and exits 3,
- * for a supervisor to restart from the state file. */
+ * SIGINT stops accepting, finishes the frame, saves the state file (temp file, fsync, rename,
+ * fsync of the directory) and exits 0. A backend failure (SIGUSR1 from the sim thread) saves the
+ * last checkpoint and exits 3, for a supervisor to restart from the state file. Exit statuses are
+ * in EXIT_STATUSES. */
 #include <errno.h>
 #include <fcntl.h>
 #include <libgen.h>
@@ -35,6 +36,13 @@
 
 static const char *const backend_names[] = {"auto", "cuda", "cpu"};
 
+enum { EXIT_START = 1, EXIT_USAGE = 2, EXIT_BACKEND = 3, EXIT_SAVE = 4 };
+#define EXIT_STATUSES                                                                              \
+    "exit status: 0 stopped by SIGTERM/SIGINT (state file saved, if set); 1 could not start\n"     \
+    "(including a state file refused); 2 bad command line or settings; 3 the backend failed\n"     \
+    "(state file saved, if set: restart to resume); 4 the state file could not be saved (the\n"    \
+    "previous one is left as it was)\n\n"
+
 static void usage(FILE *out)
 {
     fprintf(out,
@@ -43,7 +51,7 @@ static void usage(FILE *out)
             "       clothd replay FILE [--backend B]    rerun a journal bundle (GET /v1/journal with\n"
             "                                           Accept: application/octet-stream); print the hash\n"
             "       clothd routes                       print the HTTP routes\n"
-            "       clothd --help | --version\n\n",
+            "       clothd --help | --version\n\n" EXIT_STATUSES,
             CLOTHD_VERSION);
     settings_usage(out);
 }
@@ -77,50 +85,64 @@ static unsigned char *read_file(const char *path, size_t *len, char *why, size_t
 }
 
 /* Writes a file so that a crash leaves either the old or the new one: temp file, fsync, rename,
- * fsync of the directory. */
-static int write_atomic(const char *path, const void *data, size_t len)
+ * fsync of the directory. On failure the file at path is untouched, the temp file is removed and
+ * why says which step failed and the system's reason (ENOSPC, EACCES, ...). */
+static int write_atomic(const char *path, const void *data, size_t len, char *why, size_t why_len)
 {
     char tmp[1100];
     snprintf(tmp, sizeof tmp, "%s.tmp.%ld", path, (long)getpid());
     const int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
-    if (fd < 0) return -1;
+    if (fd < 0) {
+        snprintf(why, why_len, "cannot create %s: %s", tmp, strerror(errno));
+        return -1;
+    }
+    const char *failed = "write";
+    int err = 0;
     const unsigned char *p = data;
     size_t left = len;
-    while (left) {
+    while (left && !err) {
         const ssize_t w = write(fd, p, left);
         if (w < 0 && errno == EINTR) continue;
-        if (w <= 0) {
-            close(fd);
-            unlink(tmp);
-            return -1;
+        if (w < 0) err = errno;
+        else if (w == 0) err = EIO;
+        else {
+            p += w;
+            left -= (size_t)w;
         }
-        p += w;
-        left -= (size_t)w;
     }
-    if (fsync(fd) != 0 || close(fd) != 0 || rename(tmp, path) != 0) {
+    if (!err && fsync(fd) != 0) failed = "fsync", err = errno;
+    if (close(fd) != 0 && !err) failed = "close", err = errno;
+    if (!err && rename(tmp, path) != 0) failed = "rename", err = errno;
+    if (err) {
         unlink(tmp);
+        snprintf(why, why_len, "cannot %s %s: %s", failed, tmp, strerror(err));
         return -1;
     }
     char dir[1100];
     snprintf(dir, sizeof dir, "%s", path);
     const int dfd = open(dirname(dir), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-    if (dfd >= 0) {
-        fsync(dfd);
-        close(dfd);
-    }
+    if (dfd < 0 || fsync(dfd) != 0)
+        log_msg("state file: %s is in place, but its directory could not be synced (%s): a power cut may lose it",
+                path, strerror(errno));
+    if (dfd >= 0) close(dfd);
     return 0;
 }
 
-static int save_state(cs_sim *sim, const unsigned char *fallback, size_t fallback_len, const char *path)
+/* Saves the engine's state, or the last checkpoint when the engine cannot be read any more (a
+ * lost device). */
+static int save_state(cs_sim *sim, const unsigned char *fallback, size_t fallback_len, const char *path, char *why,
+                      size_t why_len)
 {
     size_t len = cs_snapshot_size(sim);
     unsigned char *buf = malloc(len);
     int rc = -1;
     if (buf && cs_snapshot_save(sim, buf, len, &len) == CS_OK) {
-        rc = write_atomic(path, buf, len);
-    } else if (fallback) {
+        rc = write_atomic(path, buf, len, why, why_len);
+    } else if (fallback && fallback_len) {
         log_msg("state file: the engine could not be read (%s); saving the last checkpoint", cs_sim_error(sim));
-        rc = write_atomic(path, fallback, fallback_len);
+        rc = write_atomic(path, fallback, fallback_len, why, why_len);
+    } else {
+        snprintf(why, why_len, "the engine could not be read (%s) and there is no checkpoint", cs_sim_error(sim));
     }
     free(buf);
     return rc;
@@ -212,6 +234,22 @@ static int replay(const char *file, const clothd_config *cfg)
 
 /* ---- serve ---- */
 
+/* Saves the state file (when one is set) once the sim thread has stopped: 0, or -1 (logged; the
+ * previous file is left as it was). */
+static int save_on_exit(simloop *sl, const char *path)
+{
+    if (!path[0]) return 0;
+    size_t cl = 0;
+    const unsigned char *cp = simloop_checkpoint(sl, &cl);
+    char why[1400];
+    if (save_state(simloop_engine(sl), cp, cl, path, why, sizeof why) != 0) {
+        log_msg("could not save the state to %s: %s; the previous state file, if any, is unchanged", path, why);
+        return -1;
+    }
+    log_msg("state saved to %s", path);
+    return 0;
+}
+
 static int serve(clothd_config *cfg)
 {
     sigset_t sigs;
@@ -222,7 +260,7 @@ static int serve(clothd_config *cfg)
     pthread_sigmask(SIG_BLOCK, &sigs, NULL); /* every thread inherits it; main waits for them */
 
     cs_sim *sim = make_engine(cfg);
-    if (!sim) return 1;
+    if (!sim) return EXIT_START;
     if (strcmp(cs_sim_backend(sim), "cuda") == 0 && !cfg->scene_size_given) {
         cs_scene sc = cfg->scene;
         sc.nx = sc.ny = 256; /* a GPU takes a finer cloth in real time */
@@ -237,7 +275,7 @@ static int serve(clothd_config *cfg)
             log_msg("cannot resume from the state file: %s", buf ? cs_sim_error(sim) : why);
             free(buf);
             cs_sim_destroy(sim);
-            return 1;
+            return EXIT_START;
         }
         free(buf);
         cs_info info;
@@ -252,7 +290,7 @@ static int serve(clothd_config *cfg)
         log_msg("out of memory");
         cs_sim_destroy(sim);
         metrics_free(m);
-        return 1;
+        return EXIT_START;
     }
     char err[300];
     stream *st = stream_start(&cfg->set, sl, err, sizeof err);
@@ -260,7 +298,7 @@ static int serve(clothd_config *cfg)
         log_msg("%s", err);
         simloop_free(sl);
         metrics_free(m);
-        return 1;
+        return EXIT_START;
     }
     simloop_attach_stream(sl, st);
     const http_info info = {cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim), CLOTHD_VERSION, st,
@@ -271,7 +309,7 @@ static int serve(clothd_config *cfg)
         stream_stop(st);
         simloop_free(sl);
         metrics_free(m);
-        return 1;
+        return EXIT_START;
     }
     if (simloop_start(sl) != 0) {
         log_msg("cannot start the sim thread");
@@ -279,7 +317,7 @@ static int serve(clothd_config *cfg)
         stream_stop(st);
         simloop_free(sl);
         metrics_free(m);
-        return 1;
+        return EXIT_START;
     }
     const char *host = strchr(cfg->set.listen, ':') ? "[::1]" : cfg->set.listen;
     if (strcmp(cfg->set.listen, "0.0.0.0") == 0) host = "127.0.0.1";
@@ -296,17 +334,7 @@ static int serve(clothd_config *cfg)
     simloop_stop(sl);
     http_stop(http);
     stream_stop(st);
-    int rc = failed ? 3 : 0;
-    if (cfg->set.state_file[0]) {
-        size_t cl = 0;
-        const unsigned char *cp = simloop_checkpoint(sl, &cl);
-        if (save_state(simloop_engine(sl), cp, cl, cfg->set.state_file) == 0) {
-            log_msg("state saved to %s", cfg->set.state_file);
-        } else {
-            log_msg("could not save the state to %s: %s", cfg->set.state_file, strerror(errno));
-            rc = rc ? rc : 1;
-        }
-    }
+    const int rc = save_on_exit(sl, cfg->set.state_file) != 0 ? EXIT_SAVE : failed ? EXIT_BACKEND : 0;
     simloop_free(sl);
     metrics_free(m);
     return rc;
@@ -315,6 +343,9 @@ static int serve(clothd_config *cfg)
 int main(int argc, char **argv, char **envp)
 {
     signal(SIGPIPE, SIG_IGN);
+    /* Past a file size limit (RLIMIT_FSIZE) a write fails with EFBIG, and the save says so,
+     * instead of the signal killing the daemon mid-save. */
+    signal(SIGXFSZ, SIG_IGN);
     const char *sub = "serve";
     int first = 1;
     if (argc > 1 && argv[1][0] != '-') {
@@ -337,19 +368,19 @@ int main(int argc, char **argv, char **envp)
     if (strcmp(sub, "replay") == 0) {
         if (argc <= first) {
             fprintf(stderr, "clothd replay: which file? (clothd --help)\n");
-            return 2;
+            return EXIT_USAGE;
         }
         file = argv[first++];
     } else if (strcmp(sub, "serve") != 0) {
         fprintf(stderr, "clothd: unknown command '%s' (clothd --help)\n", sub);
-        return 2;
+        return EXIT_USAGE;
     }
     clothd_config cfg;
     settings_default(&cfg);
     char why[600];
     if (settings_load(&cfg, argc - first, argv + first, envp, why, sizeof why) != 0) {
         fprintf(stderr, "clothd: %s\n", why);
-        return 2;
+        return EXIT_USAGE;
     }
     return file ? replay(file, &cfg) : serve(&cfg);
 }
