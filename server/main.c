@@ -8,9 +8,9 @@
  * serve: settings from the config file, CLOTHD_* variables and flags; the engine on the chosen
  * backend, resumed from --state-file when it exists; the sim thread; the HTTP server. SIGTERM or
  * SIGINT stops accepting, finishes the frame, saves the state file (temp file, fsync, rename,
- * fsync of the directory) and exits 0. A backend failure (SIGUSR1 from the sim thread) saves the
- * last checkpoint and exits 3, for a supervisor to restart from the state file. Exit statuses are
- * in EXIT_STATUSES. */
+ * fsync of the directory) and exits 0. A backend failure (SIGUSR1 from the sim thread) keeps
+ * answering - /v1/health 503 - while it saves the last checkpoint, then exits 3, for a supervisor
+ * to restart from the state file. Exit statuses are in EXIT_STATUSES. */
 #include <errno.h>
 #include <fcntl.h>
 #include <libgen.h>
@@ -328,13 +328,24 @@ static int serve(clothd_config *cfg)
     int sig = 0;
     while (sigwait(&sigs, &sig) != 0) {
     }
-    const int failed = sig == SIGUSR1;
-    log_msg(failed ? "backend failed: saving and exiting for a restart" : "signal %d: stopping", sig);
-    http_quiesce(http);
-    simloop_stop(sl);
-    http_stop(http);
-    stream_stop(st);
-    const int rc = save_on_exit(sl, cfg->set.state_file) != 0 ? EXIT_SAVE : failed ? EXIT_BACKEND : 0;
+    int rc;
+    if (sig == SIGUSR1) {
+        /* The API stays up until the state is saved - /v1/health 503, commands 503, reads as
+         * they were - so that a supervisor and an operator see why the daemon goes. */
+        log_msg("backend failed: saving the state and exiting for a restart");
+        simloop_stop(sl);
+        rc = save_on_exit(sl, cfg->set.state_file) == 0 ? EXIT_BACKEND : EXIT_SAVE;
+        http_quiesce(http);
+        http_stop(http);
+        stream_stop(st);
+    } else {
+        log_msg("signal %d: stopping", sig);
+        http_quiesce(http);
+        simloop_stop(sl);
+        http_stop(http);
+        stream_stop(st);
+        rc = save_on_exit(sl, cfg->set.state_file) == 0 ? 0 : EXIT_SAVE;
+    }
     simloop_free(sl);
     metrics_free(m);
     return rc;

@@ -278,7 +278,7 @@ static void publish(simloop *sl, int with_hash)
     }
     char hex[17];
     json_t *hash = json_null();
-    if (with_hash) {
+    if (with_hash && sl->healthy) { /* a lost backend has no state to hash */
         cs_hash_hex(cs_state_hash(sl->sim), hex);
         hash = json_string(hex);
     }
@@ -449,12 +449,16 @@ static void roll_back(simloop *sl)
 /* A failure that loses the backend: unhealthy, and main is asked to save and exit. */
 static void backend_lost(simloop *sl)
 {
-    log_msg("backend failure: %s", cs_sim_error(sl->sim));
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    log_msg("backend failure at step %llu: %s", (unsigned long long)info.step, cs_sim_error(sl->sim));
     pthread_mutex_lock(&sl->plock);
     sl->healthy = 0;
     pthread_mutex_unlock(&sl->plock);
     sl->paused = 1;
-    set_event(sl, json_pack("{s:s, s:s}", "type", "backend_failure", "detail", cs_sim_error(sl->sim)));
+    set_event(sl, json_pack("{s:s, s:I, s:s}", "type", "backend_failure", "step", (json_int_t)info.step, "detail",
+                            cs_sim_error(sl->sim)));
+    emit(sl, json_pack("{s:s, s:O}", "event", "backend_failure", "detail", sl->last_event), NULL);
     kill(getpid(), SIGUSR1);
 }
 
@@ -501,6 +505,10 @@ static void step_paused(simloop *sl, sim_cmd *c)
         c->failed = 1;
         return;
     }
+    if (!simloop_healthy(sl)) {
+        fail_cmd(c, 503, "unavailable", "%s", "the backend has failed; the daemon is shutting down");
+        return;
+    }
     json_t *before_event = json_incref(sl->last_event);
     if (frames) {
         for (long long k = 0; k < n; k++)
@@ -509,6 +517,11 @@ static void step_paused(simloop *sl, sim_cmd *c)
         const cs_status st = cs_sim_step(sl->sim, n);
         if (st == CS_E_NONFINITE) roll_back(sl);
         else if (st != CS_OK) backend_lost(sl);
+    }
+    if (!simloop_healthy(sl)) {
+        json_decref(before_event);
+        fail_cmd(c, 503, "unavailable", "%s", "the backend failed while stepping; the daemon is saving and exiting");
+        return;
     }
     cs_info info;
     cs_sim_info(sl->sim, &info);
