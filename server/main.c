@@ -6,11 +6,13 @@
  *   clothd --help | --version
  *
  * serve: settings from the config file, CLOTHD_* variables and flags; the engine on the chosen
- * backend, resumed from --state-file when it exists; the sim thread; the HTTP server. SIGTERM or
+ * backend, resumed from --state-file when it exists (a corrupt or foreign file is refused, or
+ * moved aside with --state-file-invalid fresh); the sim thread; the HTTP server. SIGTERM or
  * SIGINT stops accepting, finishes the frame, saves the state file (temp file, fsync, rename,
  * fsync of the directory) and exits 0. A backend failure (SIGUSR1 from the sim thread) keeps
  * answering - /v1/health 503 - while it saves the last checkpoint, then exits 3, for a supervisor
  * to restart from the state file. Exit statuses are in EXIT_STATUSES. */
+#include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <libgen.h>
@@ -20,6 +22,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "commands.h"
@@ -148,6 +151,118 @@ static int save_state(cs_sim *sim, const unsigned char *fallback, size_t fallbac
     return rc;
 }
 
+/* Removes <state file>.tmp.<pid> files: what a save interrupted by a crash or SIGKILL left. They
+ * are never read (the state file itself is only ever replaced whole, by rename). */
+static void remove_stale_temps(const char *path)
+{
+    char dir[600], base[600];
+    snprintf(dir, sizeof dir, "%s", path);
+    snprintf(base, sizeof base, "%s", path);
+    const char *d = dirname(dir), *b = basename(base);
+    const size_t blen = strlen(b);
+    DIR *dp = opendir(d);
+    if (!dp) return;
+    for (struct dirent *e; (e = readdir(dp));) {
+        const char *n = e->d_name, *pid = n + blen + 5;
+        if (strncmp(n, b, blen) != 0 || strncmp(n + blen, ".tmp.", 5) != 0 || !*pid ||
+            strspn(pid, "0123456789") != strlen(pid))
+            continue;
+        char full[1200];
+        snprintf(full, sizeof full, "%s/%s", d, n);
+        if (unlink(full) == 0) log_msg("state file: removed %s, left by a save that did not finish", full);
+    }
+    closedir(dp);
+}
+
+/* What is wrong with a state file the engine refused, or NULL when the file is not to blame (out
+ * of memory, a device error). */
+static const char *invalid_because(const unsigned char *buf, size_t len, cs_status st)
+{
+    if (len < 4 || memcmp(buf, "CSNP", 4) != 0) return "is not a clothd state file";
+    switch (st) {
+    case CS_E_VERSION: return "was written by another version of clothd";
+    case CS_E_FORMAT: return "is damaged";
+    case CS_E_LIMIT:
+    case CS_E_RANGE:
+    case CS_E_UNSTABLE: return "holds a state this build cannot run";
+    default: return NULL;
+    }
+}
+
+/* Moves a bad state file to <path>.bad-<UTC time>[-k], so that nothing is lost. */
+static int move_aside(const char *path, char *to, size_t to_len)
+{
+    char stamp[32];
+    const time_t now = time(NULL);
+    struct tm tm;
+    gmtime_r(&now, &tm);
+    strftime(stamp, sizeof stamp, "%Y%m%dT%H%M%SZ", &tm);
+    for (int k = 0; k < 100; k++) {
+        if (k) snprintf(to, to_len, "%s.bad-%s-%d", path, stamp, k);
+        else snprintf(to, to_len, "%s.bad-%s", path, stamp);
+        if (access(to, F_OK) != 0 && errno == ENOENT) return rename(path, to);
+    }
+    errno = EEXIST;
+    return -1;
+}
+
+/* Resumes from the state file when there is one. Returns 0 (resumed, or nothing to resume), or
+ * -1 when the start must stop (logged). A file that is corrupt, foreign or from another version
+ * stops it too, unless state_file_invalid is fresh: then it is moved aside and the start goes on
+ * with the configured scene. */
+static int resume(cs_sim *sim, const clothd_settings *set)
+{
+    const char *path = set->state_file;
+    if (!path[0]) return 0;
+    remove_stale_temps(path);
+    struct stat sb;
+    if (stat(path, &sb) != 0) {
+        if (errno == ENOENT) {
+            log_msg("state file: %s does not exist yet; starting afresh (it is written on SIGTERM/SIGINT)", path);
+            return 0;
+        }
+        log_msg("cannot resume from the state file %s: %s", path, strerror(errno));
+        return -1;
+    }
+    char why[300];
+    size_t len = 0;
+    unsigned char *buf = read_file(path, &len, why, sizeof why);
+    if (!buf) {
+        log_msg("cannot resume from the state file: %s", why);
+        return -1;
+    }
+    const cs_status st = cs_snapshot_load(sim, buf, len);
+    const char *bad = st == CS_OK ? NULL : invalid_because(buf, len, st);
+    free(buf);
+    if (st == CS_OK) {
+        cs_info info;
+        cs_sim_info(sim, &info);
+        char hex[17];
+        cs_hash_hex(cs_state_hash(sim), hex);
+        log_msg("resumed from %s at step %llu, state hash %s", path, (unsigned long long)info.step, hex);
+        return 0;
+    }
+    if (!bad) {
+        log_msg("cannot resume from the state file %s: %s", path, cs_sim_error(sim));
+        return -1;
+    }
+    if (set->state_file_invalid != STATE_INVALID_FRESH) {
+        log_msg("cannot resume from the state file %s: it %s (%s). Refusing to start: fix or remove it, or set "
+                "--state-file-invalid fresh (CLOTHD_STATE_FILE_INVALID=fresh) to move it aside and start afresh",
+                path, bad, cs_sim_error(sim));
+        return -1;
+    }
+    char aside[700];
+    if (move_aside(path, aside, sizeof aside) != 0) {
+        log_msg("cannot resume from the state file %s: it %s (%s), and it could not be moved aside: %s", path, bad,
+                cs_sim_error(sim), strerror(errno));
+        return -1;
+    }
+    log_msg("state file %s %s (%s): moved to %s; starting afresh (state_file_invalid = fresh)", path, bad,
+            cs_sim_error(sim), aside);
+    return 0;
+}
+
 static cs_sim *make_engine(const clothd_config *cfg)
 {
     char err[300];
@@ -267,22 +382,9 @@ static int serve(clothd_config *cfg)
         if (cs_sim_set_scene(sim, &sc) == CS_OK) cfg->scene = sc;
     }
     log_msg("backend: %s on %s (%s)", cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim));
-    if (cfg->set.state_file[0] && access(cfg->set.state_file, F_OK) == 0) {
-        char why[300];
-        size_t len = 0;
-        unsigned char *buf = read_file(cfg->set.state_file, &len, why, sizeof why);
-        if (!buf || cs_snapshot_load(sim, buf, len) != CS_OK) {
-            log_msg("cannot resume from the state file: %s", buf ? cs_sim_error(sim) : why);
-            free(buf);
-            cs_sim_destroy(sim);
-            return EXIT_START;
-        }
-        free(buf);
-        cs_info info;
-        cs_sim_info(sim, &info);
-        char hex[17];
-        cs_hash_hex(cs_state_hash(sim), hex);
-        log_msg("resumed from %s at step %llu, state hash %s", cfg->set.state_file, (unsigned long long)info.step, hex);
+    if (resume(sim, &cfg->set) != 0) {
+        cs_sim_destroy(sim);
+        return EXIT_START;
     }
     metrics *m = metrics_new();
     simloop *sl = m ? simloop_new(sim, cfg, m) : NULL;

@@ -29,6 +29,7 @@
     X(token_file, STR, "", 0, 0, NULL, "File holding the control token (all routes)")                 \
     X(view_token_file, STR, "", 0, 0, NULL, "File holding the view token (GET routes and the stream)") \
     X(state_file, STR, "", 0, 0, NULL, "State saved here on SIGTERM/SIGINT and resumed from at start") \
+    X(state_file_invalid, ENUM, 0, 0, 1, "refuse|fresh", "A corrupt or foreign state file at start: refuse to start, or move it to <file>.bad-<time> and start afresh") \
     X(web_root, STR, CLOTHD_WEB_ROOT, 0, 0, NULL, "Directory of the viewer's static files, served at /")         \
     X(paused, BOOL, 0, 0, 1, NULL, "Start paused (POST /v1/sim/resume runs it)")                      \
     X(threads, INT, 0, 0, 256, NULL, "CPU backend threads; 0 = one per core")                         \
@@ -53,6 +54,7 @@ typedef struct clothd_settings {
 } clothd_settings;
 
 enum { BACKEND_AUTO, BACKEND_CUDA, BACKEND_CPU };
+enum { STATE_INVALID_REFUSE, STATE_INVALID_FRESH };
 
 /* Everything a configuration source can set: startup settings, scene, live parameters, and which
  * scene fields were given explicitly (the daemon picks a larger default cloth on CUDA). */
