@@ -32,6 +32,9 @@
 #include "settings.h"
 #include "simloop.h"
 #include "stream.h"
+#ifdef CLOTHD_TEST_HOOKS
+#include "testhooks.h"
+#endif
 
 #ifndef CLOTHD_VERSION
 #define CLOTHD_VERSION "0.1.0"
@@ -115,6 +118,9 @@ static int write_atomic(const char *path, const void *data, size_t len, char *wh
     }
     if (!err && fsync(fd) != 0) failed = "fsync", err = errno;
     if (close(fd) != 0 && !err) failed = "close", err = errno;
+#ifdef CLOTHD_TEST_HOOKS
+    if (!err) testhooks_before_rename(tmp);
+#endif
     if (!err && rename(tmp, path) != 0) failed = "rename", err = errno;
     if (err) {
         unlink(tmp);
@@ -367,6 +373,9 @@ static int save_on_exit(simloop *sl, const char *path)
 
 static int serve(clothd_config *cfg)
 {
+#ifdef CLOTHD_TEST_HOOKS
+    testhooks_init();
+#endif
     sigset_t sigs;
     sigemptyset(&sigs);
     sigaddset(&sigs, SIGINT);

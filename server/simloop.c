@@ -14,6 +14,9 @@
 #include "log.h"
 #include "simloop.h"
 #include "stream.h"
+#ifdef CLOTHD_TEST_HOOKS
+#include "testhooks.h"
+#endif
 
 #define PUBLISH_EVERY 0.016  /* s of wall time between publications while running */
 #define ENERGY_EVERY 0.1     /* s of wall time between energy evaluations while running */
@@ -468,6 +471,9 @@ static void auto_drop(simloop *sl);
 static cs_status run_frame(simloop *sl)
 {
     cs_info info;
+#ifdef CLOTHD_TEST_HOOKS
+    testhooks_before_frame(sl->sim, sl->frame);
+#endif
     cs_sim_info(sl->sim, &info);
     const double t0 = now_s();
     const cs_status st = cs_sim_step_frames(sl->sim, 1);
