@@ -169,10 +169,10 @@ static void remove_stale_temps(const char *path)
     DIR *dp = opendir(d);
     if (!dp) return;
     for (struct dirent *e; (e = readdir(dp));) {
-        const char *n = e->d_name, *pid = n + blen + 5;
-        if (strncmp(n, b, blen) != 0 || strncmp(n + blen, ".tmp.", 5) != 0 || !*pid ||
-            strspn(pid, "0123456789") != strlen(pid))
-            continue;
+        const char *n = e->d_name;
+        if (strncmp(n, b, blen) != 0 || strncmp(n + blen, ".tmp.", 5) != 0) continue;
+        const char *pid = n + blen + 5; /* within n: its first blen + 5 characters matched */
+        if (!*pid || strspn(pid, "0123456789") != strlen(pid)) continue;
         char full[1200];
         snprintf(full, sizeof full, "%s/%s", d, n);
         if (unlink(full) == 0) log_msg("state file: removed %s, left by a save that did not finish", full);

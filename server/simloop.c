@@ -444,6 +444,12 @@ static void roll_back(simloop *sl)
                             st == CS_OK ? "the state stopped being finite; rolled back to the last checkpoint and paused"
                                         : "the state stopped being finite and the checkpoint could not be restored"));
     emit(sl, json_pack("{s:s, s:O}", "event", "instability", "detail", sl->last_event), NULL);
+    if (st != CS_OK) {
+        /* The good checkpoint is kept (no rebase, which would replace it with this state). */
+        log_msg("instability at step %llu: the checkpoint could not be restored (%s); paused",
+                (unsigned long long)bad.step, cs_sim_error(sl->sim));
+        return;
+    }
     log_msg("instability at step %llu: rolled back to step %llu and paused", (unsigned long long)bad.step,
             (unsigned long long)now.step);
     rebase(sl);
