@@ -20,11 +20,14 @@
 #include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/syscall.h>
+#include <time.h>
 #include <unistd.h>
 
+#include "access.h"
 #include "http.h"
 #include "log.h"
 #include "pjson.h"
+#include "ratelimit.h"
 #include "stream.h"
 
 #if MHD_VERSION < 0x00097002
@@ -41,6 +44,7 @@ struct http_server {
     clothd_settings set;
     char web_root[PATH_MAX]; /* resolved; empty when the directory does not exist */
     int port;
+    ratelimit *rate;         /* changing requests per client address */
 };
 
 typedef struct reply {
@@ -49,6 +53,8 @@ typedef struct reply {
     size_t len;
     const char *ctype;
     char allow[64];
+    int retry_after;   /* seconds, for 429 */
+    int authenticate;  /* 401: ask for a bearer token */
 } reply;
 
 typedef struct req req;
@@ -556,6 +562,12 @@ static MHD_Result send_reply(req *r, reply *rep)
     if (rep->ctype) MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, rep->ctype);
     MHD_add_response_header(resp, MHD_HTTP_HEADER_CACHE_CONTROL, "no-store");
     if (rep->allow[0]) MHD_add_response_header(resp, MHD_HTTP_HEADER_ALLOW, rep->allow);
+    if (rep->retry_after > 0) {
+        char v[16];
+        snprintf(v, sizeof v, "%d", rep->retry_after);
+        MHD_add_response_header(resp, MHD_HTTP_HEADER_RETRY_AFTER, v);
+    }
+    if (rep->authenticate) MHD_add_response_header(resp, MHD_HTTP_HEADER_WWW_AUTHENTICATE, "Bearer realm=\"clothd\"");
     if (r->request_id[0]) MHD_add_response_header(resp, "X-Request-Id", r->request_id);
     const MHD_Result ret = MHD_queue_response(r->conn, (unsigned int)rep->status, resp);
     MHD_destroy_response(resp);
@@ -619,17 +631,95 @@ static void copy_request_id(req *r)
     memcpy(r->request_id, id, n + 1);
 }
 
+static int is_change(const char *method)
+{
+    return strcmp(method, "GET") != 0 && strcmp(method, "HEAD") != 0 && strcmp(method, "OPTIONS") != 0;
+}
+
+/* The client's address as a rate-limit key (4 or 16 bytes); 0 when unknown. */
+static size_t client_key(req *r, unsigned char key[16])
+{
+    const union MHD_ConnectionInfo *ci = MHD_get_connection_info(r->conn, MHD_CONNECTION_INFO_CLIENT_ADDRESS);
+    if (!ci || !ci->client_addr) return 0;
+    if (ci->client_addr->sa_family == AF_INET) {
+        memcpy(key, &((const struct sockaddr_in *)(const void *)ci->client_addr)->sin_addr, 4);
+        return 4;
+    }
+    if (ci->client_addr->sa_family == AF_INET6) {
+        memcpy(key, &((const struct sockaddr_in6 *)(const void *)ci->client_addr)->sin6_addr, 16);
+        return 16;
+    }
+    return 0;
+}
+
+static double mono_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* Host (DNS rebinding), the rate of changing requests, and the token an API route needs. 1 and
+ * rep filled when the request is refused. /v1/health answers everyone (liveness probes carry no
+ * secrets) and the viewer's static files are public. */
+static int refused(req *r, int api, reply *rep)
+{
+    http_server *s = r->s;
+    const access_policy *acc = s->info.access;
+    if (!acc) return 0;
+    const char *host = header(r, MHD_HTTP_HEADER_HOST);
+    if (!access_host_ok(acc, host)) {
+        problem pr;
+        problem_set(&pr, 403, "host-not-allowed", NULL,
+                    "Host '%.100s' is not a name of this server: use its address, localhost, or add the name to "
+                    "allowed_hosts (a guard against DNS rebinding)", host);
+        reply_problem(rep, &pr);
+        return 1;
+    }
+    if (!api) return 0;
+    if (is_change(r->method)) {
+        unsigned char key[16];
+        const size_t kl = client_key(r, key);
+        const int wait = kl ? ratelimit_take(s->rate, key, kl, mono_s()) : 0;
+        if (wait > 0) {
+            problem pr;
+            problem_set(&pr, 429, "rate-limited", NULL,
+                        "more than rate_limit (%d per second, after a burst of %d) changing requests from this "
+                        "address; retry in %d s", (int)s->set.rate_limit, (int)s->set.rate_burst, wait);
+            reply_problem(rep, &pr);
+            rep->retry_after = wait;
+            return 1;
+        }
+    }
+    if (strcmp(r->url, "/v1/health") == 0) return 0;
+    const access_level level = access_bearer(acc, header(r, MHD_HTTP_HEADER_AUTHORIZATION));
+    if (level == ACCESS_NONE) {
+        reply_error(rep, 401, "unauthorized", NULL,
+                    header(r, MHD_HTTP_HEADER_AUTHORIZATION)
+                        ? "the token is not this server's"
+                        : "this server needs a token: send 'Authorization: Bearer <token>'");
+        rep->authenticate = 1;
+        return 1;
+    }
+    if (level == ACCESS_VIEW && is_change(r->method)) {
+        reply_error(rep, 403, "forbidden", NULL, "the view token reads only; changes need the control token");
+        return 1;
+    }
+    return 0;
+}
+
 static MHD_Result dispatch(req *r)
 {
     http_server *s = r->s;
-    reply rep = {0, NULL, 0, NULL, ""};
+    reply rep = {0};
+    const int api = strncmp(r->url, "/v1/", 4) == 0 || strcmp(r->url, "/v1") == 0 || strcmp(r->url, "/metrics") == 0;
+    if (refused(r, api, &rep)) return send_reply(r, &rep);
     if (r->too_large) {
         char d[96];
         snprintf(d, sizeof d, "the body is larger than max_body (%d bytes)", (int)s->set.max_body);
         reply_error(&rep, 413, "too-large", NULL, d);
         return send_reply(r, &rep);
     }
-    const int api = strncmp(r->url, "/v1/", 4) == 0 || strcmp(r->url, "/v1") == 0 || strcmp(r->url, "/metrics") == 0;
     if (!api) {
         r->label = "static";
         if (strcmp(r->method, "GET") != 0 && strcmp(r->method, "HEAD") != 0) {
@@ -740,7 +830,7 @@ static MHD_Result access_cb(void *cls, struct MHD_Connection *conn, const char *
     }
     if (r->phase == 1) return MHD_YES; /* woken before its answer: keep waiting */
     if (r->phase == 2) {
-        reply rep = {0, NULL, 0, NULL, ""};
+        reply rep = {0};
         finish(r, &rep);
         r->phase = 3;
         return send_reply(r, &rep);
@@ -787,6 +877,12 @@ http_server *http_start(const clothd_settings *set, simloop *sl, metrics *m, con
     s->m = m;
     s->info = *info;
     s->set = *set;
+    s->rate = ratelimit_new(set->rate_limit, set->rate_burst);
+    if (!s->rate) {
+        snprintf(err, err_len, "out of memory");
+        free(s);
+        return NULL;
+    }
     if (!realpath(set->web_root, s->web_root)) {
         log_msg("web_root %s: %s; serving a placeholder page at /", set->web_root, strerror(errno));
         s->web_root[0] = '\0';
@@ -802,6 +898,7 @@ http_server *http_start(const clothd_settings *set, simloop *sl, metrics *m, con
     if (gai != 0) {
         snprintf(err, err_len, "listen address '%s': %s (give a numeric IPv4 or IPv6 address)", set->listen,
                  gai_strerror(gai));
+        ratelimit_free(s->rate);
         free(s);
         return NULL;
     }
@@ -810,13 +907,15 @@ http_server *http_start(const clothd_settings *set, simloop *sl, metrics *m, con
     s->d = MHD_start_daemon(flags, (uint16_t)set->port, NULL, NULL, access_cb, s, MHD_OPTION_EXTERNAL_LOGGER, mhd_log,
                             s, MHD_OPTION_SOCK_ADDR, ai->ai_addr,
                             MHD_OPTION_THREAD_POOL_SIZE, (unsigned int)set->http_threads, MHD_OPTION_CONNECTION_LIMIT,
-                            (unsigned int)set->max_connections, MHD_OPTION_CONNECTION_TIMEOUT,
+                            (unsigned int)set->max_connections, MHD_OPTION_PER_IP_CONNECTION_LIMIT,
+                            (unsigned int)set->max_connections_per_ip, MHD_OPTION_CONNECTION_TIMEOUT,
                             (unsigned int)set->connection_timeout, MHD_OPTION_NOTIFY_COMPLETED, completed_cb, s,
                             MHD_OPTION_LISTENING_ADDRESS_REUSE, 1U,
                             MHD_OPTION_END);
     freeaddrinfo(ai);
     if (!s->d) {
         snprintf(err, err_len, "could not listen on %s port %d (in use, or not allowed?)", set->listen, (int)set->port);
+        ratelimit_free(s->rate);
         free(s);
         return NULL;
     }
@@ -837,5 +936,6 @@ void http_stop(http_server *s)
 {
     if (!s) return;
     MHD_stop_daemon(s->d);
+    ratelimit_free(s->rate);
     free(s);
 }

@@ -13,15 +13,17 @@
 typedef struct http_server http_server;
 
 struct stream;
+struct access_policy;
 
 typedef struct http_info {
     const char *backend, *device, *backend_note, *version;
     struct stream *stream; /* NULL when there is none */
     int stream_port;
+    const struct access_policy *access; /* tokens, allowed hosts */
 } http_info;
 
 /* Starts listening (settings: listen, port, http_threads, max_body, max_connections,
- * connection_timeout, web_root). NULL and the reason in err on failure. */
+ * max_connections_per_ip, connection_timeout, rate_limit, rate_burst, web_root). NULL and the reason in err on failure. */
 http_server *http_start(const clothd_settings *set, simloop *sl, metrics *m, const http_info *info, char *err,
                         size_t err_len);
 /* The port actually bound (useful with --port 0). */

@@ -25,6 +25,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "access.h"
 #include "commands.h"
 #include "http.h"
 #include "log.h"
@@ -273,12 +274,20 @@ static cs_sim *make_engine(const clothd_config *cfg)
 {
     char err[300];
     cs_sim *sim = NULL;
+    const uint64_t limit = (uint64_t)cfg->set.max_state_mb << 20;
+    uint64_t bytes;
+    if (cs_scene_memory(&cfg->scene, &bytes) != CS_OK || bytes > limit) {
+        log_msg("cannot start the simulation: a %d x %d cloth needs more than max_state_mb (%d MiB)", (int)cfg->scene.nx,
+                (int)cfg->scene.ny, (int)cfg->set.max_state_mb);
+        return NULL;
+    }
     const cs_status st = cs_sim_create(&cfg->scene, &cfg->params, backend_names[cfg->set.backend], &sim, err, sizeof err);
     if (st != CS_OK) {
         log_msg("cannot start the simulation: %s", err);
         return NULL;
     }
     cs_sim_set_threads(sim, cfg->set.threads);
+    cs_sim_set_memory_limit(sim, limit);
     return sim;
 }
 
@@ -371,7 +380,7 @@ static int save_on_exit(simloop *sl, const char *path)
     return 0;
 }
 
-static int serve(clothd_config *cfg)
+static int serve_with(clothd_config *cfg, const access_policy *acc)
 {
 #ifdef CLOTHD_TEST_HOOKS
     testhooks_init();
@@ -383,6 +392,7 @@ static int serve(clothd_config *cfg)
     sigaddset(&sigs, SIGUSR1);
     pthread_sigmask(SIG_BLOCK, &sigs, NULL); /* every thread inherits it; main waits for them */
 
+    char err[300];
     cs_sim *sim = make_engine(cfg);
     if (!sim) return EXIT_START;
     if (strcmp(cs_sim_backend(sim), "cuda") == 0 && !cfg->scene_size_given) {
@@ -403,8 +413,7 @@ static int serve(clothd_config *cfg)
         metrics_free(m);
         return EXIT_START;
     }
-    char err[300];
-    stream *st = stream_start(&cfg->set, sl, err, sizeof err);
+    stream *st = stream_start(&cfg->set, sl, acc, err, sizeof err);
     if (!st) {
         log_msg("%s", err);
         simloop_free(sl);
@@ -413,7 +422,7 @@ static int serve(clothd_config *cfg)
     }
     simloop_attach_stream(sl, st);
     const http_info info = {cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim), CLOTHD_VERSION, st,
-                            stream_port(st)};
+                            stream_port(st), acc};
     http_server *http = http_start(&cfg->set, sl, m, &info, err, sizeof err);
     if (!http) {
         log_msg("%s", err);
@@ -433,7 +442,9 @@ static int serve(clothd_config *cfg)
     const char *host = strchr(cfg->set.listen, ':') ? "[::1]" : cfg->set.listen;
     if (strcmp(cfg->set.listen, "0.0.0.0") == 0) host = "127.0.0.1";
     log_msg("stream on ws://%s:%d/stream (subprotocol clothd.v1)", cfg->set.listen, stream_port(st));
-    log_msg("listening on http://%s:%d (API at /v1, viewer at /)", cfg->set.listen, http_port(http));
+    stream_set_http_port(st, http_port(http));
+    log_msg("listening on http://%s:%d (API at /v1, viewer at /)%s", cfg->set.listen, http_port(http),
+            access_required(acc) ? "; a token is needed (Authorization: Bearer)" : "");
     log_msg("try: curl -s http://%s:%d/v1/sim", host, http_port(http));
 
     int sig = 0;
@@ -459,6 +470,20 @@ static int serve(clothd_config *cfg)
     }
     simloop_free(sl);
     metrics_free(m);
+    return rc;
+}
+
+/* The access policy first: a daemon that would listen unguarded refuses before anything starts. */
+static int serve(clothd_config *cfg)
+{
+    char err[400];
+    access_policy *acc = access_load(&cfg->set, err, sizeof err);
+    if (!acc) {
+        log_msg("%s", err);
+        return EXIT_START;
+    }
+    const int rc = serve_with(cfg, acc);
+    access_free(acc);
     return rc;
 }
 

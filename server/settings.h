@@ -28,6 +28,9 @@
     X(backend, ENUM, 0, 0, 2, "auto|cuda|cpu", "Physics backend: auto uses CUDA when a device is present") \
     X(token_file, STR, "", 0, 0, NULL, "File holding the control token (all routes)")                 \
     X(view_token_file, STR, "", 0, 0, NULL, "File holding the view token (GET routes and the stream)") \
+    X(insecure, BOOL, 0, 0, 1, NULL, "Allow listening beyond loopback without a token (anyone who reaches it has control)") \
+    X(allowed_hosts, STR, "", 0, 0, NULL, "Host names the API answers to besides IP addresses and localhost (comma-separated; * any)") \
+    X(allowed_origins, STR, "", 0, 0, NULL, "Page origins that may open the stream besides the viewer's own (comma-separated; * any)") \
     X(state_file, STR, "", 0, 0, NULL, "State saved here on SIGTERM/SIGINT and resumed from at start") \
     X(state_file_invalid, ENUM, 0, 0, 1, "refuse|fresh", "A corrupt or foreign state file at start: refuse to start, or move it to <file>.bad-<time> and start afresh") \
     X(web_root, STR, CLOTHD_WEB_ROOT, 0, 0, NULL, "Directory of the viewer's static files, served at /")         \
@@ -37,8 +40,12 @@
     X(http_nice, INT, 10, 0, 19, NULL, "Niceness of the HTTP threads: under overload the simulation keeps the CPU") \
     X(max_body, INT, 1048576, 1024, 1073741824, NULL, "Largest request body in bytes (413 beyond)")    \
     X(max_connections, INT, 512, 1, 100000, NULL, "Most HTTP connections at once")                    \
+    X(max_connections_per_ip, INT, 64, 1, 100000, NULL, "Most HTTP connections at once from one address") \
+    X(rate_limit, INT, 50, 0, 1000000, NULL, "Changing requests (POST, PUT, PATCH, DELETE) per second per address, after the burst; 0 = no limit (429 beyond)") \
+    X(rate_burst, INT, 500, 1, 1000000, NULL, "Changing requests one address may make at once before rate_limit applies") \
     X(connection_timeout, INT, 60, 1, 86400, NULL, "Seconds an idle HTTP connection stays open")       \
     X(max_rocks, INT, 256, 1, 1024, NULL, "Most rocks in the simulation")                             \
+    X(max_state_mb, INT, 1024, 1, 1048576, NULL, "Largest cloth state in MiB, estimated before any allocation (a bigger scene is 422)") \
     X(stream_max_clients, INT, 64, 1, 10000, NULL, "Most WebSocket clients at once")                  \
     X(stream_max_message, INT, 4096, 64, 1048576, NULL, "Largest message a stream client may send, in bytes") \
     X(stream_stall_timeout, INT, 30, 1, 3600, NULL, "Seconds a stream client may leave a new frame unread before it is disconnected") \

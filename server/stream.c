@@ -28,6 +28,7 @@
 
 #include <jansson.h>
 
+#include "access.h"
 #include "clothd_frame.h"
 #include "log.h"
 #include "pjson.h"
@@ -67,6 +68,8 @@ struct session {
     int grab_in_flight;
     json_t *grab_pending; /* the newest grab or release asked while one was in flight */
     int dead;
+    access_level access;  /* from the token it connected with */
+    int established;      /* counted in clients (a refused connection is closed too, never counted) */
 };
 
 /* A grab or release on its way to the sim thread; the answer comes back through `done`. */
@@ -86,6 +89,8 @@ struct stream {
     int port;
     int max_clients, max_message;
     double stall_timeout;
+    const access_policy *acc;
+    atomic_int http_port;
 
     /* frame handover */
     pthread_mutex_t flock;
@@ -261,6 +266,12 @@ static void answered_cb(sim_cmd *cmd, void *arg)
 
 static void submit_grab(stream *st, session *s, json_t *body)
 {
+    if (s->access < ACCESS_CONTROL) {
+        const char *op = json_string_value(json_object_get(body, "op"));
+        client_error(st, s, op, 403, NULL, "%s needs the control token (this connection has the view token)", op);
+        json_decref(body);
+        return;
+    }
     if (s->grab_in_flight) {
         json_decref(s->grab_pending);
         s->grab_pending = body;
@@ -562,21 +573,68 @@ static int path_ok(struct lws *wsi)
     return strcmp(uri, STREAM_PATH) == 0;
 }
 
+/* A header's value, or NULL when the request has none (or it does not fit). */
+static const char *header_of(struct lws *wsi, enum lws_token_indexes h, char *buf, int len)
+{
+    return lws_hdr_total_length(wsi, h) > 0 && lws_hdr_copy(wsi, buf, len, h) > 0 ? buf : NULL;
+}
+
+/* The token a client offers: `?token=` in the URL, or a `bearer.<token>` entry of the
+ * subprotocol list (`Sec-WebSocket-Protocol: clothd.v1, bearer.<token>`: what a browser, which
+ * cannot set Authorization on a WebSocket, can send). */
+static const char *offered_token(struct lws *wsi, char *buf, int len)
+{
+    const char *q = lws_get_urlarg_by_name(wsi, "token=", buf, len);
+    if (q) return q;
+    char list[1200];
+    if (!header_of(wsi, WSI_TOKEN_PROTOCOL, list, sizeof list)) return NULL;
+    for (char *save = NULL, *t = strtok_r(list, ", ", &save); t; t = strtok_r(NULL, ", ", &save)) {
+        if (strncmp(t, "bearer.", 7) == 0 && strlen(t + 7) < (size_t)len) {
+            memcpy(buf, t + 7, strlen(t + 7) + 1);
+            return buf;
+        }
+    }
+    return NULL;
+}
+
+/* Before the upgrade completes: the path, the page's Origin, the token, the client limit. Refused
+ * connections get no upgrade (libwebsockets closes them). */
+static int admit(stream *st, struct lws *wsi, session *s)
+{
+    if (!path_ok(wsi)) return 0;
+    char origin[300], host[300], token[600];
+    const char *o = header_of(wsi, WSI_TOKEN_ORIGIN, origin, sizeof origin);
+    const char *h = header_of(wsi, WSI_TOKEN_HOST, host, sizeof host);
+    if (!access_host_ok(st->acc, h) || !access_origin_ok(st->acc, o, h, atomic_load(&st->http_port))) {
+        log_msg("stream: refused a connection from origin %.200s (host %.200s): not this viewer's and not in "
+                "allowed_origins", o ? o : "(none)", h ? h : "(none)");
+        atomic_fetch_add(&st->refused, 1);
+        return 0;
+    }
+    s->access = access_token(st->acc, offered_token(wsi, token, sizeof token));
+    if (s->access == ACCESS_NONE) {
+        atomic_fetch_add(&st->refused, 1);
+        return 0;
+    }
+    if (atomic_load(&st->clients) >= st->max_clients) {
+        atomic_fetch_add(&st->refused, 1);
+        return 0;
+    }
+    return 1;
+}
+
 static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in, size_t len)
 {
     stream *st = lws_context_user(lws_get_context(wsi));
     session *s = user;
     switch (reason) {
     case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION:
-        /* Before the upgrade completes: the path, then the client limit. */
-        if (!path_ok(wsi)) return -1;
-        if (atomic_load(&st->clients) >= st->max_clients) {
-            atomic_fetch_add(&st->refused, 1);
-            return -1;
-        }
-        return 0;
-    case LWS_CALLBACK_ESTABLISHED:
+        return admit(st, wsi, s) ? 0 : -1;
+    case LWS_CALLBACK_ESTABLISHED: {
+        const access_level granted = s->access; /* set by admit() in this same allocation */
         memset(s, 0, sizeof *s);
+        s->access = granted;
+        s->established = 1;
         s->wsi = wsi;
         s->id = ++st->next_id;
         s->max_fps = 60;
@@ -591,7 +649,10 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         if (atomic_fetch_add(&st->clients, 1) == 0 || !st->current) request_frame(st);
         lws_callback_on_writable(wsi);
         return 0;
+    }
     case LWS_CALLBACK_CLOSED:
+        /* libwebsockets closes the connections admit() refused here too: they were never counted. */
+        if (!s || !s->established) return 0;
         for (session **p = &st->sessions; *p; p = &(*p)->next) {
             if (*p == s) {
                 *p = s->next;
@@ -663,7 +724,7 @@ static void *service(void *arg)
 /* Ping after 10 s without traffic, hang up after 30 s without an answer. */
 static const lws_retry_bo_t keepalive = {.secs_since_valid_ping = 10, .secs_since_valid_hangup = 30};
 
-stream *stream_start(const clothd_settings *set, simloop *sl, char *err, size_t err_len)
+stream *stream_start(const clothd_settings *set, simloop *sl, const access_policy *acc, char *err, size_t err_len)
 {
     stream *st = calloc(1, sizeof *st);
     if (!st) {
@@ -671,6 +732,7 @@ stream *stream_start(const clothd_settings *set, simloop *sl, char *err, size_t 
         return NULL;
     }
     st->sl = sl;
+    st->acc = acc;
     st->protocol = &protocols[0];
     st->max_clients = set->stream_max_clients;
     st->max_message = set->stream_max_message;
@@ -707,6 +769,8 @@ stream *stream_start(const clothd_settings *set, simloop *sl, char *err, size_t 
 }
 
 int stream_port(stream *st) { return st->port; }
+
+void stream_set_http_port(stream *st, int port) { atomic_store(&st->http_port, port); }
 
 void stream_stop(stream *st)
 {

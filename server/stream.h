@@ -16,12 +16,17 @@
 #include "settings.h"
 
 struct simloop;
+struct access_policy;
 typedef struct stream stream;
 
 /* Starts listening (settings: listen, stream_port, stream_max_clients, stream_max_message,
- * stream_stall_timeout); NULL and the reason in err on failure. */
-stream *stream_start(const clothd_settings *set, struct simloop *sl, char *err, size_t err_len);
+ * stream_stall_timeout); NULL and the reason in err on failure. Connections are checked against
+ * the access policy (token, Origin) before the upgrade completes. */
+stream *stream_start(const clothd_settings *set, struct simloop *sl, const struct access_policy *acc, char *err,
+                     size_t err_len);
 int stream_port(stream *st);
+/* The HTTP port the viewer is served on (a page's Origin must name it); 0 until set. */
+void stream_set_http_port(stream *st, int port);
 /* Stops the service thread and closes every client. */
 void stream_stop(stream *st);
 

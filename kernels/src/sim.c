@@ -42,10 +42,27 @@ static cs_status check_scene(cs_sim *sim, const cs_scene *scene)
     const char *bad = NULL;
     char why[200];
     if (cs_scene_validate(scene, &bad, why, sizeof why) != 0) return cs_fail(sim, CS_E_RANGE, bad, "%s", why);
+    return cs_check_memory(sim, scene);
+}
+
+cs_status cs_check_memory(cs_sim *sim, const cs_scene *scene)
+{
     uint64_t bytes;
     if (cs_scene_memory(scene, &bytes) != CS_OK || bytes > (uint64_t)SIZE_MAX / 2)
         return cs_fail(sim, CS_E_LIMIT, "nx", "a %d x %d cloth is too large for this machine", (int)scene->nx,
                        (int)scene->ny);
+    if (sim->memory_limit && bytes > sim->memory_limit)
+        return cs_fail(sim, CS_E_LIMIT, "nx", "a %d x %d cloth needs %.0f MiB, more than the memory limit of %.0f MiB",
+                       (int)scene->nx, (int)scene->ny, (double)bytes / 1048576.0,
+                       (double)sim->memory_limit / 1048576.0);
+    return CS_OK;
+}
+
+cs_status cs_sim_set_memory_limit(cs_sim *sim, uint64_t bytes)
+{
+    if (!sim) return CS_E_INVALID;
+    sim->memory_limit = bytes;
+    cs_ok(sim);
     return CS_OK;
 }
 

@@ -23,7 +23,13 @@ struct cs_sim {
     char backend_note[160];
     char err[256];
     const char *err_param;
+    uint64_t memory_limit; /* bytes a scene's state may take (cs_scene_memory); 0: no limit */
 };
+
+/* sim.c */
+/* CS_E_LIMIT (recorded, naming nx) when a scene's state would exceed what this machine or the
+ * memory limit allows; checked before anything is allocated for it. */
+cs_status cs_check_memory(cs_sim *sim, const cs_scene *scene);
 
 /* status.c */
 /* Records a refusal: the detail (printf-style) and the parameter it concerns (may be NULL). */

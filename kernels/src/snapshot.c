@@ -289,8 +289,8 @@ cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
     cs_params_default(&params);
     cs_status st = load_table(sim, &b, &scene, &params);
     if (st != CS_OK) return st;
-    uint64_t bytes;
-    if (cs_scene_memory(&scene, &bytes) != CS_OK) return cs_fail(sim, CS_E_LIMIT, "nx", "snapshot's cloth is too large");
+    st = cs_check_memory(sim, &scene);
+    if (st != CS_OK) return st;
     /* Before allocating for the scene, make sure the buffer can hold its arrays at all. */
     const size_t n = (size_t)scene.nx * (size_t)scene.ny;
     if ((b.len - b.at) / (4 * (9 + CS_NTYPES) + 1) < n) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot is truncated");

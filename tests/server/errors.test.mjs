@@ -145,7 +145,7 @@ test('a body sent without Content-Length (chunked) is counted as it arrives', as
   const url = new URL(d.url);
   const reply = await new Promise((resolve, reject) => {
     const sock = net.connect(Number(url.port), url.hostname, () => {
-      sock.write('PATCH /v1/params HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\n');
+      sock.write('PATCH /v1/params HTTP/1.1\r\nHost: 127.0.0.1\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\n');
       for (let k = 0; k < 70; k++) sock.write(`3e8\r\n${' '.repeat(1000)}\r\n`);
       sock.write('0\r\n\r\n');
     });
@@ -178,7 +178,7 @@ test('static paths cannot leave web_root', async () => {
     const text = await new Promise((resolve, reject) => {
       // Raw request line: fetch would normalise the path first.
       const sock = net.connect(Number(url.port), url.hostname, () => {
-        sock.write(`GET ${p} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n`);
+        sock.write(`GET ${p} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n`);
       });
       let t = '';
       sock.on('data', (c) => (t += c));

@@ -5,54 +5,13 @@ import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
 import { join } from 'node:path';
-import WebSocket from 'ws';
 import { MeshoptDecoder } from 'meshoptimizer';
 import { start, stop, call, ok, pause, hash, until } from './harness.mjs';
+import { connect, next, daemon } from './wsclient.mjs';
 
 const { decodeFrame, HEADER_SIZE } = await import(join(process.env.CLOTHD_SOURCE, 'proto', 'frame.mjs'));
 await MeshoptDecoder.ready;
 
-// A client that keeps every message: texts parsed, frames decoded.
-function connect(d, { path = '/stream', protocol = 'clothd.v1' } = {}) {
-  return new Promise((resolve, reject) => {
-    const ws = new WebSocket(`ws://127.0.0.1:${d.streamPort}${path}`, protocol);
-    const c = { ws, texts: [], frames: [], closed: false, waiters: [] };
-    ws.on('message', (data, binary) => {
-      if (binary) c.frames.push(decodeFrame(data, { meshopt: MeshoptDecoder }));
-      else c.texts.push(JSON.parse(data.toString()));
-      for (const w of c.waiters.splice(0)) w();
-    });
-    ws.on('close', () => {
-      c.closed = true;
-      for (const w of c.waiters.splice(0)) w();
-    });
-    ws.on('open', () => resolve(c));
-    ws.on('error', reject);
-  });
-}
-
-// Waits for a message matching pred, among those from index `from` on (by default all, the ones
-// already there first).
-async function next(c, kind, pred = () => true, timeout = 15000, from = 0) {
-  const list = kind === 'frame' ? c.frames : c.texts;
-  let seen = from;
-  const t0 = Date.now();
-  for (;;) {
-    for (; seen < list.length; seen++) if (pred(list[seen])) return list[seen];
-    if (c.closed) throw new Error('the stream closed');
-    if (Date.now() - t0 > timeout) throw new Error(`no ${kind} matching ${pred} in time`);
-    await new Promise((r) => {
-      c.waiters.push(r);
-      setTimeout(r, 200);
-    });
-  }
-}
-
-async function daemon(flags) {
-  const d = await start(flags);
-  d.streamPort = (await ok(d, 'GET', '/v1/health')).stream.port;
-  return d;
-}
 
 test('a late joiner gets hello, then frames that match the scene', async () => {
   const d = await daemon(['--nx', '20', '--ny', '14', '--auto-drop-interval', '0.2']);

@@ -1,4 +1,5 @@
 /* test_scene.c - building the grid: positions, springs, rest lengths, pin presets, memory. */
+#include <stdint.h>
 #include "testkit.h"
 
 static cs_sim *grid(int nx, int ny, float sx, float sy, float height, int orientation, int pins)
@@ -124,6 +125,9 @@ static void test_memory_estimate(void **unused)
      * rest-length buffers of 6). */
     assert_true(big >= 4096ull * 4096ull * 22 * 4);
     assert_true(small < big);
+    /* 2^31 x 2^31 vertices of 89 bytes overflow 64 bits: refused, not wrapped to a small size. */
+    sc.nx = sc.ny = INT32_MAX;
+    assert_int_equal(cs_scene_memory(&sc, &big), CS_E_LIMIT);
     sc.nx = 1;
     assert_int_equal(cs_scene_memory(&sc, &small), CS_E_RANGE);
     assert_int_equal(cs_scene_memory(NULL, &small), CS_E_INVALID);

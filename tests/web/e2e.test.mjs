@@ -8,7 +8,8 @@
 import { after, before, test } from 'node:test';
 import assert from 'node:assert/strict';
 import { readFileSync, writeFileSync } from 'node:fs';
-import { start, stop, ok, call, until } from '../server/harness.mjs';
+import { join } from 'node:path';
+import { start, stop, ok, call, until, tempDir } from '../server/harness.mjs';
 import { WEB_ROOT, missing, launch, openViewer, artifact, pixelStats, screenOf, vertexOf } from './browser.mjs';
 
 const why = missing();
@@ -235,4 +236,29 @@ test('after the daemon restarts the page reconnects', opts, async () => {
   writeFileSync(artifact('viewer-console.txt'), page.errors.join('\n'));
   // While the daemon was away Chromium logged the refused connections itself; nothing else.
   assert.deepEqual(page.errors.filter((e) => !/ERR_CONNECTION_REFUSED|WebSocket connection to .* failed/.test(e)), []);
+});
+
+test('with a token: the page asks for it once, then the API and the stream both take it', opts, async () => {
+  const dir = tempDir();
+  const token = 'e2e-token-0123456789abcdef';
+  writeFileSync(join(dir, 'token'), token + '\n');
+  const locked = await start([...FLAGS, '--token-file', join(dir, 'token')], { webRoot: WEB_ROOT });
+  const second = await browser.context.newPage();
+  const errors = [];
+  second.on('pageerror', (e) => errors.push(`exception: ${e.message}`));
+  try {
+    await second.goto(locked.url + '/');
+    // The first API read is 401; the page asks for the token.
+    await second.locator('#token').waitFor();
+    await second.fill('#token-input', token);
+    await second.click('#token button');
+    await until('frames through the token-checked stream', () =>
+      second.evaluate(() => window.__clothd.stream.stats.frames > 5));
+    const panelEdit = await ok(locked, 'GET', '/v1/params', undefined, { Authorization: `Bearer ${token}` });
+    assert.equal(typeof panelEdit.k_bend, 'number');
+    assert.deepEqual(errors, []);
+  } finally {
+    await second.close();
+    await stop(locked);
+  }
 });

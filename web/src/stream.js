@@ -62,7 +62,9 @@ export class Stream {
     url.hash = '';
     let ws;
     try {
-      ws = new WebSocket(url.href, PROTOCOL);
+      // The token rides in the subprotocol list (a browser cannot set Authorization on a WebSocket);
+      // the server answers with clothd.v1 alone.
+      ws = new WebSocket(url.href, this.api.token ? [PROTOCOL, `bearer.${this.api.token}`] : PROTOCOL);
     } catch (e) {
       return this.retry(`cannot open ${url.href}: ${e.message}`);
     }

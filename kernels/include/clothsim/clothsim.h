@@ -68,6 +68,9 @@ cs_status cs_sim_set_threads(cs_sim *sim, int threads);
 
 /* Bytes a scene's state needs, computed with overflow checks; CS_E_LIMIT when it overflows. */
 cs_status cs_scene_memory(const cs_scene *scene, uint64_t *bytes);
+/* Caps the state a scene change or a snapshot may bring (cs_scene_memory's bytes; 0: no cap):
+ * a larger one is CS_E_LIMIT, refused before anything is allocated. */
+cs_status cs_sim_set_memory_limit(cs_sim *sim, uint64_t bytes);
 
 /* ---- scene and parameters ---- */
 void cs_sim_scene(const cs_sim *sim, cs_scene *out);

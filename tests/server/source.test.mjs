@@ -1,0 +1,21 @@
+// source.test.mjs - promises of SECURITY.md that are about the source itself.
+//
+// CVE-2025-11677: libwebsockets up to 4.3.x (Debian 12 ships 4.1.6) frees memory that a callback
+// handling LWS_CALLBACK_HTTP_CONFIRM_UPGRADE may still read through `in`. clothd never handles
+// that callback; its upgrade checks are in LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION.
+import { test } from 'node:test';
+import assert from 'node:assert/strict';
+import { readdirSync, readFileSync } from 'node:fs';
+import { join } from 'node:path';
+
+const server = join(process.env.CLOTHD_SOURCE, 'server');
+const sources = readdirSync(server).filter((f) => /\.[ch]$/.test(f))
+  .map((f) => ({ f, text: readFileSync(join(server, f), 'utf8') }));
+
+test('no callback handles LWS_CALLBACK_HTTP_CONFIRM_UPGRADE (CVE-2025-11677)', () => {
+  assert.ok(sources.length > 5);
+  for (const { f, text } of sources)
+    assert.doesNotMatch(text, /case\s+LWS_CALLBACK_HTTP_CONFIRM_UPGRADE|==\s*LWS_CALLBACK_HTTP_CONFIRM_UPGRADE/, f);
+  const stream = sources.find((s) => s.f === 'stream.c').text;
+  assert.match(stream, /case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION:/, 'the upgrade checks are where this test says');
+});
