@@ -182,14 +182,13 @@ static void remove_stale_temps(const char *path)
 }
 
 /* What is wrong with a state file the engine refused, or NULL when the file is not to blame (out
- * of memory, a device error). */
+ * of memory, a device error, a cloth larger than max_state_mb allows). */
 static const char *invalid_because(const unsigned char *buf, size_t len, cs_status st)
 {
     if (len < 4 || memcmp(buf, "CSNP", 4) != 0) return "is not a clothd state file";
     switch (st) {
     case CS_E_VERSION: return "was written by another version of clothd";
     case CS_E_FORMAT: return "is damaged";
-    case CS_E_LIMIT:
     case CS_E_RANGE:
     case CS_E_UNSTABLE: return "holds a state this build cannot run";
     default: return NULL;
@@ -249,8 +248,9 @@ static int resume(cs_sim *sim, const clothd_settings *set)
         log_msg("resumed from %s at step %llu, state hash %s", path, (unsigned long long)info.step, hex);
         return 0;
     }
-    if (!bad) {
-        log_msg("cannot resume from the state file %s: %s", path, cs_sim_error(sim));
+    if (!bad) { /* the file is kept whatever state_file_invalid says */
+        log_msg("cannot resume from the state file %s: %s%s", path, cs_sim_error(sim),
+                st == CS_E_LIMIT ? " (raise max_state_mb to resume from it)" : "");
         return -1;
     }
     if (set->state_file_invalid != STATE_INVALID_FRESH) {

@@ -295,6 +295,21 @@ test('a corrupt, foreign or other-version state file is refused with a reason, u
   }
 });
 
+test('a state file past max_state_mb is refused and kept, even with state_file_invalid = fresh', async () => {
+  // A 200 x 200 cloth's state is a few MiB: a good file, but more than a 1 MiB limit allows.
+  const dir = tempDir();
+  const state = join(dir, 'state.bin');
+  const a = await start(['--paused', '--nx', '200', '--ny', '200', '--state-file', state]);
+  assert.equal((await stop(a)).code, 0);
+  const bytes = readFileSync(state);
+  const r = await refusedStart([...small, '--max-state-mb', '1', '--state-file', state, '--state-file-invalid', 'fresh']);
+  assert.equal(r.code, 1);
+  assert.match(r.log, /cannot resume from the state file .*state\.bin: a 200 x 200 cloth needs \d+ MiB, more than the memory limit of 1 MiB \(raise max_state_mb to resume from it\)/);
+  assert.deepEqual(readdirSync(dir), ['state.bin']); // not moved aside: it is not damaged
+  assert.ok(readFileSync(state).equals(bytes));
+  rmSync(dir, { recursive: true, force: true });
+});
+
 test('state_file_invalid = fresh moves a bad state file aside and starts afresh', async () => {
   const { dir, state, bytes } = await goodStateFile();
   const bad = Buffer.from(bytes);
