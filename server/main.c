@@ -80,11 +80,11 @@ static unsigned char *read_file(const char *path, size_t *len, char *why, size_t
         if (!g) free(buf);
         buf = g;
     }
-    const int bad = ferror(f);
+    const int bad = ferror(f) ? errno : 0; /* fread sets errno when it fails (EISDIR, EIO) */
     fclose(f);
     if (!buf || bad) {
+        snprintf(why, why_len, "%s: could not read it (%s)", path, buf ? strerror(bad) : "out of memory");
         free(buf);
-        snprintf(why, why_len, "%s: could not read it", path);
         return NULL;
     }
     *len = n;

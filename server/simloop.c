@@ -636,6 +636,12 @@ static void snapshot_put(simloop *sl, sim_cmd *c)
 static void handle(simloop *sl, sim_cmd *c)
 {
     cs_info info;
+    /* After a backend failure, until main has stopped this thread: nothing touches the lost
+     * engine. Pauses, publications and the journal (kept in memory) still answer. */
+    if (!sl->healthy && c->kind != CMD_PAUSE && c->kind != CMD_PUBLISH && c->kind != CMD_HASH && c->kind != CMD_BUNDLE) {
+        fail_cmd(c, 503, "unavailable", "%s", "the backend has failed; the daemon is saving the state and exiting");
+        return;
+    }
     switch (c->kind) {
     case CMD_APPLY:
         if (apply(sl, c->body, c->request_id, &c->result, &c->pr) != 0) c->failed = 1;

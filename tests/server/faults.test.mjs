@@ -127,6 +127,10 @@ test('a backend failure: 503 while it saves, the last checkpoint saved, exit 3, 
   const health = await probe(d, '/v1/health');
   assert.equal(health.status, 503);
   assert.equal(health.json.status, 'unhealthy');
+  // Commands are refused while it saves; reads answer.
+  const patch = await call(d, 'PATCH', '/v1/params', { drag: 0.5 });
+  assert.equal(patch.status, 503);
+  assert.equal(patch.json.type, 'urn:clothd:problem:unavailable');
   const sim = await ok(d, 'GET', '/v1/sim');
   assert.equal(sim.last_event.type, 'backend_failure');
   assert.equal(sim.last_event.step, 23 * substeps);
@@ -310,6 +314,18 @@ test('a state file past max_state_mb is refused and kept, even with state_file_i
   rmSync(dir, { recursive: true, force: true });
 });
 
+test('a state file that cannot be read is refused, even with state_file_invalid = fresh', async () => {
+  // A directory where the file should be: it opens but cannot be read (EISDIR), for root too.
+  const dir = tempDir();
+  const state = join(dir, 'state.bin');
+  mkdirSync(state);
+  const r = await refusedStart([...small, '--state-file', state, '--state-file-invalid', 'fresh']);
+  assert.equal(r.code, 1);
+  assert.match(r.log, /cannot resume from the state file: .*state\.bin: could not read it \(Is a directory\)/);
+  assert.deepEqual(readdirSync(dir), ['state.bin']);
+  rmSync(dir, { recursive: true, force: true });
+});
+
 test('state_file_invalid = fresh moves a bad state file aside and starts afresh', async () => {
   const { dir, state, bytes } = await goodStateFile();
   const bad = Buffer.from(bytes);
@@ -335,6 +351,23 @@ test('state_file_invalid = fresh moves a bad state file aside and starts afresh'
   assert.equal(row.default, 'refuse');
   assert.deepEqual(row.choices, ['refuse', 'fresh']);
   await stop(s);
+});
+
+test('exit statuses: --help lists them, bad settings are 2', () => {
+  const help = execFileSync(CLOTHD, ['--help'], { encoding: 'utf8' });
+  assert.match(help, /exit status: 0 stopped by SIGTERM\/SIGINT .*; 1 could not start/);
+  assert.match(help, /2 bad command line or settings; 3 the backend failed/);
+  assert.match(help, /4 the state file could not be saved/);
+  assert.match(help, /--state-file-invalid .*\(refuse\|fresh\)/);
+  for (const args of [['--port', '70000'], ['--nope'], ['--state-file-invalid', 'maybe']]) {
+    let code = 0;
+    try {
+      execFileSync(CLOTHD, args, { stdio: 'ignore', timeout: 20000 });
+    } catch (e) {
+      code = e.status;
+    }
+    assert.equal(code, 2, args.join(' '));
+  }
 });
 
 test('the shipped clothd has no test hooks', async () => {
