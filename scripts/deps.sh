@@ -8,6 +8,7 @@ CLOTHD_APT_PACKAGES=(
   libwebsockets-dev libmeshoptimizer-dev   # clothd's stream
   nodejs                      # integration tests (node's test runner and fetch)
   chromium chromium-driver    # the viewer's end-to-end tests (headless, driven by playwright-core)
+  strace                      # the crash-safe save test sees the system calls of a save
   wrk                         # the soak test's API load (tests/server/soak.mjs) and scripts/bench-http.sh
 )
 # npm: Debian's nodejs needs the npm package, NodeSource's nodejs bundles npm (and would conflict

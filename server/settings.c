@@ -251,6 +251,9 @@ int settings_load(clothd_config *c, int argc, char **argv, char **env, char *why
         memcpy(name, *e + 7, len);
         name[len] = '\0';
         if (strcmp(name, "CONFIG") == 0) continue;
+#ifdef CLOTHD_TEST_HOOKS
+        if (strncmp(name, "TEST_", 5) == 0) continue; /* the test daemon's hooks (testhooks.h) */
+#endif
         char key[128];
         snprintf(key, sizeof key, "%s", name);
         for (char *k = key; *k; k++) *k = (char)tolower((unsigned char)*k);
