@@ -11,7 +11,9 @@ CLOTHD_APT_BUILD=(
 CLOTHD_APT_TEST=(
   libcmocka-dev               # C unit and physics tests
   chromium chromium-driver    # the viewer's end-to-end tests (headless, driven by playwright-core)
-)                             # (node: integration tests, node's test runner and fetch)
+  strace                      # the crash-safe save test sees the system calls of a save
+  wrk                         # the soak test's API load (tests/server/soak.mjs) and scripts/bench-http.sh
+)                             # (nodejs, above: the integration tests, node's test runner and fetch)
 CLOTHD_APT_PACKAGES=("${CLOTHD_APT_BUILD[@]}" "${CLOTHD_APT_TEST[@]}")
 # npm: Debian's nodejs needs the npm package, NodeSource's nodejs bundles npm (and would conflict
 # with Debian's). Installed only when the command is missing.

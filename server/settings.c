@@ -251,6 +251,9 @@ int settings_load(clothd_config *c, int argc, char **argv, char **env, char *why
         memcpy(name, *e + 7, len);
         name[len] = '\0';
         if (strcmp(name, "CONFIG") == 0) continue;
+#ifdef CLOTHD_TEST_HOOKS
+        if (strncmp(name, "TEST_", 5) == 0) continue; /* the test daemon's hooks (testhooks.h) */
+#endif
         char key[128];
         snprintf(key, sizeof key, "%s", name);
         for (char *k = key; *k; k++) *k = (char)tolower((unsigned char)*k);
@@ -320,11 +323,14 @@ void settings_usage(FILE *out)
 }
 
 /* The startup settings as a Markdown table, for README's "Configuration" section (a test diffs the
- * two). The web_root default is the build tree's own path, so it is named, not printed. */
+ * two). The web_root default is the build tree's own path, so it is named, not printed. Help texts
+ * are escaped for a table cell (| < >). */
 static void md_text(FILE *out, const char *s)
 {
     for (; *s; s++) {
         if (*s == '|') fputs("\\|", out);
+        else if (*s == '<') fputs("&lt;", out);
+        else if (*s == '>') fputs("&gt;", out);
         else fputc(*s, out);
     }
 }

@@ -184,23 +184,28 @@ function rssKiB(pid) {
 }
 
 test('a client that reads nothing stays within its memory bound, the others keep their frames, and it is cut off',
-  async () => {
+  async (t) => {
     const d = await daemon(['--nx', '128', '--ny', '128', '--auto-drop-interval', '0', '--stream-stall-timeout', '12']);
+    t.after(() => stop(d));
     const slow = await connect(d), fast = await connect(d);
     await next(slow, 'frame');
     await next(fast, 'frame');
     slow.ws._socket.pause(); // reads nothing from now on
+    const framesMade = async () => Number(/^clothd_frames_total (\d+)/m.exec((await call(d, 'GET', '/metrics')).text)[1]);
     const rss0 = rssKiB(d.proc.pid);
-    const framesBefore = fast.frames.length;
+    const framesBefore = fast.frames.length, madeBefore = await framesMade();
     await new Promise((r) => setTimeout(r, 10000)); // the ten seconds of the requirement
     const grown = rssKiB(d.proc.pid) - rss0;
+    const made = (await framesMade()) - madeBefore, got = fast.frames.length - framesBefore;
     // A 128 x 128 f32 frame is 197 kB; ten seconds of queued frames would be 118 MB.
     assert.ok(grown < 16 * 1024, `the daemon grew by ${grown} KiB`);
-    assert.ok(fast.frames.length - framesBefore > 300, `the other client got ${fast.frames.length - framesBefore} frames`);
+    // The other client keeps up with the sim (60 frames a second when the machine keeps real
+    // time, fewer on a loaded one): it is not held back by the one that reads nothing.
+    assert.ok(made > 100, `the sim made ${made} frames in 10 s`);
+    assert.ok(got >= 0.8 * made, `the other client got ${got} of the ${made} frames made`);
     await until('the stalled client is disconnected', async () => (await call(d, 'GET', '/metrics')).text.includes('clothd_stream_disconnected_total 1'));
     const m = (await call(d, 'GET', '/metrics')).text;
     assert.match(m, /clothd_stream_frames_skipped_total\{encoding="f32"\} [1-9]/);
     assert.match(m, /clothd_stream_clients 1/);
     fast.ws.close();
-    await stop(d);
   });
