@@ -1,15 +1,21 @@
 #!/usr/bin/env bash
 # The Debian packages clothd builds and tests with, in one place: scripts/setup.sh installs them
-# for a user, .ci/run for CI.
-CLOTHD_APT_PACKAGES=(
+# for a user, .ci/run (through scripts/test.sh) for CI, docker/Dockerfile (setup.sh --build-only)
+# the build half in the image's build stage.
+CLOTHD_APT_BUILD=(
   gcc make cmake pkg-config   # the build
-  clang                       # libFuzzer and the fuzz targets' sanitizers (scripts/fuzz.sh)
-  libcmocka-dev               # C unit and physics tests
   libmicrohttpd-dev libjansson-dev   # clothd's HTTP server and JSON
   libwebsockets-dev libmeshoptimizer-dev   # clothd's stream
-  nodejs                      # integration tests (node's test runner and fetch)
-  chromium chromium-driver    # the viewer's end-to-end tests (headless, driven by playwright-core)
+  nodejs                      # npm, for the viewer's packages (web/package-lock.json)
 )
+CLOTHD_APT_TEST=(
+  libcmocka-dev               # C unit and physics tests
+  clang                       # libFuzzer and the fuzz targets' sanitizers (scripts/fuzz.sh)
+  chromium chromium-driver    # the viewer's end-to-end tests (headless, driven by playwright-core)
+  strace                      # the crash-safe save test sees the system calls of a save
+  wrk                         # the soak test's API load (tests/server/soak.mjs) and scripts/bench-http.sh
+)                             # (nodejs, above: the integration tests, node's test runner and fetch)
+CLOTHD_APT_PACKAGES=("${CLOTHD_APT_BUILD[@]}" "${CLOTHD_APT_TEST[@]}")
 # npm: Debian's nodejs needs the npm package, NodeSource's nodejs bundles npm (and would conflict
 # with Debian's). Installed only when the command is missing.
 CLOTHD_APT_IF_NO_NPM=(npm)

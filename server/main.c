@@ -3,13 +3,16 @@
  *   clothd [serve] [--flag value ...]   run the simulation and its HTTP API (default)
  *   clothd replay FILE [--flag value]   rerun a journal bundle, print the final state hash
  *   clothd routes                       print the HTTP route table
- *   clothd --help | --version
+ *   clothd --help | --help-markdown | --version
  *
  * serve: settings from the config file, CLOTHD_* variables and flags; the engine on the chosen
- * backend, resumed from --state-file when it exists; the sim thread; the HTTP server. SIGTERM or
- * SIGINT stops accepting, finishes the frame, saves the state file (temp file, fsync, rename) and
- * exits 0. A backend failure (SIGUSR1 from the sim thread) saves the last checkpoint and exits 3,
- * for a supervisor to restart from the state file. */
+ * backend, resumed from --state-file when it exists (a corrupt or foreign file is refused, or
+ * moved aside with --state-file-invalid fresh); the sim thread; the HTTP server. SIGTERM or
+ * SIGINT stops accepting, finishes the frame, saves the state file (temp file, fsync, rename,
+ * fsync of the directory) and exits 0. A backend failure (SIGUSR1 from the sim thread) keeps
+ * answering - /v1/health 503 - while it saves the last checkpoint, then exits 3, for a supervisor
+ * to restart from the state file. Exit statuses are in EXIT_STATUSES. */
+#include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <libgen.h>
@@ -19,6 +22,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "access.h"
@@ -29,12 +33,22 @@
 #include "settings.h"
 #include "simloop.h"
 #include "stream.h"
+#ifdef CLOTHD_TEST_HOOKS
+#include "testhooks.h"
+#endif
 
 #ifndef CLOTHD_VERSION
 #define CLOTHD_VERSION "0.1.0"
 #endif
 
 static const char *const backend_names[] = {"auto", "cuda", "cpu"};
+
+enum { EXIT_START = 1, EXIT_USAGE = 2, EXIT_BACKEND = 3, EXIT_SAVE = 4 };
+#define EXIT_STATUSES                                                                              \
+    "exit status: 0 stopped by SIGTERM/SIGINT (state file saved, if set); 1 could not start\n"     \
+    "(including a state file refused); 2 bad command line or settings; 3 the backend failed\n"     \
+    "(state file saved, if set: restart to resume); 4 the state file could not be saved (the\n"    \
+    "previous one is left as it was)\n\n"
 
 static void usage(FILE *out)
 {
@@ -44,7 +58,8 @@ static void usage(FILE *out)
             "       clothd replay FILE [--backend B]    rerun a journal bundle (GET /v1/journal with\n"
             "                                           Accept: application/octet-stream); print the hash\n"
             "       clothd routes                       print the HTTP routes\n"
-            "       clothd --help | --version\n\n",
+            "       clothd --help | --version\n"
+            "       clothd --help-markdown              the startup settings as a Markdown table\n\n" EXIT_STATUSES,
             CLOTHD_VERSION);
     settings_usage(out);
 }
@@ -66,11 +81,11 @@ static unsigned char *read_file(const char *path, size_t *len, char *why, size_t
         if (!g) free(buf);
         buf = g;
     }
-    const int bad = ferror(f);
+    const int bad = ferror(f) ? errno : 0; /* fread sets errno when it fails (EISDIR, EIO) */
     fclose(f);
     if (!buf || bad) {
+        snprintf(why, why_len, "%s: could not read it (%s)", path, buf ? strerror(bad) : "out of memory");
         free(buf);
-        snprintf(why, why_len, "%s: could not read it", path);
         return NULL;
     }
     *len = n;
@@ -78,53 +93,182 @@ static unsigned char *read_file(const char *path, size_t *len, char *why, size_t
 }
 
 /* Writes a file so that a crash leaves either the old or the new one: temp file, fsync, rename,
- * fsync of the directory. */
-static int write_atomic(const char *path, const void *data, size_t len)
+ * fsync of the directory. On failure the file at path is untouched, the temp file is removed and
+ * why says which step failed and the system's reason (ENOSPC, EACCES, ...). */
+static int write_atomic(const char *path, const void *data, size_t len, char *why, size_t why_len)
 {
     char tmp[1100];
     snprintf(tmp, sizeof tmp, "%s.tmp.%ld", path, (long)getpid());
     const int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
-    if (fd < 0) return -1;
+    if (fd < 0) {
+        snprintf(why, why_len, "cannot create %s: %s", tmp, strerror(errno));
+        return -1;
+    }
+    const char *failed = "write";
+    int err = 0;
     const unsigned char *p = data;
     size_t left = len;
-    while (left) {
+    while (left && !err) {
         const ssize_t w = write(fd, p, left);
         if (w < 0 && errno == EINTR) continue;
-        if (w <= 0) {
-            close(fd);
-            unlink(tmp);
-            return -1;
+        if (w < 0) err = errno;
+        else if (w == 0) err = EIO;
+        else {
+            p += w;
+            left -= (size_t)w;
         }
-        p += w;
-        left -= (size_t)w;
     }
-    if (fsync(fd) != 0 || close(fd) != 0 || rename(tmp, path) != 0) {
+    if (!err && fsync(fd) != 0) failed = "fsync", err = errno;
+    if (close(fd) != 0 && !err) failed = "close", err = errno;
+#ifdef CLOTHD_TEST_HOOKS
+    if (!err) testhooks_before_rename(tmp);
+#endif
+    if (!err && rename(tmp, path) != 0) failed = "rename", err = errno;
+    if (err) {
         unlink(tmp);
+        snprintf(why, why_len, "cannot %s %s: %s", failed, tmp, strerror(err));
         return -1;
     }
     char dir[1100];
     snprintf(dir, sizeof dir, "%s", path);
     const int dfd = open(dirname(dir), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-    if (dfd >= 0) {
-        fsync(dfd);
-        close(dfd);
-    }
+    if (dfd < 0 || fsync(dfd) != 0)
+        log_msg("state file: %s is in place, but its directory could not be synced (%s): a power cut may lose it",
+                path, strerror(errno));
+    if (dfd >= 0) close(dfd);
     return 0;
 }
 
-static int save_state(cs_sim *sim, const unsigned char *fallback, size_t fallback_len, const char *path)
+/* Saves the engine's state, or the last checkpoint when the engine cannot be read any more (a
+ * lost device). */
+static int save_state(cs_sim *sim, const unsigned char *fallback, size_t fallback_len, const char *path, char *why,
+                      size_t why_len)
 {
     size_t len = cs_snapshot_size(sim);
     unsigned char *buf = malloc(len);
     int rc = -1;
     if (buf && cs_snapshot_save(sim, buf, len, &len) == CS_OK) {
-        rc = write_atomic(path, buf, len);
-    } else if (fallback) {
+        rc = write_atomic(path, buf, len, why, why_len);
+    } else if (fallback && fallback_len) {
         log_msg("state file: the engine could not be read (%s); saving the last checkpoint", cs_sim_error(sim));
-        rc = write_atomic(path, fallback, fallback_len);
+        rc = write_atomic(path, fallback, fallback_len, why, why_len);
+    } else {
+        snprintf(why, why_len, "the engine could not be read (%s) and there is no checkpoint", cs_sim_error(sim));
     }
     free(buf);
     return rc;
+}
+
+/* Removes <state file>.tmp.<pid> files: what a save interrupted by a crash or SIGKILL left. They
+ * are never read (the state file itself is only ever replaced whole, by rename). */
+static void remove_stale_temps(const char *path)
+{
+    char dir[600], base[600];
+    snprintf(dir, sizeof dir, "%s", path);
+    snprintf(base, sizeof base, "%s", path);
+    const char *d = dirname(dir), *b = basename(base);
+    const size_t blen = strlen(b);
+    DIR *dp = opendir(d);
+    if (!dp) return;
+    for (struct dirent *e; (e = readdir(dp));) {
+        const char *n = e->d_name;
+        if (strncmp(n, b, blen) != 0 || strncmp(n + blen, ".tmp.", 5) != 0) continue;
+        const char *pid = n + blen + 5; /* within n: its first blen + 5 characters matched */
+        if (!*pid || strspn(pid, "0123456789") != strlen(pid)) continue;
+        char full[1200];
+        snprintf(full, sizeof full, "%s/%s", d, n);
+        if (unlink(full) == 0) log_msg("state file: removed %s, left by a save that did not finish", full);
+    }
+    closedir(dp);
+}
+
+/* What is wrong with a state file the engine refused, or NULL when the file is not to blame (out
+ * of memory, a device error, a cloth larger than max_state_mb allows). */
+static const char *invalid_because(const unsigned char *buf, size_t len, cs_status st)
+{
+    if (len < 4 || memcmp(buf, "CSNP", 4) != 0) return "is not a clothd state file";
+    switch (st) {
+    case CS_E_VERSION: return "was written by another version of clothd";
+    case CS_E_FORMAT: return "is damaged";
+    case CS_E_RANGE:
+    case CS_E_UNSTABLE: return "holds a state this build cannot run";
+    default: return NULL;
+    }
+}
+
+/* Moves a bad state file to <path>.bad-<UTC time>[-k], so that nothing is lost. */
+static int move_aside(const char *path, char *to, size_t to_len)
+{
+    char stamp[32];
+    const time_t now = time(NULL);
+    struct tm tm;
+    gmtime_r(&now, &tm);
+    strftime(stamp, sizeof stamp, "%Y%m%dT%H%M%SZ", &tm);
+    for (int k = 0; k < 100; k++) {
+        if (k) snprintf(to, to_len, "%s.bad-%s-%d", path, stamp, k);
+        else snprintf(to, to_len, "%s.bad-%s", path, stamp);
+        if (access(to, F_OK) != 0 && errno == ENOENT) return rename(path, to);
+    }
+    errno = EEXIST;
+    return -1;
+}
+
+/* Resumes from the state file when there is one. Returns 0 (resumed, or nothing to resume), or
+ * -1 when the start must stop (logged). A file that is corrupt, foreign or from another version
+ * stops it too, unless state_file_invalid is fresh: then it is moved aside and the start goes on
+ * with the configured scene. */
+static int resume(cs_sim *sim, const clothd_settings *set)
+{
+    const char *path = set->state_file;
+    if (!path[0]) return 0;
+    remove_stale_temps(path);
+    struct stat sb;
+    if (stat(path, &sb) != 0) {
+        if (errno == ENOENT) {
+            log_msg("state file: %s does not exist yet; starting afresh (it is written on SIGTERM/SIGINT)", path);
+            return 0;
+        }
+        log_msg("cannot resume from the state file %s: %s", path, strerror(errno));
+        return -1;
+    }
+    char why[300];
+    size_t len = 0;
+    unsigned char *buf = read_file(path, &len, why, sizeof why);
+    if (!buf) {
+        log_msg("cannot resume from the state file: %s", why);
+        return -1;
+    }
+    const cs_status st = cs_snapshot_load(sim, buf, len);
+    const char *bad = st == CS_OK ? NULL : invalid_because(buf, len, st);
+    free(buf);
+    if (st == CS_OK) {
+        cs_info info;
+        cs_sim_info(sim, &info);
+        char hex[17];
+        cs_hash_hex(cs_state_hash(sim), hex);
+        log_msg("resumed from %s at step %llu, state hash %s", path, (unsigned long long)info.step, hex);
+        return 0;
+    }
+    if (!bad) { /* the file is kept whatever state_file_invalid says */
+        log_msg("cannot resume from the state file %s: %s%s", path, cs_sim_error(sim),
+                st == CS_E_LIMIT ? " (raise max_state_mb to resume from it)" : "");
+        return -1;
+    }
+    if (set->state_file_invalid != STATE_INVALID_FRESH) {
+        log_msg("cannot resume from the state file %s: it %s (%s). Refusing to start: fix or remove it, or set "
+                "--state-file-invalid fresh (CLOTHD_STATE_FILE_INVALID=fresh) to move it aside and start afresh",
+                path, bad, cs_sim_error(sim));
+        return -1;
+    }
+    char aside[700];
+    if (move_aside(path, aside, sizeof aside) != 0) {
+        log_msg("cannot resume from the state file %s: it %s (%s), and it could not be moved aside: %s", path, bad,
+                cs_sim_error(sim), strerror(errno));
+        return -1;
+    }
+    log_msg("state file %s %s (%s): moved to %s; starting afresh (state_file_invalid = fresh)", path, bad,
+            cs_sim_error(sim), aside);
+    return 0;
 }
 
 static cs_sim *make_engine(const clothd_config *cfg)
@@ -221,8 +365,27 @@ static int replay(const char *file, const clothd_config *cfg)
 
 /* ---- serve ---- */
 
+/* Saves the state file (when one is set) once the sim thread has stopped: 0, or -1 (logged; the
+ * previous file is left as it was). */
+static int save_on_exit(simloop *sl, const char *path)
+{
+    if (!path[0]) return 0;
+    size_t cl = 0;
+    const unsigned char *cp = simloop_checkpoint(sl, &cl);
+    char why[1400];
+    if (save_state(simloop_engine(sl), cp, cl, path, why, sizeof why) != 0) {
+        log_msg("could not save the state to %s: %s; the previous state file, if any, is unchanged", path, why);
+        return -1;
+    }
+    log_msg("state saved to %s", path);
+    return 0;
+}
+
 static int serve_with(clothd_config *cfg, const access_policy *acc)
 {
+#ifdef CLOTHD_TEST_HOOKS
+    testhooks_init();
+#endif
     sigset_t sigs;
     sigemptyset(&sigs);
     sigaddset(&sigs, SIGINT);
@@ -232,29 +395,16 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
 
     char err[300];
     cs_sim *sim = make_engine(cfg);
-    if (!sim) return 1;
+    if (!sim) return EXIT_START;
     if (strcmp(cs_sim_backend(sim), "cuda") == 0 && !cfg->scene_size_given) {
         cs_scene sc = cfg->scene;
         sc.nx = sc.ny = 256; /* a GPU takes a finer cloth in real time */
         if (cs_sim_set_scene(sim, &sc) == CS_OK) cfg->scene = sc;
     }
     log_msg("backend: %s on %s (%s)", cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim));
-    if (cfg->set.state_file[0] && access(cfg->set.state_file, F_OK) == 0) {
-        char why[300];
-        size_t len = 0;
-        unsigned char *buf = read_file(cfg->set.state_file, &len, why, sizeof why);
-        if (!buf || cs_snapshot_load(sim, buf, len) != CS_OK) {
-            log_msg("cannot resume from the state file: %s", buf ? cs_sim_error(sim) : why);
-            free(buf);
-            cs_sim_destroy(sim);
-            return 1;
-        }
-        free(buf);
-        cs_info info;
-        cs_sim_info(sim, &info);
-        char hex[17];
-        cs_hash_hex(cs_state_hash(sim), hex);
-        log_msg("resumed from %s at step %llu, state hash %s", cfg->set.state_file, (unsigned long long)info.step, hex);
+    if (resume(sim, &cfg->set) != 0) {
+        cs_sim_destroy(sim);
+        return EXIT_START;
     }
     metrics *m = metrics_new();
     simloop *sl = m ? simloop_new(sim, cfg, m) : NULL;
@@ -262,14 +412,14 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
         log_msg("out of memory");
         cs_sim_destroy(sim);
         metrics_free(m);
-        return 1;
+        return EXIT_START;
     }
     stream *st = stream_start(&cfg->set, sl, acc, err, sizeof err);
     if (!st) {
         log_msg("%s", err);
         simloop_free(sl);
         metrics_free(m);
-        return 1;
+        return EXIT_START;
     }
     simloop_attach_stream(sl, st);
     const http_info info = {cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim), CLOTHD_VERSION, st,
@@ -280,7 +430,7 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
         stream_stop(st);
         simloop_free(sl);
         metrics_free(m);
-        return 1;
+        return EXIT_START;
     }
     if (simloop_start(sl) != 0) {
         log_msg("cannot start the sim thread");
@@ -288,7 +438,7 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
         stream_stop(st);
         simloop_free(sl);
         metrics_free(m);
-        return 1;
+        return EXIT_START;
     }
     const char *host = strchr(cfg->set.listen, ':') ? "[::1]" : cfg->set.listen;
     if (strcmp(cfg->set.listen, "0.0.0.0") == 0) host = "127.0.0.1";
@@ -297,26 +447,28 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     log_msg("listening on http://%s:%d (API at /v1, viewer at /)%s", cfg->set.listen, http_port(http),
             access_required(acc) ? "; a token is needed (Authorization: Bearer)" : "");
     log_msg("try: curl -s http://%s:%d/v1/sim", host, http_port(http));
+    log_msg("viewer: http://%s:%d/", host, http_port(http));
 
     int sig = 0;
     while (sigwait(&sigs, &sig) != 0) {
     }
-    const int failed = sig == SIGUSR1;
-    log_msg(failed ? "backend failed: saving and exiting for a restart" : "signal %d: stopping", sig);
-    http_quiesce(http);
-    simloop_stop(sl);
-    http_stop(http);
-    stream_stop(st);
-    int rc = failed ? 3 : 0;
-    if (cfg->set.state_file[0]) {
-        size_t cl = 0;
-        const unsigned char *cp = simloop_checkpoint(sl, &cl);
-        if (save_state(simloop_engine(sl), cp, cl, cfg->set.state_file) == 0) {
-            log_msg("state saved to %s", cfg->set.state_file);
-        } else {
-            log_msg("could not save the state to %s: %s", cfg->set.state_file, strerror(errno));
-            rc = rc ? rc : 1;
-        }
+    int rc;
+    if (sig == SIGUSR1) {
+        /* The API stays up until the state is saved - /v1/health 503, commands 503, reads as
+         * they were - so that a supervisor and an operator see why the daemon goes. */
+        log_msg("backend failed: saving the state and exiting for a restart");
+        simloop_stop(sl);
+        rc = save_on_exit(sl, cfg->set.state_file) == 0 ? EXIT_BACKEND : EXIT_SAVE;
+        http_quiesce(http);
+        http_stop(http);
+        stream_stop(st);
+    } else {
+        log_msg("signal %d: stopping", sig);
+        http_quiesce(http);
+        simloop_stop(sl);
+        http_stop(http);
+        stream_stop(st);
+        rc = save_on_exit(sl, cfg->set.state_file) == 0 ? 0 : EXIT_SAVE;
     }
     simloop_free(sl);
     metrics_free(m);
@@ -330,7 +482,7 @@ static int serve(clothd_config *cfg)
     access_policy *acc = access_load(&cfg->set, err, sizeof err);
     if (!acc) {
         log_msg("%s", err);
-        return 1;
+        return EXIT_START;
     }
     const int rc = serve_with(cfg, acc);
     access_free(acc);
@@ -340,6 +492,9 @@ static int serve(clothd_config *cfg)
 int main(int argc, char **argv, char **envp)
 {
     signal(SIGPIPE, SIG_IGN);
+    /* Past a file size limit (RLIMIT_FSIZE) a write fails with EFBIG, and the save says so,
+     * instead of the signal killing the daemon mid-save. */
+    signal(SIGXFSZ, SIG_IGN);
     const char *sub = "serve";
     int first = 1;
     if (argc > 1 && argv[1][0] != '-') {
@@ -348,6 +503,10 @@ int main(int argc, char **argv, char **envp)
     }
     if (argc > 1 && (strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0)) {
         usage(stdout);
+        return 0;
+    }
+    if (argc > 1 && strcmp(argv[1], "--help-markdown") == 0) {
+        settings_markdown(stdout);
         return 0;
     }
     if (argc > 1 && strcmp(argv[1], "--version") == 0) {
@@ -362,19 +521,19 @@ int main(int argc, char **argv, char **envp)
     if (strcmp(sub, "replay") == 0) {
         if (argc <= first) {
             fprintf(stderr, "clothd replay: which file? (clothd --help)\n");
-            return 2;
+            return EXIT_USAGE;
         }
         file = argv[first++];
     } else if (strcmp(sub, "serve") != 0) {
         fprintf(stderr, "clothd: unknown command '%s' (clothd --help)\n", sub);
-        return 2;
+        return EXIT_USAGE;
     }
     clothd_config cfg;
     settings_default(&cfg);
     char why[600];
     if (settings_load(&cfg, argc - first, argv + first, envp, why, sizeof why) != 0) {
         fprintf(stderr, "clothd: %s\n", why);
-        return 2;
+        return EXIT_USAGE;
     }
     return file ? replay(file, &cfg) : serve(&cfg);
 }

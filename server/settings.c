@@ -287,6 +287,9 @@ int settings_load(clothd_config *c, int argc, char **argv, char **env, char *why
         memcpy(name, *e + 7, len);
         name[len] = '\0';
         if (strcmp(name, "CONFIG") == 0) continue;
+#ifdef CLOTHD_TEST_HOOKS
+        if (strncmp(name, "TEST_", 5) == 0) continue; /* the test daemon's hooks (testhooks.h) */
+#endif
         char key[128];
         snprintf(key, sizeof key, "%s", name);
         for (char *k = key; *k; k++) *k = (char)tolower((unsigned char)*k);
@@ -352,5 +355,56 @@ void settings_usage(FILE *out)
         snprintf(flag, sizeof flag, "--%s", p->name);
         for (char *k = flag + 2; *k; k++) *k = *k == '_' ? '-' : *k;
         fprintf(out, "  %-22s %s [%s, %s]\n", flag, p->help, p->unit, cs_param_kind_name(p->kind));
+    }
+}
+
+/* The startup settings as a Markdown table, for README's "Configuration" section (a test diffs the
+ * two). The web_root default is the build tree's own path, so it is named, not printed. Help texts
+ * are escaped for a table cell (| < >). */
+static void md_text(FILE *out, const char *s)
+{
+    for (; *s; s++) {
+        if (*s == '|') fputs("\\|", out);
+        else if (*s == '<') fputs("&lt;", out);
+        else if (*s == '>') fputs("&gt;", out);
+        else fputc(*s, out);
+    }
+}
+
+void settings_markdown(FILE *out)
+{
+    fprintf(out, "| setting | flag, variable | default | range | meaning |\n|---|---|---|---|---|\n");
+    for (size_t i = 0; i < NROWS; i++) {
+        const srow *r = &rows[i];
+        const setting_info *s = &r->info;
+        char flag[64], var[64];
+        snprintf(flag, sizeof flag, "--%s", s->name);
+        for (char *k = flag + 2; *k; k++) *k = *k == '_' ? '-' : *k;
+        snprintf(var, sizeof var, "CLOTHD_%s", s->name);
+        for (char *k = var + 7; *k; k++) *k = (char)toupper((unsigned char)*k);
+        fprintf(out, "| `%s` | `%s`, `%s` | ", s->name, flag, var);
+        switch (r->type) {
+        case T_STR:
+            if (strcmp(s->name, "web_root") == 0) fprintf(out, "the build's `web/`");
+            else if (s->def_text[0]) fprintf(out, "`%s`", s->def_text);
+            else fprintf(out, "-");
+            fprintf(out, " | - | ");
+            break;
+        case T_INT: fprintf(out, "%.0f | %.0f .. %.0f | ", s->def_number, s->min, s->max); break;
+        case T_BOOL: fprintf(out, "%s | true, false | ", s->def_number != 0 ? "true" : "false"); break;
+        case T_ENUM: {
+            const char *c = s->choices;
+            for (int k = 0; k < (int)s->def_number && strchr(c, '|'); k++) c = strchr(c, '|') + 1;
+            fprintf(out, "%.*s | ", (int)(strchr(c, '|') ? (size_t)(strchr(c, '|') - c) : strlen(c)), c);
+            for (c = s->choices; *c; c++) {
+                if (*c == '|') fputs(", ", out);
+                else fputc(*c, out);
+            }
+            fprintf(out, " | ");
+            break;
+        }
+        }
+        md_text(out, s->help);
+        fprintf(out, " |\n");
     }
 }

@@ -31,7 +31,8 @@
     X(insecure, BOOL, 0, 0, 1, NULL, "Allow listening beyond loopback without a token (anyone who reaches it has control)") \
     X(allowed_hosts, STR, "", 0, 0, NULL, "Host names the API answers to besides IP addresses and localhost (comma-separated; * any)") \
     X(allowed_origins, STR, "", 0, 0, NULL, "Page origins that may open the stream besides the viewer's own (comma-separated; * any)") \
-    X(state_file, STR, "", 0, 0, NULL, "State saved here on SIGTERM/SIGINT and resumed from at start") \
+    X(state_file, STR, "", 0, 0, NULL, "State saved here (crash-safe) on SIGTERM/SIGINT and after a backend failure; resumed from at start") \
+    X(state_file_invalid, ENUM, 0, 0, 1, "refuse|fresh", "A corrupt or foreign state file at start: refuse to start, or move it to <file>.bad-<time> and start afresh") \
     X(web_root, STR, CLOTHD_WEB_ROOT, 0, 0, NULL, "Directory of the viewer's static files, served at /")         \
     X(paused, BOOL, 0, 0, 1, NULL, "Start paused (POST /v1/sim/resume runs it)")                      \
     X(threads, INT, 0, 0, 256, NULL, "CPU backend threads; 0 = one per core")                         \
@@ -60,6 +61,7 @@ typedef struct clothd_settings {
 } clothd_settings;
 
 enum { BACKEND_AUTO, BACKEND_CUDA, BACKEND_CPU };
+enum { STATE_INVALID_REFUSE, STATE_INVALID_FRESH };
 
 /* Everything a configuration source can set: startup settings, scene, live parameters, and which
  * scene fields were given explicitly (the daemon picks a larger default cloth on CUDA). */
@@ -94,6 +96,9 @@ int settings_load(clothd_config *c, int argc, char **argv, char **env, char *why
 
 /* Help text of every flag, for --help. */
 void settings_usage(FILE *out);
+
+/* The startup settings as a Markdown table (clothd --help-markdown), for README. */
+void settings_markdown(FILE *out);
 
 /* The startup rows for the schema: name, type name, default text, min, max, choices, help. */
 typedef struct setting_info {

@@ -14,6 +14,9 @@
 #include "log.h"
 #include "simloop.h"
 #include "stream.h"
+#ifdef CLOTHD_TEST_HOOKS
+#include "testhooks.h"
+#endif
 
 #define PUBLISH_EVERY 0.016  /* s of wall time between publications while running */
 #define ENERGY_EVERY 0.1     /* s of wall time between energy evaluations while running */
@@ -41,7 +44,7 @@ struct simloop {
     cs_energy energy;
     unsigned char *checkpoint;
     size_t checkpoint_len, checkpoint_cap;
-    uint64_t frames_since_checkpoint;
+    uint64_t checkpoint_frame, frames_since_checkpoint;
     uint64_t rng;
     int32_t seed;
     double next_drop;
@@ -112,8 +115,10 @@ static void take_checkpoint(simloop *sl)
         sl->checkpoint = b;
         sl->checkpoint_cap = need;
     }
-    if (cs_snapshot_save(sl->sim, sl->checkpoint, sl->checkpoint_cap, &sl->checkpoint_len) != CS_OK)
-        log_msg("checkpoint failed: %s", cs_sim_error(sl->sim));
+    if (cs_snapshot_save(sl->sim, sl->checkpoint, sl->checkpoint_cap, &sl->checkpoint_len) == CS_OK)
+        sl->checkpoint_frame = sl->frame;
+    else
+        log_msg("checkpoint failed: %s; keeping the previous one", cs_sim_error(sl->sim));
     sl->frames_since_checkpoint = 0;
 }
 
@@ -276,7 +281,7 @@ static void publish(simloop *sl, int with_hash)
     }
     char hex[17];
     json_t *hash = json_null();
-    if (with_hash) {
+    if (with_hash && sl->healthy) { /* a lost backend has no state to hash */
         cs_hash_hex(cs_state_hash(sl->sim), hex);
         hash = json_string(hex);
     }
@@ -430,6 +435,7 @@ static void roll_back(simloop *sl)
     cs_info bad;
     cs_sim_info(sl->sim, &bad);
     const cs_status st = cs_snapshot_load(sl->sim, sl->checkpoint, sl->checkpoint_len);
+    if (st == CS_OK) sl->frame = sl->checkpoint_frame;
     cs_info now;
     cs_sim_info(sl->sim, &now);
     sl->paused = 1;
@@ -438,6 +444,12 @@ static void roll_back(simloop *sl)
                             st == CS_OK ? "the state stopped being finite; rolled back to the last checkpoint and paused"
                                         : "the state stopped being finite and the checkpoint could not be restored"));
     emit(sl, json_pack("{s:s, s:O}", "event", "instability", "detail", sl->last_event), NULL);
+    if (st != CS_OK) {
+        /* The good checkpoint is kept (no rebase, which would replace it with this state). */
+        log_msg("instability at step %llu: the checkpoint could not be restored (%s); paused",
+                (unsigned long long)bad.step, cs_sim_error(sl->sim));
+        return;
+    }
     log_msg("instability at step %llu: rolled back to step %llu and paused", (unsigned long long)bad.step,
             (unsigned long long)now.step);
     rebase(sl);
@@ -446,12 +458,16 @@ static void roll_back(simloop *sl)
 /* A failure that loses the backend: unhealthy, and main is asked to save and exit. */
 static void backend_lost(simloop *sl)
 {
-    log_msg("backend failure: %s", cs_sim_error(sl->sim));
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    log_msg("backend failure at step %llu: %s", (unsigned long long)info.step, cs_sim_error(sl->sim));
     pthread_mutex_lock(&sl->plock);
     sl->healthy = 0;
     pthread_mutex_unlock(&sl->plock);
     sl->paused = 1;
-    set_event(sl, json_pack("{s:s, s:s}", "type", "backend_failure", "detail", cs_sim_error(sl->sim)));
+    set_event(sl, json_pack("{s:s, s:I, s:s}", "type", "backend_failure", "step", (json_int_t)info.step, "detail",
+                            cs_sim_error(sl->sim)));
+    emit(sl, json_pack("{s:s, s:O}", "event", "backend_failure", "detail", sl->last_event), NULL);
     kill(getpid(), SIGUSR1);
 }
 
@@ -461,6 +477,9 @@ static void auto_drop(simloop *sl);
 static cs_status run_frame(simloop *sl)
 {
     cs_info info;
+#ifdef CLOTHD_TEST_HOOKS
+    testhooks_before_frame(sl->sim, sl->frame);
+#endif
     cs_sim_info(sl->sim, &info);
     const double t0 = now_s();
     const cs_status st = cs_sim_step_frames(sl->sim, 1);
@@ -492,6 +511,10 @@ static void step_paused(simloop *sl, sim_cmd *c)
         c->failed = 1;
         return;
     }
+    if (!simloop_healthy(sl)) {
+        fail_cmd(c, 503, "unavailable", "%s", "the backend has failed; the daemon is shutting down");
+        return;
+    }
     json_t *before_event = json_incref(sl->last_event);
     if (frames) {
         for (long long k = 0; k < n; k++)
@@ -500,6 +523,11 @@ static void step_paused(simloop *sl, sim_cmd *c)
         const cs_status st = cs_sim_step(sl->sim, n);
         if (st == CS_E_NONFINITE) roll_back(sl);
         else if (st != CS_OK) backend_lost(sl);
+    }
+    if (!simloop_healthy(sl)) {
+        json_decref(before_event);
+        fail_cmd(c, 503, "unavailable", "%s", "the backend failed while stepping; the daemon is saving and exiting");
+        return;
     }
     cs_info info;
     cs_sim_info(sl->sim, &info);
@@ -602,6 +630,12 @@ static void snapshot_put(simloop *sl, sim_cmd *c)
 static void handle(simloop *sl, sim_cmd *c)
 {
     cs_info info;
+    /* After a backend failure, until main has stopped this thread: nothing touches the lost
+     * engine. Pauses, publications and the journal (kept in memory) still answer. */
+    if (!sl->healthy && c->kind != CMD_PAUSE && c->kind != CMD_PUBLISH && c->kind != CMD_HASH && c->kind != CMD_BUNDLE) {
+        fail_cmd(c, 503, "unavailable", "%s", "the backend has failed; the daemon is saving the state and exiting");
+        return;
+    }
     switch (c->kind) {
     case CMD_APPLY:
         if (apply(sl, c->body, c->request_id, &c->result, &c->pr) != 0) c->failed = 1;

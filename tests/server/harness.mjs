@@ -9,6 +9,9 @@ import { promisify } from 'node:util';
 
 export const CLOTHD = process.env.CLOTHD_BIN;
 if (!CLOTHD) throw new Error('CLOTHD_BIN must name the clothd binary (ctest sets it)');
+// The test daemon with fault-injection hooks (server/testhooks.h), built for the tests only;
+// tests that need it skip without it.
+export const TESTHOOKS = process.env.CLOTHD_TESTHOOKS_BIN;
 
 // A sanitizer's report in clothd's stderr (the AddressSanitizer/UndefinedBehaviorSanitizer build
 // that scripts/test.sh also runs the suite on): from the report on, or null. start(), stop() and
@@ -29,13 +32,16 @@ export function tempDir() {
 }
 
 // Starts clothd and resolves once it logs the port it listens on. Extra flags follow the
-// defaults, so they win. The daemon's log is kept in daemon.log for failure messages.
-export function start(flags = [], { env = {}, webRoot } = {}) {
+// defaults, so they win. The daemon's log is kept in daemon.log for failure messages. bin: another
+// daemon binary (TESTHOOKS); wrap: a command that execs it (e.g. ['prlimit', '--fsize=4096']).
+// When it exits before listening, the error carries the daemon (its exit status and log).
+export function start(flags = [], { env = {}, webRoot, bin = CLOTHD, wrap = [] } = {}) {
   const dir = tempDir();
   const args = ['--port', '0', '--stream-port', '0', '--backend', 'cpu', '--threads', '1', '--web-root', webRoot ?? dir,
     ...flags];
   const base = Object.fromEntries(Object.entries(process.env).filter(([k]) => !k.startsWith('CLOTHD_')));
-  const proc = spawn(CLOTHD, args, {
+  const command = [...wrap, bin, ...args];
+  const proc = spawn(command[0], command.slice(1), {
     stdio: ['ignore', 'pipe', 'pipe'],
     env: { ...base, OMP_WAIT_POLICY: 'passive', ...env },
   });
@@ -59,11 +65,26 @@ export function start(flags = [], { env = {}, webRoot } = {}) {
       }
     });
     daemon.exitPromise.then((e) => {
+      if (daemon.url) return;
+      rmSync(daemon.dir, { recursive: true, force: true });
       const report = sanitizerReport(daemon.log);
-      if (!daemon.url && report) reject(reportError(`clothd exited (${JSON.stringify(e)}) before listening`, report));
-      else if (!daemon.url) reject(new Error(`clothd exited (${JSON.stringify(e)}) before listening:\n${daemon.log}`));
+      if (report) reject(reportError(`clothd exited (${JSON.stringify(e)}) before listening`, report));
+      else reject(Object.assign(new Error(`clothd exited (${JSON.stringify(e)}) before listening:\n${daemon.log}`), { daemon }));
     });
   });
+}
+
+// Starts clothd expecting it to refuse to start; resolves with its exit status and log.
+export async function refusedStart(flags = [], opts = {}) {
+  let d;
+  try {
+    d = await start(flags, opts);
+  } catch (e) {
+    if (!e.daemon) throw e;
+    return { code: e.daemon.exited.code, log: e.daemon.log };
+  }
+  await stop(d, 'SIGKILL');
+  throw new Error(`clothd started where it should have refused:\n${d.log}`);
 }
 
 // Stops the daemon with a signal and waits for it to exit; returns its exit status.

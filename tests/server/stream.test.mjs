@@ -192,43 +192,41 @@ function rssKiB(pid) {
 }
 
 test('a client that reads nothing stays within its memory bound, the others keep their frames, and it is cut off',
-  async () => {
+  async (t) => {
     // Under ASan, freed memory waits in a quarantine (256 MB by default) before it is reused, and
     // the RSS would count every frame freed: a small one keeps the measure about the daemon.
     const env = SANITIZED ? { ASAN_OPTIONS: [process.env.ASAN_OPTIONS, 'quarantine_size_mb=4'].filter(Boolean).join(':') } : {};
     const d = await daemon(['--nx', '128', '--ny', '128', '--auto-drop-interval', '0', '--stream-stall-timeout', '12'], { env });
+    t.after(() => stop(d));
     const slow = await connect(d), fast = await connect(d);
-    try {
-      await next(slow, 'frame');
-      await next(fast, 'frame');
-      slow.ws._socket.pause(); // reads nothing from now on
-      const rss0 = rssKiB(d.proc.pid);
-      const framesBefore = fast.frames.length, made0 = (await ok(d, 'GET', '/v1/sim')).frame;
-      await new Promise((r) => setTimeout(r, 10000)); // the ten seconds of the requirement
-      const grown = rssKiB(d.proc.pid) - rss0;
-      const got = fast.frames.length - framesBefore, made = (await ok(d, 'GET', '/v1/sim')).frame - made0;
-      // A 128 x 128 f32 frame is 197 kB; ten seconds of queued frames would be 118 MB.
-      assert.ok(grown < 16 * 1024, `the daemon grew by ${grown} KiB`);
-      // Under ASan/UBSan the sim makes a few frames a second, not 60: the client must get most of those.
-      const want = SANITIZED ? Math.min(300, 0.8 * made) : 300;
-      assert.ok(got > want, `the other client got ${got} frames (the sim made ${made})`);
-      await until('the stalled client is disconnected', async () => (await call(d, 'GET', '/metrics')).text.includes('clothd_stream_disconnected_total 1'));
-      const m = (await call(d, 'GET', '/metrics')).text;
-      const f32 = (what) => Number(new RegExp(`clothd_stream_frames_${what}_total\\{encoding="f32"\\} (\\d+)`).exec(m)[1]);
-      if (SANITIZED) {
-        // A few frames a second: the socket buffers may have taken every frame sent to the stalled
-        // client before it choked, so that none was skipped at a send. It was still sent far fewer
-        // than the sim made (the fast client's are counted as received: fewer than were sent).
-        const total = (await ok(d, 'GET', '/v1/sim')).frame, toSlow = f32('sent') - fast.frames.length;
-        assert.ok(toSlow < 0.9 * total, `the stalled client was sent ${toSlow} of ${total} frames`);
-      } else {
-        assert.ok(f32('skipped') > 0, m);
-      }
-      assert.match(m, /clothd_stream_clients 1/);
-    } finally {
-      // Also after a failure: an open socket or a live daemon would keep node (and ctest) waiting.
-      slow.ws.terminate();
-      fast.ws.close();
-      await stop(d);
+    await next(slow, 'frame');
+    await next(fast, 'frame');
+    slow.ws._socket.pause(); // reads nothing from now on
+    const framesMade = async () => Number(/^clothd_frames_total (\d+)/m.exec((await call(d, 'GET', '/metrics')).text)[1]);
+    const rss0 = rssKiB(d.proc.pid);
+    const framesBefore = fast.frames.length, madeBefore = await framesMade();
+    await new Promise((r) => setTimeout(r, 10000)); // the ten seconds of the requirement
+    const grown = rssKiB(d.proc.pid) - rss0;
+    const made = (await framesMade()) - madeBefore, got = fast.frames.length - framesBefore;
+    // A 128 x 128 f32 frame is 197 kB; ten seconds of queued frames would be 118 MB.
+    assert.ok(grown < 16 * 1024, `the daemon grew by ${grown} KiB`);
+    // The other client keeps up with the sim (60 frames a second when the machine keeps real
+    // time, fewer on a loaded one, a few under ASan): it is not held back by the one that reads
+    // nothing.
+    assert.ok(made > (SANITIZED ? 20 : 100), `the sim made ${made} frames in 10 s`);
+    assert.ok(got >= 0.8 * made, `the other client got ${got} of the ${made} frames made`);
+    await until('the stalled client is disconnected', async () => (await call(d, 'GET', '/metrics')).text.includes('clothd_stream_disconnected_total 1'));
+    const m = (await call(d, 'GET', '/metrics')).text;
+    const f32 = (what) => Number(new RegExp(`clothd_stream_frames_${what}_total\\{encoding="f32"\\} (\\d+)`).exec(m)[1]);
+    if (SANITIZED) {
+      // A few frames a second: the socket buffers may have taken every frame sent to the stalled
+      // client before it choked, so that none was skipped at a send. It was still sent far fewer
+      // than the sim made (the fast client's are counted as received: fewer than were sent).
+      const total = await framesMade(), toSlow = f32('sent') - fast.frames.length;
+      assert.ok(toSlow < 0.9 * total, `the stalled client was sent ${toSlow} of ${total} frames`);
+    } else {
+      assert.ok(f32('skipped') > 0, m);
     }
+    assert.match(m, /clothd_stream_clients 1/);
+    fast.ws.close();
   });

@@ -1,0 +1,35 @@
+#!/bin/sh
+# README's "Configuration" table is clothd's own output (clothd --help-markdown, from the table in
+# server/settings.h), between the BEGIN and END marker lines.
+#   scripts/readme-config.sh [CLOTHD]          rewrite that part of README.md
+#   scripts/readme-config.sh --check [CLOTHD]  diff it, exit 1 when it differs (ctest docs.readme_config)
+# CLOTHD defaults to build/server/clothd.
+set -eu
+root=$(cd "$(dirname "$0")/.." && pwd)
+check=0
+if [ "${1:-}" = "--check" ]; then
+  check=1
+  shift
+fi
+clothd=${1:-$root/build/server/clothd}
+readme=$root/README.md
+begin='<!-- BEGIN clothd --help-markdown (scripts/readme-config.sh writes this table) -->'
+end='<!-- END clothd --help-markdown -->'
+table=$(mktemp)
+new=$(mktemp)
+trap 'rm -f "$table" "$new"' EXIT
+"$clothd" --help-markdown >"$table"
+awk -v begin="$begin" -v end="$end" -v table="$table" '
+  $0 == begin { print; while ((getline line < table) > 0) print line; skip = 1; found++; next }
+  $0 == end { skip = 0 }
+  !skip { print }
+  END { if (found != 1) { print "readme-config: README.md needs exactly one line: " begin > "/dev/stderr"; exit 1 } }
+' "$readme" >"$new"
+if [ "$check" = 1 ]; then
+  if ! diff -u "$readme" "$new"; then
+    echo "README.md's configuration table differs from clothd --help-markdown: run scripts/readme-config.sh" >&2
+    exit 1
+  fi
+else
+  cat "$new" >"$readme"
+fi

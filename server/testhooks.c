@@ -1,0 +1,59 @@
+/* testhooks.c - fault injection for the test daemon (see testhooks.h). */
+#include <errno.h>
+#include <stdlib.h>
+#include <time.h>
+
+#include "cs_testhooks.h"
+#include "log.h"
+#include "testhooks.h"
+
+static long long nan_frame = -1, fail_frame = -1, save_pause_ms = -1;
+
+static long long env_number(const char *name)
+{
+    const char *s = getenv(name);
+    if (!s || !*s) return -1;
+    char *end;
+    errno = 0;
+    const long long v = strtoll(s, &end, 10);
+    if (errno || *end || v < 0) {
+        log_msg("test hook %s=%s ignored: not a whole number >= 0", name, s);
+        return -1;
+    }
+    log_msg("test hook armed: %s=%lld", name, v);
+    return v;
+}
+
+void testhooks_init(void)
+{
+    nan_frame = env_number("CLOTHD_TEST_NAN_FRAME");
+    fail_frame = env_number("CLOTHD_TEST_BACKEND_FAIL_FRAME");
+    save_pause_ms = env_number("CLOTHD_TEST_SAVE_PAUSE_MS");
+}
+
+void testhooks_before_frame(cs_sim *sim, uint64_t frame)
+{
+    if (nan_frame >= 0 && frame == (uint64_t)nan_frame) {
+        nan_frame = -1;
+        cs_info info;
+        cs_sim_info(sim, &info);
+        const int32_t v = info.n_vertices / 2;
+        const cs_status st = cs_test_poison(sim, v);
+        log_msg("test hook: NaN written into vertex %d after frame %llu (step %llu): %s", (int)v,
+                (unsigned long long)frame, (unsigned long long)info.step, cs_status_name(st));
+    }
+    if (fail_frame >= 0 && frame == (uint64_t)fail_frame) {
+        fail_frame = -1;
+        const cs_status st = cs_test_break_backend(sim);
+        log_msg("test hook: backend broken after frame %llu: %s", (unsigned long long)frame, cs_status_name(st));
+    }
+}
+
+void testhooks_before_rename(const char *tmp)
+{
+    if (save_pause_ms < 0) return;
+    log_msg("test hook: %s written; pausing %lld ms before the rename", tmp, save_pause_ms);
+    struct timespec ts = {(time_t)(save_pause_ms / 1000), (long)(save_pause_ms % 1000) * 1000000L};
+    while (nanosleep(&ts, &ts) != 0 && errno == EINTR) {
+    }
+}
