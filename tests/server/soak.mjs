@@ -173,13 +173,16 @@ function checkAnswer(name, r, allowed, problem) {
 function streamClient(d, kind) {
   return new Promise((resolve) => {
     const ws = new WebSocket(`ws://127.0.0.1:${d.streamPort}/stream`, ['clothd.v1', `bearer.${TOKEN}`]);
-    const c = { kind, frames: 0, bytes: 0, closed: false, refused: false, ws, timer: null };
+    const c = { kind, frames: 0, bytes: 0, closed: false, refused: false, held: false, ws, timer: null };
     ws.on('message', (data, binary) => {
       if (binary) {
         c.frames++;
         c.bytes += data.length;
-      } else if (kind !== 'read' && c.frames === 0) {
+      } else if (kind !== 'read' && c.frames === 0 && !c.held) {
         // After the hello: stop reading (the socket's buffers and then the server's bound fill).
+        // Once: more texts may come before the first frame (a slow sim, an event), and a second
+        // interval would outlive the client and keep node from exiting.
+        c.held = true;
         if (kind === 'never') ws._socket.pause();
         else c.timer = setInterval(() => {
           ws._socket.pause();
@@ -246,7 +249,7 @@ function metric(text, name) {
  * request per connection, about 2,000 requests per second), flags (extra clothd flags), hostileConcurrency.
  */
 export async function soak({ seconds = 20, pausedSeconds = 8, clients = 64, wrkDelayMs = 8, flags = [],
-  hostileConcurrency = 3, log = () => {} } = {}) {
+  hostileConcurrency = 3, env = {}, closeWaitMs = 10000, log = () => {} } = {}) {
   const dir = tempDir();
   writeFileSync(join(dir, 'token'), TOKEN);
   // Every client here is 127.0.0.1, so the valid changes share the per-address rate limit with the
@@ -254,7 +257,7 @@ export async function soak({ seconds = 20, pausedSeconds = 8, clients = 64, wrkD
   // changes are not refused (the limiter itself is tested in limits.test.mjs). A 429 is still a
   // well-formed answer to a hostile request.
   const d = await start(['--token-file', join(dir, 'token'), '--stream-max-clients', String(clients),
-    '--stream-stall-timeout', '5', '--rate-limit', '1000', '--rate-burst', '2000', ...flags]);
+    '--stream-stall-timeout', '5', '--rate-limit', '1000', '--rate-burst', '2000', ...flags], { env });
   d.streamPort = (await (await fetch(d.url + '/v1/health')).json()).stream.port;
   const host = new URL(d.url).host;
   const report = {
@@ -359,9 +362,12 @@ export async function soak({ seconds = 20, pausedSeconds = 8, clients = 64, wrkD
   const silent = conns.filter((c) => c.kind === 'never');
   for (const c of silent) c.ws._socket?.resume();
   const t0 = Date.now();
-  while (silent.some((c) => !c.closed) && Date.now() - t0 < 10000) await sleep(50);
+  while (silent.some((c) => !c.closed) && Date.now() - t0 < closeWaitMs) await sleep(50);
   report.stream.byKind.never.closed = silent.filter((c) => c.closed).length;
-  for (const c of conns) c.ws.terminate();
+  for (const c of conns) {
+    clearInterval(c.timer); // also where no 'close' comes (a socket paused when it was destroyed)
+    c.ws.terminate();
+  }
   report.rss.peakKiB = rssKiB(d.proc.pid, 'VmHWM');
   report.rss.endKiB = rssKiB(d.proc.pid);
   report.alive = d.exited === null;
