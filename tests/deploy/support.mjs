@@ -8,6 +8,7 @@ import { chmodSync, mkdirSync, mkdtempSync, rmSync, writeFileSync } from 'node:f
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { promisify } from 'node:util';
+import { sanitizerReport } from '../server/harness.mjs';
 
 export const SOURCE = process.env.CLOTHD_SOURCE;
 export const BUILD = process.env.CLOTHD_BUILD_DIR;
@@ -82,7 +83,8 @@ export function serve(prefix, env, args = []) {
   running.add(proc);
   proc.on('exit', () => running.delete(proc));
   const d = { proc, log: '', url: null, listen: null, exited: null };
-  d.exitPromise = new Promise((resolve) => proc.on('exit', (code, signal) => resolve((d.exited = { code, signal }))));
+  // 'close', not 'exit': by then stderr has been read to its end (a sanitizer's report is last).
+  d.exitPromise = new Promise((resolve) => proc.on('close', (code, signal) => resolve((d.exited = { code, signal }))));
   return new Promise((resolve, reject) => {
     proc.stderr.setEncoding('utf8');
     proc.stderr.on('data', (chunk) => {
@@ -113,13 +115,22 @@ export function refused(prefix, env, args = []) {
         reject(new Error(`clothd-serve started when it should have refused:\n${log}`));
       }
     });
-    proc.on('exit', (code) => resolve({ code, log }));
+    proc.on('close', (code) => {
+      const report = sanitizerReport(log);
+      if (report) reject(new Error(`clothd-serve (exit ${code}): sanitizer report from clothd:\n${report}`));
+      else resolve({ code, log });
+    });
   });
 }
 
+// Stops it; returns its exit status. A sanitizer's report in its log (the ASan/UBSan build that
+// scripts/test.sh also runs the suite on) fails the test, whatever the status.
 export async function stop(d, signal = 'SIGTERM') {
   if (!d.exited) d.proc.kill(signal);
-  return d.exitPromise;
+  const e = await d.exitPromise;
+  const report = sanitizerReport(d.log);
+  if (report) throw new Error(`clothd-serve (${JSON.stringify(e)}): sanitizer report from clothd:\n${report}`);
+  return e;
 }
 
 export async function get(d, path, token) {
