@@ -218,15 +218,12 @@ test('a client that reads nothing stays within its memory bound, the others keep
     await until('the stalled client is disconnected', async () => (await call(d, 'GET', '/metrics')).text.includes('clothd_stream_disconnected_total 1'));
     const m = (await call(d, 'GET', '/metrics')).text;
     const f32 = (what) => Number(new RegExp(`clothd_stream_frames_${what}_total\\{encoding="f32"\\} (\\d+)`).exec(m)[1]);
-    if (SANITIZED) {
-      // A few frames a second: the socket buffers may have taken every frame sent to the stalled
-      // client before it choked, so that none was skipped at a send. It was still sent far fewer
-      // than the sim made (the fast client's are counted as received: fewer than were sent).
-      const total = await framesMade(), toSlow = f32('sent') - fast.frames.length;
-      assert.ok(toSlow < 0.9 * total, `the stalled client was sent ${toSlow} of ${total} frames`);
-    } else {
-      assert.ok(f32('skipped') > 0, m);
-    }
+    // The stalled client was skipped: sent far fewer frames than the sim made (the fast client's
+    // are counted as received, no more than were sent). On a loaded machine or under ASan the sim
+    // is slow and the socket buffers may take every frame sent before it choked, so that no send
+    // was skipped as such: the count of frames sent is the measure that holds either way.
+    const total = await framesMade(), toSlow = f32('sent') - fast.frames.length;
+    assert.ok(toSlow < 0.9 * total, `the stalled client was sent ${toSlow} of ${total} frames`);
     assert.match(m, /clothd_stream_clients 1/);
     fast.ws.close();
   });
