@@ -2,7 +2,7 @@
 // --stream-port 0) and the CPU backend, and talks to it over real sockets with fetch. Used by
 // every tests/server/*.test.mjs.
 import { execFile, spawn } from 'node:child_process';
-import { mkdtempSync, rmSync } from 'node:fs';
+import { mkdtempSync, readFileSync, rmSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { promisify } from 'node:util';
@@ -156,3 +156,13 @@ export async function until(what, fn, { timeout = 20000, every = 20 } = {}) {
 }
 
 export const PROBLEM = 'application/problem+json';
+
+// A process's resident memory in KiB (field VmRSS), or its peak (VmHWM); null once it is gone.
+export function rssKiB(pid, field = 'VmRSS') {
+  try {
+    const m = new RegExp(`${field}:\\s+(\\d+) kB`).exec(readFileSync(`/proc/${pid}/status`, 'utf8'));
+    return m ? Number(m[1]) : null;
+  } catch {
+    return null;
+  }
+}

@@ -15,23 +15,14 @@
 // API's own errors problem+json whose status matches.
 import { spawn } from 'node:child_process';
 import { connect as tcp } from 'node:net';
-import { readFileSync, writeFileSync } from 'node:fs';
+import { writeFileSync } from 'node:fs';
 import { join } from 'node:path';
 import WebSocket from 'ws';
-import { start, stop, tempDir } from './harness.mjs';
+import { start, stop, tempDir, rssKiB } from './harness.mjs';
 
 const TOKEN = 'soak-control-token-0123456789';
 const AUTH = `Bearer ${TOKEN}`;
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
-
-function rssKiB(pid, field = 'VmRSS') {
-  try {
-    const m = new RegExp(`${field}:\\s+(\\d+) kB`).exec(readFileSync(`/proc/${pid}/status`, 'utf8'));
-    return m ? Number(m[1]) : null;
-  } catch {
-    return null;
-  }
-}
 
 async function api(d, method, path, body) {
   const res = await fetch(d.url + path, {

@@ -3,10 +3,9 @@
 // against GET /v1/cloth/state, events, a stalled client, grabs, and bad messages.
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { readFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { MeshoptDecoder } from 'meshoptimizer';
-import { start, stop, call, ok, pause, hash, until } from './harness.mjs';
+import { start, stop, call, ok, pause, hash, until, rssKiB } from './harness.mjs';
 import { connect, next, daemon } from './wsclient.mjs';
 
 const { decodeFrame, HEADER_SIZE } = await import(join(process.env.CLOTHD_SOURCE, 'proto', 'frame.mjs'));
@@ -186,10 +185,6 @@ test('only /stream upgrades', async () => {
   c.ws.close();
   await stop(d);
 });
-
-function rssKiB(pid) {
-  return Number(/VmRSS:\s+(\d+)/.exec(readFileSync(`/proc/${pid}/status`, 'utf8'))[1]);
-}
 
 test('a client that reads nothing stays within its memory bound, the others keep their frames, and it is cut off',
   async (t) => {
