@@ -52,6 +52,11 @@ struct simloop {
     int n_autos;
     json_t *last_event;
     struct stream *stream;
+    /* Every step and every state-changing command counts a change; the stream is handed a frame
+     * only when there is one since the last it was handed, or a scalar it lacks is wanted:
+     * commands that change nothing (reads, pauses, a client joining) publish no duplicate frame. */
+    uint64_t changes, framed_changes;
+    unsigned framed_scalars;
     uint32_t *torn;      /* ids of the torn springs, ascending */
     int64_t n_torn, torn_cap;
     float *scratch;      /* velocities or rest lengths for the stream's scalars */
@@ -241,11 +246,15 @@ static void publish_frame(simloop *sl, const cs_info *info, const cs_rock *rocks
     unsigned want = 0;
     raw_frame *f = sl->stream ? stream_frame_begin(sl->stream, &want) : NULL;
     if (!f) return;
+    if (sl->changes == sl->framed_changes && (want & ~sl->framed_scalars) == 0) {
+        stream_frame_discard(sl->stream, f);
+        return;
+    }
     cs_scene sc;
     cs_sim_scene(sl->sim, &sc);
     if (raw_frame_reserve(f, info->n_vertices, n_rocks) != 0 ||
         cs_read_positions(sl->sim, f->xyz, 3 * (size_t)info->n_vertices) != CS_OK) {
-        stream_frame_publish(sl->stream, f); /* an empty frame is skipped */
+        stream_frame_discard(sl->stream, f); /* clients keep the frame they have */
         return;
     }
     struct timespec ts;
@@ -265,6 +274,8 @@ static void publish_frame(simloop *sl, const cs_info *info, const cs_rock *rocks
     }
     raw_frame_bbox(f);
     fill_scalars(sl, f, want, sc.nx);
+    sl->framed_changes = sl->changes;
+    sl->framed_scalars = want;
     stream_frame_publish(sl->stream, f);
 }
 
@@ -481,6 +492,7 @@ static cs_status run_frame(simloop *sl)
     testhooks_before_frame(sl->sim, sl->frame);
 #endif
     cs_sim_info(sl->sim, &info);
+    sl->changes++;
     const double t0 = now_s();
     const cs_status st = cs_sim_step_frames(sl->sim, 1);
     metrics_frame(sl->m, info.substeps, now_s() - t0);
@@ -636,6 +648,7 @@ static void handle(simloop *sl, sim_cmd *c)
         fail_cmd(c, 503, "unavailable", "%s", "the backend has failed; the daemon is saving the state and exiting");
         return;
     }
+    if (c->kind == CMD_APPLY || c->kind == CMD_STEP || c->kind == CMD_SNAPSHOT_PUT) sl->changes++;
     switch (c->kind) {
     case CMD_APPLY:
         if (apply(sl, c->body, c->request_id, &c->result, &c->pr) != 0) c->failed = 1;
@@ -827,6 +840,7 @@ simloop *simloop_new(cs_sim *sim, const clothd_config *cfg, metrics *m)
     sl->lim.max_rocks = cfg->set.max_rocks;
     sl->m = m;
     sl->healthy = 1;
+    sl->changes = 1; /* the first frame a client asks for is new */
     sl->paused = cfg->set.paused;
     sl->j = journal_new((size_t)cfg->set.journal_max);
     pthread_mutex_init(&sl->qlock, NULL);

@@ -167,6 +167,13 @@ void stream_frame_publish(stream *st, raw_frame *f)
     lws_cancel_service(st->ctx);
 }
 
+void stream_frame_discard(stream *st, raw_frame *f)
+{
+    pthread_mutex_lock(&st->flock);
+    give_back(st, f);
+    pthread_mutex_unlock(&st->flock);
+}
+
 void stream_event(stream *st, const char *json)
 {
     char *copy = strdup(json);

@@ -35,6 +35,8 @@ void stream_stop(stream *st);
 raw_frame *stream_frame_begin(stream *st, unsigned *scalars);
 /* Hands the filled frame over (it becomes the newest; the service thread is woken). */
 void stream_frame_publish(stream *st, raw_frame *f);
+/* Hands a frame buffer back unpublished (nothing new to show, or it could not be filled). */
+void stream_frame_discard(stream *st, raw_frame *f);
 /* A text message for every client (an event); copied. */
 void stream_event(stream *st, const char *json);
 

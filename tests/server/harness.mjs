@@ -6,6 +6,7 @@ import { mkdtempSync, readFileSync, rmSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { promisify } from 'node:util';
+import { after } from 'node:test';
 
 export const CLOTHD = process.env.CLOTHD_BIN;
 if (!CLOTHD) throw new Error('CLOTHD_BIN must name the clothd binary (ctest sets it)');
@@ -27,6 +28,14 @@ function reportError(what, report) {
   return e;
 }
 
+// Daemons started and not yet stopped. A test that fails before its stop() would leave its
+// daemon running and the test process waiting on it until ctest's timeout: after the file's last
+// test, any still running is killed (the failure has been reported by then).
+const live = new Set();
+after(async () => {
+  for (const d of live) await stop(d, 'SIGKILL').catch(() => {});
+});
+
 export function tempDir() {
   return mkdtempSync(join(tmpdir(), 'clothd-test-'));
 }
@@ -46,10 +55,12 @@ export function start(flags = [], { env = {}, webRoot, bin = CLOTHD, wrap = [] }
     env: { ...base, OMP_WAIT_POLICY: 'passive', ...env },
   });
   const daemon = { proc, dir, log: '', url: null, exited: null };
+  live.add(daemon);
   proc.stdout.resume();
   daemon.exitPromise = new Promise((resolve) => {
     // 'close', not 'exit': by then stderr has been read to its end (a report is last).
     proc.on('close', (code, signal) => {
+      live.delete(daemon);
       daemon.exited = { code, signal };
       resolve(daemon.exited);
     });
