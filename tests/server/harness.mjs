@@ -29,11 +29,14 @@ function reportError(what, report) {
 }
 
 // Daemons started and not yet stopped. A test that fails before its stop() would leave its
-// daemon running and the test process waiting on it until ctest's timeout: after the file's last
-// test, any still running is killed (the failure has been reported by then).
+// daemon running and the test process waiting on it until ctest's timeout. After the file's last
+// test (and before the file's own after hooks, which run next and may stop daemons as they
+// choose), a timer that does not keep the process alive kills whatever is left 30 s later.
 const live = new Set();
-after(async () => {
-  for (const d of live) await stop(d, 'SIGKILL').catch(() => {});
+after(() => {
+  setTimeout(() => {
+    for (const d of live) d.proc.kill('SIGKILL');
+  }, 30000).unref();
 });
 
 export function tempDir() {
