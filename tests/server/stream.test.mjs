@@ -235,11 +235,15 @@ test('a client that reads nothing stays within its memory bound, and the others 
     const rss0 = rssKiB(d.proc.pid);
     const framesBefore = fast.frames.length, madeBefore = await framesMade(), t0 = Date.now();
     // At least the ten seconds of the requirement, and until the sim has made enough frames that
-    // queueing them would break the bound (a loaded or sanitized machine makes them slowly).
-    await until(`${STALL_FRAMES} frames made, 10 s after the client stopped reading`,
-      async () => Date.now() - t0 >= 10000 && (await framesMade()) - madeBefore >= STALL_FRAMES,
-      { timeout: 180000, every: 250 });
-    const grown = rssKiB(d.proc.pid) - rss0;
+    // queueing them would break the bound (a loaded or sanitized machine makes them slowly). The
+    // RSS is sampled all along: under ASan this takes longer than the stream's keepalive (a client
+    // silent for 30 s is hung up), and the peak is what would show frames held for the client.
+    let peak = rss0;
+    await until(`${STALL_FRAMES} frames made, 10 s after the client stopped reading`, async () => {
+      peak = Math.max(peak, rssKiB(d.proc.pid));
+      return Date.now() - t0 >= 10000 && (await framesMade()) - madeBefore >= STALL_FRAMES;
+    }, { timeout: 180000, every: 250 });
+    const grown = peak - rss0;
     const made = (await framesMade()) - madeBefore, got = fast.frames.length - framesBefore;
     assert.ok(grown < STALL_BOUND_KIB, `the daemon grew by ${grown} KiB while making ${made} frames`);
     // The other client keeps up with the sim: it is not held back by the one that reads nothing.
@@ -250,8 +254,7 @@ test('a client that reads nothing stays within its memory bound, and the others 
     const sent = Number(/clothd_stream_frames_sent_total\{encoding="f32"\} (\d+)/.exec(m)[1]);
     const total = await framesMade(), toSlow = sent - fast.frames.length;
     assert.ok(toSlow < 0.75 * total, `the stalled client was sent ${toSlow} of ${total} frames`);
-    assert.match(m, /clothd_stream_clients 2/);
-    assert.match(m, /clothd_stream_disconnected_total 0/);
+    assert.match(m, /clothd_stream_disconnected_total 0/); // stream_stall_timeout was out of reach
     fast.ws.close();
   });
 
