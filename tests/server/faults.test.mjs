@@ -212,7 +212,8 @@ test('a save writes a temp file, fsyncs it, renames it over the state file, then
   const pid = Number(readFileSync(`/proc/${e.proc.pid}/task/${e.proc.pid}/children`, 'utf8').trim().split(/\s+/)[0]);
   assert.ok(pid > 0);
   process.kill(pid, 'SIGTERM');
-  assert.equal((await e.exitPromise).code, 0);
+  const exited = await e.exitPromise;
+  assert.equal(exited.code, 0, `clothd under strace ended ${JSON.stringify(exited)}:\n${e.log}`);
   assert.match(e.log, /state saved to/);
 
   const calls = readFileSync(trace, 'utf8').split('\n').map((l) => l.replace(/^\d+\s+/, ''));
