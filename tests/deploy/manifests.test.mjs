@@ -30,6 +30,8 @@ before(async () => {
   code.streamPort = code.settings.stream_port.default;
   code.routes = (await run(CLOTHD, ['routes'])).stdout.trim().split('\n');
   code.serve = await explain({});
+  // The exit status of a start with a bad setting (one no restart can mend).
+  code.badSettingsExit = await run(CLOTHD, ['--port', 'nope']).then(() => 0, (e) => e.code);
   // The state file's size is capped by max_state_mb; a stop must leave time to write the largest
   // one on a slow disk (32 MiB/s).
   code.minGrace = Math.max(30, Math.ceil(code.settings.max_state_mb.default / 32));
@@ -206,7 +208,7 @@ function unitFile(path) {
   return sections;
 }
 
-test('systemd unit: what the container runs, a state directory, restart on failure, hardening, a user of its own', async () => {
+test('systemd unit: what the container runs, a state directory, restart on failure but not on bad settings, hardening, a user of its own', async () => {
   const u = unitFile(docker('systemd/clothd.service')).Service;
   const one = (k) => {
     assert.equal(u[k]?.length, 1, `one ${k}=`);
@@ -214,6 +216,8 @@ test('systemd unit: what the container runs, a state directory, restart on failu
   };
   assert.equal(one('ExecStart'), '/opt/clothd/bin/clothd-serve', 'the image\'s entrypoint');
   assert.equal(one('Restart'), 'on-failure');
+  assert.equal(code.badSettingsExit, 2);
+  assert.equal(one('RestartPreventExitStatus'), String(code.badSettingsExit), 'bad settings are not restarted');
   assert.ok(seconds(one('TimeoutStopSec')) >= code.minGrace);
   assert.equal(one('NoNewPrivileges'), 'yes');
   assert.match(one('ProtectSystem'), /^(strict|full)$/);
