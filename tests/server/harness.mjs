@@ -171,6 +171,15 @@ export async function until(what, fn, { timeout = 20000, every = 20 } = {}) {
 
 export const PROBLEM = 'application/problem+json';
 
+// A counter or gauge of /metrics' text: the series with these labels (`encoding="f32"`), or the
+// sum over all of name's series when none are given.
+export function metric(text, name, labels) {
+  const series = labels === undefined ? '(?:\\{[^}]*\\})?' : `\\{${labels.replace(/[.*+?^${}()|[\]\\]/g, '\\$&')}\\}`;
+  let sum = 0;
+  for (const m of text.matchAll(new RegExp(`^${name}${series} ([\\d.e+-]+)$`, 'gm'))) sum += Number(m[1]);
+  return sum;
+}
+
 // A process's resident memory in KiB (field VmRSS), or its peak (VmHWM); null once it is gone.
 export function rssKiB(pid, field = 'VmRSS') {
   try {

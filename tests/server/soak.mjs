@@ -18,7 +18,7 @@ import { connect as tcp } from 'node:net';
 import { writeFileSync } from 'node:fs';
 import { join } from 'node:path';
 import WebSocket from 'ws';
-import { start, stop, tempDir, rssKiB } from './harness.mjs';
+import { start, stop, tempDir, rssKiB, metric } from './harness.mjs';
 
 const TOKEN = 'soak-control-token-0123456789';
 const AUTH = `Bearer ${TOKEN}`;
@@ -226,12 +226,6 @@ ${delayMs > 0 ? `function delay() return ${delayMs} end` : ''}
       });
     });
   });
-}
-
-function metric(text, name) {
-  let sum = 0;
-  for (const m of text.matchAll(new RegExp(`^${name}(?:\\{[^}]*\\})? ([\\d.e+-]+)$`, 'gm'))) sum += Number(m[1]);
-  return sum;
 }
 
 /**

@@ -5,7 +5,7 @@ import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import { join } from 'node:path';
 import { MeshoptDecoder } from 'meshoptimizer';
-import { start, stop, call, ok, pause, hash, until, rssKiB } from './harness.mjs';
+import { start, stop, call, ok, pause, hash, until, rssKiB, metric } from './harness.mjs';
 import { connect, next, daemon } from './wsclient.mjs';
 
 const { decodeFrame, HEADER_SIZE } = await import(join(process.env.CLOTHD_SOURCE, 'proto', 'frame.mjs'));
@@ -231,7 +231,7 @@ test('a client that reads nothing stays within its memory bound, and the others 
     await next(slow, 'frame');
     await next(fast, 'frame');
     slow.ws._socket.pause(); // reads nothing from now on
-    const framesMade = async () => Number(/^clothd_frames_total (\d+)/m.exec((await call(d, 'GET', '/metrics')).text)[1]);
+    const framesMade = async () => metric((await call(d, 'GET', '/metrics')).text, 'clothd_frames_total');
     const rss0 = rssKiB(d.proc.pid);
     const framesBefore = fast.frames.length, madeBefore = await framesMade(), t0 = Date.now();
     // At least the ten seconds of the requirement, and until the sim has made enough frames that
@@ -251,7 +251,7 @@ test('a client that reads nothing stays within its memory bound, and the others 
     // The stalled client was skipped: sent far fewer frames than the sim made (the fast client's
     // are counted as received, no more than were sent; the socket buffers take the first few).
     const m = (await call(d, 'GET', '/metrics')).text;
-    const sent = Number(/clothd_stream_frames_sent_total\{encoding="f32"\} (\d+)/.exec(m)[1]);
+    const sent = metric(m, 'clothd_stream_frames_sent_total', 'encoding="f32"');
     const total = await framesMade(), toSlow = sent - fast.frames.length;
     assert.ok(toSlow < 0.75 * total, `the stalled client was sent ${toSlow} of ${total} frames`);
     assert.match(m, /clothd_stream_disconnected_total 0/); // stream_stall_timeout was out of reach
