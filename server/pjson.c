@@ -116,6 +116,7 @@ int problem_from_engine(problem *pr, cs_status st, const char *error, const char
 {
     switch (st) {
     case CS_E_NOT_FOUND: return problem_set(pr, 404, "not-found", param, "%s", error);
+    case CS_E_OVERLAP: return problem_set(pr, 409, "overlap", param, "%s", error);
     case CS_E_UNSTABLE: return problem_set(pr, 422, "unstable", param, "%s", error);
     case CS_E_LIMIT: return problem_set(pr, 422, "limit", param, "%s", error);
     case CS_E_INVALID:

@@ -44,3 +44,13 @@ cs_status cs_backend_pick(const char *name, const cs_backend **out, char *note, 
     snprintf(note, note_len, "unknown backend '%s' (cpu, cuda or auto)", name);
     return CS_E_INVALID;
 }
+
+int cs_backend_covers(const cs_backend *b, const cs_params *p, char *why, size_t why_len)
+{
+    if (p->contact_model == CS_CONTACT_SURFACE && !(b->caps & CS_CAP_SURFACE_CONTACT)) {
+        snprintf(why, why_len, "the %s backend does not have contact_model surface yet (use contact_model vertex, or "
+                 "the cpu backend)", b->name);
+        return 0;
+    }
+    return 1;
+}

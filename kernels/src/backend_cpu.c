@@ -40,6 +40,7 @@ typedef struct thread_buf {
     float f[3][RING_W];               /* resultant on the vertices of the current row */
     float ro[3][RING_W];              /* non-contact resultant Ro (resultant friction) */
     float contrib[6][CS_CHUNK];       /* one rock's reaction from the touching vertices of a chunk */
+    float rbox[6][CS_CHUNK];          /* surface contact: each vertex's 1-ring bounding box */
     uint8_t hit[CS_CHUNK];            /* vertices of a chunk near a rock */
     uint8_t idx[CS_CHUNK];            /* vertices of a chunk touching a rock */
     int64_t torn;
@@ -49,6 +50,9 @@ typedef struct thread_buf {
 typedef struct cpu_ctx {
     float *partials;      /* nchunks x rocks x 6: each chunk's force and torque on each rock */
     size_t partials_cap;  /* floats */
+    float *ro;            /* 3 n: non-contact resultants, x then y then z (surface contact with
+                             resultant friction reads its neighbours') */
+    size_t ro_cap;        /* floats */
     thread_buf **tb;
     int n_tb;
     char device[160];
@@ -98,7 +102,15 @@ static void cpu_destroy(void *ctx)
     for (int i = 0; i < c->n_tb; i++) free(c->tb[i]);
     free(c->tb);
     free(c->partials);
+    free(c->ro);
     free(c);
+}
+
+/* Surface contact with resultant friction: each contact reads its vertices' non-contact
+ * resultants, so the force pass computes every vertex's first (phase 1), then the contacts. */
+static int two_phase(const cs_phys *p, const cs_state *s)
+{
+    return p->contact_model == CS_CONTACT_SURFACE && p->friction == CS_FRICTION_RESULTANT && s->n_rocks > 0;
 }
 
 /* Makes room for this scene, rock count and thread count. */
@@ -110,6 +122,15 @@ static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s)
         if (!p) return CS_E_NOMEM;
         c->partials = p;
         c->partials_cap = need;
+    }
+    if (two_phase(&m->phys, s)) {
+        const size_t ro_need = 3 * (size_t)m->phys.n;
+        if (ro_need > c->ro_cap) {
+            float *r = realloc(c->ro, ro_need * sizeof(float));
+            if (!r) return CS_E_NOMEM;
+            c->ro = r;
+            c->ro_cap = ro_need;
+        }
     }
     const int t = threads_of(m);
     if (t > c->n_tb) {
@@ -313,11 +334,102 @@ static void near_sphere(int32_t cnt, const float *restrict X, const float *restr
     }
 }
 
+/* The 1-ring of vertex (i, j) (physics.h, cs_ring): slots off the grid repeat the vertex. ro: the
+ * non-contact resultants (3 n, x then y then z) or NULL for zeros. */
+static void load_ring(const cs_phys *p, const cs_state *s, const float *ro, int32_t i, int32_t j, cs_ring *g)
+{
+    const int32_t nx = p->nx, ny = p->ny, n = p->n;
+    const int32_t v = j * nx + i;
+    const float *X = s->x, *Y = s->y, *Z = s->z, *VX = s->vx, *VY = s->vy, *VZ = s->vz;
+    for (int k = 0; k < CS_RING; k++) {
+        const int32_t ii = i + cs_ring_di(k), jj = j + cs_ring_dj(k);
+        const int32_t o = (ii >= 0 && ii < nx && jj >= 0 && jj < ny) ? jj * nx + ii : v;
+        g->x[k] = LOADX(o);
+        g->v[k] = LOADV(o);
+        g->ro[k] = ro ? cs_v3(ro[o], ro[n + o], ro[2 * n + o]) : cs_v3(0.0f, 0.0f, 0.0f);
+    }
+    g->faces = cs_ring_faces(s->L0, nx, ny, i, j);
+}
+
+/* Surface contacts of chunk (row j, columns i0 .. i1) with every rock: shares onto tb->f, each
+ * rock's reactions from the features this chunk's vertices own into the chunk's partials. A vertex
+ * is tested against a rock only when the rock can reach its 1-ring's bounding box (every feature
+ * it is part of lies inside it), and the chunk only when the rock can reach the box of the rows
+ * j-1 .. j+1 around it. */
+static void surface_contacts(const cs_phys *p, const cs_state *s, thread_buf *tb, int32_t j, int32_t i0, int32_t i1,
+                             int32_t chunk, float *partials, const float *ro)
+{
+    const int32_t nx = p->nx, ny = p->ny, nr = s->n_rocks, cnt = i1 - i0;
+    const float *X = s->x, *Y = s->y, *Z = s->z;
+    const int32_t c0 = i0 > 0 ? i0 - 1 : 0, c1 = i1 < nx ? i1 + 1 : nx;
+    const int32_t r0 = j > 0 ? j - 1 : 0, r1 = j + 1 < ny ? j + 2 : ny;
+    cs_vec3 lo = LOADX(r0 * nx + c0), hi = lo;
+    for (int32_t jj = r0; jj < r1; jj++)
+        for (int32_t i = c0; i < c1; i++) {
+            const cs_vec3 x = LOADX(jj * nx + i);
+            lo = cs_v3(x.x < lo.x ? x.x : lo.x, x.y < lo.y ? x.y : lo.y, x.z < lo.z ? x.z : lo.z);
+            hi = cs_v3(x.x > hi.x ? x.x : hi.x, x.y > hi.y ? x.y : hi.y, x.z > hi.z ? x.z : hi.z);
+        }
+    int boxes = 0;
+    for (int32_t r = 0; r < nr; r++) {
+        const cs_rock_state *rock = &s->rocks[r];
+        float *out = partials + ((size_t)chunk * nr + r) * 6;
+        const float reach = rock->radius + p->contact_offset;
+        if (!sphere_box(rock->x, reach, lo, hi)) {
+            for (int q = 0; q < 6; q++) out[q] = 0.0f;
+            continue;
+        }
+        if (!boxes) {
+            boxes = 1;
+            for (int32_t l = 0; l < cnt; l++) {
+                const int32_t i = i0 + l;
+                cs_vec3 a = LOADX(j * nx + i), b = a;
+                for (int k = 1; k < CS_RING; k++) { /* every feature the vertex is part of */
+                    const int32_t ii = i + cs_ring_di(k), jj = j + cs_ring_dj(k);
+                    if (ii < 0 || ii >= nx || jj < 0 || jj >= ny) continue;
+                    const cs_vec3 x = LOADX(jj * nx + ii);
+                    a = cs_v3(x.x < a.x ? x.x : a.x, x.y < a.y ? x.y : a.y, x.z < a.z ? x.z : a.z);
+                    b = cs_v3(x.x > b.x ? x.x : b.x, x.y > b.y ? x.y : b.y, x.z > b.z ? x.z : b.z);
+                }
+                tb->rbox[0][l] = a.x, tb->rbox[1][l] = a.y, tb->rbox[2][l] = a.z;
+                tb->rbox[3][l] = b.x, tb->rbox[4][l] = b.y, tb->rbox[5][l] = b.z;
+            }
+        }
+        int n_idx = 0;
+        for (int32_t l = 0; l < cnt; l++) {
+            const cs_vec3 a = cs_v3(tb->rbox[0][l], tb->rbox[1][l], tb->rbox[2][l]);
+            const cs_vec3 b = cs_v3(tb->rbox[3][l], tb->rbox[4][l], tb->rbox[5][l]);
+            if (!sphere_box(rock->x, reach, a, b)) continue;
+            cs_ring g;
+            cs_surface_out o;
+            load_ring(p, s, ro, i0 + l, j, &g);
+            const cs_vec3 Fsum = cs_v3(tb->f[0][i0 + l], tb->f[1][i0 + l], tb->f[2][i0 + l]);
+            cs_surface_gather(&g, rock, p, Fsum, s->w[j * nx + i0 + l], &o);
+            if (o.touches) {
+                tb->f[0][i0 + l] += o.share.x;
+                tb->f[1][i0 + l] += o.share.y;
+                tb->f[2][i0 + l] += o.share.z;
+            }
+            if (o.owns) {
+                tb->contrib[0][l] = o.force.x;
+                tb->contrib[1][l] = o.force.y;
+                tb->contrib[2][l] = o.force.z;
+                tb->contrib[3][l] = o.torque.x;
+                tb->contrib[4][l] = o.torque.y;
+                tb->contrib[5][l] = o.torque.z;
+                tb->idx[n_idx++] = (uint8_t)l;
+            }
+        }
+        tree_sum_sparse((const float(*)[CS_CHUNK])tb->contrib, tb->idx, n_idx, 0, out);
+    }
+}
+
 /* Contacts of chunk (row j, columns i0 .. i1) with rocks and the ground, added onto tb->f in
  * rock order then the ground; each rock's reaction summed with the chunk tree into the chunk's
- * partials (zeros for a rock that cannot touch the chunk: what the tree of +0 gives). */
+ * partials (zeros for a rock that cannot touch the chunk: what the tree of +0 gives). ro: every
+ * vertex's non-contact resultant (surface contact with resultant friction), else NULL. */
 static void chunk_contacts(const cs_phys *p, const cs_state *s, thread_buf *tb, int32_t j, int32_t i0, int32_t i1,
-                           int32_t chunk, float *partials)
+                           int32_t chunk, float *partials, const float *ro)
 {
     const float *X = s->x, *Y = s->y, *Z = s->z, *VX = s->vx, *VY = s->vy, *VZ = s->vz;
     const int32_t nr = s->n_rocks, base = j * p->nx, cnt = i1 - i0;
@@ -333,6 +445,9 @@ static void chunk_contacts(const cs_phys *p, const cs_state *s, thread_buf *tb, 
         for (int q = 0; q < 3; q++) memcpy(&tb->ro[q][i0], &tb->f[q][i0], sizeof(float) * (size_t)cnt);
     }
 #define RO_OF(i) (need_ro ? cs_v3(tb->ro[0][i], tb->ro[1][i], tb->ro[2][i]) : cs_v3(0.0f, 0.0f, 0.0f))
+    if (p->contact_model == CS_CONTACT_SURFACE && nr) {
+        surface_contacts(p, s, tb, j, i0, i1, chunk, partials, ro);
+    } else {
     for (int32_t r = 0; r < nr; r++) {
         const cs_rock_state *rock = &s->rocks[r];
         float *out = partials + ((size_t)chunk * nr + r) * 6;
@@ -364,6 +479,7 @@ static void chunk_contacts(const cs_phys *p, const cs_state *s, thread_buf *tb, 
         }
         tree_sum_sparse((const float(*)[CS_CHUNK])tb->contrib, tb->idx, n_idx, 0, out);
     }
+    }
     if (ground) {
         for (int32_t i = i0; i < i1; i++) {
             cs_vec3 F;
@@ -390,9 +506,9 @@ static void accel(int32_t cnt, float inv_mass, const float *restrict W, const fl
     }
 }
 
-/* The force pass for row j: a for its vertices, strain updates of its springs, its chunks'
- * partials. Rows j-2 and j-1 must already be in the ring (this thread's previous rows). */
-static void force_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, float *partials, int strain)
+/* The non-contact forces of row j (springs, air, gravity) into tb->f, and strain updates of its
+ * springs. Rows j-2 and j-1 must already be in the ring (this thread's previous rows). */
+static void spring_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, int strain)
 {
     const int32_t nx = p->nx, v0 = j * nx;
     if (tb->last_row != j - 1) {
@@ -404,9 +520,15 @@ static void force_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, 
     tb->torn += owned_row(p, s, j, tb->ring[j % 3], strain);
     gather_row(p, v0, nx, tb->ring[j % 3], tb->ring[(j + 2) % 3], tb->ring[(j + 1) % 3], s->vx, s->vy, s->vz,
                tb->f[0], tb->f[1], tb->f[2]);
+}
+
+/* Row j's contacts onto tb->f, its chunks' partials, then a for its vertices. */
+static void contact_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, float *partials, const float *ro)
+{
+    const int32_t nx = p->nx, v0 = j * nx;
     for (int32_t g = 0; g < p->nseg; g++) {
         const int32_t i0 = g * CS_CHUNK, i1 = i0 + CS_CHUNK < nx ? i0 + CS_CHUNK : nx;
-        chunk_contacts(p, s, tb, j, i0, i1, j * p->nseg + g, partials);
+        chunk_contacts(p, s, tb, j, i0, i1, j * p->nseg + g, partials, ro);
     }
     accel(nx, p->inv_mass, s->w + v0, tb->f[0], tb->f[1], tb->f[2], s->ax + v0, s->ay + v0, s->az + v0);
 }
@@ -520,13 +642,32 @@ static void swap_rest(cs_state *s)
  * robustness on a busy machine; no slower on an idle one, as measured). */
 #define ROW_BLOCK 16
 
-/* Inside a parallel region: the force pass over every row. */
+/* Inside a parallel region: the force pass over every row (in two phases when contacts read
+ * their neighbours' non-contact resultants). */
 static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain)
 {
     thread_buf *tb = c->tb[thread_id()];
     tb->last_row = -3;
+    if (!two_phase(p, s)) {
 #pragma omp for schedule(dynamic, ROW_BLOCK)
-    for (int32_t j = 0; j < p->ny; j++) force_row(p, s, tb, j, c->partials, strain);
+        for (int32_t j = 0; j < p->ny; j++) {
+            spring_row(p, s, tb, j, strain);
+            contact_row(p, s, tb, j, c->partials, NULL);
+        }
+        return;
+    }
+    const int32_t nx = p->nx, n = p->n;
+    float *ro = c->ro;
+#pragma omp for schedule(dynamic, ROW_BLOCK)
+    for (int32_t j = 0; j < p->ny; j++) {
+        spring_row(p, s, tb, j, strain);
+        for (int q = 0; q < 3; q++) memcpy(ro + (size_t)q * n + (size_t)j * nx, tb->f[q], sizeof(float) * (size_t)nx);
+    }
+#pragma omp for schedule(dynamic, ROW_BLOCK)
+    for (int32_t j = 0; j < p->ny; j++) {
+        for (int q = 0; q < 3; q++) memcpy(tb->f[q], ro + (size_t)q * n + (size_t)j * nx, sizeof(float) * (size_t)nx);
+        contact_row(p, s, tb, j, c->partials, ro);
+    }
 }
 
 static int64_t take_torn(cpu_ctx *c, int threads)
@@ -657,5 +798,5 @@ static void cpu_stats(void *ctx, const cs_model *m, cs_backend_stats *out)
 
 const cs_backend cs_backend_cpu = {
     "cpu", cpu_available, cpu_create, cpu_destroy, cpu_upload, cpu_download, cpu_refresh, cpu_step, cpu_device,
-    cpu_error, cpu_stats,
+    cpu_error, cpu_stats, CS_CAP_SURFACE_CONTACT,
 };

@@ -208,7 +208,7 @@ test('a frame follows each change, and only a change: reads and joining clients 
   assert.equal(stepped.frame, first.frame + 1);
   assert.deepEqual(a.frames.map((g) => g.frame), [first.frame, first.frame + 1]);
   // A change without a step (a rock while paused) is a new frame of the same number.
-  await ok(d, 'POST', '/v1/rocks', { position: [0, 0, 1], radius: 0.1 });
+  await ok(d, 'POST', '/v1/rocks', { position: [0, 0, 1.5], radius: 0.1 });
   const withRock = await next(a, 'frame', (g) => g.nRocks === 1);
   assert.equal(withRock.frame, stepped.frame);
   assert.equal(a.frames.length, 3);

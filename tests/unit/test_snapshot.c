@@ -126,7 +126,7 @@ static cs_sim *busy_sim(void)
     tk_add_rock(sim, 0.1f, 0.0f, 0.8f, 0.12f, 400.0f);
     cs_rock_def d;
     cs_rock_def_default(&d);
-    d.position[0] = -0.3f, d.position[1] = 0.2f, d.position[2] = 0.45f;
+    d.position[0] = -0.3f, d.position[1] = 0.2f, d.position[2] = 0.425f; /* just clear of the cloth */
     d.velocity[0] = 0.3f;
     d.angular_velocity[2] = 1.5f;
     d.radius = 0.07f;

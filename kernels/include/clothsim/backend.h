@@ -94,7 +94,13 @@ typedef struct cs_backend {
     const char *(*error)(void *ctx);
     /* What it knows of its speed for this model (zeros where nothing). */
     void (*stats)(void *ctx, const cs_model *m, cs_backend_stats *out);
+    /* CS_CAP_* it implements; a parameter that needs one it lacks is refused on it (and "auto"
+     * then picks the CPU backend). Last, so a table that predates a flag leaves it 0. */
+    unsigned caps;
 } cs_backend;
+
+/* contact_model surface (physics.h, "surface contact"). */
+#define CS_CAP_SURFACE_CONTACT 1u
 
 /* The CPU backend; always available. */
 extern const cs_backend cs_backend_cpu;
