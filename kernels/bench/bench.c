@@ -1,9 +1,10 @@
 /* clothd-bench - how many vertex-substeps per second a backend sustains.
  *
  * Cases: cloths of 64, 128, 256 and 512 squared vertices, each without rocks and with 16 rocks
- * resting on it; velocity Verlet with every force on (springs with damping, drag, gravity,
- * ground, plasticity and tearing checks, and contact with the rocks). Each case settles briefly,
- * then runs for --seconds of wall time. Prints one line per case (JSON with --json). */
+ * resting on it, the rocks' contact by each model asked for (surface, vertex); velocity Verlet
+ * with every force on (springs with damping, drag, gravity, ground, plasticity and tearing checks,
+ * and contact with the rocks). Each case settles briefly, then runs for --seconds of wall time.
+ * Prints one line per case (JSON with --json). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -22,11 +23,12 @@ static void usage(FILE *f)
 {
     fprintf(f,
             "usage: clothd-bench [--backend cpu|cuda|auto] [--json] [--threads N] [--seconds S]\n"
-            "                    [--sizes 64,128,256,512] [--rocks 0,16]\n"
+            "                    [--sizes 64,128,256,512] [--rocks 0,16] [--contact surface,vertex]\n"
             "                    [--integrator velocity_verlet|symplectic_euler]\n");
 }
 
-/* Rocks on a 4-wide grid over the middle of the cloth, just touching it. */
+/* Rocks on a 4-wide grid over the middle of the cloth, just touching it (light ones: the case
+ * measures contact, not a cloth sagging to the ground). */
 static int add_rocks(cs_sim *sim, const cs_scene *sc, const cs_params *p, int count)
 {
     for (int k = 0; k < count; k++) {
@@ -45,6 +47,7 @@ static int add_rocks(cs_sim *sim, const cs_scene *sc, const cs_params *p, int co
 int main(int argc, char **argv)
 {
     const char *backend = "cpu", *sizes = "64,128,256,512", *integrator = "velocity_verlet", *rock_cases = "0,16";
+    const char *contacts = "surface,vertex";
     int json = 0, threads = 0;
     double seconds = 1.5;
     for (int i = 1; i < argc; i++) {
@@ -56,6 +59,7 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--seconds") == 0 && val) seconds = atof(val), i++;
         else if (strcmp(a, "--sizes") == 0 && val) sizes = val, i++;
         else if (strcmp(a, "--rocks") == 0 && val) rock_cases = val, i++;
+        else if (strcmp(a, "--contact") == 0 && val) contacts = val, i++;
         else if (strcmp(a, "--integrator") == 0 && val) integrator = val, i++;
         else if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
@@ -75,7 +79,25 @@ int main(int argc, char **argv)
         fprintf(stderr, "clothd-bench: unknown integrator '%s'\n", integrator);
         return 2;
     }
-    if (!json) printf("%-7s %-9s %5s %14s %22s\n", "backend", "grid", "rocks", "substeps/s", "vertex-substeps/s");
+    const cs_param_info *cm = cs_param_find("contact_model");
+    int models[4], n_models = 0;
+    char mlist[64];
+    snprintf(mlist, sizeof mlist, "%s", contacts);
+    for (char *tok = strtok(mlist, ","); tok && n_models < 4; tok = strtok(NULL, ",")) {
+        models[n_models] = cs_param_choice(cm, tok);
+        if (models[n_models] < 0) {
+            fprintf(stderr, "clothd-bench: unknown contact model '%s'\n", tok);
+            return 2;
+        }
+        n_models++;
+    }
+    if (n_models == 0) {
+        fprintf(stderr, "clothd-bench: --contact names no model\n");
+        return 2;
+    }
+    if (!json)
+        printf("%-7s %-9s %5s %-8s %14s %22s\n", "backend", "grid", "rocks", "contact", "substeps/s",
+               "vertex-substeps/s");
 
     int rock_counts[8], n_counts = 0;
     char list[256];
@@ -88,7 +110,9 @@ int main(int argc, char **argv)
             fprintf(stderr, "clothd-bench: sizes must be 2..4096\n");
             return 2;
         }
-        for (int rc = 0; rc < n_counts; rc++) {
+        for (int rc = 0; rc < n_counts; rc++) for (int mi = 0; mi < n_models; mi++) {
+            /* without rocks the model does not matter: the first one only */
+            if (rock_counts[rc] == 0 && mi > 0) continue;
             cs_scene sc;
             cs_params p;
             cs_scene_default(&sc);
@@ -98,6 +122,7 @@ int main(int argc, char **argv)
             p.plastic_yield = 0.5f;  /* the strain pass runs; at rest nothing yields */
             p.tear_strain = 2.0f;
             p.max_substeps = 100000;
+            p.contact_model = models[mi];
             cs_sim *sim = NULL;
             char err[256];
             if (cs_sim_create(&sc, &p, backend, &sim, err, sizeof err) != CS_OK) {
@@ -146,13 +171,14 @@ int main(int argc, char **argv)
                          bs.bytes_per_vertex_substep, bs.copy_bandwidth / 1e9,
                          vsps * bs.bytes_per_vertex_substep / bs.copy_bandwidth);
             if (json)
-                printf("{\"backend\":\"%s\",\"device\":\"%s\",\"nx\":%d,\"ny\":%d,\"rocks\":%d,\"integrator\":\"%s\","
-                       "\"substeps_per_frame\":%d,\"substeps\":%lld,\"seconds\":%.3f,\"substeps_per_s\":%.1f,"
-                       "\"vertex_substeps_per_s\":%.0f%s}\n",
-                       cs_sim_backend(sim), cs_sim_device(sim), size, size, info.n_rocks, integrator, info.substeps,
-                       (long long)done, t - t0, sps, vsps, traffic);
+                printf("{\"backend\":\"%s\",\"device\":\"%s\",\"nx\":%d,\"ny\":%d,\"rocks\":%d,\"contact_model\":\"%s\","
+                       "\"integrator\":\"%s\",\"substeps_per_frame\":%d,\"substeps\":%lld,\"seconds\":%.3f,"
+                       "\"substeps_per_s\":%.1f,\"vertex_substeps_per_s\":%.0f%s}\n",
+                       cs_sim_backend(sim), cs_sim_device(sim), size, size, info.n_rocks, cm->choices[models[mi]],
+                       integrator, info.substeps, (long long)done, t - t0, sps, vsps, traffic);
             else
-                printf("%-7s %4dx%-4d %5d %14.0f %22.0f\n", cs_sim_backend(sim), size, size, info.n_rocks, sps, vsps);
+                printf("%-7s %4dx%-4d %5d %-8s %14.0f %22.0f\n", cs_sim_backend(sim), size, size, info.n_rocks,
+                       cm->choices[models[mi]], sps, vsps);
             fflush(stdout);
             cs_sim_destroy(sim);
         }

@@ -100,7 +100,7 @@ cs_status cs_guard_eval(cs_sim *sim, const cs_combos *combos, const cs_scene *sc
         double K = p->k_rock * M, C = p->c_rock * M;
         if (p->contact_model == CS_CONTACT_SURFACE) {
             const double reach = (double)rocks[r].radius + p->contact_offset;
-            const double contacts = floor(4 * 3.14159265358979323846 * reach * reach / face) + 1;
+            const double contacts = floor(4 * 3.14159265358979323846 * reach * reach / face) + 3; /* cs_surface_max_touch */
             K += contacts * p->k_contact;
             C += contacts * (p->c_contact + p->c_tangent);
         }
@@ -160,6 +160,7 @@ void cs_model_derive(cs_model *m, const cs_scene *scene, const cs_params *p, int
     f->c_tangent = p->c_tangent;
     f->mu = p->mu;
     f->contact_offset = p->contact_offset;
+    f->face_area = (float)((double)scene->size_x / (scene->nx - 1) * scene->size_y / (scene->ny - 1) / 2);
     f->friction = p->friction_model;
     f->contact_model = p->contact_model;
     f->max_sep = p->max_depenetration_speed > 0.0f ? p->max_depenetration_speed : 3.0e38f;

@@ -91,6 +91,8 @@ cs_status cs_sim_commit(cs_sim *sim);
 cs_status cs_sim_reguard(cs_sim *sim, const cs_rock_state *rocks, int32_t n_rocks, const char *param);
 
 /* read.c */
+/* Elastic energy of every penalty contact of the state (cs_energy.contact). */
+double cs_contact_energy(const cs_phys *p, const cs_state *s);
 /* Springs of the grid whose rest length says torn: their ids (type n + v, up to cap) and count. */
 int64_t cs_torn_list(int32_t nx, int32_t ny, const float *L0, uint32_t *ids, size_t cap);
 #define CS_FNV_OFFSET 0xcbf29ce484222325ull

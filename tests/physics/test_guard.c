@@ -28,7 +28,7 @@ static double hand_dt_max_r(const cs_scene *sc, const cs_params *p, const double
     const double tri = (double)sc->size_x / (sc->nx - 1) * sc->size_y / (sc->ny - 1) / 2;
     for (int r = 0; r < n_rocks; r++) {
         const double M = rock_mass[r], reach = rock_radius[r] + p->contact_offset;
-        const double n = surface ? floor(4 * 3.14159265358979323846 * reach * reach / tri) + 1 : 0;
+        const double n = surface ? floor(4 * 3.14159265358979323846 * reach * reach / tri) + 3 : 0;
         const double l = limit(M, p->k_rock * M + n * p->k_contact, p->c_rock * M + n * (p->c_contact + p->c_tangent));
         if (l < lim) lim = l;
     }

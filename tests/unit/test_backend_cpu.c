@@ -42,15 +42,15 @@ static void ref_ring(const cs_phys *p, const cs_state *s, const cs_vec3 *ro, int
         if (ii < 0 || ii >= nx || jj < 0 || jj >= ny) ii = i, jj = j;
         const int32_t o = jj * nx + ii;
         g->x[k] = at(s->x, s->y, s->z, o);
-        g->v[k] = at(s->vx, s->vy, s->vz, o);
-        g->ro[k] = p->friction == CS_FRICTION_RESULTANT ? ro[o] : cs_v3(0, 0, 0);
     }
+    const int32_t v = j * nx + i;
+    g->v = at(s->vx, s->vy, s->vz, v);
+    g->ro = p->friction == CS_FRICTION_RESULTANT ? ro[v] : cs_v3(0, 0, 0);
     g->faces = cs_ring_faces(s->L0, nx, ny, i, j);
 }
 
 /* a for every vertex (and, with strain, the new rest lengths); partials per chunk and rock.
- * First every vertex's non-contact resultant (springs, air, gravity), then its contacts (surface
- * contact reads its neighbours' resultants). */
+ * First every vertex's non-contact resultant (springs, air, gravity), then its contacts. */
 static int64_t ref_accel(const cs_phys *p, cs_state *s, float *partials, int strain)
 {
     const int32_t nx = p->nx, ny = p->ny, n = p->n, nr = s->n_rocks;

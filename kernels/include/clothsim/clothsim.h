@@ -159,7 +159,10 @@ cs_status cs_read_rest_lengths(cs_sim *sim, float *out, size_t n_floats);
 int64_t cs_read_torn(cs_sim *sim, uint32_t *ids, size_t cap);
 
 typedef struct cs_energy {
-    double kinetic, spring, gravity, total; /* J; gravity is -sum m g . x */
+    double kinetic, spring, gravity; /* J; gravity is -sum m g . x */
+    double contact;                  /* elastic energy of every penalty contact (cloth-rock, cloth-ground,
+                                        rock-rock, rock-ground), J */
+    double total;                    /* the sum of the four */
 } cs_energy;
 cs_status cs_energy_get(cs_sim *sim, cs_energy *out);
 /* FNV-1a 64 over positions, velocities, accelerations, rest lengths and rock state. */

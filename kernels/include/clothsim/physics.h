@@ -82,6 +82,7 @@ typedef struct cs_phys {
     float c_spring, mass, inv_mass, drag;
     cs_vec3 gravity, wind;
     float k_contact, c_contact, c_tangent, mu, contact_offset;
+    float face_area;             /* a render triangle's rest area, hx hy / 2 */
     int32_t friction;            /* cs_friction */
     int32_t contact_model;       /* cs_contact_model */
     float max_sep;               /* max_depenetration_speed; 3e38 when 0 (no cap) */
@@ -265,52 +266,64 @@ SIM_HD static inline int cs_vertex_ground_contact(cs_vec3 xi, cs_vec3 vi, cs_vec
  * (1..6) is (0, k, k+1), wrapping 6 to 1; spoke edge k joins slots 0 and k and lies between
  * triangles k-1 and k. (The tables are functions: a CUDA kernel cannot read host arrays.) */
 #define CS_RING 7
+#ifndef CS_NO_VL
+#define CS_NO_VL 0
+#endif
 SIM_HD static inline int cs_ring_di(int k)
 {
-    const int d[CS_RING] = {0, 1, 1, 0, -1, -1, 0};
-    return d[k];
+    return (int)((0x1069u >> (2 * k)) & 3u) - 1; /* 0, 1, 1, 0, -1, -1, 0 */
 }
 SIM_HD static inline int cs_ring_dj(int k)
 {
-    const int d[CS_RING] = {0, 0, 1, 1, 0, -1, -1};
-    return d[k];
+    return (int)((0x1a5u >> (2 * k)) & 3u) - 1; /* 0, 0, 1, 1, 0, -1, -1 */
 }
 /* Slot q (0..2) of ring triangle f (0..5, triangle f+1) in canonical order (A: v00 v10 v11,
- * B: v00 v11 v01): A(i, j), B(i, j), A(i-1, j), B(i-1, j-1), A(i-1, j-1), B(i, j-1). */
+ * B: v00 v11 v01): A(i, j) 0 1 2, B(i, j) 0 2 3, A(i-1, j) 4 0 3, B(i-1, j-1) 5 0 4, A(i-1, j-1)
+ * 5 6 0, B(i, j-1) 6 1 0 (3 bits each, f major). */
 SIM_HD static inline int cs_ring_face(int f, int q)
 {
-    const int t[6][3] = {{0, 1, 2}, {0, 2, 3}, {4, 0, 3}, {5, 0, 4}, {5, 6, 0}, {6, 1, 0}};
-    return t[f][q];
+    return (int)((0x1c3582b11a088ull >> (3 * (3 * f + q))) & 7ull);
 }
 /* Width of G's ramp, in barycentric units. */
 #define CS_MERGE 0.3f
 
 typedef struct cs_ring {
-    cs_vec3 x[CS_RING], v[CS_RING]; /* positions and velocities of the slots */
-    cs_vec3 ro[CS_RING];            /* their non-contact resultants (resultant friction only) */
-    int32_t faces;                  /* bit k-1: triangle k intact */
+    cs_vec3 x[CS_RING]; /* positions of the slots */
+    cs_vec3 v;          /* the vertex's velocity */
+    cs_vec3 ro;         /* and its non-contact resultant (resultant friction only; else anything) */
+    int32_t faces;      /* bit k-1: triangle k intact */
 } cs_ring;
 
-/* The intact triangles of the ring of vertex (i, j), as cs_ring.faces. L0: the type-major rest
- * lengths (CS_TORN where torn or absent). */
+/* The intact triangles of grid quad (qi, qj): bit 0 A, bit 1 B; 0 off the grid. L0: the
+ * type-major rest lengths (CS_TORN where torn or absent). A needs the structural x spring of v00,
+ * the structural y of v10 and the diagonal; B the diagonal, the structural x of v01 and the
+ * structural y of v00. */
+SIM_HD static inline int32_t cs_quad_faces(const float *L0, int32_t nx, int32_t ny, int32_t qi, int32_t qj)
+{
+    if ((qi < 0) | (qj < 0) | (qi + 1 >= nx) | (qj + 1 >= ny)) return 0;
+    const size_t n = (size_t)nx * (size_t)ny, q = (size_t)qj * (size_t)nx + (size_t)qi;
+    const float *sx = L0 + CS_SX * n, *sy = L0 + CS_SY * n, *d1 = L0 + CS_D1 * n;
+    const int32_t d = d1[q] > 0.0f;
+    const int32_t a = d & (sx[q] > 0.0f) & (sy[q + 1] > 0.0f);
+    const int32_t b = d & (sx[q + (size_t)nx] > 0.0f) & (sy[q] > 0.0f);
+    return a | b << 1;
+}
+
+/* The intact triangles of the ring of vertex (i, j), as cs_ring.faces: 1 A(i, j), 2 B(i, j),
+ * 3 A(i-1, j), 4 B(i-1, j-1), 5 A(i-1, j-1), 6 B(i, j-1). */
 SIM_HD static inline int32_t cs_ring_faces(const float *L0, int32_t nx, int32_t ny, int32_t i, int32_t j)
 {
-    /* quad offsets and type (0 A, 1 B) of the six triangles */
-    const int quad[6][3] = {{0, 0, 0}, {0, 0, 1}, {-1, 0, 0}, {-1, -1, 1}, {-1, -1, 0}, {0, -1, 1}};
-    const size_t n = (size_t)nx * (size_t)ny;
-    int32_t m = 0;
-    for (int f = 0; f < 6; f++) {
-        const int32_t qi = i + quad[f][0], qj = j + quad[f][1];
-        if (qi < 0 || qj < 0 || qi + 1 >= nx || qj + 1 >= ny) continue;
-        const size_t q = (size_t)qj * (size_t)nx + (size_t)qi;
-        /* A: structural x of v00, structural y of v10, the diagonal; B: the diagonal, structural x
-         * of v01, structural y of v00. */
-        const int ok = quad[f][2] == 0
-                           ? L0[CS_SX * n + q] > 0.0f && L0[CS_SY * n + q + 1] > 0.0f && L0[CS_D1 * n + q] > 0.0f
-                           : L0[CS_D1 * n + q] > 0.0f && L0[CS_SX * n + q + (size_t)nx] > 0.0f && L0[CS_SY * n + q] > 0.0f;
-        if (ok) m |= 1 << f;
-    }
-    return m;
+    const int32_t q0 = cs_quad_faces(L0, nx, ny, i, j), q1 = cs_quad_faces(L0, nx, ny, i - 1, j);
+    const int32_t q2 = cs_quad_faces(L0, nx, ny, i - 1, j - 1), q3 = cs_quad_faces(L0, nx, ny, i, j - 1);
+    return q0 | (q1 & 1) << 2 | (q2 >> 1) << 3 | (q2 & 1) << 4 | (q3 >> 1) << 5;
+}
+
+/* The set bits of a 6-bit mask. */
+SIM_HD static inline int cs_popcount6(int32_t m)
+{
+    m = (m & 0x15) + ((m >> 1) & 0x15);
+    m = (m & 0x33) + ((m >> 2) & 0x33);
+    return (m & 0x0f) + ((m >> 4) & 0x0f);
 }
 
 /* Barycentric weights (of a, b, o) of the point of triangle a b o closest to c: the foot of c on
@@ -425,27 +438,36 @@ SIM_HD static inline void cs_surface_term(cs_surface_out *o, cs_surface_acc *acc
     }
 }
 
-/* A spoke edge (slots ea, eb in canonical order, one of them 0) between ring triangles t1 and
- * t2: the term -(1 - G) at the edge's closest point. */
-SIM_HD static inline void cs_surface_edge(cs_surface_out *o, cs_surface_acc *acc, const cs_ring *g, int ea, int eb,
-                                          int t1, int t2, int own, const cs_rock_state *r, const cs_phys *ph)
+/* Spoke edge k (1..6, slots 0 and k, in canonical order: slot 0 first for k <= 3) between ring
+ * triangles k-1 and k, whose vertices off the edge are slots k-1 and k+1 (wrapping 0 to 6 and 7
+ * to 1): the term -(1 - G) at the edge's closest point. */
+SIM_HD static inline void cs_surface_edge(cs_surface_out *o, cs_surface_acc *acc, const cs_ring *g, int k,
+                                          const cs_rock_state *r, const cs_phys *ph)
 {
     const cs_vec3 c = r->x;
+    const int ea = k <= 3 ? 0 : k, eb = k <= 3 ? k : 0;
     const float wb = cs_closest_on_segment(c, g->x[ea], g->x[eb]), wa = 1.0f - wb;
     const cs_vec3 p = cs_add(cs_scale(g->x[ea], wa), cs_scale(g->x[eb], wb));
     if (!(r->radius + ph->contact_offset - cs_len(cs_sub(p, c)) > 0.0f)) return; /* out of reach */
-    /* the vertex of each triangle off the edge, and its foot weight across the edge */
-    int o1 = 0, o2 = 0;
-    for (int q = 0; q < 3; q++) {
-        const int s1 = cs_ring_face(t1, q), s2 = cs_ring_face(t2, q);
-        if (s1 != ea && s1 != eb) o1 = s1;
-        if (s2 != ea && s2 != eb) o2 = s2;
-    }
-    const float l1 = cs_foot_weight(g->x[ea], g->x[eb], g->x[o1], c);
-    const float l2 = cs_foot_weight(g->x[ea], g->x[eb], g->x[o2], c);
+    /* the foot weight, across the edge, of each triangle's vertex off it */
+    const float l1 = cs_foot_weight(g->x[ea], g->x[eb], g->x[k == 1 ? 6 : k - 1], c);
+    const float l2 = cs_foot_weight(g->x[ea], g->x[eb], g->x[k == 6 ? 1 : k + 1], c);
     const float G = cs_merge_ramp(l1 < l2 ? l1 : l2);
     if (G >= 1.0f) return;
-    cs_surface_term(o, acc, p, -(1.0f - G), ea == 0 ? wa : wb, own, r, ph);
+    cs_surface_term(o, acc, p, -(1.0f - G), ea == 0 ? wa : wb, k <= 3, r, ph);
+}
+
+/* The most cloth vertices rock r can touch at once, for its share of the velocity level: the
+ * area of its contact sphere over a rest triangle's, plus the three of one triangle (a rock
+ * smaller than the grid meets a single face). Each vertex cancels its approach against 1/N of
+ * the rock's mass, m M/N / (m + M/N): with N vertices at once that is exactly a perfectly
+ * inelastic collision of them all with the rock, with fewer it is less, so the velocity level
+ * never throws a light rock back (a heavy one moves the vertex with it: m M/N >> m). The
+ * stability guard counts the same vertices' contact stiffness. */
+SIM_HD static inline float cs_surface_max_touch(const cs_rock_state *r, const cs_phys *p)
+{
+    const float reach = r->radius + p->contact_offset;
+    return floorf(4.0f * 3.14159265f * reach * reach / p->face_area) + 3.0f;
 }
 
 /* The vertex's contact force from its net elastic contact force E and net weight W (the
@@ -461,14 +483,17 @@ SIM_HD static inline void cs_surface_edge(cs_surface_out *o, cs_surface_acc *acc
  *     along n (vn < 0) is cancelled by the force m (-vn) / dt, and the tangential velocity reduced
  *     by up to mu (-vn) (Coulomb friction of that normal impulse) by a further force. So a vertex
  *     never moves deeper into a rock's contact layer, however heavy or fast the rock. */
-SIM_HD static inline cs_vec3 cs_surface_vertex_law(cs_vec3 E, float W, cs_vec3 xi, cs_vec3 vi, cs_vec3 Ro, cs_vec3 Fsum,
-                                                   float free, const cs_rock_state *r, const cs_phys *p)
+SIM_HD static inline cs_vec3 cs_surface_vertex_law(cs_vec3 E, float W, cs_vec3 vi, cs_vec3 Ro, cs_vec3 Fsum, float free,
+                                                   const cs_rock_state *r, const cs_phys *p, cs_vec3 *arm)
 {
     const float e = cs_len(E);
+    *arm = cs_v3(0.0f, 0.0f, 0.0f);
     if (!(e > 0.0f)) return E;
     const cs_vec3 n = cs_scale(E, 1.0f / e);
     const float w = W > 0.0f ? W : 0.0f;
-    const cs_vec3 vsurf = cs_add(r->v, cs_cross(r->w, cs_sub(xi, r->x)));
+    /* the rock's surface where it meets the vertex's contact: R n from its centre */
+    *arm = cs_scale(n, r->radius);
+    const cs_vec3 vsurf = cs_add(r->v, cs_cross(r->w, *arm));
     const cs_vec3 vrel = cs_sub(vi, vsurf);
     const float vn = cs_dot(vrel, n);
     float fn = e - p->c_contact * w * vn;
@@ -494,12 +519,13 @@ SIM_HD static inline cs_vec3 cs_surface_vertex_law(cs_vec3 E, float W, cs_vec3 x
             }
         }
     }
-    if (free > 0.0f) {
+    if (free > 0.0f && !CS_NO_VL) {
         /* the velocity the vertex would drift with, relative to the rock's surface now */
         const cs_vec3 pred = cs_sub(cs_add(vi, cs_scale(cs_add(Fsum, F), p->dt * p->inv_mass)), vsurf);
         const float pn = cs_dot(pred, n);
         if (pn < 0.0f) {
-            const float m_dt = p->mass / p->dt;
+            /* the vertex's mass against its share of the rock's (cs_surface_max_touch) */
+            const float m_dt = 1.0f / ((p->inv_mass + cs_surface_max_touch(r, p) * r->inv_mass) * p->dt);
             F = cs_add(F, cs_scale(n, -pn * m_dt));
             const cs_vec3 pt = cs_sub(pred, cs_scale(n, pn));
             const float pt_len = cs_len(pt), cap = p->mu * -pn;
@@ -509,13 +535,41 @@ SIM_HD static inline cs_vec3 cs_surface_vertex_law(cs_vec3 E, float W, cs_vec3 x
     return F;
 }
 
-/* Vertex g->x[0]'s part in rock r's surface contact (the rules above), into *o. Fsum: the force
- * on the vertex so far (non-contact resultant and earlier rocks' contacts); free: its w (1 free,
- * 0 pinned or grabbed). */
-SIM_HD static inline void cs_surface_gather(const cs_ring *g, const cs_rock_state *r, const cs_phys *ph, cs_vec3 Fsum,
-                                            float free, cs_surface_out *o)
+/* How far from a rock's centre a triangle may lie and still take part: its reach R + offset plus
+ * more than float rounding of a closest point can amount to. An edge lies on its two triangles
+ * and a vertex on all of its, so a term whose triangles are all farther than this is out of reach
+ * too: it is skipped (every vertex that shares it decides so from the same bits). */
+SIM_HD static inline float cs_surface_lim(const cs_rock_state *r, const cs_phys *ph)
 {
-    const cs_vec3 c = r->x, zero = cs_v3(0.0f, 0.0f, 0.0f);
+    const cs_vec3 c = r->x;
+    return r->radius + ph->contact_offset + 1e-4f + 1e-6f * (fabsf(c.x) + fabsf(c.y) + fabsf(c.z));
+}
+
+/* Triangle (a, b, o) in canonical order (cs_ring_face): its point *p closest to c, the
+ * barycentric weights w of that point, and whether it lies within lim of c. Every vertex of the
+ * triangle computes the same bits. */
+SIM_HD static inline int cs_surface_triangle(cs_vec3 c, cs_vec3 a, cs_vec3 b, cs_vec3 o, float lim, cs_vec3 *p,
+                                             float w[3])
+{
+    cs_closest_on_triangle(c, a, b, o, w);
+    *p = cs_add(cs_add(cs_scale(a, w[0]), cs_scale(b, w[1])), cs_scale(o, w[2]));
+    const cs_vec3 d = cs_sub(*p, c);
+    return cs_dot(d, d) <= lim * lim;
+}
+
+/* The weight of ring slot 0 among the canonical weights w of ring triangle f: slot 0 is first in
+ * triangles 1 and 2, second in 3 and 4, third in 5 and 6 (cs_ring_face). */
+SIM_HD static inline float cs_ring_own_weight(int f, const float w[3]) { return w[f >> 1]; }
+
+/* The rest of the gather (below) once the ring's intact triangles are found: tp[f] the closest
+ * point of triangle f, tw[f] the vertex's weight there, bit f of in whether it is within lim
+ * (cs_surface_triangle). A backend that computes each triangle once for its three vertices calls
+ * this; cs_surface_gather is both parts. */
+SIM_HD static inline void cs_surface_gather_tris(const cs_ring *g, const cs_vec3 tp[6], const float tw[6], int32_t in,
+                                                 const cs_rock_state *r, const cs_phys *ph, cs_vec3 Fsum, float free,
+                                                 cs_surface_out *o)
+{
+    const cs_vec3 zero = cs_v3(0.0f, 0.0f, 0.0f);
     cs_surface_acc acc;
     acc.E = zero;
     acc.weight = 0.0f;
@@ -523,40 +577,53 @@ SIM_HD static inline void cs_surface_gather(const cs_ring *g, const cs_rock_stat
     o->energy = o->depth = 0.0f;
     o->touches = o->owns = 0;
     const int32_t fm = g->faces;
-    if (!fm) return;
-    /* The vertex term: n_V = 1 - triangles + interior edges. */
-    int nv = 1;
-    for (int k = 1; k <= 6; k++) {
-        const int fa = k == 1 ? 5 : k - 2, fb = k - 1; /* triangles k-1 and k */
-        nv -= (fm >> fb) & 1;
-        nv += ((fm >> fa) & 1) & ((fm >> fb) & 1);
-    }
+    in &= fm;
+    if (!in) return; /* a vertex near, not at, a contact (most of those a culling box lets through) */
+    /* Spoke k lies between triangles k-1 and k: bits k-2 (mod 6) and k-1. Interior spokes are
+     * those with both; bit k-1 of ie. The vertex term: n_V = 1 - triangles + interior edges. */
+    const int32_t rot = ((fm << 1) | (fm >> 5)) & 63, ie = fm & rot, near = (in | ((in << 1) | (in >> 5))) & 63;
+    const int nv = 1 - cs_popcount6(fm) + cs_popcount6(ie);
     if (nv != 0) cs_surface_term(o, &acc, g->x[0], (float)nv, 1.0f, 1, r, ph);
-    /* Spoke edges k: between triangles k-1 and k; canonical order slot 0 first for k <= 3. */
-    for (int k = 1; k <= 6; k++) {
-        const int fa = k == 1 ? 5 : k - 2, fb = k - 1;
-        if (!(((fm >> fa) & 1) && ((fm >> fb) & 1))) continue;
-        cs_surface_edge(o, &acc, g, k <= 3 ? 0 : k, k <= 3 ? k : 0, fa, fb, k <= 3, r, ph);
-    }
-    /* Triangles: the closest point. */
-    for (int k = 1; k <= 6; k++) {
-        const int f0 = k - 1;
-        if (!((fm >> f0) & 1)) continue;
-        const int t[3] = {cs_ring_face(f0, 0), cs_ring_face(f0, 1), cs_ring_face(f0, 2)};
-        float b[3];
-        cs_closest_on_triangle(c, g->x[t[0]], g->x[t[1]], g->x[t[2]], b);
-        const cs_vec3 p = cs_add(cs_add(cs_scale(g->x[t[0]], b[0]), cs_scale(g->x[t[1]], b[1])), cs_scale(g->x[t[2]], b[2]));
-        cs_surface_term(o, &acc, p, 1.0f, t[0] == 0 ? b[0] : t[1] == 0 ? b[1] : b[2], k <= 2, r, ph);
-    }
+    /* Spoke edges: the interior ones with a triangle within reach. */
+    const int32_t edges = ie & near;
+    for (int k = 1; k <= 6; k++)
+        if ((edges >> (k - 1)) & 1) cs_surface_edge(o, &acc, g, k, r, ph);
+    /* Triangles: at their closest points. */
+    for (int f = 0; f < 6; f++)
+        if ((in >> f) & 1) cs_surface_term(o, &acc, tp[f], 1.0f, tw[f], f <= 1, r, ph);
     /* Dissipation and the separation cap, at the vertex from its net elastic force; the vertex
      * owns the reaction of what it adds or removes. */
     if (!o->touches) return;
-    const cs_vec3 F = cs_surface_vertex_law(acc.E, acc.weight, g->x[0], g->v[0], g->ro[0], Fsum, free, r, ph);
+    cs_vec3 arm;
+    const cs_vec3 F = cs_surface_vertex_law(acc.E, acc.weight, g->v, g->ro, Fsum, free, r, ph, &arm);
     const cs_vec3 D = cs_sub(F, acc.E);
     o->share = F;
     o->force = cs_sub(o->force, D);
-    o->torque = cs_cross(cs_sub(g->x[0], c), cs_neg(D));
+    o->torque = cs_cross(arm, cs_neg(D)); /* at the rock's surface: the work done there is D . vrel */
     o->owns++; /* the reaction of its own law */
+}
+
+/* Vertex g->x[0]'s part in rock r's surface contact (the rules above), into *o. Fsum: the force
+ * on the vertex so far (non-contact resultant and earlier rocks' contacts); free: its w (1 free,
+ * 0 pinned or grabbed). */
+SIM_HD static inline void cs_surface_gather(const cs_ring *g, const cs_rock_state *r, const cs_phys *ph, cs_vec3 Fsum,
+                                            float free, cs_surface_out *o)
+{
+    const float lim = cs_surface_lim(r, ph);
+    cs_vec3 tp[6];
+    float tw[6];
+    int32_t in = 0; /* bit f: triangle f within lim */
+    for (int f = 0; f < 6; f++) {
+        tp[f] = cs_v3(0.0f, 0.0f, 0.0f);
+        tw[f] = 0.0f;
+        if (!((g->faces >> f) & 1)) continue;
+        float w[3];
+        in |= cs_surface_triangle(r->x, g->x[cs_ring_face(f, 0)], g->x[cs_ring_face(f, 1)], g->x[cs_ring_face(f, 2)],
+                                  lim, &tp[f], w)
+              << f;
+        tw[f] = cs_ring_own_weight(f, w);
+    }
+    cs_surface_gather_tris(g, tp, tw, in, r, ph, Fsum, free, o);
 }
 
 /* Reduced mass 1 / (1/Ma + 1/Mb) from the inverse masses (0 for a kinematic rock or the ground);
