@@ -14,6 +14,7 @@ CLOTHD_APT_TEST=(
   chromium chromium-driver    # the viewer's end-to-end tests (headless, driven by playwright-core)
   strace                      # the crash-safe save test sees the system calls of a save
   wrk                         # the soak test's API load (tests/server/soak.mjs) and scripts/bench-http.sh
+  prometheus                  # promtool checks a /metrics scrape (tests/server/metrics.test.mjs)
 )                             # (nodejs, above: the integration tests, node's test runner and fetch)
 CLOTHD_APT_PACKAGES=("${CLOTHD_APT_BUILD[@]}" "${CLOTHD_APT_TEST[@]}")
 # npm: Debian's nodejs needs the npm package, NodeSource's nodejs bundles npm (and would conflict
