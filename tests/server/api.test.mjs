@@ -249,12 +249,12 @@ test('X-Request-Id is echoed, on success and on error', async () => {
   assert.equal(c.headers.get('x-request-id'), 'r7');
 });
 
-test('unknown routes are 404, wrong methods 405 with Allow', async () => {
+test('unknown routes are 404, wrong methods 405 with Allow (HEAD with every GET)', async () => {
   assertProblem(await call(d, 'GET', '/v1/nothing'), 404);
   const r = await call(d, 'DELETE', '/v1/sim');
   assertProblem(r, 405);
-  assert.equal(r.headers.get('allow'), 'GET');
-  assert.equal((await call(d, 'POST', '/v1/params')).headers.get('allow'), 'GET, PATCH');
+  assert.equal(r.headers.get('allow'), 'GET, HEAD');
+  assert.equal((await call(d, 'POST', '/v1/params')).headers.get('allow'), 'GET, HEAD, PATCH');
 });
 
 test('static files from web_root', async () => {
