@@ -14,6 +14,14 @@ import { start, stop, call, hash, tempDir, PROBLEM } from './harness.mjs';
 const CONTROL = 'c0ntrol-t0ken-0123456789abcdef';
 const ROCK = JSON.stringify({ position: [0, 0, 2], radius: 0.1 });
 
+// A control token file for a daemon that needs one.
+function tokenFile() {
+  const f = join(tempDir(), 'control');
+  writeFileSync(f, `${CONTROL}\n`);
+  chmodSync(f, 0o600);
+  return f;
+}
+
 // Every changing route, with a body it would accept.
 const changes = [
   ['POST', '/v1/rocks', ROCK], ['POST', '/v1/sim/reset', '{}'], ['POST', '/v1/sim/resume', '{}'],
@@ -71,10 +79,7 @@ test('a changing request from a page of another origin is 403 and changes nothin
 });
 
 test('the cross-site rule runs before the token check', async () => {
-  const dir = tempDir();
-  const f = join(dir, 'control');
-  writeFileSync(f, `${CONTROL}\n`);
-  chmodSync(f, 0o600);
+  const f = tokenFile();
   const d = await start(['--paused', '--token-file', f]);
   const auth = { Authorization: `Bearer ${CONTROL}` };
   const h0 = (await call(d, 'GET', '/v1/sim', undefined, auth)).json.state_hash;
@@ -90,10 +95,7 @@ test('the cross-site rule runs before the token check', async () => {
 });
 
 test('refused requests have a budget of their own: 401s do not use up the control client\'s', async () => {
-  const dir = tempDir();
-  const f = join(dir, 'control');
-  writeFileSync(f, `${CONTROL}\n`);
-  chmodSync(f, 0o600);
+  const f = tokenFile();
   const d = await start(['--paused', '--token-file', f, '--rate-limit', '2', '--rate-burst', '5']);
   const auth = { Authorization: `Bearer ${CONTROL}` };
   // 50 requests without a token, from the same address as the control client: the first
