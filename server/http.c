@@ -818,6 +818,7 @@ static void *uri_cb(void *cls, const char *uri, struct MHD_Connection *c)
     http_server *s = cls;
     conn *e = conn_of(c);
     conns_request_line(s->conns, e);
+    if (!uri) return NULL; /* no target at all: libmicrohttpd refuses such a line itself */
     int bad = 0;
     for (const unsigned char *p = (const unsigned char *)uri; *p && !bad; p++) bad = *p <= ' ' || *p == 0x7f;
     const char *end = uri + strlen(uri);
