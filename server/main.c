@@ -277,7 +277,7 @@ static cs_sim *make_engine(const clothd_config *cfg)
     cs_sim *sim = NULL;
     const uint64_t limit = (uint64_t)cfg->set.max_state_mb << 20;
     uint64_t bytes;
-    if (cs_scene_memory(&cfg->scene, &bytes) != CS_OK || bytes > limit) {
+    if (cs_scene_memory(&cfg->scene, CS_MAX_ROCKS, &bytes) != CS_OK || bytes > limit) {
         log_msg("cannot start the simulation: a %d x %d cloth needs more than max_state_mb (%d MiB)", (int)cfg->scene.nx,
                 (int)cfg->scene.ny, (int)cfg->set.max_state_mb);
         return NULL;
@@ -288,7 +288,7 @@ static cs_sim *make_engine(const clothd_config *cfg)
         return NULL;
     }
     cs_sim_set_threads(sim, cfg->set.threads);
-    cs_sim_set_memory_limit(sim, limit);
+    cs_sim_set_memory_limit(sim, limit, NULL, NULL);
     return sim;
 }
 
