@@ -8,8 +8,9 @@
  * serve: settings from the config file, CLOTHD_* variables and flags; the engine on the chosen
  * backend, resumed from --state-file when it exists (a corrupt or foreign file is refused, or
  * moved aside with --state-file-invalid fresh); the sim thread; the HTTP server. SIGTERM or
- * SIGINT stops accepting, finishes the frame, saves the state file (temp file, fsync, rename,
- * fsync of the directory) and exits 0. A backend failure (SIGUSR1 from the sim thread) keeps
+ * SIGINT stops accepting, stops the sim thread (within a slice of compute, whatever it runs: a
+ * long step, a long frame), saves the state file (temp file, fsync, rename, fsync of the
+ * directory) and exits 0. A backend failure (SIGUSR1 from the sim thread) keeps
  * answering - /v1/health 503 - while it saves the last checkpoint, then exits 3, for a supervisor
  * to restart from the state file. Exit statuses are in EXIT_STATUSES. */
 #include <dirent.h>
@@ -182,11 +183,11 @@ static void remove_stale_temps(const char *path)
     closedir(dp);
 }
 
-/* What is wrong with a state file the engine refused, or NULL when the file is not to blame (out
- * of memory, a device error, a cloth larger than max_state_mb allows). */
-static const char *invalid_because(const unsigned char *buf, size_t len, cs_status st)
+/* What is wrong with a state file whose snapshot the engine refused, or NULL when the file is not
+ * to blame (out of memory, a device error, a cloth larger than max_state_mb allows, more rocks
+ * than max_rocks). */
+static const char *invalid_because(cs_status st)
 {
-    if (len < 4 || memcmp(buf, "CSNP", 4) != 0) return "is not a clothd state file";
     switch (st) {
     case CS_E_VERSION: return "was written by another version of clothd";
     case CS_E_FORMAT: return "is damaged";
@@ -239,7 +240,9 @@ static int resume(cs_sim *sim, const clothd_settings *set)
         return -1;
     }
     const cs_status st = cs_snapshot_load(sim, buf, len);
-    const char *bad = st == CS_OK ? NULL : invalid_because(buf, len, st);
+    const char *bad = st == CS_OK                               ? NULL
+                      : len < 4 || memcmp(buf, "CSNP", 4) != 0 ? "is not a clothd state file"
+                                                                : invalid_because(st);
     free(buf);
     if (st == CS_OK) {
         cs_info info;
@@ -250,8 +253,11 @@ static int resume(cs_sim *sim, const clothd_settings *set)
         return 0;
     }
     if (!bad) { /* the file is kept whatever state_file_invalid says */
+        const char *param = cs_sim_error_param(sim);
         log_msg("cannot resume from the state file %s: %s%s", path, cs_sim_error(sim),
-                st == CS_E_LIMIT ? " (raise max_state_mb to resume from it)" : "");
+                st != CS_E_LIMIT                  ? ""
+                : strcmp(param, "max_rocks") == 0 ? " (raise max_rocks to resume from it)"
+                                                  : " (raise max_state_mb to resume from it)");
         return -1;
     }
     if (set->state_file_invalid != STATE_INVALID_FRESH) {
@@ -277,7 +283,7 @@ static cs_sim *make_engine(const clothd_config *cfg)
     cs_sim *sim = NULL;
     const uint64_t limit = (uint64_t)cfg->set.max_state_mb << 20;
     uint64_t bytes;
-    if (cs_scene_memory(&cfg->scene, CS_MAX_ROCKS, &bytes) != CS_OK || bytes > limit) {
+    if (simloop_scene_cost(&cfg->scene, cfg->set.max_rocks, NULL, &bytes) != CS_OK || bytes > limit) {
         log_msg("cannot start the simulation: a %d x %d cloth needs more than max_state_mb (%d MiB)", (int)cfg->scene.nx,
                 (int)cfg->scene.ny, (int)cfg->set.max_state_mb);
         return NULL;
@@ -288,7 +294,8 @@ static cs_sim *make_engine(const clothd_config *cfg)
         return NULL;
     }
     cs_sim_set_threads(sim, cfg->set.threads);
-    cs_sim_set_memory_limit(sim, limit, NULL, NULL);
+    cs_sim_set_rock_limit(sim, cfg->set.max_rocks);
+    cs_sim_set_memory_limit(sim, limit, simloop_scene_cost, NULL);
     return sim;
 }
 
@@ -304,15 +311,13 @@ static int replay(const char *file, const clothd_config *cfg)
         return 1;
     }
     /* The bundle: a snapshot (its header says how long it is) followed by the journal JSON. */
-    unsigned long long plen = 0;
-    for (int k = 0; k < 8 && len >= 32; k++) plen |= (unsigned long long)buf[16 + k] << (8 * k);
-    if (len < 32 || memcmp(buf, "CSNP", 4) != 0 || plen > len - 32) {
+    const size_t snap_len = cs_snapshot_length(buf, len);
+    if (snap_len == 0) {
         fprintf(stderr, "clothd replay: %s is not a journal bundle (GET /v1/journal with Accept: application/octet-stream)\n",
                 file);
         free(buf);
         return 1;
     }
-    const size_t snap_len = 32 + (size_t)plen;
     json_error_t jerr;
     json_t *j = json_loadb((const char *)buf + snap_len, len - snap_len, JSON_REJECT_DUPLICATES, &jerr);
     cs_sim *sim = j ? make_engine(cfg) : NULL;
@@ -322,7 +327,6 @@ static int replay(const char *file, const clothd_config *cfg)
     } else if (sim && cs_snapshot_load(sim, buf, snap_len) != CS_OK) {
         fprintf(stderr, "clothd replay: the snapshot in %s is refused: %s\n", file, cs_sim_error(sim));
     } else if (sim) {
-        const command_limits lim = {CS_MAX_ROCKS};
         cs_info info;
         size_t k;
         json_t *e;
@@ -334,7 +338,7 @@ static int replay(const char *file, const clothd_config *cfg)
             json_t *journal = NULL, *result = NULL;
             problem pr;
             if (step < (long long)info.step || cs_sim_step(sim, step - (long long)info.step) != CS_OK ||
-                command_apply(sim, json_object_get(e, "command"), &lim, &journal, &result, &pr) != 0) {
+                command_apply(sim, json_object_get(e, "command"), &journal, &result, &pr) != 0) {
                 fprintf(stderr, "clothd replay: entry %zu (step %lld) could not be replayed: %s\n", k, step,
                         pr.detail[0] ? pr.detail : cs_sim_error(sim));
                 rc = 1;
