@@ -13,10 +13,14 @@
  * the rock's new accelerations overflowed, refuse to save as not finite - and the next step finds
  * it), load again (the same bytes) and step, and the daemon's reading of it after
  * PUT /v1/snapshot works.
- */
+ *
+ * The same input is also read as a state file (statefile.c: a snapshot and its trailer), as the
+ * daemon does at start: a layout it accepts names a snapshot within the input, which is loaded,
+ * and a trailer it writes reads back the same. */
 #include <stdint.h>
 
 #include "fuzz_common.h"
+#include "statefile.h"
 
 /* A small rock limit (the daemon's max_rocks), so that snapshots past it are found. */
 #define FUZZ_ROCK_LIMIT 4
@@ -131,9 +135,36 @@ static void load(const unsigned char *buf, size_t len)
     free(s1);
 }
 
+/* The input as a state file. */
+static void state_file(const uint8_t *data, size_t size)
+{
+    statefile layout;
+    char why[300] = "";
+    if (statefile_parse(data, size, &layout, why, sizeof why) != STATEFILE_OK) {
+        if (!why[0]) fuzz_fail("a state file refused without a reason");
+        return;
+    }
+    if (layout.snapshot_len == 0 || layout.snapshot_len > size) fuzz_fail("a snapshot of %zu bytes in %zu", layout.snapshot_len, size);
+    if (layout.snapshot_len < size) load(data, layout.snapshot_len);
+    size_t tlen = 0;
+    char *t = statefile_trailer(layout.paused, &tlen);
+    if (!t) fuzz_fail("out of memory");
+    unsigned char *file = malloc(layout.snapshot_len + tlen);
+    if (!file) fuzz_fail("out of memory");
+    memcpy(file, data, layout.snapshot_len);
+    memcpy(file + layout.snapshot_len, t, tlen);
+    statefile again;
+    if (statefile_parse(file, layout.snapshot_len + tlen, &again, why, sizeof why) != STATEFILE_OK ||
+        again.paused != layout.paused || again.snapshot_len != layout.snapshot_len || again.format != STATEFILE_FORMAT)
+        fuzz_fail("a state file written with its trailer does not read back: %s", why);
+    free(file);
+    free(t);
+}
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     load(data, size);
+    state_file(data, size);
     if (size >= 32 && memcmp(data, "CSNP", 4) == 0) {
         unsigned char *fixed = malloc(size);
         if (!fixed) fuzz_fail("out of memory");

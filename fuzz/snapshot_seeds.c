@@ -2,7 +2,7 @@
  * in the states a snapshot can hold (rocks, a grab, pins, torn and stretched springs, a vertical
  * cloth), at the edges of what the API allows (the last rock id given, the last step count) and
  * just past them (a next rock id of 0, a step past 2^63 - 1, more rocks than the fuzz target's
- * rock limit). scripts/fuzz.sh adds them to the corpus on
+ * rock limit), and a state file with its trailer. scripts/fuzz.sh adds them to the corpus on
  * every run, so the seeds follow the parameter table (a snapshot of another table is refused at
  * its header). */
 #include <stdio.h>
@@ -54,7 +54,7 @@ static int write_file(const char *dir, const char *name, const void *buf, size_t
 }
 
 /* Writes the snapshot with an edit at `off` (`bytes` little-endian bytes of v; none when bytes
- * is 0) and its checksum fixed, then `tail` after it when not NULL. */
+ * is 0) and its checksum fixed, then `tail` after it (a state file's trailer) when not NULL. */
 static int save_edited(cs_sim *sim, const char *dir, const char *name, size_t off, uint64_t v, int bytes,
                        const char *tail)
 {
@@ -157,6 +157,8 @@ int main(int argc, char **argv)
     if (!sim) return 1;
     if (cs_sim_step(sim, 10) != CS_OK) return fail("vertical", sim);
     rc |= save(sim, dir, "vertical-3x2");
+    /* A state file as SIGTERM writes it: the snapshot and the trailer. */
+    rc |= save_edited(sim, dir, "statefile-paused-3x2", 0, 0, 0, "{\"clothd_state\":2,\"run\":\"paused\"}");
     cs_sim_destroy(sim);
 
     /* At the edges of the API's rules, and just past them (the fuzz target's rock limit is 4). */

@@ -52,7 +52,7 @@ struct simloop {
     atomic_int stopping;   /* stop, readable without the lock between slices */
 
     /* the sim thread's own */
-    int paused;
+    int paused, paused_before_failure;
     uint64_t frame;
     int32_t frame_sub;     /* substeps run of the frame in progress (a frame stepped in parts) */
     double frame_wall;     /* compute time of the frame in progress */
@@ -422,6 +422,8 @@ const unsigned char *simloop_checkpoint(simloop *sl, size_t *len)
 }
 cs_sim *simloop_engine(simloop *sl) { return sl->sim; }
 
+int simloop_paused(simloop *sl) { return simloop_healthy(sl) ? sl->paused : sl->paused_before_failure; }
+
 /* ---- commands ---- */
 
 /* Applies a state-changing command, journals it and tells the stream. */
@@ -494,6 +496,7 @@ static void backend_lost(simloop *sl)
     pthread_mutex_lock(&sl->plock);
     sl->healthy = 0;
     pthread_mutex_unlock(&sl->plock);
+    sl->paused_before_failure = sl->paused;
     sl->paused = 1;
     set_event(sl, json_pack("{s:s, s:I, s:s}", "type", "backend_failure", "step", (json_int_t)info.step, "detail",
                             cs_sim_error(sl->sim)));

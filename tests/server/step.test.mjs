@@ -138,13 +138,13 @@ test('SIGTERM saves the state file within 2 s during a 100000-frame step on a 16
   const took = (await soon(saved, 30000, 'the save')) - t0;
   assert.ok(took < 2000, `the state file was saved ${took} ms after SIGTERM`);
   assert.equal((await stop(d)).code, 0);
-  assert.match(d.log, /state saved to .*state\.bin/);
+  assert.match(d.log, /state saved to .*state\.bin \(paused\)/);
   // The step's answer, if it got out before the server closed: cut short by the shutdown.
   const r = await answered;
   if (r && r.status === 200) assert.equal(r.json.interrupted_by, 'shutdown');
-  // The file resumes where the step was stopped.
+  // The file resumes where the step was stopped, paused as it was.
   assert.ok(existsSync(state));
-  const b = await start(['--state-file', state, '--paused']);
+  const b = await start(['--state-file', state]);
   const back = await ok(b, 'GET', '/v1/sim');
   assert.equal(back.state, 'paused');
   assert.ok(back.step > progress.step, `resumed at step ${back.step}, the step was at ${progress.step} before SIGTERM`);
