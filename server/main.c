@@ -8,8 +8,8 @@
  * serve: settings from the config file, CLOTHD_* variables and flags; the engine on the chosen
  * backend, resumed from --state-file when it exists (a corrupt or foreign file is refused, or
  * moved aside with --state-file-invalid fresh), paused if it was saved paused; the sim thread;
- * the HTTP server. SIGTERM or SIGINT stops accepting, stops the sim thread (within a slice of
- * compute, whatever it runs: a long step, a long frame), saves the state file (statefile.h: temp
+ * the HTTP server. SIGTERM or SIGINT stops accepting, stops the sim thread (within a quarter
+ * second of compute, whatever it runs: a long step, a long frame), saves the state file (statefile.h: temp
  * file, fsync, rename, fsync of the directory) and exits 0. A backend failure (SIGUSR1 from the sim thread) keeps
  * answering - /v1/health 503 - while it saves the last checkpoint, then exits 3, for a supervisor
  * to restart from the state file. Exit statuses are in EXIT_STATUSES. */

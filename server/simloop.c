@@ -590,7 +590,7 @@ static int advance_frame(simloop *sl, double budget)
 static int run_frame(simloop *sl)
 {
     for (;;) {
-        const int r = advance_frame(sl, SIMLOOP_SLICE);
+        const int r = advance_frame(sl, SIMLOOP_RUN_SLICE);
         if (r != 0) return r;
         if (atomic_load(&sl->stopping)) return 0;
     }

@@ -11,9 +11,11 @@
  * Nothing keeps the thread from its queue for long: a step (POST /v1/sim/step, up to 100000
  * frames) runs in slices of about SIMLOOP_SLICE seconds of compute, and between slices the
  * thread answers reads, publishes its progress and notices a stop; a pause, a cancel, another
- * step or any command that changes the state ends it first (its answer says how far it got). A
- * frame that takes longer than a slice is stepped in parts too, so a stop is noticed within a
- * slice whatever runs. The queue holds at most queue_max commands (503 `busy` beyond). */
+ * step or any command that changes the state ends it first (its answer says how far it got).
+ * While running, a frame that takes longer than SIMLOOP_RUN_SLICE is stepped in parts, so a stop
+ * is noticed within that whatever runs. (Each part costs the backend a pass over the vertices to
+ * finish its last substep, so parts are not made smaller than they need to be.) The queue holds
+ * at most queue_max commands (503 `busy` beyond). */
 #ifndef CLOTHD_SIMLOOP_H
 #define CLOTHD_SIMLOOP_H
 
@@ -39,8 +41,10 @@ typedef enum sim_cmd_kind {
     CMD_STEP_CANCEL   /* ends the step in progress, if any (result {"cancelled": bool}) */
 } sim_cmd_kind;
 
-/* Seconds of compute between two looks at the queue while a step or a long frame runs. */
-#define SIMLOOP_SLICE 0.02
+/* Seconds of compute between two looks at the queue while a step runs, and between two looks at
+ * a stop while a long frame runs. */
+#define SIMLOOP_SLICE 0.05
+#define SIMLOOP_RUN_SLICE 0.25
 
 typedef struct sim_cmd sim_cmd;
 struct sim_cmd {
