@@ -205,22 +205,25 @@ static int h_sim(http_server *s, req *r, reply *out)
     return reply_text(out, 200, JSON_TYPE, j, len);
 }
 
-static int h_pause(http_server *s, req *r, reply *out)
+/* A command that takes no body (an empty one or {}). */
+static int later_bodyless(req *r, sim_cmd_kind kind, reply *out)
 {
-    (void)s;
     json_t *b;
     if (body_object(r, 0, &b, out) != 0) return NOW;
     json_decref(b);
-    return later(r, CMD_PAUSE, NULL);
+    return later(r, kind, NULL);
+}
+
+static int h_pause(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    return later_bodyless(r, CMD_PAUSE, out);
 }
 
 static int h_resume(http_server *s, req *r, reply *out)
 {
     (void)s;
-    json_t *b;
-    if (body_object(r, 0, &b, out) != 0) return NOW;
-    json_decref(b);
-    return later(r, CMD_RESUME, NULL);
+    return later_bodyless(r, CMD_RESUME, out);
 }
 
 static int h_step(http_server *s, req *r, reply *out)
@@ -228,7 +231,20 @@ static int h_step(http_server *s, req *r, reply *out)
     (void)s;
     json_t *b;
     if (body_object(r, 1, &b, out) != 0) return NOW;
+    int frames;
+    long long n;
+    problem pr;
+    if (step_from_json(b, &frames, &n, &pr) != 0) { /* refused here: it reaches no step in progress */
+        json_decref(b);
+        return reply_problem(out, &pr);
+    }
     return later(r, CMD_STEP, b);
+}
+
+static int h_step_cancel(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    return later_bodyless(r, CMD_STEP_CANCEL, out);
 }
 
 static int h_reset(http_server *s, req *r, reply *out)
@@ -397,6 +413,7 @@ static const route routes[] = {
     {"POST", "/v1/sim/pause", h_pause, 0, JSON_TYPE},
     {"POST", "/v1/sim/resume", h_resume, 0, JSON_TYPE},
     {"POST", "/v1/sim/step", h_step, 0, NULL},
+    {"DELETE", "/v1/sim/step", h_step_cancel, 0, NULL},
     {"POST", "/v1/sim/reset", h_reset, 0, NULL},
     {"GET", "/v1/params", h_params_get, 0, NULL},
     {"PATCH", "/v1/params", h_params_patch, 0, NULL},
@@ -545,6 +562,7 @@ static void finish(req *r, reply *rep)
     sim_cmd *c = &r->cmd;
     if (c->failed) {
         reply_problem(rep, &c->pr);
+        if (strcmp(c->pr.slug, "busy") == 0) rep->retry_after = 1; /* the queue drains within a slice */
     } else if (c->blob) {
         const char *type = r->rt->blob_type ? r->rt->blob_type : JSON_TYPE;
         if (c->kind == CMD_CLOTH_STATE && wants_binary(r)) type = OCTETS;

@@ -24,6 +24,7 @@ static const struct {
     {"too-large", "Request body too large"},
     {"bad-snapshot", "Bad snapshot"},
     {"unavailable", "Service unavailable"},
+    {"busy", "Too busy"},
     {"internal", "Internal error"},
     {"unauthorized", "Unauthorized"},
     {"forbidden", "Forbidden"},

@@ -11,7 +11,12 @@
  * replaced by the next one), lws keeps at most the unsent rest of one message, and pending text is
  * limited (errors and acks to 8; events are read from a shared ring, and a client that falls further behind
  * than the ring is disconnected). A client whose newest frame has been waiting longer than
- * stream_stall_timeout is disconnected.
+ * stream_stall_timeout is disconnected. The ring keeps at most EVENT_RING events and
+ * stream_events_mb of their text (the oldest go first; the newest always stays).
+ *
+ * What clients make the sim thread do is bounded too: a grab or release is in flight at most
+ * once per client (the newest waiting one replaces the others), and a request for a publication
+ * (a client joins, or subscribes to a scalar the newest frame lacks) at most once for them all.
  *
  * LWS_CALLBACK_HTTP_CONFIRM_UPGRADE is deliberately not handled (CVE-2025-11677 in 4.1.6):
  * connections are checked in LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION instead. */
@@ -103,7 +108,10 @@ struct stream {
     /* events */
     pthread_mutex_t elock;
     char *ring[EVENT_RING];
-    uint64_t event_seq; /* of the next event; event k is ring[k % EVENT_RING] */
+    size_t ring_len[EVENT_RING];
+    uint64_t event_seq;   /* of the next event; event k is ring[k % EVENT_RING] */
+    uint64_t event_first; /* of the oldest event still in the ring */
+    size_t ring_bytes, ring_cap;
 
     /* answers to grabs */
     pthread_mutex_t glock;
@@ -111,6 +119,8 @@ struct stream {
 
     atomic_int clients;
     atomic_uint scalars_wanted;
+    atomic_int publish_asked; /* a CMD_PUBLISH is on its way to the sim thread */
+    atomic_int publish_again; /* and someone asked again meanwhile (it may come too late for them) */
 
     /* the service thread's own */
     session *sessions;
@@ -182,13 +192,22 @@ void stream_frame_discard(stream *st, raw_frame *f)
 
 void stream_event(stream *st, const char *json)
 {
+    const size_t len = strlen(json);
     char *copy = strdup(json);
     if (!copy) return;
     pthread_mutex_lock(&st->elock);
-    char **slot = &st->ring[st->event_seq % EVENT_RING];
-    free(*slot);
-    *slot = copy;
-    st->event_seq++;
+    /* Room for it: the oldest events go, within both caps (the newest is kept whatever its size). */
+    while (st->event_first < st->event_seq &&
+           (st->event_seq - st->event_first >= EVENT_RING || st->ring_bytes + len > st->ring_cap)) {
+        const size_t k = st->event_first++ % EVENT_RING;
+        st->ring_bytes -= st->ring_len[k];
+        free(st->ring[k]);
+        st->ring[k] = NULL;
+    }
+    const size_t k = st->event_seq++ % EVENT_RING;
+    st->ring[k] = copy;
+    st->ring_len[k] = len;
+    st->ring_bytes += len;
     pthread_mutex_unlock(&st->elock);
     lws_cancel_service(st->ctx);
 }
@@ -302,19 +321,33 @@ static void submit_grab(stream *st, session *s, json_t *body)
     simloop_submit(st->sl, &g->cmd);
 }
 
-static void free_cmd(sim_cmd *cmd, void *arg)
+static void request_frame(stream *st);
+
+static void published_cb(sim_cmd *cmd, void *arg)
 {
-    (void)arg;
+    stream *st = arg;
     free(cmd);
+    atomic_store(&st->publish_asked, 0);
+    if (atomic_exchange(&st->publish_again, 0)) request_frame(st);
 }
 
-/* Asks the sim thread to publish now (a paused simulation publishes only after commands). */
+/* Asks the sim thread to publish now (a paused simulation publishes only after commands). One
+ * request at a time: asks that come while one is on its way make one more after it, however many
+ * they are. */
 static void request_frame(stream *st)
 {
+    if (atomic_exchange(&st->publish_asked, 1)) {
+        atomic_store(&st->publish_again, 1);
+        return;
+    }
     sim_cmd *c = calloc(1, sizeof *c);
-    if (!c) return;
+    if (!c) {
+        atomic_store(&st->publish_asked, 0);
+        return;
+    }
     c->kind = CMD_PUBLISH;
-    c->done = free_cmd;
+    c->done = published_cb;
+    c->done_arg = st;
     simloop_submit(st->sl, c);
 }
 
@@ -486,9 +519,11 @@ static int writeable(stream *st, session *s)
     pthread_mutex_lock(&st->elock);
     char *event = NULL;
     if (s->next_event < st->event_seq) {
-        if (st->event_seq - s->next_event > EVENT_RING) {
+        if (s->next_event < st->event_first) {
+            const unsigned long long behind = (unsigned long long)(st->event_seq - s->next_event);
             pthread_mutex_unlock(&st->elock);
-            log_msg("stream: client %llu fell %d events behind: disconnected", (unsigned long long)s->id, EVENT_RING);
+            log_msg("stream: client %llu fell %llu events behind, past what the event ring keeps: disconnected",
+                    (unsigned long long)s->id, behind);
             atomic_fetch_add(&st->stalled, 1);
             return -1;
         }
@@ -758,6 +793,7 @@ stream *stream_start(const clothd_settings *set, simloop *sl, const access_polic
     st->max_clients = set->stream_max_clients;
     st->max_message = set->stream_max_message;
     st->stall_timeout = set->stream_stall_timeout;
+    st->ring_cap = (size_t)set->stream_events_mb << 20;
     pthread_mutex_init(&st->flock, NULL);
     pthread_mutex_init(&st->elock, NULL);
     pthread_mutex_init(&st->glock, NULL);
@@ -815,6 +851,16 @@ void stream_stop(stream *st)
     pthread_mutex_destroy(&st->elock);
     pthread_mutex_destroy(&st->glock);
     free(st);
+}
+
+uint64_t stream_memory(int32_t n, int32_t rocks)
+{
+    raw_frame f = {.n = n, .n_rocks = rocks, .has = {0, 1, 1}};
+    const uint64_t raw = sizeof(float) * 3 * (uint64_t)n + (SCALAR_KINDS - 1) * (uint64_t)n + sizeof(frame_rock) * (uint64_t)rocks;
+    uint64_t wires = 0;
+    for (int e = 0; e < N_ENC; e++)
+        for (int k = 0; k < SCALAR_KINDS; k++) wires += LWS_PRE + frame_bound(&f, e, k);
+    return 4 * (sizeof f + raw) + wires;
 }
 
 char *stream_metrics(stream *st)

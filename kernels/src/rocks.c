@@ -1,5 +1,6 @@
 /* rocks.c - adding, changing and removing rocks. A rock list change goes through the stability
- * guard (a light rock on stiff contact may need more substeps) before it is adopted. */
+ * guard (a light rock on stiff contact may need more substeps) before it is adopted. Ids run from 1
+ * to CS_ROCK_ID_MAX within a scene; the next one is kept in the state (and its snapshots). */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -109,8 +110,13 @@ cs_status cs_rock_add(cs_sim *sim, const cs_rock_def *def, uint32_t *id)
     if (!sim) return CS_E_INVALID;
     cs_status st = check_def(sim, def);
     if (st != CS_OK) return st;
-    if (sim->state.n_rocks >= CS_MAX_ROCKS)
-        return cs_fail(sim, CS_E_LIMIT, NULL, "a simulation holds at most %d rocks", CS_MAX_ROCKS);
+    if (sim->state.n_rocks >= sim->rock_limit)
+        return cs_fail(sim, CS_E_LIMIT, "max_rocks", "the simulation already holds max_rocks (%d) rocks",
+                       (int)sim->rock_limit);
+    if (sim->state.next_rock_id > CS_ROCK_ID_MAX)
+        return cs_fail(sim, CS_E_LIMIT, "id",
+                       "rock ids are used up (the last one given was %u): rebuild the scene to start again from 1",
+                       CS_ROCK_ID_MAX);
     if ((st = cs_sim_sync(sim, CS_SYNC_ALL)) != CS_OK) return st;
     int32_t cap;
     cs_rock_state *rocks = copy_rocks(sim, &cap);

@@ -47,24 +47,42 @@ static cs_status check_scene(cs_sim *sim, const cs_scene *scene)
 
 cs_status cs_check_memory(cs_sim *sim, const cs_scene *scene)
 {
-    uint64_t bytes;
-    if (cs_scene_memory(scene, &bytes) != CS_OK || bytes > (uint64_t)SIZE_MAX / 2)
+    uint64_t own, bytes;
+    cs_status st = cs_scene_memory(scene, sim->rock_limit, &own);
+    if (st == CS_OK && own > (uint64_t)SIZE_MAX / 2) st = CS_E_LIMIT;
+    bytes = own;
+    if (st == CS_OK && sim->memory_cost) st = sim->memory_cost(scene, sim->rock_limit, sim->memory_ctx, &bytes);
+    if (st != CS_OK)
         return cs_fail(sim, CS_E_LIMIT, "nx", "a %d x %d cloth is too large for this machine", (int)scene->nx,
                        (int)scene->ny);
     if (sim->memory_limit && bytes > sim->memory_limit)
         return cs_fail(sim, CS_E_LIMIT, "nx", "a %d x %d cloth needs %.0f MiB, more than the memory limit of %.0f MiB",
-                       (int)scene->nx, (int)scene->ny, (double)bytes / 1048576.0,
+                       (int)scene->nx, (int)scene->ny, ceil((double)bytes / 1048576.0),
                        (double)sim->memory_limit / 1048576.0);
     return CS_OK;
 }
 
-cs_status cs_sim_set_memory_limit(cs_sim *sim, uint64_t bytes)
+cs_status cs_sim_set_memory_limit(cs_sim *sim, uint64_t bytes, cs_cost_fn cost, void *ctx)
 {
     if (!sim) return CS_E_INVALID;
     sim->memory_limit = bytes;
+    sim->memory_cost = cost;
+    sim->memory_ctx = ctx;
     cs_ok(sim);
     return CS_OK;
 }
+
+cs_status cs_sim_set_rock_limit(cs_sim *sim, int32_t rocks)
+{
+    if (!sim) return CS_E_INVALID;
+    if (rocks < 1 || rocks > CS_MAX_ROCKS)
+        return cs_fail(sim, CS_E_RANGE, "max_rocks", "the rock limit must be 1..%d (got %d)", CS_MAX_ROCKS, (int)rocks);
+    sim->rock_limit = rocks;
+    cs_ok(sim);
+    return CS_OK;
+}
+
+int32_t cs_sim_rock_limit(const cs_sim *sim) { return sim ? sim->rock_limit : 0; }
 
 static cs_status check_params(cs_sim *sim, const cs_params *p)
 {
@@ -129,6 +147,7 @@ cs_status cs_sim_create(const cs_scene *scene, const cs_params *params, const ch
         return CS_E_NOMEM;
     }
     sim->state.grab = -1;
+    sim->rock_limit = CS_MAX_ROCKS;
     cs_ok(sim);
     cs_status st = cs_backend_pick(backend, &sim->backend, sim->backend_note, sizeof sim->backend_note);
     if (st != CS_OK) {
@@ -248,6 +267,9 @@ cs_status cs_sim_step(cs_sim *sim, int64_t substeps)
     if (!sim) return CS_E_INVALID;
     if (substeps < 0 || substeps > 1000000000)
         return cs_fail(sim, CS_E_RANGE, "substeps", "substeps must be 0..1e9 (got %lld)", (long long)substeps);
+    if ((uint64_t)substeps > CS_STEP_MAX - sim->state.step)
+        return cs_fail(sim, CS_E_LIMIT, "substeps", "the step count (%llu) would pass 2^63 - 1; rebuild the scene",
+                       (unsigned long long)sim->state.step);
     cs_step_report total = {0, 1};
     while (substeps > 0 && total.finite) {
         const int32_t now = substeps > 100000 ? 100000 : (int32_t)substeps;
@@ -256,7 +278,9 @@ cs_status cs_sim_step(cs_sim *sim, int64_t substeps)
         if (st != CS_OK) return cs_backend_fail(sim, st, "failed while stepping");
         sim->host_stale = device_backend(sim);
         sim->state.step += (uint64_t)now;
-        sim->state.time += now * sim->model.dt;
+        /* One addition per substep: the clock reads the same however the substeps were split
+         * into calls (a frame stepped in slices, a replay stepped in one go). */
+        for (int32_t k = 0; k < now; k++) sim->state.time += sim->model.dt;
         sim->state.n_torn += rep.torn;
         total.finite = rep.finite;
         substeps -= now;
