@@ -5,23 +5,18 @@
 // restored snapshot against the hash it was taken at), every refusal is the error class of its
 // status with the problem's slug, detail and param and changes nothing, tokens (given, asked for,
 // view-only), X-Request-Id, timeouts, an unreachable server, and scene handles.
-import { after, before, test } from 'node:test';
+import { before, test } from 'node:test';
 import assert from 'node:assert/strict';
 import { writeFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { start, stop, tempDir, SPEC } from '../server/harness.mjs';
+import { pausedDaemon } from './support.mjs';
 import * as clothd from '../../clients/js/src/index.js';
 
 const { Client } = clothd;
-let daemon, client;
-
-before(async () => {
-  daemon = await start(['--auto-drop-interval', '0', '--paused']);
-  client = new Client({ base: daemon.url });
-});
-after(async () => {
-  if (daemon) await stop(daemon);
-});
+const started = pausedDaemon();
+let client;
+before(async () => { client = await started; });
 
 // HTTP requests the daemon answered with a 2xx, by "METHOD route" (its route patterns are the
 // spec's paths).

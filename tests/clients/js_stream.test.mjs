@@ -4,21 +4,17 @@
 // request that caused them; grab and release go through the stream into the journal; after the
 // daemon goes away the client reconnects with waits of 0.25 s doubling to 8 s and starts again
 // from 0.25 s once back; frames() and pull mode; a scene the server lacks, a token, bad input.
-import { after, before, test } from 'node:test';
+import { before, test } from 'node:test';
 import assert from 'node:assert/strict';
 import { writeFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { start, stop, until, tempDir } from '../server/harness.mjs';
+import { pausedDaemon } from './support.mjs';
 import { Client } from '../../clients/js/src/index.js';
 
-let daemon, client;
-before(async () => {
-  daemon = await start(['--auto-drop-interval', '0', '--paused']);
-  client = new Client({ base: daemon.url });
-});
-after(async () => {
-  if (daemon) await stop(daemon);
-});
+const started = pausedDaemon();
+let client;
+before(async () => { client = await started; });
 
 // The largest distance, per axis, between a frame's positions and the cloth state's.
 function worst(positions, expected) {
