@@ -169,7 +169,12 @@ export class Stream {
     this.retryTimer = null;
     if (this.closedByUs) return;
     this.emit('status', 'connecting', '');
-    let stream, WS;
+    let url, stream, WS;
+    try {
+      url = new URL(this.client.base || globalThis.location?.href);
+    } catch {
+      return this.fail(`no URL to find the stream from: give the client a base (new Client({ base: 'http://host:port' }))`);
+    }
     try {
       // Another scene's stream: the server says whether it has that scene (404 otherwise).
       if (this.scene !== DEFAULT_SCENE) await this.client.scene(this.scene).sim();
@@ -187,7 +192,6 @@ export class Stream {
       return this.fail(e.message);
     }
     if (this.closedByUs) return;
-    const url = new URL(this.client.base || globalThis.location.href);
     url.protocol = url.protocol === 'https:' ? 'wss:' : 'ws:';
     url.port = String(stream.port);
     url.pathname = stream.path || '/stream';
