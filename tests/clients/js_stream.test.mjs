@@ -57,9 +57,11 @@ test('frames of f32, q16 and meshopt hold the positions of GET /v1/cloth/state',
 });
 
 test('events carry the request id; grab and release go through the stream', async () => {
-  const stream = client.stream().start();
+  let hellos = 0;
+  const stream = client.stream({ onHello: () => hellos++ }).start().start(); // a second start() opens nothing more
   try {
     await stream.waitFor('hello');
+    stream.start();
     const tagged = client.withOptions({ requestId: 'js-stream-test.1' });
     const event = stream.waitFor('event', (e) => e.event === 'rock_add');
     const added = await tagged.addRock({ position: [0, 0, 2], radius: 0.1 });
@@ -78,6 +80,7 @@ test('events carry the request id; grab and release go through the stream', asyn
     assert.deepEqual(grab.command.target, [0.1, 0.2, 1.4]);
     assert.equal(stream.release(), true);
     await until('the release in the journal', async () => (await client.journal()).entries.at(-1).command.op === 'release');
+    assert.equal(hellos, 1); // one connection
   } finally {
     stream.stop();
   }

@@ -82,6 +82,7 @@ export class Stream {
     this.backoff = BACKOFF_MIN_MS;
     this.retryTimer = null;
     this.retryMs = null;
+    this.connecting = false;
     this.listeners = new Set();
     this.meshoptGiven = options.meshopt ?? null;
     this.meshopt = null;
@@ -148,10 +149,11 @@ export class Stream {
     }
   }
 
-  /** Connects, and keeps connecting until stop(). */
+  /** Connects, and keeps connecting until stop(). Started already: nothing more. */
   start() {
+    const started = !this.closedByUs && (this.ws || this.retryTimer || this.connecting);
     this.closedByUs = false;
-    this.connect();
+    if (!started) this.connect();
     return this;
   }
 
@@ -165,6 +167,16 @@ export class Stream {
 
   /** @private */
   async connect() {
+    this.connecting = true;
+    try {
+      await this.open();
+    } finally {
+      this.connecting = false;
+    }
+  }
+
+  /** @private One attempt: the port from GET /v1/health, then the WebSocket. */
+  async open() {
     clearTimeout(this.retryTimer);
     this.retryTimer = null;
     if (this.closedByUs) return;
