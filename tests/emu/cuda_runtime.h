@@ -108,8 +108,8 @@ static inline int __syncthreads_or(int p) { return emu::syncthreads_reduce(1, p)
 static inline int __syncthreads_and(int p) { return emu::syncthreads_reduce(2, p); }
 static inline int __syncthreads_count(int p) { return emu::syncthreads_reduce(3, p); }
 static inline void __syncwarp(unsigned mask = 0xffffffffu) { emu::warp_op(emu::WARP_SYNC, mask, 0, 0, 32); }
-static inline void __threadfence() {}
-static inline void __threadfence_block() {}
+static inline void __threadfence() { __atomic_thread_fence(__ATOMIC_SEQ_CST); }
+static inline void __threadfence_block() { __atomic_thread_fence(__ATOMIC_SEQ_CST); }
 template <class T> static inline T __shfl_sync(unsigned m, T v, int src, int w = 32)
 {
     return emu::warp_shuffle(emu::WARP_SHFL, m, v, src, w);
@@ -135,10 +135,23 @@ static inline int __ffs(int x) { return __builtin_ffs(x); }
 static inline int __ffsll(long long x) { return __builtin_ffsll(x); }
 static inline int __clz(int x) { return x ? __builtin_clz((unsigned)x) : 32; }
 
-/* Atomics: blocks of one launch run on several OS threads at once. */
-template <class T> static inline T atomicAdd(T *p, T v) { return __atomic_fetch_add(p, v, __ATOMIC_RELAXED); }
-template <class T> static inline T atomicOr(T *p, T v) { return __atomic_fetch_or(p, v, __ATOMIC_RELAXED); }
-template <class T> static inline T atomicAnd(T *p, T v) { return __atomic_fetch_and(p, v, __ATOMIC_RELAXED); }
+static inline unsigned __float_as_uint(float f)
+{
+    unsigned u;
+    std::memcpy(&u, &f, sizeof u);
+    return u;
+}
+static inline float __uint_as_float(unsigned u)
+{
+    float f;
+    std::memcpy(&f, &u, sizeof f);
+    return f;
+}
+
+/* Atomics: blocks of one launch run on several OS threads at once. Not counted as traffic. */
+template <class T> static inline T atomicAdd(T *p, T v) { return __atomic_fetch_add(p, v, __ATOMIC_SEQ_CST); }
+template <class T> static inline T atomicOr(T *p, T v) { return __atomic_fetch_or(p, v, __ATOMIC_SEQ_CST); }
+template <class T> static inline T atomicAnd(T *p, T v) { return __atomic_fetch_and(p, v, __ATOMIC_SEQ_CST); }
 
 /* Dynamic shared memory (the launch's third parameter), 0xff-filled at the start of each block. */
 #define CS_DYNAMIC_SHARED(T, name) T *name = static_cast<T *>(emu::dynamic_shared())
@@ -155,6 +168,7 @@ template <class T> static inline void dstore(T *p, T v)
     if (emu::counting) emu::touch(p, sizeof(T), 1);
     *p = v;
 }
+template <class T> static inline T dload_cg(const T *p) { return dload(p); }
 
 /* ---- host API ---- */
 typedef enum cudaError {

@@ -72,7 +72,7 @@ thread_local cudaError_t last_error = cudaSuccess;
 
 struct kstats {
     std::string name;
-    uint64_t launches = 0, read = 0, written = 0, counted = 0;
+    uint64_t launches = 0, threads = 0, read = 0, written = 0, loads = 0, stores = 0, counted = 0;
 };
 std::vector<kstats> kernel_stats;
 std::map<std::string, size_t> kernel_index;
@@ -290,6 +290,10 @@ struct pool {
     size_t sched_size = 0;
     void *sched_fake = nullptr;
     ucontext_t boot_uc, boot_back;
+    uint64_t loads = 0, stores = 0;       /* bytes accessed in this launch (while counting) */
+    std::vector<unsigned> ready;          /* threads that can run */
+    std::vector<unsigned> warp_arrived;   /* per warp: lanes waiting at a warp operation */
+    unsigned at_barrier = 0, done = 0;
 };
 
 #ifdef EMU_ASAN
@@ -311,7 +315,15 @@ thread_local fiber *boot_fiber;
 #define SWITCH_FN __attribute__((noipa))
 #endif
 
-SWITCH_FN void jump(void **jb) { __builtin_longjmp(jb, 1); }
+/* Not instrumented: ASan would call __asan_handle_no_return before the jump, which unpoisons the
+ * stack left behind (a system call each time) - but no frame is left behind here: the fiber or
+ * scheduler jumped from resumes in that very frame, and ASan hears of each switch anyway. */
+#ifdef EMU_ASAN
+#define NO_ASAN __attribute__((no_sanitize_address))
+#else
+#define NO_ASAN
+#endif
+SWITCH_FN NO_ASAN void jump(void **jb) { __builtin_longjmp(jb, 1); }
 
 SWITCH_FN void fiber_main()
 {
@@ -414,62 +426,57 @@ const char *state_name(const fiber *f)
     std::abort();
 }
 
-/* Releases one group of lanes of a warp that meet at the same operation. */
-bool resolve_warps(pool *p, unsigned n)
+/* A warp operation completes when every lane its mask names has arrived at it: each lane gets
+ * its result and runs again. */
+void warp_arrived(pool *p, unsigned n, unsigned idx)
 {
-    bool progress = false;
-    for (unsigned w0 = 0; w0 < n; w0 += 32) {
-        for (unsigned l = 0; l < 32 && w0 + l < n; l++) {
-            fiber *a = p->fibers[w0 + l];
-            if (a->state != F_WARP) continue;
-            const unsigned m = a->wmask;
-            if (!(m >> l & 1)) stuck(p, n, "a lane called a warp operation with a mask that leaves itself out");
-            for (unsigned k = 0; k < 32; k++) {
-                if (!(m >> k & 1)) continue;
-                if (w0 + k >= n) stuck(p, n, "a warp operation's mask names lanes the block does not have");
-                const fiber *b = p->fibers[w0 + k];
-                if (b->state != F_WARP || b->wop != a->wop || b->wmask != m || b->wwidth != a->wwidth)
-                    stuck(p, n, "lanes named in a warp operation's mask did not all reach that operation");
-            }
-            uint64_t ballot = 0;
-            for (unsigned k = 0; k < 32; k++)
-                if ((m >> k & 1) && p->fibers[w0 + k]->wval) ballot |= 1ull << k;
-            for (unsigned k = 0; k < 32; k++) {
-                if (!(m >> k & 1)) continue;
-                fiber *b = p->fibers[w0 + k];
-                const int width = b->wwidth, seg = (int)k / width * width, pos = (int)k - seg;
-                int src = (int)k;
-                switch (b->wop) {
-                case emu::WARP_SHFL: src = seg + b->warg % width; break;
-                case emu::WARP_SHFL_DOWN: src = pos + b->warg < width ? (int)k + b->warg : (int)k; break;
-                case emu::WARP_SHFL_UP: src = pos - b->warg >= 0 ? (int)k - b->warg : (int)k; break;
-                case emu::WARP_SHFL_XOR: src = (pos ^ b->warg) < width ? seg + (pos ^ b->warg) : (int)k; break;
-                default: break;
-                }
-                if (b->wop == emu::WARP_BALLOT) b->wres = ballot;
-                else if (b->wop == emu::WARP_SYNC) b->wres = 0;
-                else {
-                    if (!(m >> src & 1)) stuck(p, n, "a shuffle read a lane outside its mask");
-                    b->wres = p->fibers[w0 + src]->wval;
-                }
-            }
-            for (unsigned k = 0; k < 32; k++)
-                if (m >> k & 1) p->fibers[w0 + k]->state = F_READY;
-            progress = true;
+    const unsigned w0 = idx / 32 * 32, l = idx % 32;
+    fiber *a = p->fibers[idx];
+    const unsigned m = a->wmask;
+    if (!(m >> l & 1)) stuck(p, n, "a lane called a warp operation with a mask that leaves itself out");
+    p->warp_arrived[idx / 32] |= 1u << l;
+    if ((p->warp_arrived[idx / 32] & m) != m) return;
+    uint64_t ballot = 0;
+    for (unsigned k = 0; k < 32; k++) {
+        if (!(m >> k & 1)) continue;
+        if (w0 + k >= n) stuck(p, n, "a warp operation's mask names lanes the block does not have");
+        const fiber *b = p->fibers[w0 + k];
+        if (b->wop != a->wop || b->wmask != m || b->wwidth != a->wwidth)
+            stuck(p, n, "lanes named in a warp operation's mask met at different warp operations");
+        if (b->wval) ballot |= 1ull << k;
+    }
+    for (unsigned k = 0; k < 32; k++) {
+        if (!(m >> k & 1)) continue;
+        fiber *b = p->fibers[w0 + k];
+        const int width = b->wwidth, seg = (int)k / width * width, pos = (int)k - seg;
+        int src = (int)k;
+        switch (b->wop) {
+        case emu::WARP_SHFL: src = seg + b->warg % width; break;
+        case emu::WARP_SHFL_DOWN: src = pos + b->warg < width ? (int)k + b->warg : (int)k; break;
+        case emu::WARP_SHFL_UP: src = pos - b->warg >= 0 ? (int)k - b->warg : (int)k; break;
+        case emu::WARP_SHFL_XOR: src = (pos ^ b->warg) < width ? seg + (pos ^ b->warg) : (int)k; break;
+        default: break;
+        }
+        if (b->wop == emu::WARP_BALLOT) b->wres = ballot;
+        else if (b->wop == emu::WARP_SYNC) b->wres = 0;
+        else {
+            if (!(m >> src & 1)) stuck(p, n, "a shuffle read a lane outside its mask");
+            b->wres = p->fibers[w0 + (unsigned)src]->wval;
         }
     }
-    return progress;
+    p->warp_arrived[idx / 32] &= ~m;
+    for (unsigned k = 0; k < 32; k++)
+        if (m >> k & 1) {
+            p->fibers[w0 + k]->state = F_READY;
+            p->ready.push_back(w0 + k);
+        }
 }
 
-bool resolve_barrier(pool *p, unsigned n)
+/* A block barrier completes when every thread of the block waits at it. */
+void barrier_arrived(pool *p, unsigned n)
 {
-    unsigned at = 0, done = 0;
-    for (unsigned i = 0; i < n; i++) {
-        at += p->fibers[i]->state == F_BARRIER;
-        done += p->fibers[i]->state == F_DONE;
-    }
-    if (at == 0 || at + done != n) return false;
-    if (done) stuck(p, n, "a barrier that threads which already exited never reach");
+    if (p->at_barrier + p->done != n) return;
+    if (p->done) stuck(p, n, "a barrier that threads which already exited never reach");
     const int kind = p->fibers[0]->bar_kind;
     int r = kind == 2 ? 1 : 0;
     for (unsigned i = 0; i < n; i++) {
@@ -482,10 +489,13 @@ bool resolve_barrier(pool *p, unsigned n)
     for (unsigned i = 0; i < n; i++) {
         p->fibers[i]->result = r;
         p->fibers[i]->state = F_READY;
+        p->ready.push_back(n - 1 - i);
     }
-    return true;
+    p->at_barrier = 0;
 }
 
+/* Runs a block: each thread until it waits, releasing threads as their barrier or warp operation
+ * completes; any thread left waiting when none can run is a bug in the kernel. */
 void run_block(pool *p, const emu::kernel_task &t, uint3 bid)
 {
     const unsigned n = t.block.x * t.block.y * t.block.z;
@@ -497,7 +507,8 @@ void run_block(pool *p, const emu::kernel_task &t, uint3 bid)
         if (!p->smem) die("out of memory for shared memory");
         p->smem_cap = t.smem;
     }
-    if (p->smem) std::memset(p->smem, 0xff, p->smem_cap);
+    if (t.smem) std::memset(p->smem, 0xff, t.smem);
+    p->ready.clear();
     for (unsigned i = 0; i < n; i++) {
         fiber *f = p->fibers[i];
         f->view.tid = uint3{i % t.block.x, i / t.block.x % t.block.y, i / (t.block.x * t.block.y)};
@@ -505,16 +516,28 @@ void run_block(pool *p, const emu::kernel_task &t, uint3 bid)
         f->view.bdim = t.block;
         f->view.gdim = t.grid;
         f->state = F_READY;
+        p->ready.push_back(n - 1 - i); /* thread 0 first */
     }
-    for (;;) {
-        for (unsigned i = 0; i < n; i++)
-            if (p->fibers[i]->state == F_READY) resume(p, p->fibers[i]);
-        unsigned done = 0;
-        for (unsigned i = 0; i < n; i++) done += p->fibers[i]->state == F_DONE;
-        if (done == n) break;
-        if (!resolve_warps(p, n) && !resolve_barrier(p, n))
-            stuck(p, n, "no thread can go on (a barrier or warp operation that not all threads reach)");
+    p->warp_arrived.assign((n + 31) / 32, 0);
+    p->at_barrier = p->done = 0;
+    while (!p->ready.empty()) {
+        const unsigned i = p->ready.back();
+        p->ready.pop_back();
+        fiber *f = p->fibers[i];
+        resume(p, f);
+        if (f->state == F_DONE) {
+            p->done++;
+            if (p->at_barrier) barrier_arrived(p, n);
+        } else if (f->state == F_BARRIER) {
+            p->at_barrier++;
+            barrier_arrived(p, n);
+        } else if (f->state == F_WARP) {
+            warp_arrived(p, n, i);
+        } else {
+            die("a fiber came back without waiting");
+        }
     }
+    if (p->done != n) stuck(p, n, "no thread can go on (a barrier or warp operation that not all threads reach)");
     p->task = nullptr;
 }
 
@@ -536,6 +559,12 @@ void count_launch(kstats &ks)
     }
     ks.read += r;
     ks.written += w;
+    std::lock_guard<std::mutex> g(pools_lock);
+    for (pool *p : all_pools) {
+        ks.loads += p->loads;
+        ks.stores += p->stores;
+        p->loads = p->stores = 0;
+    }
     ks.counted++;
 }
 
@@ -548,6 +577,7 @@ void run_kernel(const emu::kernel_task &t)
     }
     kstats &ks = kernel_stats[it->second];
     ks.launches++;
+    ks.threads += (uint64_t)t.grid.x * t.grid.y * t.grid.z * t.block.x * t.block.y * t.block.z;
     counters.kernel_launches++;
     const int count = emu::counting;
     if (count)
@@ -611,6 +641,8 @@ void touch(const void *ptr, size_t bytes, int write)
     uintptr_t base;
     alloc *a = find(ptr, bytes, &base);
     if (!a) die("a kernel touched memory outside every device allocation");
+    pool *p = running_fiber()->owner;
+    (write ? p->stores : p->loads) += bytes;
     std::vector<uint64_t> &bits = write ? a->wbits : a->rbits;
     const uintptr_t off = (uintptr_t)ptr - base;
     for (size_t k = 0; k < bytes; k++)
@@ -871,15 +903,21 @@ cudaError_t cudaEventDestroy(cudaEvent_t e)
     delete e;
     return cudaSuccess;
 }
+/* The checks of a call that takes a handle and must not be captured (the backend records no events
+ * and launches no graphs inside a capture): the stream, or NULL after recording the error. */
+static emu_stream *uncaptured(const void *handle, cudaStream_t st)
+{
+    emu_stream *s = S(st);
+    const cudaError_t e = !handle ? cudaErrorInvalidResourceHandle : dead ? dead
+                          : s->capture ? cudaErrorStreamCaptureUnsupported : cudaSuccess;
+    if (s->capture) s->capture_bad = true;
+    if (e != cudaSuccess) fail(e);
+    return e == cudaSuccess ? s : nullptr;
+}
 cudaError_t cudaEventRecord(cudaEvent_t e, cudaStream_t st)
 {
-    if (!e) return fail(cudaErrorInvalidResourceHandle);
-    if (dead) return fail(dead);
-    emu_stream *s = S(st);
-    if (s->capture) {
-        s->capture_bad = true;
-        return fail(cudaErrorStreamCaptureUnsupported); /* the backend records no events in graphs */
-    }
+    emu_stream *s = uncaptured(e, st);
+    if (!s) return last_error;
     e->s = s;
     e->target = s->enqueued;
     return cudaSuccess;
@@ -971,13 +1009,8 @@ cudaError_t cudaGraphExecDestroy(cudaGraphExec_t exec)
 }
 cudaError_t cudaGraphLaunch(cudaGraphExec_t exec, cudaStream_t st)
 {
-    if (!exec) return fail(cudaErrorInvalidResourceHandle);
-    if (dead) return fail(dead);
-    emu_stream *s = S(st);
-    if (s->capture) {
-        s->capture_bad = true;
-        return fail(cudaErrorStreamCaptureUnsupported);
-    }
+    emu_stream *s = uncaptured(exec, st);
+    if (!s) return last_error;
     counters.graph_launches++;
     op o{OP_GRAPH, node{}, nullptr, 0, exec->nodes};
     enqueue(s, std::move(o));
@@ -1007,8 +1040,11 @@ int emu_kernel_stats_get(emu_kernel_stats *out, int cap)
     for (int i = 0; i < cap && i < (int)kernel_stats.size(); i++) {
         std::snprintf(out[i].name, sizeof out[i].name, "%s", kernel_stats[(size_t)i].name.c_str());
         out[i].launches = kernel_stats[(size_t)i].launches;
+        out[i].threads = kernel_stats[(size_t)i].threads;
         out[i].read = kernel_stats[(size_t)i].read;
         out[i].written = kernel_stats[(size_t)i].written;
+        out[i].loads = kernel_stats[(size_t)i].loads;
+        out[i].stores = kernel_stats[(size_t)i].stores;
         out[i].counted = kernel_stats[(size_t)i].counted;
     }
     return (int)kernel_stats.size();

@@ -40,9 +40,12 @@ void emu_fail_device(int err);
  * kernels' dload/dstore); slow, for the cost-model test. */
 void emu_count_bytes(int on);
 typedef struct emu_kernel_stats {
-    char name[96];          /* the kernel as written at its launch, e.g. "k_cloth<MODE_VERLET, true>" */
+    char name[96];          /* the kernel as written at its launch, e.g. "k_cloth<MODE_VERLET, S, R>" */
     uint64_t launches;
-    uint64_t read, written; /* distinct bytes, summed over launches (only while counting) */
+    uint64_t threads;       /* threads launched, summed over launches */
+    /* While counting (summed over the launches counted): */
+    uint64_t read, written; /* distinct bytes of device memory read and written in each launch */
+    uint64_t loads, stores; /* bytes of every load and store (a byte loaded twice counts twice) */
     uint64_t counted;       /* launches that were counted */
 } emu_kernel_stats;
 /* Copies up to cap entries, one per kernel, in order of first launch; returns how many there are. */
