@@ -8,7 +8,8 @@
  * a frame (positions and rocks, as the daemon does) between calls and comparing it too. Scenes
  * cover both integrators and friction models, plasticity and tearing, a grab (one that tears),
  * rocks dynamic and kinematic, spinning, touching each other and the ground, more than 32 and more
- * than 64 rocks, more than 64 chunks with rocks, rows of several chunks, a 3 x 2 cloth; and
+ * than 64 rocks, vertices touching two rocks at once, more than 64 chunks with rocks, rows of
+ * several chunks, a 3 x 2 cloth; and
  * commands mid-run: releasing the grab, moving a rock, set_params, switching integrator and
  * friction model, a snapshot saved by the CPU backend and loaded into both, a scene resized.
  *
@@ -44,7 +45,8 @@ enum {
     S_PARAMS = 8,    /* set_params: stiffer, more drag, wind, tilted gravity, thicker contact */
     S_SWITCH = 16,   /* integrator and friction model switched, then switched back */
     S_SNAPSHOT = 32, /* the CPU sim's snapshot loaded into both */
-    S_RESIZE = 64    /* cs_sim_set_scene to another size, rocks added again */
+    S_RESIZE = 64,   /* cs_sim_set_scene to another size, rocks added again */
+    S_PAIR = 128     /* two rocks side by side, sunk to the cloth: vertices between touch both */
 };
 
 typedef struct variant {
@@ -73,6 +75,7 @@ static const variant variants[] = {
     {"set_params, integrator and friction switches", 40, 36, VV, CV, 1, 4, S_GRAB | S_PARAMS | S_SWITCH, 0},
     {"snapshot loaded into both", 40, 36, SE, CV, 1, 4, S_GRAB | S_SNAPSHOT, 0},
     {"scene resized", 36, 30, VV, RS, 1, 3, S_GRAB | S_RESIZE, 0},
+    {"vertices touching two rocks at once", 21, 21, VV, CV, 1, 2, S_PAIR, 0.05f},
 };
 
 static void scene_of(const variant *vr, int nx, int ny, cs_scene *sc)
@@ -91,6 +94,23 @@ static float radius_of(const variant *vr, int r) { return vr->radius > 0 ? vr->r
  * each other; rock 1 kinematic and sweeping. */
 static int add_rocks(cs_sim *sim, const variant *vr, const cs_scene *sc, const cs_params *p)
 {
+    if (vr->script & S_PAIR) {
+        /* Rims 5 mm apart, centres a few mm above the cloth and off its grid lines: the vertices
+         * between are inside both (radius + offset), so their forces add two rocks' in order. Not
+         * mirror images (a symmetric pair sums the same in either order). */
+        for (int r = 0; r < 2; r++) {
+            cs_rock_def d;
+            cs_rock_def_default(&d);
+            d.radius = vr->radius * (r ? 0.9f : 1.0f);
+            d.density = 250.0f;
+            d.position[0] = r ? 0.9f * vr->radius + 0.0025f + 0.003f : -vr->radius - 0.0025f + 0.003f;
+            d.position[1] = r ? 0.011f : 0.004f;
+            d.position[2] = sc->height + (r ? 0.003f : 0.006f);
+            d.angular_velocity[2] = r ? 3.0f : -2.0f;
+            if (cs_rock_add(sim, &d, NULL) != CS_OK) return -1;
+        }
+        return 0;
+    }
     const int cols = vr->rocks > 8 ? (int)ceil(sqrt((double)vr->rocks)) : vr->rocks;
     for (int r = 0; r < vr->rocks; r++) {
         cs_rock_def d;
@@ -290,6 +310,33 @@ static int rocks_were_pushed(cs_sim *sim, const cs_rock *before, int32_t n, doub
     return 0;
 }
 
+/* Vertices within reach (radius + contact_offset) of two rocks at once, now. */
+static int shared_contacts(cs_sim *sim)
+{
+    cs_info info;
+    cs_params p;
+    cs_sim_info(sim, &info);
+    cs_sim_params(sim, &p);
+    const size_t n3 = (size_t)info.n_vertices * 3;
+    float *x = malloc(sizeof(float) * n3);
+    cs_rock a, b;
+    int count = 0;
+    if (x && info.n_rocks >= 2 && cs_read_positions(sim, x, n3) == CS_OK && cs_rock_at(sim, 0, &a) == CS_OK &&
+        cs_rock_at(sim, 1, &b) == CS_OK)
+        for (int32_t v = 0; v < info.n_vertices; v++) {
+            int both = 1;
+            for (int k = 0; k < 2; k++) {
+                const cs_rock *r = k ? &b : &a;
+                double d2 = 0;
+                for (int c = 0; c < 3; c++) d2 += pow(x[3 * v + c] - r->def.position[c], 2);
+                both &= sqrt(d2) < r->def.radius + p.contact_offset;
+            }
+            count += both;
+        }
+    free(x);
+    return count;
+}
+
 /* The script: calls of odd lengths with frames read between them, and the variant's commands. */
 static int run(const variant *vr, const char *other, int other_threads)
 {
@@ -319,6 +366,7 @@ static int run(const variant *vr, const char *other, int other_threads)
     const int32_t n_before = cs_rock_count(pr.a) < 128 ? cs_rock_count(pr.a) : 128;
     for (int32_t r = 0; r < n_before; r++) cs_rock_at(pr.a, r, &before[r]);
     compare_all(&pr);
+    const int shared = (vr->script & S_PAIR) ? shared_contacts(pr.a) : -1;
     int pushed = vr->rocks == 0;
     for (int k = 0; k < n_calls && !pr.fail; k++) {
         char phase[64];
@@ -379,6 +427,10 @@ static int run(const variant *vr, const char *other, int other_threads)
     /* The scene must have done what it is there for. */
     if (!pushed) {
         printf("%-46s no rock touched the cloth in the first calls: the scene tests less than it says\n", vr->name);
+        pr.fail = 1;
+    }
+    if (shared == 0) {
+        printf("%-46s no vertex touches both rocks\n", vr->name);
         pr.fail = 1;
     }
     if ((vr->script & S_TEAR) && info.n_torn == 0) {
