@@ -12,8 +12,8 @@
  * substep for its strain, not 24.
  *
  * The cloth kernel: a block is 256 columns (one chunk wide) and tile_rows rows of the grid, walked
- * row by row. For each row it loads the positions and velocities of the row two below into a ring
- * of three rows in shared memory, evaluates the six springs each vertex owns (cs_spring_force once
+ * row by row. For each row it stores the positions and velocities of the row two below into a
+ * ring of three rows in shared memory (loaded one row ahead, so the loads overlap the work), evaluates the six springs each vertex owns (cs_spring_force once
  * per spring, as the CPU backend does: the far end gets the exact negation), gathers each vertex's
  * 12 springs in CS_SPRING_SLOTS order from its own registers, its neighbours' shared-memory forces
  * and the rows above, adds air and gravity, then contacts, and writes the vertex's next state.
@@ -148,15 +148,34 @@ __device__ static inline cs_vec3 ring_v(const float *sm, int32_t r, int k)
     return cs_v3(RING(sm, s, 3, k), RING(sm, s, 4, k), RING(sm, s, 5, k));
 }
 
-/* Row r of the state into its ring slot (columns c0 - 3 .. c0 + 258 that exist). */
-__device__ static void load_row(const cuda_bufs &b, const cs_phys *p, float *sm, int32_t r, int32_t c0)
+/* A row of the state as one thread carries it to the ring: its column, and for threads 0..5 one
+ * of the six columns past the chunk's 256 (the ring holds columns c0 - 3 .. c0 + 258). */
+struct row_regs {
+    float q[2][6];
+};
+
+/* Loads row r's columns of this thread into registers (those that exist). */
+__device__ static void fetch_row(const cuda_bufs &b, const cs_phys *p, int32_t r, int32_t c0, row_regs *f)
 {
     if (r < 0 || r >= p->ny) return;
-    for (int k = (int)threadIdx.x; k < RING_W; k += TILE_W) {
+    for (int h = 0; h < 2; h++) {
+        const int k = (int)threadIdx.x + h * TILE_W;
         const int32_t i = c0 - RING_OFF + k;
-        if (i < 0 || i >= p->nx) continue;
+        if (k >= RING_W || i < 0 || i >= p->nx) continue;
         const size_t v = (size_t)r * (size_t)p->nx + (size_t)i;
-        for (int q = 0; q < 6; q++) RING(sm, r % 3, q, k) = dload(&b.in[(size_t)q * (size_t)p->n + v]);
+        for (int q = 0; q < 6; q++) f->q[h][q] = dload(&b.in[(size_t)q * (size_t)p->n + v]);
+    }
+}
+
+/* Stores what fetch_row loaded into row r's ring slot. */
+__device__ static void put_row(const cs_phys *p, float *sm, int32_t r, int32_t c0, const row_regs *f)
+{
+    if (r < 0 || r >= p->ny) return;
+    for (int h = 0; h < 2; h++) {
+        const int k = (int)threadIdx.x + h * TILE_W;
+        const int32_t i = c0 - RING_OFF + k;
+        if (k >= RING_W || i < 0 || i >= p->nx) continue;
+        for (int q = 0; q < 6; q++) RING(sm, r % 3, q, k) = f->q[h][q];
     }
 }
 
@@ -391,12 +410,19 @@ __global__ void __launch_bounds__(TILE_W) k_cloth(const cuda_scene *__restrict__
     for (int k = t; k < 2 * 2 * 3 * FORCE_W; k += TILE_W) sm[SM_FPREV + k] = 0.0f;
     const int ncand = ROCKS ? cull_rocks(sc, b, sm, j0, j1, i) : 0;
     const int *cand = reinterpret_cast<const int *>(sm + SM_CAND);
-    load_row(b, p, sm, j0 - 2, c0);
-    load_row(b, p, sm, j0 - 1, c0);
+    /* The two rows above the tile into the ring; the next row in flight in registers, so its
+     * loads overlap a row's work (each iteration stores row r+2 and fetches row r+3). */
+    row_regs next;
+    for (int32_t r = j0 - 2; r < j0; r++) {
+        fetch_row(b, p, r, c0, &next);
+        put_row(p, sm, r, c0, &next);
+    }
+    fetch_row(b, p, j0, c0, &next);
     cs_vec3 sy_prev = cs_v3(0.0f, 0.0f, 0.0f), by1 = sy_prev, by2 = sy_prev; /* SY of row r-1; BY of r-1, r-2 */
     int torn = 0, bad = 0;
     for (int32_t r = j0 - 2; r < j1; r++) {
-        load_row(b, p, sm, r + 2, c0);
+        put_row(p, sm, r + 2, c0, &next);
+        if (r + 3 < j1 + 2) fetch_row(b, p, r + 3, c0, &next);
         __syncthreads(); /* rows r .. r+2 are in the ring */
         const bool own = r >= j0;
         /* Above the tile only what rows j0, j0+1 gather: BY of row j0-2; SY, D1, D2, BY of j0-1. */
