@@ -10,6 +10,7 @@ CLOTHD_APT_BUILD=(
 )
 CLOTHD_APT_TEST=(
   libcmocka-dev               # C unit and physics tests
+  g++                         # the emulated-CUDA tests: backend_cuda.cu compiled for the CPU (tests/emu)
   clang                       # libFuzzer and the fuzz targets' sanitizers (scripts/fuzz.sh)
   chromium chromium-driver    # the viewer's end-to-end tests (headless, driven by playwright-core)
   strace                      # the crash-safe save test sees the system calls of a save
