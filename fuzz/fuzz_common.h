@@ -44,7 +44,7 @@ static inline cs_sim *fuzz_sim(void)
     cs_sim *sim = NULL;
     if (cs_sim_create(&sc, &p, "cpu", &sim, err, sizeof err) != CS_OK) fuzz_fail("cs_sim_create: %s", err);
     cs_sim_set_threads(sim, 1);
-    cs_sim_set_memory_limit(sim, FUZZ_STATE_LIMIT);
+    cs_sim_set_memory_limit(sim, FUZZ_STATE_LIMIT, NULL, NULL);
     cs_rock_def d;
     cs_rock_def_default(&d);
     d.position[2] = 1.5f;

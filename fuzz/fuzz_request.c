@@ -56,13 +56,12 @@ static void check_problem(const problem *pr, const char *what)
 
 static void apply(const json_t *cmd, const char *what)
 {
-    const command_limits lim = {CS_MAX_ROCKS};
     cs_sim *a = sim_a, *b = sim_b;
     fuzz_reset(a, pristine, pristine_len);
     json_t *journal = NULL, *result = NULL;
     problem pr;
     memset(&pr, 0, sizeof pr);
-    if (command_apply(a, cmd, &lim, &journal, &result, &pr) != 0) {
+    if (command_apply(a, cmd, &journal, &result, &pr) != 0) {
         check_problem(&pr, what);
         if (journal || result) fuzz_fail("%s: a refusal returned a journal entry or a result", what);
         if (!fuzz_state_is(a, pristine, pristine_len)) fuzz_fail("%s: a refused command changed the simulation", what);
@@ -82,7 +81,7 @@ static void apply(const json_t *cmd, const char *what)
     if (!again) fuzz_fail("%s: the journal entry does not read back: %s", what, err.text);
     fuzz_reset(b, pristine, pristine_len);
     json_t *j2 = NULL, *r2 = NULL;
-    if (command_apply(b, again, &lim, &j2, &r2, &pr) != 0)
+    if (command_apply(b, again, &j2, &r2, &pr) != 0)
         fuzz_fail("%s: the journal entry %s is refused on replay: %s", what, text, pr.detail);
     if (!fuzz_same_state(a, b)) fuzz_fail("%s: replaying the journal entry %s gives another state", what, text);
     /* One substep of whatever the command set up: the same on both. */

@@ -7,11 +7,23 @@
  * checksum, and seeds of an older parameter table still reach them.
  *
  * Besides what ASan and UBSan catch, it checks what clothsim.h promises: a refused snapshot
- * leaves the simulation as it was; an accepted one is a state the engine can save, load again
- * (the same bytes) and step, and the daemon's reading of it after PUT /v1/snapshot works. */
+ * leaves the simulation as it was; an accepted one holds nothing a command would refuse (at most
+ * the rock limit of rocks, ids below a next id of at least 1, a step count within 2^63 - 1), is a
+ * state the engine can read and save, add a rock to or refuse one clearly, then save (or, where
+ * the rock's new accelerations overflowed, refuse to save as not finite - and the next step finds
+ * it), load again (the same bytes) and step, and the daemon's reading of it after
+ * PUT /v1/snapshot works.
+ *
+ * The same input is also read as a state file (statefile.c: a snapshot and its trailer), as the
+ * daemon does at start: a layout it accepts names a snapshot within the input, which is loaded,
+ * and a trailer it writes reads back the same. */
 #include <stdint.h>
 
 #include "fuzz_common.h"
+#include "statefile.h"
+
+/* A small rock limit (the daemon's max_rocks), so that snapshots past it are found. */
+#define FUZZ_ROCK_LIMIT 4
 
 static cs_sim *sim_a, *sim_b;   /* the load's, and the reload's */
 static unsigned char *pristine; /* the state of a fresh fuzz_sim() */
@@ -22,6 +34,8 @@ int LLVMFuzzerInitialize(int *argc, char ***argv)
     (void)argc, (void)argv;
     sim_a = fuzz_sim();
     sim_b = fuzz_sim();
+    cs_sim_set_rock_limit(sim_a, FUZZ_ROCK_LIMIT);
+    cs_sim_set_rock_limit(sim_b, FUZZ_ROCK_LIMIT);
     pristine = fuzz_state(sim_a, &pristine_len);
     return 0;
 }
@@ -62,6 +76,28 @@ static void read_back(cs_sim *sim)
     float target[3];
     const int32_t grabbed = cs_grabbed(sim, target);
     if (grabbed < -1 || grabbed >= info.n_vertices) fuzz_fail("grabbed vertex %d of %d", (int)grabbed, (int)info.n_vertices);
+    /* What the API shows of it: what a command would let in. */
+    if (info.step > CS_STEP_MAX) fuzz_fail("step %llu, past 2^63 - 1", (unsigned long long)info.step);
+    if (cs_rock_count(sim) > cs_sim_rock_limit(sim)) fuzz_fail("%d rocks, past the limit", (int)cs_rock_count(sim));
+}
+
+/* A rock added to an accepted state: taken with a fresh id, or refused with a reason. */
+static void add_rock(cs_sim *sim)
+{
+    uint32_t highest = 0;
+    for (int32_t r = 0; r < cs_rock_count(sim); r++) {
+        cs_rock k;
+        cs_rock_at(sim, r, &k);
+        if (k.id == 0) fuzz_fail("a rock of id 0");
+        if (k.id > highest) highest = k.id;
+    }
+    cs_rock_def d;
+    cs_rock_def_default(&d);
+    d.position[2] = 3.0f;
+    uint32_t id = 0;
+    const cs_status st = cs_rock_add(sim, &d, &id);
+    if (st == CS_OK && (id == 0 || id <= highest)) fuzz_fail("a new rock got id %u (the highest was %u)", id, highest);
+    if (st != CS_OK && !cs_sim_error(sim)[0]) fuzz_fail("a rock refused (%s) without a reason", cs_status_name(st));
 }
 
 static void load(const unsigned char *buf, size_t len)
@@ -75,8 +111,21 @@ static void load(const unsigned char *buf, size_t len)
         return;
     }
     read_back(sim);
-    size_t l1;
-    unsigned char *s1 = fuzz_state(sim, &l1);
+    free(fuzz_state(sim, &(size_t){0})); /* an accepted snapshot saves */
+    add_rock(sim);
+    /* The rock's command recomputes the accelerations; on an extreme state they may overflow. Such
+     * a state is not saved, and the next step finds it (and the daemon rolls it back). */
+    size_t l1 = cs_snapshot_size(sim);
+    unsigned char *s1 = malloc(l1);
+    if (!s1) fuzz_fail("out of memory");
+    const cs_status saved = cs_snapshot_save(sim, s1, l1, &l1);
+    if (saved == CS_E_NONFINITE) {
+        const cs_status next = cs_sim_step(sim, 1);
+        if (next != CS_E_NONFINITE) fuzz_fail("a state too big to save (not finite) steps with %s", cs_status_name(next));
+        free(s1);
+        return;
+    }
+    if (saved != CS_OK) fuzz_fail("cs_snapshot_save: %s", cs_sim_error(sim));
     fuzz_reset(again, pristine, pristine_len);
     if (cs_snapshot_load(again, s1, l1) != CS_OK) fuzz_fail("a saved snapshot is refused: %s", cs_sim_error(again));
     if (!fuzz_state_is(again, s1, l1)) fuzz_fail("saving a loaded snapshot again gives other bytes");
@@ -86,9 +135,36 @@ static void load(const unsigned char *buf, size_t len)
     free(s1);
 }
 
+/* The input as a state file. */
+static void state_file(const uint8_t *data, size_t size)
+{
+    statefile layout;
+    char why[300] = "";
+    if (statefile_parse(data, size, &layout, why, sizeof why) != STATEFILE_OK) {
+        if (!why[0]) fuzz_fail("a state file refused without a reason");
+        return;
+    }
+    if (layout.snapshot_len == 0 || layout.snapshot_len > size) fuzz_fail("a snapshot of %zu bytes in %zu", layout.snapshot_len, size);
+    if (layout.snapshot_len < size) load(data, layout.snapshot_len);
+    size_t tlen = 0;
+    char *t = statefile_trailer(layout.paused, &tlen);
+    if (!t) fuzz_fail("out of memory");
+    unsigned char *file = malloc(layout.snapshot_len + tlen);
+    if (!file) fuzz_fail("out of memory");
+    memcpy(file, data, layout.snapshot_len);
+    memcpy(file + layout.snapshot_len, t, tlen);
+    statefile again;
+    if (statefile_parse(file, layout.snapshot_len + tlen, &again, why, sizeof why) != STATEFILE_OK ||
+        again.paused != layout.paused || again.snapshot_len != layout.snapshot_len || again.format != STATEFILE_FORMAT)
+        fuzz_fail("a state file written with its trailer does not read back: %s", why);
+    free(file);
+    free(t);
+}
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     load(data, size);
+    state_file(data, size);
     if (size >= 32 && memcmp(data, "CSNP", 4) == 0) {
         unsigned char *fixed = malloc(size);
         if (!fixed) fuzz_fail("out of memory");

@@ -209,6 +209,11 @@ int access_host_ok(const access_policy *p, const char *host)
     return split_host(host, name, sizeof name, &port) && host_name_ok(p, name);
 }
 
+int access_origin_listed(const access_policy *p, const char *origin)
+{
+    return origin && in_list(p->origins, origin);
+}
+
 int access_origin_ok(const access_policy *p, const char *origin, const char *host, int http_port)
 {
     if (!origin) return 1; /* not a browser: the token (where one is set) decides */
@@ -224,4 +229,10 @@ int access_origin_ok(const access_policy *p, const char *origin, const char *hos
         return 0;
     if (oport < 0) oport = default_port;
     return strcasecmp(oname, hname) == 0 && host_name_ok(p, hname) && oport == http_port;
+}
+
+int access_change_ok(const access_policy *p, const char *origin, const char *fetch_site, const char *host, int http_port)
+{
+    if (fetch_site && strcasecmp(fetch_site, "cross-site") == 0 && !access_origin_listed(p, origin)) return 0;
+    return access_origin_ok(p, origin, host, http_port);
 }

@@ -6,8 +6,10 @@
  *   A control token: every API route needs `Authorization: Bearer <control>`; with a view token
  *   too, `Bearer <view>` reads (GET, HEAD and the stream) but changes nothing (403).
  *   Host: an IP literal, `localhost`, or a name of allowed_hosts (`*`: any).
- *   Origin (stream): none (not a browser), one of allowed_origins (`*`: any), or the page's own:
- *   the same host as the stream request's Host, which passes the Host rule, on the HTTP port. */
+ *   Origin (stream, and changing HTTP requests): none (not a browser), one of allowed_origins
+ *   (`*`: any), or the page's own: the same host as the request's Host, which passes the Host
+ *   rule, on the HTTP port. `null` (a sandboxed or file: page) is never the page's own.
+ *   Sec-Fetch-Site (changing HTTP requests): `cross-site` only from an origin of allowed_origins. */
 #ifndef CLOTHD_ACCESS_H
 #define CLOTHD_ACCESS_H
 
@@ -41,5 +43,13 @@ int access_host_ok(const access_policy *p, const char *host);
 /* Whether a stream request from a page of `origin` (NULL when the client sent none) may connect,
  * given the request's Host header and the HTTP port the viewer is served on. */
 int access_origin_ok(const access_policy *p, const char *origin, const char *host, int http_port);
+
+/* Whether origin is one of allowed_origins (answers to it carry Access-Control-Allow-Origin). */
+int access_origin_listed(const access_policy *p, const char *origin);
+
+/* Whether a changing HTTP request (POST, PUT, PATCH, DELETE) may go on, given its Origin and
+ * Sec-Fetch-Site headers (NULL when absent): DESIGN's cross-site rule. */
+int access_change_ok(const access_policy *p, const char *origin, const char *fetch_site, const char *host,
+                     int http_port);
 
 #endif

@@ -69,17 +69,13 @@ static int op_scene(cs_sim *sim, const json_t *cmd, json_t **journal, json_t **r
     return 0;
 }
 
-static int op_rock_add(cs_sim *sim, const json_t *cmd, const command_limits *lim, json_t **journal, json_t **result,
-                       problem *pr)
+static int op_rock_add(cs_sim *sim, const json_t *cmd, json_t **journal, json_t **result, problem *pr)
 {
     static const char *const fields[] = {"op", "rock", "by", NULL};
     if (only_fields(cmd, fields, pr) != 0) return -1;
     cs_rock_def d;
     cs_rock_def_default(&d);
     if (rock_from_json(json_object_get(cmd, "rock"), &d, 1, pr) != 0) return -1;
-    if (cs_rock_count(sim) >= lim->max_rocks)
-        return problem_set(pr, 422, "limit", "max_rocks", "the simulation already holds max_rocks (%d) rocks",
-                           (int)lim->max_rocks);
     uint32_t id = 0;
     const cs_status st = cs_rock_add(sim, &d, &id);
     if (st != CS_OK) return refused(sim, st, pr);
@@ -210,15 +206,14 @@ static int op_simple(cs_sim *sim, const json_t *cmd, const char *op, json_t **jo
 
 int command_rebuilds(const char *op) { return strcmp(op, "scene") == 0 || strcmp(op, "reset") == 0; }
 
-int command_apply(cs_sim *sim, const json_t *cmd, const command_limits *lim, json_t **journal, json_t **result,
-                  problem *pr)
+int command_apply(cs_sim *sim, const json_t *cmd, json_t **journal, json_t **result, problem *pr)
 {
     *journal = *result = NULL;
     const char *op = json_string_value(json_object_get(cmd, "op"));
     if (!op) return problem_set(pr, 400, "wrong-type", "op", "a command needs an op");
     if (strcmp(op, "params") == 0) return op_params(sim, cmd, journal, result, pr);
     if (strcmp(op, "scene") == 0) return op_scene(sim, cmd, journal, result, pr);
-    if (strcmp(op, "rock_add") == 0) return op_rock_add(sim, cmd, lim, journal, result, pr);
+    if (strcmp(op, "rock_add") == 0) return op_rock_add(sim, cmd, journal, result, pr);
     if (strcmp(op, "rock_set") == 0) return op_rock_set(sim, cmd, journal, result, pr);
     if (strcmp(op, "rock_remove") == 0) return op_rock_remove(sim, cmd, journal, result, pr);
     if (strcmp(op, "pins") == 0) return op_pins(sim, cmd, journal, result, pr);

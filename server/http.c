@@ -14,9 +14,11 @@
 #include <limits.h>
 #include <microhttpd.h>
 #include <netdb.h>
+#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/syscall.h>
@@ -25,6 +27,7 @@
 
 #include "access.h"
 #include "commands.h"
+#include "conns.h"
 #include "http.h"
 #include "log.h"
 #include "pjson.h"
@@ -46,6 +49,13 @@ struct http_server {
     char web_root[PATH_MAX]; /* resolved; empty when the directory does not exist */
     int port;
     ratelimit *rate;         /* changing requests per client address */
+    ratelimit *refused_rate; /* refused requests (401, 403) per client address: a budget of their own */
+    conns *conns;            /* every connection, for the deadlines libmicrohttpd does not keep */
+    pthread_t sweeper;
+    int sweeping;
+    pthread_mutex_t stop_lock;
+    pthread_cond_t stop_cond;
+    int stopping;
 };
 
 typedef struct reply {
@@ -56,6 +66,7 @@ typedef struct reply {
     char allow[64];
     int retry_after;   /* seconds, for 429 */
     int authenticate;  /* 401: ask for a bearer token */
+    int close;         /* the request's framing is not to be trusted: answer, then close */
 } reply;
 
 typedef struct req req;
@@ -77,7 +88,9 @@ struct req {
     const route *rt;
     const char *label; /* route pattern for metrics */
     char method[8];
-    char url[512];
+    char url[2048];
+    char authority[256]; /* of an absolute-form target (http://host:port/path), which names the host */
+    int malformed;       /* answered 400/414/501 on its first call */
     long long id;      /* the {id} of the path */
     char *body;
     size_t len, cap;
@@ -192,22 +205,25 @@ static int h_sim(http_server *s, req *r, reply *out)
     return reply_text(out, 200, JSON_TYPE, j, len);
 }
 
-static int h_pause(http_server *s, req *r, reply *out)
+/* A command that takes no body (an empty one or {}). */
+static int later_bodyless(req *r, sim_cmd_kind kind, reply *out)
 {
-    (void)s;
     json_t *b;
     if (body_object(r, 0, &b, out) != 0) return NOW;
     json_decref(b);
-    return later(r, CMD_PAUSE, NULL);
+    return later(r, kind, NULL);
+}
+
+static int h_pause(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    return later_bodyless(r, CMD_PAUSE, out);
 }
 
 static int h_resume(http_server *s, req *r, reply *out)
 {
     (void)s;
-    json_t *b;
-    if (body_object(r, 0, &b, out) != 0) return NOW;
-    json_decref(b);
-    return later(r, CMD_RESUME, NULL);
+    return later_bodyless(r, CMD_RESUME, out);
 }
 
 static int h_step(http_server *s, req *r, reply *out)
@@ -215,7 +231,20 @@ static int h_step(http_server *s, req *r, reply *out)
     (void)s;
     json_t *b;
     if (body_object(r, 1, &b, out) != 0) return NOW;
+    int frames;
+    long long n;
+    problem pr;
+    if (step_from_json(b, &frames, &n, &pr) != 0) { /* refused here: it reaches no step in progress */
+        json_decref(b);
+        return reply_problem(out, &pr);
+    }
     return later(r, CMD_STEP, b);
+}
+
+static int h_step_cancel(http_server *s, req *r, reply *out)
+{
+    (void)s;
+    return later_bodyless(r, CMD_STEP_CANCEL, out);
 }
 
 static int h_reset(http_server *s, req *r, reply *out)
@@ -358,13 +387,19 @@ static int h_journal(http_server *s, req *r, reply *out)
     return reply_text(out, 200, JSON_TYPE, j, len);
 }
 
+static char *http_metrics(http_server *s);
+
 static int h_metrics(http_server *s, req *r, reply *out)
 {
     (void)r;
     metrics_gauges g;
     simloop_gauges(s->sl, &g);
     size_t len = 0;
-    char *extra = s->info.stream ? stream_metrics(s->info.stream) : NULL;
+    char *own = http_metrics(s), *stream = s->info.stream ? stream_metrics(s->info.stream) : NULL;
+    char *extra = NULL;
+    if (asprintf(&extra, "%s%s", own ? own : "", stream ? stream : "") < 0) extra = NULL;
+    free(own);
+    free(stream);
     char *text = metrics_render(s->m, &g, extra, &len);
     free(extra);
     return reply_text(out, 200, "text/plain; version=0.0.4; charset=utf-8", text, len);
@@ -378,6 +413,7 @@ static const route routes[] = {
     {"POST", "/v1/sim/pause", h_pause, 0, JSON_TYPE},
     {"POST", "/v1/sim/resume", h_resume, 0, JSON_TYPE},
     {"POST", "/v1/sim/step", h_step, 0, NULL},
+    {"DELETE", "/v1/sim/step", h_step_cancel, 0, NULL},
     {"POST", "/v1/sim/reset", h_reset, 0, NULL},
     {"GET", "/v1/params", h_params_get, 0, NULL},
     {"PATCH", "/v1/params", h_params_patch, 0, NULL},
@@ -506,7 +542,14 @@ static MHD_Result send_reply(req *r, reply *rep)
         MHD_add_response_header(resp, MHD_HTTP_HEADER_RETRY_AFTER, v);
     }
     if (rep->authenticate) MHD_add_response_header(resp, MHD_HTTP_HEADER_WWW_AUTHENTICATE, "Bearer realm=\"clothd\"");
+    if (rep->close) MHD_add_response_header(resp, MHD_HTTP_HEADER_CONNECTION, "close");
     if (r->request_id[0]) MHD_add_response_header(resp, "X-Request-Id", r->request_id);
+    /* A page of an origin the operator allowed may read the answers; no other page may. */
+    const char *origin = header(r, "Origin");
+    if (r->s->info.access && access_origin_listed(r->s->info.access, origin)) {
+        MHD_add_response_header(resp, "Access-Control-Allow-Origin", origin);
+        MHD_add_response_header(resp, "Vary", "Origin");
+    }
     const MHD_Result ret = MHD_queue_response(r->conn, (unsigned int)rep->status, resp);
     MHD_destroy_response(resp);
     metrics_http(r->s->m, r->label, r->method, rep->status);
@@ -519,6 +562,7 @@ static void finish(req *r, reply *rep)
     sim_cmd *c = &r->cmd;
     if (c->failed) {
         reply_problem(rep, &c->pr);
+        if (strcmp(c->pr.slug, "busy") == 0) rep->retry_after = 1; /* the queue drains within a slice */
     } else if (c->blob) {
         const char *type = r->rt->blob_type ? r->rt->blob_type : JSON_TYPE;
         if (c->kind == CMD_CLOTH_STATE && wants_binary(r)) type = OCTETS;
@@ -538,22 +582,26 @@ static void resume_cb(sim_cmd *c, void *arg)
     MHD_resume_connection(r->conn);
 }
 
-/* Finds the route; sets *allow to the methods of the path when the method does not match. */
+/* Finds the route (HEAD takes a GET route: the answer without its body); sets *allow to the
+ * methods of the path when the method does not match, HEAD with every GET. */
 static const route *match(req *r, char *allow, size_t allow_len, int *path_known)
 {
     *path_known = 0;
     allow[0] = '\0';
+    const char *method = strcmp(r->method, "HEAD") == 0 ? "GET" : r->method;
     for (size_t i = 0; i < NROUTES; i++) {
         long long id = -1;
         if (!path_matches(routes[i].pattern, r->url, &id)) continue;
         *path_known = 1;
         r->label = routes[i].pattern;
-        if (strcmp(routes[i].method, r->method) == 0) {
+        if (strcmp(routes[i].method, method) == 0) {
             r->id = id;
             allow[0] = '\0';
             return &routes[i];
         }
-        snprintf(allow + strlen(allow), allow_len - strlen(allow), "%s%s", allow[0] ? ", " : "", routes[i].method);
+        const int get = strcmp(routes[i].method, "GET") == 0;
+        snprintf(allow + strlen(allow), allow_len - strlen(allow), "%s%s%s", allow[0] ? ", " : "", routes[i].method,
+                 get ? ", HEAD" : "");
     }
     return NULL;
 }
@@ -597,30 +645,81 @@ static double mono_s(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
-/* Host (DNS rebinding), the rate of changing requests, and the token an API route needs. 1 and
- * rep filled when the request is refused. /v1/health answers everyone (liveness probes carry no
- * secrets) and the viewer's static files are public. */
+/* A refusal (401, 403) spends the address's refused budget, not the one of its accepted
+ * changes: a client guessing tokens or a hostile page is slowed (429 once the budget is spent),
+ * and the control client behind the same address (loopback, NAT, a proxy) keeps its own. */
+static int refuse(req *r, reply *rep, const problem *pr)
+{
+    unsigned char key[16];
+    const size_t kl = client_key(r, key);
+    const int wait = kl ? ratelimit_take(r->s->refused_rate, key, kl, mono_s()) : 0;
+    if (wait > 0) {
+        problem p;
+        problem_set(&p, 429, "rate-limited", NULL,
+                    "more than rate_limit (%d per second, after a burst of %d) refused requests from this address; "
+                    "retry in %d s", (int)r->s->set.rate_limit, (int)r->s->set.rate_burst, wait);
+        reply_problem(rep, &p);
+        rep->retry_after = wait;
+        return 1;
+    }
+    reply_problem(rep, pr);
+    rep->authenticate = pr->status == 401;
+    return 1;
+}
+
+/* The host the request names: an absolute-form target's, else the Host header. */
+static const char *request_host(req *r)
+{
+    return r->authority[0] ? r->authority : header(r, MHD_HTTP_HEADER_HOST);
+}
+
+/* In order: the cross-site rule for changing requests (before anything else runs), Host (DNS
+ * rebinding), the token an API route needs, the rate of changing requests. 1 and rep filled when
+ * the request is refused. /v1/health answers everyone (liveness probes carry no secrets) and the
+ * viewer's static files are public. */
 static int refused(req *r, int api, reply *rep)
 {
     http_server *s = r->s;
     const access_policy *acc = s->info.access;
     if (!acc) return 0;
-    const char *host = header(r, MHD_HTTP_HEADER_HOST);
+    const char *host = request_host(r);
+    problem pr;
+    if (is_change(r->method)) {
+        const char *origin = header(r, "Origin"), *site = header(r, "Sec-Fetch-Site");
+        if (!access_change_ok(acc, origin, site, host, s->port)) {
+            problem_set(&pr, 403, "cross-site", NULL,
+                        "a page of another origin (Origin: %.100s, Sec-Fetch-Site: %.20s) may not change anything: "
+                        "only the viewer's own page, or an origin of allowed_origins",
+                        origin ? origin : "none", site ? site : "none");
+            return refuse(r, rep, &pr);
+        }
+    }
     if (!access_host_ok(acc, host)) {
-        problem pr;
         problem_set(&pr, 403, "host-not-allowed", NULL,
                     "Host '%.100s' is not a name of this server: use its address, localhost, or add the name to "
                     "allowed_hosts (a guard against DNS rebinding)", host);
-        reply_problem(rep, &pr);
-        return 1;
+        return refuse(r, rep, &pr);
     }
     if (!api) return 0;
+    if (strcmp(r->url, "/v1/health") != 0) {
+        const char *authorization = header(r, MHD_HTTP_HEADER_AUTHORIZATION);
+        const access_level level = access_bearer(acc, authorization);
+        if (level == ACCESS_NONE) {
+            problem_set(&pr, 401, "unauthorized", NULL, "%s",
+                        authorization ? "the token is not this server's"
+                                      : "this server needs a token: send 'Authorization: Bearer <token>'");
+            return refuse(r, rep, &pr);
+        }
+        if (level == ACCESS_VIEW && is_change(r->method)) {
+            problem_set(&pr, 403, "forbidden", NULL, "the view token reads only; changes need the control token");
+            return refuse(r, rep, &pr);
+        }
+    }
     if (is_change(r->method)) {
         unsigned char key[16];
         const size_t kl = client_key(r, key);
         const int wait = kl ? ratelimit_take(s->rate, key, kl, mono_s()) : 0;
         if (wait > 0) {
-            problem pr;
             problem_set(&pr, 429, "rate-limited", NULL,
                         "more than rate_limit (%d per second, after a burst of %d) changing requests from this "
                         "address; retry in %d s", (int)s->set.rate_limit, (int)s->set.rate_burst, wait);
@@ -628,20 +727,6 @@ static int refused(req *r, int api, reply *rep)
             rep->retry_after = wait;
             return 1;
         }
-    }
-    if (strcmp(r->url, "/v1/health") == 0) return 0;
-    const access_level level = access_bearer(acc, header(r, MHD_HTTP_HEADER_AUTHORIZATION));
-    if (level == ACCESS_NONE) {
-        reply_error(rep, 401, "unauthorized", NULL,
-                    header(r, MHD_HTTP_HEADER_AUTHORIZATION)
-                        ? "the token is not this server's"
-                        : "this server needs a token: send 'Authorization: Bearer <token>'");
-        rep->authenticate = 1;
-        return 1;
-    }
-    if (level == ACCESS_VIEW && is_change(r->method)) {
-        reply_error(rep, 403, "forbidden", NULL, "the view token reads only; changes need the control token");
-        return 1;
     }
     return 0;
 }
@@ -719,29 +804,163 @@ static void lower_priority_once(int nice_value)
         log_msg("http: could not lower this thread's priority: %s", strerror(errno));
 }
 
+/* ---- connections and strict HTTP (RFC 9110, 9112) ---- */
+
+static conn *conn_of(struct MHD_Connection *c)
+{
+    const union MHD_ConnectionInfo *ci = MHD_get_connection_info(c, MHD_CONNECTION_INFO_SOCKET_CONTEXT);
+    return ci ? ci->socket_context : NULL;
+}
+
+static void notify_cb(void *cls, struct MHD_Connection *c, void **socket_context,
+                      enum MHD_ConnectionNotificationCode toe)
+{
+    http_server *s = cls;
+    if (toe == MHD_CONNECTION_NOTIFY_STARTED) {
+        const union MHD_ConnectionInfo *fd = MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
+        const union MHD_ConnectionInfo *ad = MHD_get_connection_info(c, MHD_CONNECTION_INFO_CLIENT_ADDRESS);
+        *socket_context = fd ? conns_open(s->conns, fd->connect_fd, ad ? ad->client_addr : NULL, mono_s()) : NULL;
+    } else {
+        conns_close(s->conns, *socket_context); /* before libmicrohttpd closes the descriptor */
+        *socket_context = NULL;
+    }
+}
+
+/* Called with the request line's target as it came (libmicrohttpd unescapes it afterwards). A
+ * target holds no space or control character (RFC 9112 3.2); libmicrohttpd 0.9.75 takes both. A
+ * NUL byte cuts the string it hands over: it ends the target at the line's last space, and the
+ * HTTP version follows that NUL, so when the version is not what follows the string's end, a NUL
+ * came before. Every byte read lies within the request line (reading stops at the first NUL). */
+static void *uri_cb(void *cls, const char *uri, struct MHD_Connection *c)
+{
+    http_server *s = cls;
+    conn *e = conn_of(c);
+    conns_request_line(s->conns, e);
+    if (!uri) return NULL; /* no target at all: libmicrohttpd refuses such a line itself */
+    int bad = 0;
+    for (const unsigned char *p = (const unsigned char *)uri; *p && !bad; p++) bad = *p <= ' ' || *p == 0x7f;
+    const char *end = uri + strlen(uri);
+    if (strncmp(end + 1, "HTTP/1.", 7) != 0 || !isdigit((unsigned char)end[8]) || end[9] != '\0') bad = 1;
+    if (bad) conns_flag_target(s->conns, e);
+    return NULL;
+}
+
+/* libmicrohttpd's own unescaping, but a %00 (a NUL in the path or a query value) is refused. */
+static size_t unescape_cb(void *cls, struct MHD_Connection *c, char *text)
+{
+    http_server *s = cls;
+    for (const char *p = text; (p = strchr(p, '%')) != NULL; p++) {
+        if (p[1] == '0' && p[2] == '0') {
+            conns_flag_target(s->conns, conn_of(c));
+            break;
+        }
+    }
+    return MHD_http_unescape(text);
+}
+
+typedef struct head_fields {
+    int host, content_length, transfer_encoding, other_coding, spaced_name;
+} head_fields;
+
+static MHD_Result count_field(void *cls, enum MHD_ValueKind kind, const char *key, const char *value)
+{
+    (void)kind;
+    head_fields *h = cls;
+    if (strcasecmp(key, MHD_HTTP_HEADER_HOST) == 0) h->host++;
+    if (strcasecmp(key, MHD_HTTP_HEADER_CONTENT_LENGTH) == 0) h->content_length++;
+    if (strcasecmp(key, MHD_HTTP_HEADER_TRANSFER_ENCODING) == 0) {
+        h->transfer_encoding++;
+        if (!value || strcasecmp(value, "chunked") != 0) h->other_coding = 1;
+    }
+    if (strpbrk(key, " \t")) h->spaced_name = 1; /* "Host : x": libmicrohttpd keeps the space in the name */
+    return MHD_YES;
+}
+
+/* The request line and head as RFC 9112 wants them, where libmicrohttpd 0.9.75 lets them
+ * through: 0, or 1 with the answer in rep (a 400 family status; the connection is then closed,
+ * since the request's framing cannot be trusted). */
+static int malformed(req *r, const char *url, const char *version, reply *rep)
+{
+    head_fields h = {0, 0, 0, 0, 0};
+    MHD_get_connection_values(r->conn, MHD_HEADER_KIND, count_field, &h);
+    const char *why = NULL;
+    int status = 400;
+    if (conns_target_bad(r->s->conns, conn_of(r->conn)))
+        why = "the request target holds a NUL byte, a space or a control character";
+    else if (h.spaced_name)
+        why = "a header field name ends in white space (RFC 9112 section 5.1)";
+    else if (h.host == 0 && strcmp(version, MHD_HTTP_VERSION_1_1) == 0)
+        why = "an HTTP/1.1 request needs a Host header (RFC 9112 section 3.2)";
+    else if (h.host > 1)
+        why = "more than one Host header";
+    else if (h.content_length > 1)
+        why = "more than one Content-Length header";
+    else if (h.content_length && h.transfer_encoding)
+        why = "Content-Length together with Transfer-Encoding (RFC 9112 section 6.1)";
+    else if (h.transfer_encoding > 1 || h.other_coding)
+        why = "the only transfer coding understood is chunked, once", status = 501;
+    else if (strlen(url) >= sizeof r->url)
+        why = "the request target is longer than this server reads", status = 414;
+    if (!why) return 0;
+    problem pr;
+    problem_set(&pr, status, status == 400 ? "bad-request" : status == 414 ? "uri-too-long" : "not-implemented", NULL,
+                "%s", why);
+    reply_problem(rep, &pr);
+    rep->close = 1;
+    return 1;
+}
+
+/* An absolute-form target (RFC 9112 3.2.2: "http://host:port/path") names the host itself, in
+ * place of the Host header; the route is its path. */
+static void take_target(req *r, const char *url)
+{
+    const char *rest = strncasecmp(url, "http://", 7) == 0 ? url + 7 : strncasecmp(url, "https://", 8) == 0 ? url + 8 : NULL;
+    if (!rest) {
+        snprintf(r->url, sizeof r->url, "%s", url);
+        return;
+    }
+    const size_t n = strcspn(rest, "/");
+    snprintf(r->authority, sizeof r->authority, "%.*s", (int)(n < sizeof r->authority ? n : 0), rest);
+    if (!r->authority[0]) snprintf(r->authority, sizeof r->authority, "%s", "-"); /* not a host: refused */
+    snprintf(r->url, sizeof r->url, "%s", rest[n] ? rest + n : "/");
+}
+
 static MHD_Result access_cb(void *cls, struct MHD_Connection *conn, const char *url, const char *method,
                             const char *version, const char *upload_data, size_t *upload_data_size, void **con_cls)
 {
-    (void)version;
     http_server *s = cls;
     req *r = *con_cls;
     lower_priority_once(s->set.http_nice);
     if (!r) {
-        /* First call: record the request only (answering now would end keep-alive). */
+        /* First call: the head is in. Record the request only (answering now would end
+         * keep-alive), unless it is malformed. */
+        conns_head_done(s->conns, conn_of(conn), mono_s());
         r = calloc(1, sizeof *r);
         if (!r) return MHD_NO;
         r->s = s;
         r->conn = conn;
         r->label = "unknown";
         snprintf(r->method, sizeof r->method, "%s", method);
-        snprintf(r->url, sizeof r->url, "%s", strlen(url) < sizeof r->url ? url : "/too-long");
+        take_target(r, url);
         copy_request_id(r);
         const char *cl = header(r, MHD_HTTP_HEADER_CONTENT_LENGTH);
         if (cl && strtoull(cl, NULL, 10) > (unsigned long long)s->set.max_body) r->too_large = 1;
         *con_cls = r;
+        reply rep = {0};
+        if (malformed(r, url, version, &rep)) {
+            r->malformed = 1;
+            r->phase = 3;
+            conns_busy(s->conns, conn_of(conn));
+            return send_reply(r, &rep);
+        }
+        return MHD_YES;
+    }
+    if (r->malformed) {
+        *upload_data_size = 0; /* answered: the rest is dropped */
         return MHD_YES;
     }
     if (*upload_data_size) {
+        conns_body(s->conns, conn_of(conn), *upload_data_size);
         /* Counted as it arrives; past max_body it is dropped and the answer is 413. */
         if (!r->too_large) {
             if (r->len + *upload_data_size > (size_t)s->set.max_body) {
@@ -777,12 +996,15 @@ static MHD_Result access_cb(void *cls, struct MHD_Connection *conn, const char *
         r->body = calloc(1, 1);
         if (!r->body) return MHD_NO;
     }
+    conns_busy(s->conns, conn_of(conn));
     return dispatch(r);
 }
 
 static void completed_cb(void *cls, struct MHD_Connection *conn, void **con_cls, enum MHD_RequestTerminationCode toe)
 {
-    (void)cls, (void)conn, (void)toe;
+    (void)toe;
+    http_server *s = cls;
+    conns_done(s->conns, conn_of(conn), mono_s()); /* ready for the next request from now */
     req *r = *con_cls;
     if (!r) return;
     json_decref(r->cmd_body);
@@ -803,6 +1025,35 @@ static void mhd_log(void *cls, const char *fmt, va_list ap)
     log_msg("http: %s", line);
 }
 
+/* Closes the connections past their deadlines (conns.h), ten times a second. */
+static void *sweep_main(void *arg)
+{
+    http_server *s = arg;
+    pthread_mutex_lock(&s->stop_lock);
+    while (!s->stopping) {
+        pthread_mutex_unlock(&s->stop_lock);
+        conns_sweep(s->conns, mono_s());
+        struct timespec until;
+        clock_gettime(CLOCK_REALTIME, &until);
+        until.tv_nsec += 100000000L;
+        if (until.tv_nsec >= 1000000000L) until.tv_sec++, until.tv_nsec -= 1000000000L;
+        pthread_mutex_lock(&s->stop_lock);
+        if (!s->stopping) pthread_cond_timedwait(&s->stop_cond, &s->stop_lock, &until);
+    }
+    pthread_mutex_unlock(&s->stop_lock);
+    return NULL;
+}
+
+static void free_server(http_server *s)
+{
+    ratelimit_free(s->rate);
+    ratelimit_free(s->refused_rate);
+    conns_free(s->conns);
+    pthread_mutex_destroy(&s->stop_lock);
+    pthread_cond_destroy(&s->stop_cond);
+    free(s);
+}
+
 http_server *http_start(const clothd_settings *set, simloop *sl, metrics *m, const http_info *info, char *err,
                         size_t err_len)
 {
@@ -815,10 +1066,15 @@ http_server *http_start(const clothd_settings *set, simloop *sl, metrics *m, con
     s->m = m;
     s->info = *info;
     s->set = *set;
+    pthread_mutex_init(&s->stop_lock, NULL);
+    pthread_cond_init(&s->stop_cond, NULL);
     s->rate = ratelimit_new(set->rate_limit, set->rate_burst);
-    if (!s->rate) {
+    s->refused_rate = ratelimit_new(set->rate_limit, set->rate_burst);
+    const conns_limits lim = {set->max_connections, set->header_timeout, set->min_body_rate};
+    s->conns = conns_new(&lim);
+    if (!s->rate || !s->refused_rate || !s->conns) {
         snprintf(err, err_len, "out of memory");
-        free(s);
+        free_server(s);
         return NULL;
     }
     if (!realpath(set->web_root, s->web_root)) {
@@ -836,8 +1092,7 @@ http_server *http_start(const clothd_settings *set, simloop *sl, metrics *m, con
     if (gai != 0) {
         snprintf(err, err_len, "listen address '%s': %s (give a numeric IPv4 or IPv6 address)", set->listen,
                  gai_strerror(gai));
-        ratelimit_free(s->rate);
-        free(s);
+        free_server(s);
         return NULL;
     }
     /* poll, not epoll: libmicrohttpd 0.9.75 (Debian 12) aborts in MHD_quiesce_daemon when a worker
@@ -846,23 +1101,29 @@ http_server *http_start(const clothd_settings *set, simloop *sl, metrics *m, con
      * and an abort saves no state. With poll, quiescing only signals the workers (MHD_USE_ITC). */
     unsigned int flags = MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_POLL | MHD_USE_ITC | MHD_ALLOW_SUSPEND_RESUME | MHD_USE_ERROR_LOG;
     if (ai->ai_family == AF_INET6) flags |= MHD_USE_IPv6;
+    /* libmicrohttpd may hold one connection per thread beyond max_connections: the connection
+     * table (conns.h) makes room at max_connections itself, so a new client is never left in the
+     * backlog behind connections that only wait. */
     s->d = MHD_start_daemon(flags, (uint16_t)set->port, NULL, NULL, access_cb, s, MHD_OPTION_EXTERNAL_LOGGER, mhd_log,
                             s, MHD_OPTION_SOCK_ADDR, ai->ai_addr,
                             MHD_OPTION_THREAD_POOL_SIZE, (unsigned int)set->http_threads, MHD_OPTION_CONNECTION_LIMIT,
-                            (unsigned int)set->max_connections, MHD_OPTION_PER_IP_CONNECTION_LIMIT,
+                            (unsigned int)(set->max_connections + set->http_threads), MHD_OPTION_PER_IP_CONNECTION_LIMIT,
                             (unsigned int)set->max_connections_per_ip, MHD_OPTION_CONNECTION_TIMEOUT,
                             (unsigned int)set->connection_timeout, MHD_OPTION_NOTIFY_COMPLETED, completed_cb, s,
+                            MHD_OPTION_NOTIFY_CONNECTION, notify_cb, s, MHD_OPTION_URI_LOG_CALLBACK, uri_cb, s,
+                            MHD_OPTION_UNESCAPE_CALLBACK, unescape_cb, s,
                             MHD_OPTION_LISTENING_ADDRESS_REUSE, 1U,
                             MHD_OPTION_END);
     freeaddrinfo(ai);
     if (!s->d) {
         snprintf(err, err_len, "could not listen on %s port %d (in use, or not allowed?)", set->listen, (int)set->port);
-        ratelimit_free(s->rate);
-        free(s);
+        free_server(s);
         return NULL;
     }
     const union MHD_DaemonInfo *di = MHD_get_daemon_info(s->d, MHD_DAEMON_INFO_BIND_PORT);
     s->port = di ? di->port : set->port;
+    s->sweeping = pthread_create(&s->sweeper, NULL, sweep_main, s) == 0;
+    if (!s->sweeping) log_msg("http: could not start the connection sweeper: header_timeout is not enforced");
     return s;
 }
 
@@ -877,7 +1138,33 @@ void http_quiesce(http_server *s)
 void http_stop(http_server *s)
 {
     if (!s) return;
+    if (s->sweeping) {
+        pthread_mutex_lock(&s->stop_lock);
+        s->stopping = 1;
+        pthread_cond_signal(&s->stop_cond);
+        pthread_mutex_unlock(&s->stop_lock);
+        pthread_join(s->sweeper, NULL);
+    }
     MHD_stop_daemon(s->d);
-    ratelimit_free(s->rate);
-    free(s);
+    free_server(s);
+}
+
+static char *http_metrics(http_server *s)
+{
+    uint64_t closed[CONNS_REASONS];
+    conns_closed(s->conns, closed);
+    char *out = NULL;
+    size_t len = 0;
+    FILE *f = open_memstream(&out, &len);
+    if (!f) return NULL;
+    fprintf(f, "# HELP clothd_http_connections HTTP connections open.\n# TYPE clothd_http_connections gauge\n"
+               "clothd_http_connections %d\n", conns_count(s->conns));
+    fprintf(f, "# HELP clothd_http_connections_closed_total HTTP connections the server closed, by reason: "
+               "header_timeout, body_rate, evicted (to make room at max_connections).\n"
+               "# TYPE clothd_http_connections_closed_total counter\n");
+    for (int k = 0; k < CONNS_REASONS; k++)
+        fprintf(f, "clothd_http_connections_closed_total{reason=\"%s\"} %llu\n", conns_reason_names[k],
+                (unsigned long long)closed[k]);
+    fclose(f);
+    return out;
 }

@@ -11,17 +11,19 @@ struct journal {
     pthread_mutex_t lock;
     char **entries; /* each {"step": N, "command": {...}} */
     size_t n, cap, max;
+    size_t bytes, max_bytes; /* of the entries: their text and the index's pointer to each */
     unsigned char *base;
     size_t base_len;
     uint64_t base_step;
 };
 
-journal *journal_new(size_t max_entries)
+journal *journal_new(size_t max_entries, size_t max_bytes)
 {
     journal *j = calloc(1, sizeof *j);
     if (!j) return NULL;
     pthread_mutex_init(&j->lock, NULL);
     j->max = max_entries;
+    j->max_bytes = max_bytes;
     return j;
 }
 
@@ -29,6 +31,7 @@ static void clear(journal *j)
 {
     for (size_t k = 0; k < j->n; k++) free(j->entries[k]);
     j->n = 0;
+    j->bytes = 0;
 }
 
 void journal_free(journal *j)
@@ -75,6 +78,7 @@ int journal_append(journal *j, uint64_t step, const json_t *command)
         j->cap = cap;
     }
     j->entries[j->n++] = s;
+    j->bytes += strlen(s) + 1 + sizeof *j->entries;
     pthread_mutex_unlock(&j->lock);
     return 0;
 }
@@ -82,7 +86,7 @@ int journal_append(journal *j, uint64_t step, const json_t *command)
 int journal_full(journal *j)
 {
     pthread_mutex_lock(&j->lock);
-    const int full = j->n >= j->max;
+    const int full = j->n >= j->max || j->bytes >= j->max_bytes;
     pthread_mutex_unlock(&j->lock);
     return full;
 }

@@ -7,9 +7,10 @@
  *
  * serve: settings from the config file, CLOTHD_* variables and flags; the engine on the chosen
  * backend, resumed from --state-file when it exists (a corrupt or foreign file is refused, or
- * moved aside with --state-file-invalid fresh); the sim thread; the HTTP server. SIGTERM or
- * SIGINT stops accepting, finishes the frame, saves the state file (temp file, fsync, rename,
- * fsync of the directory) and exits 0. A backend failure (SIGUSR1 from the sim thread) keeps
+ * moved aside with --state-file-invalid fresh), paused if it was saved paused; the sim thread;
+ * the HTTP server. SIGTERM or SIGINT stops accepting, stops the sim thread (within a quarter
+ * second of compute, whatever it runs: a long step, a long frame), saves the state file (statefile.h: temp
+ * file, fsync, rename, fsync of the directory) and exits 0. A backend failure (SIGUSR1 from the sim thread) keeps
  * answering - /v1/health 503 - while it saves the last checkpoint, then exits 3, for a supervisor
  * to restart from the state file. Exit statuses are in EXIT_STATUSES. */
 #include <dirent.h>
@@ -32,6 +33,7 @@
 #include "metrics.h"
 #include "settings.h"
 #include "simloop.h"
+#include "statefile.h"
 #include "stream.h"
 #ifdef CLOTHD_TEST_HOOKS
 #include "testhooks.h"
@@ -140,22 +142,35 @@ static int write_atomic(const char *path, const void *data, size_t len, char *wh
 }
 
 /* Saves the engine's state, or the last checkpoint when the engine cannot be read any more (a
- * lost device). */
-static int save_state(cs_sim *sim, const unsigned char *fallback, size_t fallback_len, const char *path, char *why,
-                      size_t why_len)
+ * lost device), as a state file (statefile.h) with the run state. */
+static int save_state(cs_sim *sim, const unsigned char *fallback, size_t fallback_len, int paused, const char *path,
+                      char *why, size_t why_len)
 {
-    size_t len = cs_snapshot_size(sim);
-    unsigned char *buf = malloc(len);
+    size_t tlen = 0, len = cs_snapshot_size(sim);
+    char *trailer = statefile_trailer(paused, &tlen);
+    unsigned char *buf = trailer ? malloc(len + tlen) : NULL;
     int rc = -1;
-    if (buf && cs_snapshot_save(sim, buf, len, &len) == CS_OK) {
-        rc = write_atomic(path, buf, len, why, why_len);
+    if (!buf) {
+        snprintf(why, why_len, "out of memory");
+    } else if (cs_snapshot_save(sim, buf, len, &len) == CS_OK) {
+        memcpy(buf + len, trailer, tlen);
+        rc = write_atomic(path, buf, len + tlen, why, why_len);
     } else if (fallback && fallback_len) {
         log_msg("state file: the engine could not be read (%s); saving the last checkpoint", cs_sim_error(sim));
-        rc = write_atomic(path, fallback, fallback_len, why, why_len);
+        unsigned char *cp = realloc(buf, fallback_len + tlen);
+        if (cp) {
+            buf = cp;
+            memcpy(buf, fallback, fallback_len);
+            memcpy(buf + fallback_len, trailer, tlen);
+            rc = write_atomic(path, buf, fallback_len + tlen, why, why_len);
+        } else {
+            snprintf(why, why_len, "out of memory");
+        }
     } else {
         snprintf(why, why_len, "the engine could not be read (%s) and there is no checkpoint", cs_sim_error(sim));
     }
     free(buf);
+    free(trailer);
     return rc;
 }
 
@@ -182,11 +197,11 @@ static void remove_stale_temps(const char *path)
     closedir(dp);
 }
 
-/* What is wrong with a state file the engine refused, or NULL when the file is not to blame (out
- * of memory, a device error, a cloth larger than max_state_mb allows). */
-static const char *invalid_because(const unsigned char *buf, size_t len, cs_status st)
+/* What is wrong with a state file whose snapshot the engine refused, or NULL when the file is not
+ * to blame (out of memory, a device error, a cloth larger than max_state_mb allows, more rocks
+ * than max_rocks). */
+static const char *invalid_because(cs_status st)
 {
-    if (len < 4 || memcmp(buf, "CSNP", 4) != 0) return "is not a clothd state file";
     switch (st) {
     case CS_E_VERSION: return "was written by another version of clothd";
     case CS_E_FORMAT: return "is damaged";
@@ -214,12 +229,13 @@ static int move_aside(const char *path, char *to, size_t to_len)
 }
 
 /* Resumes from the state file when there is one. Returns 0 (resumed, or nothing to resume), or
- * -1 when the start must stop (logged). A file that is corrupt, foreign or from another version
- * stops it too, unless state_file_invalid is fresh: then it is moved aside and the start goes on
- * with the configured scene. */
-static int resume(cs_sim *sim, const clothd_settings *set)
+ * -1 when the start must stop (logged); *paused says whether the state was saved paused. A file
+ * that is corrupt, foreign or from another version stops it too, unless state_file_invalid is
+ * fresh: then it is moved aside and the start goes on with the configured scene. */
+static int resume(cs_sim *sim, const clothd_settings *set, int *paused)
 {
     const char *path = set->state_file;
+    *paused = 0;
     if (!path[0]) return 0;
     remove_stale_temps(path);
     struct stat sb;
@@ -238,36 +254,49 @@ static int resume(cs_sim *sim, const clothd_settings *set)
         log_msg("cannot resume from the state file: %s", why);
         return -1;
     }
-    const cs_status st = cs_snapshot_load(sim, buf, len);
-    const char *bad = st == CS_OK ? NULL : invalid_because(buf, len, st);
+    statefile layout;
+    const statefile_error fe = statefile_parse(buf, len, &layout, why, sizeof why);
+    const cs_status st = fe == STATEFILE_OK ? cs_snapshot_load(sim, buf, layout.snapshot_len) : CS_E_FORMAT;
+    const char *bad = fe == STATEFILE_FOREIGN  ? "is not a clothd state file"
+                      : fe == STATEFILE_NEWER  ? "was written by a newer clothd"
+                      : fe != STATEFILE_OK     ? "is damaged"
+                      : st == CS_OK            ? NULL
+                                               : invalid_because(st);
+    const char *reason = fe != STATEFILE_OK ? why : cs_sim_error(sim);
     free(buf);
     if (st == CS_OK) {
         cs_info info;
         cs_sim_info(sim, &info);
         char hex[17];
         cs_hash_hex(cs_state_hash(sim), hex);
-        log_msg("resumed from %s at step %llu, state hash %s", path, (unsigned long long)info.step, hex);
+        *paused = layout.paused;
+        log_msg("resumed from %s at step %llu, state hash %s, %s as it was saved%s", path,
+                (unsigned long long)info.step, hex, layout.paused ? "paused" : "running",
+                layout.format < STATEFILE_FORMAT ? " (a state file of format 1, which kept no run state)" : "");
         return 0;
     }
     if (!bad) { /* the file is kept whatever state_file_invalid says */
-        log_msg("cannot resume from the state file %s: %s%s", path, cs_sim_error(sim),
-                st == CS_E_LIMIT ? " (raise max_state_mb to resume from it)" : "");
+        const char *param = cs_sim_error_param(sim);
+        log_msg("cannot resume from the state file %s: %s%s", path, reason,
+                st != CS_E_LIMIT                  ? ""
+                : strcmp(param, "max_rocks") == 0 ? " (raise max_rocks to resume from it)"
+                                                  : " (raise max_state_mb to resume from it)");
         return -1;
     }
     if (set->state_file_invalid != STATE_INVALID_FRESH) {
         log_msg("cannot resume from the state file %s: it %s (%s). Refusing to start: fix or remove it, or set "
                 "--state-file-invalid fresh (CLOTHD_STATE_FILE_INVALID=fresh) to move it aside and start afresh",
-                path, bad, cs_sim_error(sim));
+                path, bad, reason);
         return -1;
     }
     char aside[700];
     if (move_aside(path, aside, sizeof aside) != 0) {
         log_msg("cannot resume from the state file %s: it %s (%s), and it could not be moved aside: %s", path, bad,
-                cs_sim_error(sim), strerror(errno));
+                reason, strerror(errno));
         return -1;
     }
-    log_msg("state file %s %s (%s): moved to %s; starting afresh (state_file_invalid = fresh)", path, bad,
-            cs_sim_error(sim), aside);
+    log_msg("state file %s %s (%s): moved to %s; starting afresh (state_file_invalid = fresh)", path, bad, reason,
+            aside);
     return 0;
 }
 
@@ -277,7 +306,7 @@ static cs_sim *make_engine(const clothd_config *cfg)
     cs_sim *sim = NULL;
     const uint64_t limit = (uint64_t)cfg->set.max_state_mb << 20;
     uint64_t bytes;
-    if (cs_scene_memory(&cfg->scene, &bytes) != CS_OK || bytes > limit) {
+    if (simloop_scene_cost(&cfg->scene, cfg->set.max_rocks, NULL, &bytes) != CS_OK || bytes > limit) {
         log_msg("cannot start the simulation: a %d x %d cloth needs more than max_state_mb (%d MiB)", (int)cfg->scene.nx,
                 (int)cfg->scene.ny, (int)cfg->set.max_state_mb);
         return NULL;
@@ -288,7 +317,8 @@ static cs_sim *make_engine(const clothd_config *cfg)
         return NULL;
     }
     cs_sim_set_threads(sim, cfg->set.threads);
-    cs_sim_set_memory_limit(sim, limit);
+    cs_sim_set_rock_limit(sim, cfg->set.max_rocks);
+    cs_sim_set_memory_limit(sim, limit, simloop_scene_cost, NULL);
     return sim;
 }
 
@@ -304,15 +334,13 @@ static int replay(const char *file, const clothd_config *cfg)
         return 1;
     }
     /* The bundle: a snapshot (its header says how long it is) followed by the journal JSON. */
-    unsigned long long plen = 0;
-    for (int k = 0; k < 8 && len >= 32; k++) plen |= (unsigned long long)buf[16 + k] << (8 * k);
-    if (len < 32 || memcmp(buf, "CSNP", 4) != 0 || plen > len - 32) {
+    const size_t snap_len = cs_snapshot_length(buf, len);
+    if (snap_len == 0) {
         fprintf(stderr, "clothd replay: %s is not a journal bundle (GET /v1/journal with Accept: application/octet-stream)\n",
                 file);
         free(buf);
         return 1;
     }
-    const size_t snap_len = 32 + (size_t)plen;
     json_error_t jerr;
     json_t *j = json_loadb((const char *)buf + snap_len, len - snap_len, JSON_REJECT_DUPLICATES, &jerr);
     cs_sim *sim = j ? make_engine(cfg) : NULL;
@@ -322,7 +350,6 @@ static int replay(const char *file, const clothd_config *cfg)
     } else if (sim && cs_snapshot_load(sim, buf, snap_len) != CS_OK) {
         fprintf(stderr, "clothd replay: the snapshot in %s is refused: %s\n", file, cs_sim_error(sim));
     } else if (sim) {
-        const command_limits lim = {CS_MAX_ROCKS};
         cs_info info;
         size_t k;
         json_t *e;
@@ -334,7 +361,7 @@ static int replay(const char *file, const clothd_config *cfg)
             json_t *journal = NULL, *result = NULL;
             problem pr;
             if (step < (long long)info.step || cs_sim_step(sim, step - (long long)info.step) != CS_OK ||
-                command_apply(sim, json_object_get(e, "command"), &lim, &journal, &result, &pr) != 0) {
+                command_apply(sim, json_object_get(e, "command"), &journal, &result, &pr) != 0) {
                 fprintf(stderr, "clothd replay: entry %zu (step %lld) could not be replayed: %s\n", k, step,
                         pr.detail[0] ? pr.detail : cs_sim_error(sim));
                 rc = 1;
@@ -373,11 +400,11 @@ static int save_on_exit(simloop *sl, const char *path)
     size_t cl = 0;
     const unsigned char *cp = simloop_checkpoint(sl, &cl);
     char why[1400];
-    if (save_state(simloop_engine(sl), cp, cl, path, why, sizeof why) != 0) {
+    if (save_state(simloop_engine(sl), cp, cl, simloop_paused(sl), path, why, sizeof why) != 0) {
         log_msg("could not save the state to %s: %s; the previous state file, if any, is unchanged", path, why);
         return -1;
     }
-    log_msg("state saved to %s", path);
+    log_msg("state saved to %s (%s)", path, simloop_paused(sl) ? "paused" : "running");
     return 0;
 }
 
@@ -402,10 +429,12 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
         if (cs_sim_set_scene(sim, &sc) == CS_OK) cfg->scene = sc;
     }
     log_msg("backend: %s on %s (%s)", cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim));
-    if (resume(sim, &cfg->set) != 0) {
+    int was_paused = 0;
+    if (resume(sim, &cfg->set, &was_paused) != 0) {
         cs_sim_destroy(sim);
         return EXIT_START;
     }
+    cfg->set.paused |= was_paused; /* --paused pauses a state saved running too */
     metrics *m = metrics_new();
     simloop *sl = m ? simloop_new(sim, cfg, m) : NULL;
     if (!sl) {

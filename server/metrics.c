@@ -56,8 +56,22 @@ void metrics_frame(metrics *m, int32_t substeps, double seconds)
     pthread_mutex_unlock(&m->lock);
 }
 
+/* Label values come from closed sets, so no client can grow the number of series: the methods
+ * HTTP defines (anything else is "other"); routes are the route table's patterns, "static" and
+ * "unknown" (the caller's); statuses are the server's own. */
+static const char *const methods[] = {"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS", "CONNECT", "TRACE"};
+
+const char *metrics_method_label(const char *method)
+{
+    for (size_t k = 0; k < sizeof methods / sizeof methods[0]; k++)
+        if (strcmp(method, methods[k]) == 0) return methods[k];
+    return "other";
+}
+
 void metrics_http(metrics *m, const char *route, const char *method, int status)
 {
+    method = metrics_method_label(method);
+    if (status < 100 || status > 599) status = 0;
     pthread_mutex_lock(&m->lock);
     for (size_t i = 0; i < m->n_http; i++) {
         http_count *h = &m->http[i];
@@ -111,6 +125,17 @@ static void put(sbuf *b, const char *fmt, ...)
     }
 }
 
+/* A label value as the text format wants it: backslash, double quote and line feed escaped. */
+static void put_label(sbuf *b, const char *v)
+{
+    for (; *v; v++) {
+        if (*v == '\\') put(b, "\\\\");
+        else if (*v == '"') put(b, "\\\"");
+        else if (*v == '\n') put(b, "\\n");
+        else put(b, "%c", *v);
+    }
+}
+
 char *metrics_render(metrics *m, const metrics_gauges *g, const char *extra, size_t *len)
 {
     sbuf b = {NULL, 0, 0};
@@ -130,9 +155,13 @@ char *metrics_render(metrics *m, const metrics_gauges *g, const char *extra, siz
     put(&b, "clothd_substep_seconds_sum %.9g\nclothd_substep_seconds_count %llu\n", m->seconds, (unsigned long long)cum);
     put(&b, "# HELP clothd_http_requests_total HTTP requests answered, by route pattern, method and status.\n"
             "# TYPE clothd_http_requests_total counter\n");
-    for (size_t i = 0; i < m->n_http; i++)
-        put(&b, "clothd_http_requests_total{route=\"%s\",method=\"%s\",status=\"%d\"} %llu\n", m->http[i].route,
-            m->http[i].method, m->http[i].status, (unsigned long long)m->http[i].count);
+    for (size_t i = 0; i < m->n_http; i++) {
+        put(&b, "clothd_http_requests_total{route=\"");
+        put_label(&b, m->http[i].route);
+        put(&b, "\",method=\"");
+        put_label(&b, m->http[i].method);
+        put(&b, "\",status=\"%d\"} %llu\n", m->http[i].status, (unsigned long long)m->http[i].count);
+    }
     pthread_mutex_unlock(&m->lock);
     put(&b, "# HELP clothd_realtime_factor Simulated seconds per wall-clock second.\n"
             "# TYPE clothd_realtime_factor gauge\nclothd_realtime_factor %.6g\n", g->realtime_factor);

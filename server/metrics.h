@@ -18,8 +18,11 @@ metrics *metrics_new(void);
 void metrics_free(metrics *m);
 /* A frame of `substeps` substeps took `seconds` of compute. */
 void metrics_frame(metrics *m, int32_t substeps, double seconds);
-/* One HTTP request answered: its route pattern (e.g. "/v1/rocks/{id}"), method and status. */
+/* One HTTP request answered: its route pattern (e.g. "/v1/rocks/{id}"), method (a method HTTP
+ * does not define counts as "other") and status. */
 void metrics_http(metrics *m, const char *route, const char *method, int status);
+/* The label a request method gets: itself when HTTP defines it, else "other". */
+const char *metrics_method_label(const char *method);
 /* The exposition text (malloc'd); `extra` (may be NULL) is appended as is. */
 char *metrics_render(metrics *m, const metrics_gauges *g, const char *extra, size_t *len);
 

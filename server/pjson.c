@@ -24,10 +24,18 @@ static const struct {
     {"too-large", "Request body too large"},
     {"bad-snapshot", "Bad snapshot"},
     {"unavailable", "Service unavailable"},
+    {"busy", "Too busy"},
     {"internal", "Internal error"},
     {"unauthorized", "Unauthorized"},
     {"forbidden", "Forbidden"},
     {"rate-limited", "Too many requests"},
+    {"host-not-allowed", "Host not allowed"},
+    {"cross-site", "Cross-site request refused"},
+    {"bad-request", "Malformed request"},
+    {"uri-too-long", "Request target too long"},
+    {"not-implemented", "Not implemented"},
+    {"too-many-clients", "Too many clients"},
+    {"upgrade-required", "Upgrade required"},
 };
 
 const char *problem_title(const char *slug)

@@ -30,7 +30,7 @@
     X(view_token_file, STR, "", 0, 0, NULL, "File holding the view token (GET routes and the stream)") \
     X(insecure, BOOL, 0, 0, 1, NULL, "Allow listening beyond loopback without a token (anyone who reaches it has control)") \
     X(allowed_hosts, STR, "", 0, 0, NULL, "Host names the API answers to besides IP addresses and localhost (comma-separated; * any)") \
-    X(allowed_origins, STR, "", 0, 0, NULL, "Page origins that may open the stream besides the viewer's own (comma-separated; * any)") \
+    X(allowed_origins, STR, "", 0, 0, NULL, "Page origins that may change the state and open the stream besides the viewer's own (comma-separated scheme://host[:port]; * any)") \
     X(state_file, STR, "", 0, 0, NULL, "State saved here (crash-safe) on SIGTERM/SIGINT and after a backend failure; resumed from at start") \
     X(state_file_invalid, ENUM, 0, 0, 1, "refuse|fresh", "A corrupt or foreign state file at start: refuse to start, or move it to <file>.bad-<time> and start afresh") \
     X(web_root, STR, CLOTHD_WEB_ROOT, 0, 0, NULL, "Directory of the viewer's static files, served at /")         \
@@ -44,12 +44,17 @@
     X(rate_limit, INT, 50, 0, 1000000, NULL, "Changing requests (POST, PUT, PATCH, DELETE) per second per address, after the burst; 0 = no limit (429 beyond)") \
     X(rate_burst, INT, 500, 1, 1000000, NULL, "Changing requests one address may make at once before rate_limit applies") \
     X(connection_timeout, INT, 60, 1, 86400, NULL, "Seconds an idle HTTP connection stays open")       \
+    X(header_timeout, INT, 10, 1, 3600, NULL, "Seconds a client has to send a request's head, from when its connection was opened or its previous answer sent (slowloris)") \
+    X(min_body_rate, INT, 1024, 0, 1073741824, NULL, "Slowest a request body may arrive, in bytes per second on average after header_timeout; 0 = no minimum") \
     X(max_rocks, INT, 256, 1, 1024, NULL, "Most rocks in the simulation")                             \
-    X(max_state_mb, INT, 1024, 1, 1048576, NULL, "Largest cloth state in MiB, estimated before any allocation (a bigger scene is 422)") \
+    X(max_state_mb, INT, 1024, 1, 1048576, NULL, "MiB a scene may take in all (its state, checkpoints, frame and encode buffers, the backend's scratch), estimated before any allocation (a bigger scene or snapshot is 422)") \
     X(stream_max_clients, INT, 64, 1, 10000, NULL, "Most WebSocket clients at once")                  \
     X(stream_max_message, INT, 4096, 64, 1048576, NULL, "Largest message a stream client may send, in bytes") \
     X(stream_stall_timeout, INT, 30, 1, 3600, NULL, "Seconds a stream client may leave a new frame unread before it is disconnected") \
-    X(journal_max, INT, 100000, 10, 10000000, NULL, "Journal entries kept before it restarts from a new base snapshot")
+    X(journal_max, INT, 100000, 10, 10000000, NULL, "Journal entries kept before it restarts from a new base snapshot") \
+    X(journal_max_mb, INT, 64, 1, 65536, NULL, "MiB of journal entries kept before it restarts from a new base snapshot") \
+    X(stream_events_mb, INT, 16, 1, 65536, NULL, "MiB of recent events kept for stream clients to read; one that falls further behind is disconnected") \
+    X(queue_max, INT, 1024, 1, 1000000, NULL, "Most commands waiting for the simulation thread (503 busy beyond)")
 
 typedef struct clothd_settings {
 #define CLOTHD_SETTING_FIELD_STR(name) char name[512];

@@ -3,6 +3,7 @@
 #include <math.h>
 #include <pthread.h>
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -22,11 +23,22 @@
 #define ENERGY_EVERY 0.1     /* s of wall time between energy evaluations while running */
 #define RTF_WINDOW 0.5       /* s of wall time over which the real-time factor is measured */
 #define MAX_LAG 0.25         /* s of wall time the loop may fall behind before it stops catching up */
+#define COST_PRIOR 2e-8      /* s per vertex and substep assumed before the first measurement */
+#define WHOLE_WORK 1e6       /* vertex-substeps run in one call whatever the clock says (a few ms) */
+
+/* A step in progress (POST /v1/sim/step): run in slices between which the queue is drained. */
+typedef struct step_job {
+    sim_cmd *cmd;            /* NULL when none */
+    int frames;              /* 1: frames were asked; 0: substeps */
+    long long want;          /* how many */
+    long long frames_run;    /* complete frames run */
+    uint64_t step0;          /* the step it started at */
+    json_t *before_event;    /* last_event when it started */
+} step_job;
 
 struct simloop {
     cs_sim *sim;
     clothd_config cfg;
-    command_limits lim;
     metrics *m;
     journal *j;
     pthread_t thread;
@@ -35,11 +47,18 @@ struct simloop {
     pthread_mutex_t qlock;
     pthread_cond_t qcond;
     sim_cmd *head, *tail;
+    int queued, queue_max; /* commands in the queue, and the most it takes */
     int stop;
+    atomic_int stopping;   /* stop, readable without the lock between slices */
 
     /* the sim thread's own */
-    int paused;
+    int paused, paused_before_failure;
     uint64_t frame;
+    int32_t frame_sub;     /* substeps run of the frame in progress (a frame stepped in parts) */
+    double frame_wall;     /* compute time of the frame in progress */
+    double cost;           /* measured s per vertex and substep, for sizing slices */
+    const char *failed_as; /* how the last failed run_substeps ended: instability, step_limit, NULL (backend) */
+    step_job job;
     double due, last_publish, last_energy, rtf, rtf_wall, rtf_sim;
     cs_energy energy;
     unsigned char *checkpoint;
@@ -286,7 +305,7 @@ static void publish(simloop *sl, int with_hash)
     cs_info info;
     cs_sim_info(sl->sim, &info);
     const double t = now_s();
-    if (sl->paused || t - sl->last_energy >= ENERGY_EVERY) {
+    if ((sl->paused && !sl->job.cmd) || t - sl->last_energy >= ENERGY_EVERY) {
         cs_energy_get(sl->sim, &sl->energy);
         sl->last_energy = t;
     }
@@ -403,6 +422,8 @@ const unsigned char *simloop_checkpoint(simloop *sl, size_t *len)
 }
 cs_sim *simloop_engine(simloop *sl) { return sl->sim; }
 
+int simloop_paused(simloop *sl) { return simloop_healthy(sl) ? sl->paused : sl->paused_before_failure; }
+
 /* ---- commands ---- */
 
 /* Applies a state-changing command, journals it and tells the stream. */
@@ -412,7 +433,7 @@ static int apply(simloop *sl, const json_t *cmd, const char *request_id, json_t 
     cs_sim_info(sl->sim, &info);
     json_t *entry = NULL;
     const int32_t seed_before = params_of(sl).seed;
-    if (command_apply(sl->sim, cmd, &sl->lim, &entry, result, pr) != 0) return -1;
+    if (command_apply(sl->sim, cmd, &entry, result, pr) != 0) return -1;
     const char *op = json_string_value(json_object_get(entry, "op"));
     if (command_rebuilds(op)) {
         sl->frame = 0;
@@ -475,6 +496,7 @@ static void backend_lost(simloop *sl)
     pthread_mutex_lock(&sl->plock);
     sl->healthy = 0;
     pthread_mutex_unlock(&sl->plock);
+    sl->paused_before_failure = sl->paused;
     sl->paused = 1;
     set_event(sl, json_pack("{s:s, s:I, s:s}", "type", "backend_failure", "step", (json_int_t)info.step, "detail",
                             cs_sim_error(sl->sim)));
@@ -484,71 +506,216 @@ static void backend_lost(simloop *sl)
 
 static void auto_drop(simloop *sl);
 
-/* One frame, with what follows it: checkpoints, drops, the guard. Returns the engine status. */
-static cs_status run_frame(simloop *sl)
+/* The step count has reached CS_STEP_MAX: paused, with the event (a snapshot brought it there). */
+static void step_limit(simloop *sl)
 {
     cs_info info;
-#ifdef CLOTHD_TEST_HOOKS
-    testhooks_before_frame(sl->sim, sl->frame);
-#endif
     cs_sim_info(sl->sim, &info);
+    sl->paused = 1;
+    set_event(sl, json_pack("{s:s, s:I, s:s}", "type", "step_limit", "step", (json_int_t)info.step, "detail",
+                            cs_sim_error(sl->sim)));
+    emit(sl, json_pack("{s:s, s:O}", "event", "step_limit", "detail", sl->last_event), NULL);
+    log_msg("step %llu: %s; paused", (unsigned long long)info.step, cs_sim_error(sl->sim));
+}
+
+/* Substeps that fit a budget of compute, from the measured cost (at least 1, at most `most`).
+ * Little work is never cut: a small scene's frames are stepped whole, as they always were. */
+static int64_t fitting(const simloop *sl, double budget, int64_t most)
+{
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    if ((double)most * (double)info.n_vertices <= WHOLE_WORK) return most;
+    const double each = (sl->cost > 0 ? sl->cost : COST_PRIOR) * (double)info.n_vertices;
+    const double fit = budget > 0 ? budget / each : 0;
+    return fit >= (double)most ? most : (fit >= 1 ? (int64_t)fit : 1);
+}
+
+/* Runs n substeps and measures them; the engine's status, with a failure dealt with (rolled back
+ * and paused, paused at the step limit, or the backend lost). */
+static cs_status run_substeps(simloop *sl, int64_t n)
+{
     sl->changes++;
     const double t0 = now_s();
-    const cs_status st = cs_sim_step_frames(sl->sim, 1);
-    metrics_frame(sl->m, info.substeps, now_s() - t0);
-    if (st == CS_E_NONFINITE) {
-        roll_back(sl);
-        return st;
+    const cs_status st = cs_sim_step(sl->sim, n);
+    const double took = now_s() - t0;
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    if (st == CS_OK && info.n_vertices > 0) {
+        /* Down at once, up by half at most: a call the scheduler held up (a loaded machine) says
+         * little about the next one. */
+        const double c = took / ((double)n * (double)info.n_vertices);
+        sl->cost = sl->cost <= 0 || c < sl->cost ? c : (c < 1.5 * sl->cost ? c : 1.5 * sl->cost);
     }
-    if (st != CS_OK) {
-        backend_lost(sl);
-        return st;
+    sl->frame_wall += took;
+    sl->failed_as = st == CS_E_NONFINITE ? "instability" : st == CS_E_LIMIT ? "step_limit" : NULL;
+    if (st == CS_E_NONFINITE) roll_back(sl);
+    else if (st == CS_E_LIMIT) step_limit(sl);
+    else if (st != CS_OK) backend_lost(sl);
+    return st;
+}
+
+/* Steps the frame in progress on, by about `budget` seconds of compute at most (a whole frame
+ * when it fits, else at least one substep), and when it is complete does what follows a frame:
+ * the frame count, automatic drops, checkpoints. 1 when the frame completed, 0 when it is not
+ * complete yet, -1 after a failure (dealt with: see run_substeps). */
+static int advance_frame(simloop *sl, double budget)
+{
+    cs_info info;
+    if (sl->frame_sub == 0) {
+#ifdef CLOTHD_TEST_HOOKS
+        testhooks_before_frame(sl->sim, sl->frame);
+#endif
+        sl->frame_wall = 0;
     }
+    cs_sim_info(sl->sim, &info);
+    const int32_t left = info.substeps - sl->frame_sub;
+    const int64_t n = left > 0 ? fitting(sl, budget, left) : 0;
+    if (n > 0 && run_substeps(sl, n) != CS_OK) {
+        sl->frame_sub = 0;
+        return -1;
+    }
+    sl->frame_sub += (int32_t)n;
+    if (sl->frame_sub < info.substeps) return 0;
+    sl->frame_sub = 0;
+    metrics_frame(sl->m, info.substeps, sl->frame_wall);
     sl->frame++;
     auto_drop(sl);
     const cs_params p = params_of(sl);
     if (++sl->frames_since_checkpoint >= (uint64_t)p.checkpoint_interval) take_checkpoint(sl);
-    return CS_OK;
+    return 1;
 }
 
-static void step_paused(simloop *sl, sim_cmd *c)
+/* One frame while running, in parts when it is long; only a stop cuts it short (commands apply
+ * at frame boundaries). 1 done, 0 stopped part way, -1 a failure (dealt with). */
+static int run_frame(simloop *sl)
+{
+    for (;;) {
+        const int r = advance_frame(sl, SIMLOOP_RUN_SLICE);
+        if (r != 0) return r;
+        if (atomic_load(&sl->stopping)) return 0;
+    }
+}
+
+/* Ends the step in progress and answers it: how far it got, and why it stopped early
+ * (interrupted_by: pause, cancel, step, command, shutdown, instability, step_limit), or 503 when
+ * the backend failed meanwhile. */
+static void end_step(simloop *sl, const char *interrupted_by)
+{
+    step_job *j = &sl->job;
+    sim_cmd *c = j->cmd;
+    if (!c) return;
+    j->cmd = NULL;
+    sl->frame_sub = 0; /* a frame stepped part way counts in the step, not as a frame */
+    cs_info info;
+    cs_sim_info(sl->sim, &info);
+    if (!simloop_healthy(sl)) {
+        fail_cmd(c, 503, "unavailable", "%s", "the backend failed while stepping; the daemon is saving and exiting");
+    } else {
+        char hex[17];
+        cs_hash_hex(cs_state_hash(sl->sim), hex);
+        const uint64_t ran = info.step >= j->step0 ? info.step - j->step0 : 0; /* a rollback goes back */
+        c->result = json_pack("{s:I, s:I, s:f, s:s, s:I, s:I, s:b}", "step", (json_int_t)info.step, "frame",
+                              (json_int_t)sl->frame, "sim_time", info.time, "state_hash", hex, "frames_run",
+                              (json_int_t)j->frames_run, "substeps_run", (json_int_t)ran, "interrupted",
+                              interrupted_by != NULL);
+        if (interrupted_by) json_object_set_new(c->result, "interrupted_by", json_string(interrupted_by));
+        if (sl->last_event && sl->last_event != j->before_event) json_object_set(c->result, "event", sl->last_event);
+        emit(sl, json_pack("{s:s, s:I, s:I}", "event", "stepped", "step", (json_int_t)info.step, "frame",
+                           (json_int_t)sl->frame),
+             c->request_id);
+    }
+    json_decref(j->before_event);
+    j->before_event = NULL;
+    publish(sl, 1); /* before the answer: a read that follows it sees the step */
+    c->done(c, c->done_arg);
+}
+
+/* Starts a step: checks it (409 while running, the body, the step limit) and makes it the step in
+ * progress. 1 when it is kept (answered by end_step), 0 when refused (c failed). */
+static int step_start(simloop *sl, sim_cmd *c)
 {
     long long n = 0;
     int frames = 0;
     if (!sl->paused) {
         fail_cmd(c, 409, "wrong-state", "%s", "step only while paused: POST /v1/sim/pause first");
-        return;
+        return 0;
     }
     if (step_from_json(c->body, &frames, &n, &c->pr) != 0) {
         c->failed = 1;
-        return;
-    }
-    if (!simloop_healthy(sl)) {
-        fail_cmd(c, 503, "unavailable", "%s", "the backend has failed; the daemon is shutting down");
-        return;
-    }
-    json_t *before_event = json_incref(sl->last_event);
-    if (frames) {
-        for (long long k = 0; k < n; k++)
-            if (run_frame(sl) != CS_OK) break;
-    } else {
-        const cs_status st = cs_sim_step(sl->sim, n);
-        if (st == CS_E_NONFINITE) roll_back(sl);
-        else if (st != CS_OK) backend_lost(sl);
-    }
-    if (!simloop_healthy(sl)) {
-        json_decref(before_event);
-        fail_cmd(c, 503, "unavailable", "%s", "the backend failed while stepping; the daemon is saving and exiting");
-        return;
+        return 0;
     }
     cs_info info;
     cs_sim_info(sl->sim, &info);
-    char hex[17];
-    cs_hash_hex(cs_state_hash(sl->sim), hex);
-    c->result = json_pack("{s:I, s:I, s:f, s:s}", "step", (json_int_t)info.step, "frame", (json_int_t)sl->frame,
-                          "sim_time", info.time, "state_hash", hex);
-    if (sl->last_event && sl->last_event != before_event) json_object_set(c->result, "event", sl->last_event);
-    json_decref(before_event);
+    const uint64_t substeps = (uint64_t)n * (frames ? (uint64_t)info.substeps : 1);
+    if (substeps > CS_STEP_MAX - info.step) {
+        c->failed = 1;
+        problem_set(&c->pr, 422, "limit", frames ? "frames" : "substeps",
+                    "%llu more substeps would take the step count (%llu) past 2^63 - 1", (unsigned long long)substeps,
+                    (unsigned long long)info.step);
+        return 0;
+    }
+    sl->job = (step_job){c, frames, n, 0, info.step, json_incref(sl->last_event)};
+    return 1;
+}
+
+/* Runs the step in progress for about one slice of compute (whole frames when they fit); ends
+ * it when it is done or failed. Publishes its progress (without the state hash) now and then. */
+static void step_slice(simloop *sl)
+{
+    step_job *j = &sl->job;
+    const double t0 = now_s();
+    do {
+        const double budget = SIMLOOP_SLICE - (now_s() - t0);
+        cs_info info;
+        cs_sim_info(sl->sim, &info);
+        if (j->frames) {
+            const int r = advance_frame(sl, budget);
+            if (r < 0) {
+                end_step(sl, sl->failed_as);
+                return;
+            }
+            if (r == 1 && ++j->frames_run == j->want) {
+                end_step(sl, NULL);
+                return;
+            }
+        } else {
+            const long long done = (long long)(info.step - j->step0);
+            if (run_substeps(sl, fitting(sl, budget, j->want - done)) != CS_OK) {
+                end_step(sl, sl->failed_as);
+                return;
+            }
+            cs_sim_info(sl->sim, &info);
+            if ((long long)(info.step - j->step0) >= j->want) {
+                end_step(sl, NULL);
+                return;
+            }
+        }
+    } while (now_s() - t0 < SIMLOOP_SLICE);
+    if (now_s() - sl->last_publish >= PUBLISH_EVERY) publish(sl, 0);
+}
+
+/* Bytes GET /v1/cloth/state's JSON may take for n vertices: 2 n vectors of three %.9g numbers at
+ * 18 characters each, brackets and commas included, and the object around them. */
+static uint64_t cloth_json_cap(uint64_t n) { return 128 + n * 2 * 3 * 18; }
+
+/* Bytes of the torn-spring list (ids of u32) and of its JSON ("4294967295," at most) when every
+ * spring of n vertices is torn. */
+static uint64_t torn_cap(uint64_t n) { return (uint64_t)CS_NTYPES * n * (sizeof(uint32_t) + 11) + 16; }
+
+cs_status simloop_scene_cost(const cs_scene *scene, int32_t rocks, void *ctx, uint64_t *bytes)
+{
+    (void)ctx;
+    uint64_t engine, snap;
+    cs_status st = cs_scene_memory(scene, rocks, &engine);
+    if (st == CS_OK) st = cs_snapshot_bytes(scene, rocks, &snap);
+    if (st != CS_OK) return st;
+    const uint64_t n = (uint64_t)scene->nx * (uint64_t)scene->ny; /* no overflow: cs_scene_memory took it */
+    if (n > INT32_MAX) return CS_E_LIMIT;
+    /* cloth_state's JSON and the positions and velocities it is made from, or a snapshot */
+    const uint64_t cloth = cloth_json_cap(n) + 2 * 3 * sizeof(float) * n, answer = cloth > snap ? cloth : snap;
+    const uint64_t scalars = sizeof(float) * (uint64_t)CS_NTYPES * n; /* fill_scalars' strain scratch */
+    *bytes = engine + 2 * snap + answer + stream_memory((int32_t)n, rocks) + scalars + 2 * torn_cap(n);
+    return CS_OK;
 }
 
 static void cloth_state(simloop *sl, sim_cmd *c)
@@ -574,7 +741,7 @@ static void cloth_state(simloop *sl, sim_cmd *c)
         }
     } else {
         /* Formatted by hand: jansson would build n small arrays twice over. */
-        const size_t cap = 128 + n * 2 * 3 * 18;
+        const size_t cap = (size_t)cloth_json_cap(n);
         char *s = malloc(cap);
         if (s) {
             size_t at = (size_t)snprintf(s, cap, "{\"step\":%llu,\"nx\":%d,\"ny\":%d,\"positions\":[",
@@ -637,18 +804,36 @@ static void snapshot_put(simloop *sl, sim_cmd *c)
          c->request_id);
 }
 
-/* Runs one command. PAUSE, RESUME and HASH answer with GET /v1/sim's JSON, filled after the
+/* What a command does to a step in progress: the reason it ends it, or NULL (reads go on
+ * beside it). */
+static const char *interrupts(sim_cmd_kind kind)
+{
+    switch (kind) {
+    case CMD_PAUSE: return "pause";
+    case CMD_STEP_CANCEL: return "cancel";
+    case CMD_STEP: return "step";
+    case CMD_APPLY:
+    case CMD_RESUME:
+    case CMD_SNAPSHOT_PUT: return "command";
+    default: return NULL;
+    }
+}
+
+/* Runs one command; returns 1 when the sim thread keeps it to answer later (a step now in
+ * progress), else 0. PAUSE, RESUME and HASH answer with GET /v1/sim's JSON, filled after the
  * publication that follows. */
-static void handle(simloop *sl, sim_cmd *c)
+static int handle(simloop *sl, sim_cmd *c)
 {
     cs_info info;
     /* After a backend failure, until main has stopped this thread: nothing touches the lost
      * engine. Pauses, publications and the journal (kept in memory) still answer. */
     if (!sl->healthy && c->kind != CMD_PAUSE && c->kind != CMD_PUBLISH && c->kind != CMD_HASH && c->kind != CMD_BUNDLE) {
         fail_cmd(c, 503, "unavailable", "%s", "the backend has failed; the daemon is saving the state and exiting");
-        return;
+        return 0;
     }
-    if (c->kind == CMD_APPLY || c->kind == CMD_STEP || c->kind == CMD_SNAPSHOT_PUT) sl->changes++;
+    const int stepping = sl->job.cmd != NULL;
+    if (stepping && interrupts(c->kind)) end_step(sl, interrupts(c->kind));
+    if (c->kind == CMD_APPLY || c->kind == CMD_SNAPSHOT_PUT) sl->changes++;
     switch (c->kind) {
     case CMD_APPLY:
         if (apply(sl, c->body, c->request_id, &c->result, &c->pr) != 0) c->failed = 1;
@@ -670,21 +855,23 @@ static void handle(simloop *sl, sim_cmd *c)
         sl->rtf_sim = info.time;
         emit(sl, json_pack("{s:s, s:I}", "event", "resumed", "step", (json_int_t)info.step), c->request_id);
         break;
-    case CMD_STEP:
-        step_paused(sl, c);
-        if (!c->failed) {
-            cs_sim_info(sl->sim, &info);
-            emit(sl, json_pack("{s:s, s:I, s:I}", "event", "stepped", "step", (json_int_t)info.step, "frame",
-                               (json_int_t)sl->frame),
-                 c->request_id);
-        }
+    case CMD_STEP: return step_start(sl, c);
+    case CMD_STEP_CANCEL:
+        cs_sim_info(sl->sim, &info);
+        c->result = json_pack("{s:b, s:I, s:I}", "cancelled", stepping, "step", (json_int_t)info.step, "frame",
+                              (json_int_t)sl->frame);
         break;
     case CMD_HASH:
     case CMD_PUBLISH: break;
     case CMD_SNAPSHOT_GET: {
         const size_t need = cs_snapshot_size(sl->sim);
         c->blob = malloc(need);
-        if (!c->blob || cs_snapshot_save(sl->sim, c->blob, need, &c->blob_len) != CS_OK)
+        const cs_status st = c->blob ? cs_snapshot_save(sl->sim, c->blob, need, &c->blob_len) : CS_E_NOMEM;
+        if (st == CS_E_NONFINITE)
+            fail_cmd(c, 409, "wrong-state", "%s",
+                     "the state is not finite (a command made its accelerations overflow): the next step rolls it "
+                     "back to the last checkpoint");
+        else if (st != CS_OK)
             fail_cmd(c, 500, "internal", "%s", "could not write the snapshot");
         break;
     }
@@ -696,6 +883,7 @@ static void handle(simloop *sl, sim_cmd *c)
         if (!c->blob) fail_cmd(c, 500, "internal", "%s", "out of memory");
         break;
     }
+    return 0;
 }
 
 /* Waits (while paused: for a command; while running: until `until` on the monotonic clock, or a
@@ -715,23 +903,29 @@ static int drain(simloop *sl, int wait, double until)
     }
     sim_cmd *list = sl->head;
     sl->head = sl->tail = NULL;
+    sl->queued = 0;
     const int stop = sl->stop;
     pthread_mutex_unlock(&sl->qlock);
     if (!list) return stop;
     int want_hash = 0;
-    for (sim_cmd *c = list; c; c = c->next) {
+    sim_cmd *answer = NULL, **tail = &answer;
+    for (sim_cmd *c = list, *next; c; c = next) {
+        next = c->next; /* c may be answered (and gone) before the loop ends: a step is ended */
         c->failed = 0;
         c->result = NULL;
         c->blob = NULL;
         c->blob_len = 0;
         memset(&c->pr, 0, sizeof c->pr);
-        handle(sl, c);
         want_hash |= c->kind == CMD_HASH;
+        if (handle(sl, c)) continue; /* the step in progress: end_step answers it */
+        c->next = NULL;
+        *tail = c;
+        tail = &c->next;
     }
     /* Publish (with the hash while paused, or when asked), then answer: reads that follow the
-     * answers see the commands. */
-    publish(sl, want_hash || sl->paused);
-    for (sim_cmd *c = list, *next; c; c = next) {
+     * answers see the commands. A step in progress publishes its progress without the hash. */
+    publish(sl, want_hash || (sl->paused && !sl->job.cmd));
+    for (sim_cmd *c = answer, *next; c; c = next) {
         next = c->next;
         if (!c->failed && (c->kind == CMD_PAUSE || c->kind == CMD_RESUME || c->kind == CMD_HASH))
             c->blob = (unsigned char *)simloop_sim_json(sl, &c->blob_len);
@@ -759,14 +953,22 @@ static void *run(void *arg)
     sl->due = now_s();
     sl->rtf_wall = sl->due;
     for (;;) {
+        if (sl->job.cmd) {
+            /* A step in progress: a slice, then the queue (without waiting). */
+            if (drain(sl, 0, 0)) break;
+            if (sl->job.cmd) step_slice(sl);
+            continue;
+        }
         const double t = now_s();
         const cs_params p = params_of(sl);
         const int running = !sl->paused;
         /* Wait for commands while paused, or until the next frame is due. */
         const int wait = !running || (!p.max_speed && t < sl->due);
         if (drain(sl, wait, running ? sl->due : 0)) break;
-        if (sl->paused || (!p.max_speed && now_s() < sl->due)) continue;
-        if (run_frame(sl) != CS_OK) {
+        if (sl->job.cmd || sl->paused || (!p.max_speed && now_s() < sl->due)) continue;
+        const int r = run_frame(sl);
+        if (r == 0) continue; /* stopping part way through a long frame: the next drain says so */
+        if (r < 0) {
             publish(sl, 1);
             continue;
         }
@@ -777,6 +979,7 @@ static void *run(void *arg)
         update_rtf(sl, after);
         if (!p.max_speed || after - sl->last_publish >= PUBLISH_EVERY) publish(sl, 0);
     }
+    end_step(sl, "shutdown"); /* a step in progress (or one that came with the stop) */
     return NULL;
 }
 
@@ -801,7 +1004,7 @@ static void auto_drop(simloop *sl)
         memmove(sl->autos, sl->autos + 1, sizeof sl->autos[0] * (size_t)(sl->n_autos - 1));
         sl->n_autos--;
     }
-    if (cs_rock_count(sl->sim) >= sl->lim.max_rocks) return;
+    if (cs_rock_count(sl->sim) >= cs_sim_rock_limit(sl->sim)) return;
     cs_scene sc;
     cs_sim_scene(sl->sim, &sc);
     const double size = sc.size_x < sc.size_y ? sc.size_x : sc.size_y;
@@ -837,12 +1040,12 @@ simloop *simloop_new(cs_sim *sim, const clothd_config *cfg, metrics *m)
     if (!sl) return NULL;
     sl->sim = sim;
     sl->cfg = *cfg;
-    sl->lim.max_rocks = cfg->set.max_rocks;
+    sl->queue_max = cfg->set.queue_max;
     sl->m = m;
     sl->healthy = 1;
     sl->changes = 1; /* the first frame a client asks for is new */
     sl->paused = cfg->set.paused;
-    sl->j = journal_new((size_t)cfg->set.journal_max);
+    sl->j = journal_new((size_t)cfg->set.journal_max, (size_t)cfg->set.journal_max_mb << 20);
     pthread_mutex_init(&sl->qlock, NULL);
     pthread_condattr_t ca;
     pthread_condattr_init(&ca);
@@ -876,26 +1079,31 @@ void simloop_submit(simloop *sl, sim_cmd *cmd)
 {
     cmd->next = NULL;
     pthread_mutex_lock(&sl->qlock);
-    if (sl->stop) {
-        pthread_mutex_unlock(&sl->qlock);
-        cmd->failed = 1;
-        cmd->result = NULL;
-        cmd->blob = NULL;
-        problem_set(&cmd->pr, 503, "unavailable", NULL, "clothd is shutting down");
-        cmd->done(cmd, cmd->done_arg);
-        return;
+    const int stop = sl->stop, full = sl->queued >= sl->queue_max;
+    if (!stop && !full) {
+        if (sl->tail) sl->tail->next = cmd;
+        else sl->head = cmd;
+        sl->tail = cmd;
+        sl->queued++;
+        pthread_cond_signal(&sl->qcond);
     }
-    if (sl->tail) sl->tail->next = cmd;
-    else sl->head = cmd;
-    sl->tail = cmd;
-    pthread_cond_signal(&sl->qcond);
     pthread_mutex_unlock(&sl->qlock);
+    if (!stop && !full) return;
+    cmd->failed = 1;
+    cmd->result = NULL;
+    cmd->blob = NULL;
+    if (stop) problem_set(&cmd->pr, 503, "unavailable", NULL, "clothd is shutting down");
+    else
+        problem_set(&cmd->pr, 503, "busy", NULL,
+                    "the simulation has queue_max (%d) commands waiting already; retry in a second", sl->queue_max);
+    cmd->done(cmd, cmd->done_arg);
 }
 
 void simloop_stop(simloop *sl)
 {
     pthread_mutex_lock(&sl->qlock);
     sl->stop = 1;
+    atomic_store(&sl->stopping, 1);
     pthread_cond_signal(&sl->qcond);
     pthread_mutex_unlock(&sl->qlock);
     if (sl->started) pthread_join(sl->thread, NULL);
@@ -904,6 +1112,7 @@ void simloop_stop(simloop *sl)
     pthread_mutex_lock(&sl->qlock);
     sim_cmd *list = sl->head;
     sl->head = sl->tail = NULL;
+    sl->queued = 0;
     pthread_mutex_unlock(&sl->qlock);
     for (sim_cmd *c = list, *next; c; c = next) {
         next = c->next;
@@ -923,6 +1132,7 @@ void simloop_free(simloop *sl)
     journal_free(sl->j);
     free(sl->checkpoint);
     json_decref(sl->last_event);
+    json_decref(sl->job.before_event);
     free(sl->sim_json);
     free(sl->params_json);
     free(sl->scene_json);

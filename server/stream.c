@@ -11,7 +11,12 @@
  * replaced by the next one), lws keeps at most the unsent rest of one message, and pending text is
  * limited (errors and acks to 8; events are read from a shared ring, and a client that falls further behind
  * than the ring is disconnected). A client whose newest frame has been waiting longer than
- * stream_stall_timeout is disconnected.
+ * stream_stall_timeout is disconnected. The ring keeps at most EVENT_RING events and
+ * stream_events_mb of their text (the oldest go first; the newest always stays).
+ *
+ * What clients make the sim thread do is bounded too: a grab or release is in flight at most
+ * once per client (the newest waiting one replaces the others), and a request for a publication
+ * (a client joins, or subscribes to a scalar the newest frame lacks) at most once for them all.
  *
  * LWS_CALLBACK_HTTP_CONFIRM_UPGRADE is deliberately not handled (CVE-2025-11677 in 4.1.6):
  * connections are checked in LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION instead. */
@@ -24,6 +29,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/socket.h>
 #include <time.h>
 
 #include <jansson.h>
@@ -41,6 +47,10 @@
 #define EVENT_RING 1024
 #define MAX_TEXTS 8 /* queued text messages (errors, acks) per client */
 #define N_ENC STREAM_ENCODINGS
+
+/* Why a connection was refused before the upgrade: the `reason` of clothd_stream_refused_total. */
+enum { REFUSED_PATH, REFUSED_VERSION, REFUSED_HOST, REFUSED_ORIGIN, REFUSED_TOKEN, REFUSED_CLIENTS, N_REFUSED };
+static const char *const refused_names[N_REFUSED] = {"path", "version", "host", "origin", "token", "clients"};
 
 typedef struct wire {
     unsigned char *buf; /* LWS_PRE bytes of headroom, then the frame */
@@ -98,7 +108,10 @@ struct stream {
     /* events */
     pthread_mutex_t elock;
     char *ring[EVENT_RING];
-    uint64_t event_seq; /* of the next event; event k is ring[k % EVENT_RING] */
+    size_t ring_len[EVENT_RING];
+    uint64_t event_seq;   /* of the next event; event k is ring[k % EVENT_RING] */
+    uint64_t event_first; /* of the oldest event still in the ring */
+    size_t ring_bytes, ring_cap;
 
     /* answers to grabs */
     pthread_mutex_t glock;
@@ -106,6 +119,8 @@ struct stream {
 
     atomic_int clients;
     atomic_uint scalars_wanted;
+    atomic_int publish_asked; /* a CMD_PUBLISH is on its way to the sim thread */
+    atomic_int publish_again; /* and someone asked again meanwhile (it may come too late for them) */
 
     /* the service thread's own */
     session *sessions;
@@ -115,8 +130,9 @@ struct stream {
     uint64_t current_seq;
 
     /* metrics */
-    atomic_ullong encoded[N_ENC], sent[N_ENC], skipped[N_ENC], bytes_sent, stalled, refused;
+    atomic_ullong encoded[N_ENC], sent[N_ENC], skipped[N_ENC], bytes_sent, stalled, refused[N_REFUSED];
 };
+
 
 static double now_s(void)
 {
@@ -176,13 +192,22 @@ void stream_frame_discard(stream *st, raw_frame *f)
 
 void stream_event(stream *st, const char *json)
 {
+    const size_t len = strlen(json);
     char *copy = strdup(json);
     if (!copy) return;
     pthread_mutex_lock(&st->elock);
-    char **slot = &st->ring[st->event_seq % EVENT_RING];
-    free(*slot);
-    *slot = copy;
-    st->event_seq++;
+    /* Room for it: the oldest events go, within both caps (the newest is kept whatever its size). */
+    while (st->event_first < st->event_seq &&
+           (st->event_seq - st->event_first >= EVENT_RING || st->ring_bytes + len > st->ring_cap)) {
+        const size_t k = st->event_first++ % EVENT_RING;
+        st->ring_bytes -= st->ring_len[k];
+        free(st->ring[k]);
+        st->ring[k] = NULL;
+    }
+    const size_t k = st->event_seq++ % EVENT_RING;
+    st->ring[k] = copy;
+    st->ring_len[k] = len;
+    st->ring_bytes += len;
     pthread_mutex_unlock(&st->elock);
     lws_cancel_service(st->ctx);
 }
@@ -296,19 +321,33 @@ static void submit_grab(stream *st, session *s, json_t *body)
     simloop_submit(st->sl, &g->cmd);
 }
 
-static void free_cmd(sim_cmd *cmd, void *arg)
+static void request_frame(stream *st);
+
+static void published_cb(sim_cmd *cmd, void *arg)
 {
-    (void)arg;
+    stream *st = arg;
     free(cmd);
+    atomic_store(&st->publish_asked, 0);
+    if (atomic_exchange(&st->publish_again, 0)) request_frame(st);
 }
 
-/* Asks the sim thread to publish now (a paused simulation publishes only after commands). */
+/* Asks the sim thread to publish now (a paused simulation publishes only after commands). One
+ * request at a time: asks that come while one is on its way make one more after it, however many
+ * they are. */
 static void request_frame(stream *st)
 {
+    if (atomic_exchange(&st->publish_asked, 1)) {
+        atomic_store(&st->publish_again, 1);
+        return;
+    }
     sim_cmd *c = calloc(1, sizeof *c);
-    if (!c) return;
+    if (!c) {
+        atomic_store(&st->publish_asked, 0);
+        return;
+    }
     c->kind = CMD_PUBLISH;
-    c->done = free_cmd;
+    c->done = published_cb;
+    c->done_arg = st;
     simloop_submit(st->sl, c);
 }
 
@@ -480,9 +519,11 @@ static int writeable(stream *st, session *s)
     pthread_mutex_lock(&st->elock);
     char *event = NULL;
     if (s->next_event < st->event_seq) {
-        if (st->event_seq - s->next_event > EVENT_RING) {
+        if (s->next_event < st->event_first) {
+            const unsigned long long behind = (unsigned long long)(st->event_seq - s->next_event);
             pthread_mutex_unlock(&st->elock);
-            log_msg("stream: client %llu fell %d events behind: disconnected", (unsigned long long)s->id, EVENT_RING);
+            log_msg("stream: client %llu fell %llu events behind, past what the event ring keeps: disconnected",
+                    (unsigned long long)s->id, behind);
             atomic_fetch_add(&st->stalled, 1);
             return -1;
         }
@@ -524,10 +565,17 @@ static int path_ok(struct lws *wsi)
     return strcmp(uri, STREAM_PATH) == 0;
 }
 
-/* A header's value, or NULL when the request has none (or it does not fit). */
-static const char *header_of(struct lws *wsi, enum lws_token_indexes h, char *buf, int len)
+/* A header's value; NULL when the request has none. *too_long is set when it has one that does
+ * not fit buf (it is then neither absent nor readable: the caller refuses it). */
+static const char *header_of(struct lws *wsi, enum lws_token_indexes h, char *buf, int len, int *too_long)
 {
-    return lws_hdr_total_length(wsi, h) > 0 && lws_hdr_copy(wsi, buf, len, h) > 0 ? buf : NULL;
+    const int n = lws_hdr_total_length(wsi, h);
+    if (n <= 0) return NULL;
+    if (n >= len || lws_hdr_copy(wsi, buf, len, h) <= 0) {
+        *too_long = 1;
+        return NULL;
+    }
+    return buf;
 }
 
 /* The token a client offers: `?token=` in the URL, or a `bearer.<token>` entry of the
@@ -538,7 +586,8 @@ static const char *offered_token(struct lws *wsi, char *buf, int len)
     const char *q = lws_get_urlarg_by_name(wsi, "token=", buf, len);
     if (q) return q;
     char list[1200];
-    if (!header_of(wsi, WSI_TOKEN_PROTOCOL, list, sizeof list)) return NULL;
+    int too_long = 0;
+    if (!header_of(wsi, WSI_TOKEN_PROTOCOL, list, sizeof list, &too_long)) return NULL;
     for (char *save = NULL, *t = strtok_r(list, ", ", &save); t; t = strtok_r(NULL, ", ", &save)) {
         if (strncmp(t, "bearer.", 7) == 0 && strlen(t + 7) < (size_t)len) {
             memcpy(buf, t + 7, strlen(t + 7) + 1);
@@ -548,27 +597,83 @@ static const char *offered_token(struct lws *wsi, char *buf, int len)
     return NULL;
 }
 
-/* Before the upgrade completes: the path, the page's Origin, the token, the client limit. Refused
- * connections get no upgrade (libwebsockets closes them). */
+/* Answers a refused upgrade request with its HTTP status and a problem+json body, written to the
+ * socket before libwebsockets closes it, so a client can tell 401 from 404 from 503 (the answer
+ * is a few hundred bytes: the socket's empty send buffer takes it whole). */
+static void refuse(stream *st, struct lws *wsi, int why, int status, const char *slug, const char *extra,
+                   const char *fmt, ...) __attribute__((format(printf, 7, 8)));
+static void refuse(stream *st, struct lws *wsi, int why, int status, const char *slug, const char *extra,
+                   const char *fmt, ...)
+{
+    atomic_fetch_add(&st->refused[why], 1);
+    problem pr;
+    pr.status = status;
+    pr.slug = slug;
+    pr.param[0] = '\0';
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(pr.detail, sizeof pr.detail, fmt, ap);
+    va_end(ap);
+    char *body = problem_body(&pr);
+    const char *phrase = status == 401 ? "Unauthorized" : status == 403 ? "Forbidden" : status == 404 ? "Not Found"
+                       : status == 426 ? "Upgrade Required" : status == 503 ? "Service Unavailable" : "Bad Request";
+    char *msg = NULL;
+    const int n = asprintf(&msg,
+                           "HTTP/1.1 %d %s\r\nContent-Type: application/problem+json\r\nContent-Length: %zu\r\n"
+                           "Cache-Control: no-store\r\nConnection: close\r\n%s\r\n%s",
+                           status, phrase, body ? strlen(body) : 0, extra ? extra : "", body ? body : "");
+    free(body);
+    if (n > 0) {
+        const int fd = lws_get_socket_fd(wsi);
+        if (fd >= 0 && send(fd, msg, (size_t)n, MSG_NOSIGNAL | MSG_DONTWAIT) != n)
+            log_msg("stream: could not send a refusal (%d) whole", status);
+    }
+    free(msg);
+}
+
+/* Before the upgrade completes: the path, the version (RFC 6455's 13 only), Host and the page's
+ * Origin, the token, the client limit. A refused request gets its status and a problem+json
+ * body, then libwebsockets closes the connection. (A subprotocol list without clothd.v1 is
+ * refused by libwebsockets itself, before this, by closing the connection.) */
 static int admit(stream *st, struct lws *wsi, session *s)
 {
-    if (!path_ok(wsi)) return 0;
-    char origin[300], host[300], token[600];
-    const char *o = header_of(wsi, WSI_TOKEN_ORIGIN, origin, sizeof origin);
-    const char *h = header_of(wsi, WSI_TOKEN_HOST, host, sizeof host);
-    if (!access_host_ok(st->acc, h) || !access_origin_ok(st->acc, o, h, atomic_load(&st->http_port))) {
+    if (!path_ok(wsi)) {
+        refuse(st, wsi, REFUSED_PATH, 404, "not-found", NULL, "the stream is at %s", STREAM_PATH);
+        return 0;
+    }
+    char version[16], origin[300], host[300], token[600];
+    int too_long = 0;
+    const char *v = header_of(wsi, WSI_TOKEN_VERSION, version, sizeof version, &too_long);
+    if (!v || strcmp(v, "13") != 0) {
+        refuse(st, wsi, REFUSED_VERSION, 426, "upgrade-required", "Sec-WebSocket-Version: 13\r\n",
+               "this server speaks WebSocket version 13 (RFC 6455) only");
+        return 0;
+    }
+    const char *h = header_of(wsi, WSI_TOKEN_HOST, host, sizeof host, &too_long);
+    if (too_long || !access_host_ok(st->acc, h)) {
+        refuse(st, wsi, REFUSED_HOST, 403, "host-not-allowed", NULL,
+               "Host '%.100s' is not a name of this server: use its address, localhost, or add the name to allowed_hosts",
+               h ? h : "(too long)");
+        return 0;
+    }
+    const char *o = header_of(wsi, WSI_TOKEN_ORIGIN, origin, sizeof origin, &too_long);
+    if (too_long || !access_origin_ok(st->acc, o, h, atomic_load(&st->http_port))) {
         log_msg("stream: refused a connection from origin %.200s (host %.200s): not this viewer's and not in "
-                "allowed_origins", o ? o : "(none)", h ? h : "(none)");
-        atomic_fetch_add(&st->refused, 1);
+                "allowed_origins", o ? o : too_long ? "(too long)" : "(none)", h ? h : "(none)");
+        refuse(st, wsi, REFUSED_ORIGIN, 403, "cross-site", NULL,
+               "a page of origin %.100s may not open the stream: only the viewer's own page, or an origin of "
+               "allowed_origins", o ? o : "(too long)");
         return 0;
     }
     s->access = access_token(st->acc, offered_token(wsi, token, sizeof token));
     if (s->access == ACCESS_NONE) {
-        atomic_fetch_add(&st->refused, 1);
+        refuse(st, wsi, REFUSED_TOKEN, 401, "unauthorized", "WWW-Authenticate: Bearer realm=\"clothd\"\r\n",
+               "this stream needs the control or view token: a 'bearer.<token>' subprotocol or ?token=<token>");
         return 0;
     }
     if (atomic_load(&st->clients) >= st->max_clients) {
-        atomic_fetch_add(&st->refused, 1);
+        refuse(st, wsi, REFUSED_CLIENTS, 503, "too-many-clients", NULL,
+               "the stream has stream_max_clients (%d) clients already", st->max_clients);
         return 0;
     }
     return 1;
@@ -688,6 +793,7 @@ stream *stream_start(const clothd_settings *set, simloop *sl, const access_polic
     st->max_clients = set->stream_max_clients;
     st->max_message = set->stream_max_message;
     st->stall_timeout = set->stream_stall_timeout;
+    st->ring_cap = (size_t)set->stream_events_mb << 20;
     pthread_mutex_init(&st->flock, NULL);
     pthread_mutex_init(&st->elock, NULL);
     pthread_mutex_init(&st->glock, NULL);
@@ -747,6 +853,16 @@ void stream_stop(stream *st)
     free(st);
 }
 
+uint64_t stream_memory(int32_t n, int32_t rocks)
+{
+    raw_frame f = {.n = n, .n_rocks = rocks, .has = {0, 1, 1}};
+    const uint64_t raw = sizeof(float) * 3 * (uint64_t)n + (SCALAR_KINDS - 1) * (uint64_t)n + sizeof(frame_rock) * (uint64_t)rocks;
+    uint64_t wires = 0;
+    for (int e = 0; e < N_ENC; e++)
+        for (int k = 0; k < SCALAR_KINDS; k++) wires += LWS_PRE + frame_bound(&f, e, k);
+    return 4 * (sizeof f + raw) + wires;
+}
+
 char *stream_metrics(stream *st)
 {
     char *out = NULL;
@@ -770,9 +886,11 @@ char *stream_metrics(stream *st)
     fprintf(f, "# HELP clothd_stream_disconnected_total Clients disconnected for stalling.\n"
                "# TYPE clothd_stream_disconnected_total counter\nclothd_stream_disconnected_total %llu\n",
             (unsigned long long)atomic_load(&st->stalled));
-    fprintf(f, "# HELP clothd_stream_refused_total Connections refused (client limit).\n"
-               "# TYPE clothd_stream_refused_total counter\nclothd_stream_refused_total %llu\n",
-            (unsigned long long)atomic_load(&st->refused));
+    fprintf(f, "# HELP clothd_stream_refused_total Connections refused before the upgrade, by reason: path, version, "
+               "host, origin, token, clients (stream_max_clients).\n# TYPE clothd_stream_refused_total counter\n");
+    for (int k = 0; k < N_REFUSED; k++)
+        fprintf(f, "clothd_stream_refused_total{reason=\"%s\"} %llu\n", refused_names[k],
+                (unsigned long long)atomic_load(&st->refused[k]));
     fclose(f);
     return out;
 }

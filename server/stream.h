@@ -40,6 +40,11 @@ void stream_frame_discard(stream *st, raw_frame *f);
 /* A text message for every client (an event); copied. */
 void stream_event(stream *st, const char *json);
 
+/* Bytes the stream may hold for a scene of n vertices and `rocks` rocks: its raw frames (the one
+ * the sim thread fills, the newest, the one being sent, a spare) and one encoded frame for each
+ * encoding and scalar (part of the scene's cost: simloop_scene_cost). */
+uint64_t stream_memory(int32_t n, int32_t rocks);
+
 /* The stream's Prometheus metrics (malloc'd text). */
 char *stream_metrics(stream *st);
 

@@ -1,5 +1,6 @@
 /* rocks.c - adding, changing and removing rocks. A rock list change goes through the stability
- * guard (a light rock on stiff contact may need more substeps) before it is adopted. */
+ * guard (a light rock on stiff contact may need more substeps) before it is adopted. Ids run from 1
+ * to CS_ROCK_ID_MAX within a scene; the next one is kept in the state (and its snapshots). */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -52,7 +53,7 @@ static float cloth_distance(const cs_sim *sim, cs_vec3 c, int32_t *near)
 }
 
 /* Refuses a placement of rock r (index skip in the list, -1 for a new one) that overlaps another
- * rock or holds part of the cloth's surface inside it. */
+ * rock or holds part of the cloth's surface inside it, by more than placement_overlap. */
 static cs_status check_overlap(cs_sim *sim, const cs_rock_state *r, int32_t skip, const char *param)
 {
     const cs_state *s = &sim->state;
@@ -60,13 +61,13 @@ static cs_status check_overlap(cs_sim *sim, const cs_rock_state *r, int32_t skip
         if (k == skip) continue;
         const cs_rock_state *o = &s->rocks[k];
         const float gap = cs_len(cs_sub(o->x, r->x)) - (o->radius + r->radius);
-        if (gap < 0.0f)
+        if (gap < -sim->model.params.placement_overlap)
             return cs_fail(sim, CS_E_OVERLAP, param, "the rock would overlap rock %u (by %.3g m): place it clear of it",
                            (unsigned)o->id, (double)-gap);
     }
     int32_t near;
     const float d = cloth_distance(sim, r->x, &near);
-    if (d < r->radius)
+    if (d < r->radius - sim->model.params.placement_overlap)
         return cs_fail(sim, CS_E_OVERLAP, param,
                        "the rock would hold the cloth %.3g m inside it, near vertex %d (the cloth may come at most "
                        "contact_offset, %.3g m, into its contact layer): place it clear of the cloth",
@@ -169,8 +170,13 @@ cs_status cs_rock_add(cs_sim *sim, const cs_rock_def *def, uint32_t *id)
     if (!sim) return CS_E_INVALID;
     cs_status st = check_def(sim, def);
     if (st != CS_OK) return st;
-    if (sim->state.n_rocks >= CS_MAX_ROCKS)
-        return cs_fail(sim, CS_E_LIMIT, NULL, "a simulation holds at most %d rocks", CS_MAX_ROCKS);
+    if (sim->state.n_rocks >= sim->rock_limit)
+        return cs_fail(sim, CS_E_LIMIT, "max_rocks", "the simulation already holds max_rocks (%d) rocks",
+                       (int)sim->rock_limit);
+    if (sim->state.next_rock_id > CS_ROCK_ID_MAX)
+        return cs_fail(sim, CS_E_LIMIT, "id",
+                       "rock ids are used up (the last one given was %u): rebuild the scene to start again from 1",
+                       CS_ROCK_ID_MAX);
     if ((st = cs_sim_sync(sim, CS_SYNC_ALL)) != CS_OK) return st;
     int32_t cap;
     cs_rock_state *rocks = copy_rocks(sim, &cap);
@@ -197,7 +203,7 @@ cs_status cs_rock_get(cs_sim *sim, uint32_t id, cs_rock *out)
     if (!sim || !out) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "out is NULL") : CS_E_INVALID;
     const int32_t r = find(sim, id);
     if (r < 0) return not_found(sim, id);
-    const cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    const cs_status st = cs_sim_sync(sim, CS_SYNC_ROCKS);
     if (st != CS_OK) return st;
     state_to_rock(&sim->state.rocks[r], out);
     cs_ok(sim);
@@ -267,7 +273,7 @@ cs_status cs_rock_at(cs_sim *sim, int32_t index, cs_rock *out)
     if (!sim || !out) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "out is NULL") : CS_E_INVALID;
     if (index < 0 || index >= sim->state.n_rocks)
         return cs_fail(sim, CS_E_RANGE, "index", "rock index %d is not in 0..%d", (int)index, (int)sim->state.n_rocks - 1);
-    const cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    const cs_status st = cs_sim_sync(sim, CS_SYNC_ROCKS);
     if (st != CS_OK) return st;
     state_to_rock(&sim->state.rocks[index], out);
     cs_ok(sim);

@@ -1,5 +1,5 @@
 /* scene.c - building the cloth from a scene: the vertex grid, its springs' rest lengths, the pin
- * presets, and the memory the state takes. */
+ * presets, and the memory the state and the backends' scratch take. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -18,22 +18,44 @@ static void *alloc_floats(size_t count, size_t size)
     return p;
 }
 
-static int mul_ok(uint64_t a, uint64_t b, uint64_t *out)
+int cs_mul_ok(uint64_t a, uint64_t b, uint64_t *out)
 {
     if (a != 0 && b > UINT64_MAX / a) return 0;
     *out = a * b;
     return 1;
 }
 
-cs_status cs_scene_memory(const cs_scene *scene, uint64_t *bytes)
+int cs_add_ok(uint64_t a, uint64_t b, uint64_t *out)
 {
-    if (!scene || !bytes) return CS_E_INVALID;
+    if (b > UINT64_MAX - a) return 0;
+    *out = a + b;
+    return 1;
+}
+
+/* Bytes of the host's scratch beside the state, whichever backend runs: the CPU backend's rock
+ * partials (6 floats per chunk and rock, backend_cpu.c) and a device backend's staging buffer of
+ * one float4 per vertex (backend_cuda.cu). */
+static int scratch_bytes(const cs_scene *scene, uint64_t n, int32_t rocks, uint64_t *out)
+{
+    const uint64_t nseg = ((uint64_t)scene->nx + CS_CHUNK - 1) / CS_CHUNK;
+    uint64_t chunks, partials, stage;
+    return cs_mul_ok(nseg, (uint64_t)scene->ny, &chunks) &&
+           cs_mul_ok(chunks, (uint64_t)(rocks > 0 ? rocks : 1) * 6 * sizeof(float), &partials) &&
+           cs_mul_ok(n, 4 * sizeof(float), &stage) && cs_add_ok(partials, stage, out);
+}
+
+/* Twice the state: a scene change or a snapshot load builds the new state beside the old one and
+ * lets the old one go only once the new one is adopted (and a rock change copies the rock list). */
+cs_status cs_scene_memory(const cs_scene *scene, int32_t rocks, uint64_t *bytes)
+{
+    if (!scene || !bytes || rocks < 0) return CS_E_INVALID;
     if (scene->nx < 2 || scene->ny < 2) return CS_E_RANGE;
-    uint64_t n, per, total;
-    if (!mul_ok((uint64_t)scene->nx, (uint64_t)scene->ny, &n)) return CS_E_LIMIT;
-    if (!mul_ok(n, CS_FLOATS_PER_VERTEX * sizeof(float) + 1, &per)) return CS_E_LIMIT;
-    total = per + sizeof(cs_state) + (uint64_t)CS_MAX_ROCKS * sizeof(cs_rock_state);
-    if (total < per) return CS_E_LIMIT;
+    uint64_t n, state, scratch, total;
+    if (!cs_mul_ok((uint64_t)scene->nx, (uint64_t)scene->ny, &n)) return CS_E_LIMIT;
+    if (!cs_mul_ok(n, CS_FLOATS_PER_VERTEX * sizeof(float) + 1, &state) ||
+        !cs_add_ok(state, sizeof(cs_state) + (uint64_t)rocks * sizeof(cs_rock_state), &state) ||
+        !scratch_bytes(scene, n, rocks, &scratch) || !cs_mul_ok(state, 2, &total) || !cs_add_ok(total, scratch, &total))
+        return CS_E_LIMIT;
     *bytes = total;
     return CS_OK;
 }

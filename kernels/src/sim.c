@@ -18,22 +18,24 @@ cs_status cs_backend_fail(cs_sim *sim, cs_status st, const char *what)
 
 cs_status cs_sim_sync(cs_sim *sim, unsigned what)
 {
-    if (!sim->host_stale) return CS_OK;
-    const cs_status st = sim->backend->download(sim->ctx, &sim->model, &sim->state, what);
+    const unsigned need = what & sim->host_stale;
+    if (!need) return CS_OK;
+    const cs_status st = sim->backend->download(sim->ctx, &sim->model, &sim->state, need);
     if (st != CS_OK) return cs_backend_fail(sim, st, "could not hand the state back");
-    if (what == CS_SYNC_ALL) sim->host_stale = 0;
+    sim->host_stale &= ~need;
     return CS_OK;
 }
 
-/* A device backend recomputes accelerations on its side; the host copy is then behind. */
-static int device_backend(const cs_sim *sim) { return sim->backend != &cs_backend_cpu; }
+/* A device backend keeps its own copy: after it steps, the host copy is behind in every part;
+ * after a refresh, in the accelerations (of the cloth and the rocks). */
+static unsigned stale_after(const cs_sim *sim, unsigned parts) { return sim->backend != &cs_backend_cpu ? parts : 0; }
 
 cs_status cs_sim_commit(cs_sim *sim)
 {
     cs_status st = sim->backend->upload(sim->ctx, &sim->model, &sim->state);
     if (st == CS_OK) st = sim->backend->refresh(sim->ctx, &sim->model, &sim->state);
     if (st != CS_OK) return cs_backend_fail(sim, st, "failed to take the new state");
-    sim->host_stale = device_backend(sim);
+    sim->host_stale = stale_after(sim, CS_SYNC_ACCELERATIONS | CS_SYNC_ROCKS);
     return CS_OK;
 }
 
@@ -47,24 +49,42 @@ static cs_status check_scene(cs_sim *sim, const cs_scene *scene)
 
 cs_status cs_check_memory(cs_sim *sim, const cs_scene *scene)
 {
-    uint64_t bytes;
-    if (cs_scene_memory(scene, &bytes) != CS_OK || bytes > (uint64_t)SIZE_MAX / 2)
+    uint64_t own, bytes;
+    cs_status st = cs_scene_memory(scene, sim->rock_limit, &own);
+    if (st == CS_OK && own > (uint64_t)SIZE_MAX / 2) st = CS_E_LIMIT;
+    bytes = own;
+    if (st == CS_OK && sim->memory_cost) st = sim->memory_cost(scene, sim->rock_limit, sim->memory_ctx, &bytes);
+    if (st != CS_OK)
         return cs_fail(sim, CS_E_LIMIT, "nx", "a %d x %d cloth is too large for this machine", (int)scene->nx,
                        (int)scene->ny);
     if (sim->memory_limit && bytes > sim->memory_limit)
         return cs_fail(sim, CS_E_LIMIT, "nx", "a %d x %d cloth needs %.0f MiB, more than the memory limit of %.0f MiB",
-                       (int)scene->nx, (int)scene->ny, (double)bytes / 1048576.0,
+                       (int)scene->nx, (int)scene->ny, ceil((double)bytes / 1048576.0),
                        (double)sim->memory_limit / 1048576.0);
     return CS_OK;
 }
 
-cs_status cs_sim_set_memory_limit(cs_sim *sim, uint64_t bytes)
+cs_status cs_sim_set_memory_limit(cs_sim *sim, uint64_t bytes, cs_cost_fn cost, void *ctx)
 {
     if (!sim) return CS_E_INVALID;
     sim->memory_limit = bytes;
+    sim->memory_cost = cost;
+    sim->memory_ctx = ctx;
     cs_ok(sim);
     return CS_OK;
 }
+
+cs_status cs_sim_set_rock_limit(cs_sim *sim, int32_t rocks)
+{
+    if (!sim) return CS_E_INVALID;
+    if (rocks < 1 || rocks > CS_MAX_ROCKS)
+        return cs_fail(sim, CS_E_RANGE, "max_rocks", "the rock limit must be 1..%d (got %d)", CS_MAX_ROCKS, (int)rocks);
+    sim->rock_limit = rocks;
+    cs_ok(sim);
+    return CS_OK;
+}
+
+int32_t cs_sim_rock_limit(const cs_sim *sim) { return sim ? sim->rock_limit : 0; }
 
 static cs_status check_params(cs_sim *sim, const cs_params *p)
 {
@@ -90,18 +110,24 @@ static cs_status rebuild(cs_sim *sim, const cs_scene *scene, const cs_params *p)
     cs_scene_build(scene, &fresh);
     cs_model model = sim->model;
     cs_model_derive(&model, scene, p, substeps, dt_max);
+    /* A failed upload leaves the backend's state as it was. A failed refresh leaves the new state
+     * on the device: the old one goes back only if the host copy is current, else it is lost. */
     st = sim->backend->upload(sim->ctx, &model, &fresh);
-    if (st == CS_OK) st = sim->backend->refresh(sim->ctx, &model, &fresh);
     if (st != CS_OK) {
         cs_state_free(&fresh);
-        if (sim->state.x && sim->backend->upload(sim->ctx, &sim->model, &sim->state) != CS_OK) st = CS_E_DEVICE;
+        return cs_backend_fail(sim, st, "could not take the new scene");
+    }
+    if ((st = sim->backend->refresh(sim->ctx, &model, &fresh)) != CS_OK) {
+        cs_state_free(&fresh);
+        if (!sim->state.x || sim->host_stale || sim->backend->upload(sim->ctx, &sim->model, &sim->state) != CS_OK)
+            st = CS_E_DEVICE;
         return cs_backend_fail(sim, st, "could not take the new scene");
     }
     cs_state_free(&sim->state);
     sim->state = fresh;
     sim->model = model;
     sim->combos = combos;
-    sim->host_stale = device_backend(sim);
+    sim->host_stale = stale_after(sim, CS_SYNC_ACCELERATIONS | CS_SYNC_ROCKS);
     return CS_OK;
 }
 
@@ -129,6 +155,7 @@ cs_status cs_sim_create(const cs_scene *scene, const cs_params *params, const ch
         return CS_E_NOMEM;
     }
     sim->state.grab = -1;
+    sim->rock_limit = CS_MAX_ROCKS;
     cs_ok(sim);
     cs_status st = cs_backend_pick(backend, &sim->backend, sim->backend_note, sizeof sim->backend_note);
     if (st != CS_OK) {
@@ -183,6 +210,14 @@ cs_status cs_sim_backend_stats(cs_sim *sim, cs_backend_stats *out)
 {
     if (!sim || !out) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "out is NULL") : CS_E_INVALID;
     sim->backend->stats(sim->ctx, &sim->model, out);
+    cs_ok(sim);
+    return CS_OK;
+}
+
+cs_status cs_sim_cost(cs_sim *sim, const cs_backend *backend, cs_cost_model *out)
+{
+    if (!sim || !backend || !out) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "backend or out is NULL") : CS_E_INVALID;
+    backend->cost(&sim->model, sim->state.n_rocks, out);
     cs_ok(sim);
     return CS_OK;
 }
@@ -262,15 +297,20 @@ cs_status cs_sim_step(cs_sim *sim, int64_t substeps)
     if (!sim) return CS_E_INVALID;
     if (substeps < 0 || substeps > 1000000000)
         return cs_fail(sim, CS_E_RANGE, "substeps", "substeps must be 0..1e9 (got %lld)", (long long)substeps);
+    if ((uint64_t)substeps > CS_STEP_MAX - sim->state.step)
+        return cs_fail(sim, CS_E_LIMIT, "substeps", "the step count (%llu) would pass 2^63 - 1; rebuild the scene",
+                       (unsigned long long)sim->state.step);
     cs_step_report total = {0, 1};
     while (substeps > 0 && total.finite) {
         const int32_t now = substeps > 100000 ? 100000 : (int32_t)substeps;
         cs_step_report rep = {0, 1};
         const cs_status st = sim->backend->step(sim->ctx, &sim->model, &sim->state, now, &rep);
         if (st != CS_OK) return cs_backend_fail(sim, st, "failed while stepping");
-        sim->host_stale = device_backend(sim);
+        sim->host_stale = stale_after(sim, CS_SYNC_ALL);
         sim->state.step += (uint64_t)now;
-        sim->state.time += now * sim->model.dt;
+        /* One addition per substep: the clock reads the same however the substeps were split
+         * into calls (a frame stepped in slices, a replay stepped in one go). */
+        for (int32_t k = 0; k < now; k++) sim->state.time += sim->model.dt;
         sim->state.n_torn += rep.torn;
         total.finite = rep.finite;
         substeps -= now;

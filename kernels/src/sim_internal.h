@@ -18,18 +18,25 @@ struct cs_sim {
     cs_state state;
     const cs_backend *backend;
     void *ctx;
-    int host_stale;        /* the backend has advanced past the host arrays */
+    unsigned host_stale;   /* CS_SYNC_* parts of the host arrays the backend has moved past */
     cs_combos combos;      /* the grid's spring counts, for the guard */
     char backend_note[160];
     char err[256];
     const char *err_param;
-    uint64_t memory_limit; /* bytes a scene's state may take (cs_scene_memory); 0: no limit */
+    uint64_t memory_limit; /* bytes a scene may cost (memory_cost); 0: no limit */
+    cs_cost_fn memory_cost; /* NULL: cs_scene_memory */
+    void *memory_ctx;
+    int32_t rock_limit;    /* most rocks, 1..CS_MAX_ROCKS */
 };
 
 /* sim.c */
-/* CS_E_LIMIT (recorded, naming nx) when a scene's state would exceed what this machine or the
- * memory limit allows; checked before anything is allocated for it. */
+/* CS_E_LIMIT (recorded, naming nx) when a scene would cost more than this machine or the memory
+ * limit allows; checked before anything is allocated for it. */
 cs_status cs_check_memory(cs_sim *sim, const cs_scene *scene);
+/* 1 when a * b fits 64 bits (then *out = a b). */
+int cs_mul_ok(uint64_t a, uint64_t b, uint64_t *out);
+/* 1 when a + b fits 64 bits (then *out = a + b). */
+int cs_add_ok(uint64_t a, uint64_t b, uint64_t *out);
 
 /* status.c */
 /* Records a refusal: the detail (printf-style) and the parameter it concerns (may be NULL). */

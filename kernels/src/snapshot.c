@@ -9,7 +9,8 @@
  *   az (n f32 each); rest lengths (6 n f32); pins (n u8, zero-padded to 4 bytes); per rock: u32 id,
  *   u32 kinematic, 21 f32 (x, v, w, a, alpha, q, radius, density).
  * Everything derived (masses, the mask, the guard's substeps, torn count) is recomputed on load,
- * and nothing is adopted until the whole buffer has been checked. */
+ * and nothing is adopted until the whole buffer has been checked: against the format, and against
+ * what the commands and steps that make a state allow (clothsim.h, cs_snapshot_load). */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -112,16 +113,55 @@ static uint64_t layout_id(void)
 
 static int components(const cs_param_info *p) { return p->type == CS_T_VEC3 ? 3 : 1; }
 
-static size_t payload_size(const cs_state *s)
+/* Payload bytes for n vertices and r rocks; 0 when it would not fit 64 bits. */
+static uint64_t payload_bytes(uint64_t n, uint64_t r)
 {
-    size_t table = 0;
-    for (size_t i = 0; i < cs_param_count(); i++) table += 8u * (size_t)components(cs_param_at(i));
-    const size_t n = (size_t)s->n;
-    return table + 8 + 8 + 4 + 12 + 4 + 4 + n * 4 * (9 + CS_NTYPES) + (n + 3) / 4 * 4 +
-           (size_t)s->n_rocks * (8 + 4 * ROCK_FLOATS);
+    uint64_t table = 0, arrays, pins, rocks, total;
+    for (size_t i = 0; i < cs_param_count(); i++) table += 8u * (uint64_t)components(cs_param_at(i));
+    if (!cs_mul_ok(n, 4 * (9 + CS_NTYPES), &arrays) || !cs_add_ok(n, 3, &pins) ||
+        !cs_mul_ok(r, 8 + 4 * ROCK_FLOATS, &rocks) || !cs_add_ok(table + 8 + 8 + 4 + 12 + 4 + 4, arrays, &total) ||
+        !cs_add_ok(total, pins / 4 * 4, &total) || !cs_add_ok(total, rocks, &total))
+        return 0;
+    return total;
 }
 
+static size_t payload_size(const cs_state *s) { return (size_t)payload_bytes((uint64_t)s->n, (uint64_t)s->n_rocks); }
+
 size_t cs_snapshot_size(cs_sim *sim) { return sim ? SNAP_HEADER + payload_size(&sim->state) : 0; }
+
+cs_status cs_snapshot_bytes(const cs_scene *scene, int32_t rocks, uint64_t *bytes)
+{
+    if (!scene || !bytes || rocks < 0 || scene->nx < 1 || scene->ny < 1) return CS_E_INVALID;
+    const uint64_t p = payload_bytes((uint64_t)scene->nx * (uint64_t)scene->ny, (uint64_t)rocks);
+    if (p == 0 || !cs_add_ok(p, SNAP_HEADER, bytes)) return CS_E_LIMIT;
+    return CS_OK;
+}
+
+/* Within 1e6 m of the origin on each axis (what a grab command takes). */
+static int in_reach(cs_vec3 t) { return fabsf(t.x) <= 1e6f && fabsf(t.y) <= 1e6f && fabsf(t.z) <= 1e6f; }
+
+static int all_finite(const float *f, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        if (!isfinite(f[i])) return 0;
+    return 1;
+}
+
+/* Whether everything a load checks for finiteness is finite: the clock, the vertices, the rocks. */
+static int state_finite(const cs_state *s)
+{
+    const size_t n = (size_t)s->n;
+    const float *arrays[] = {s->x, s->y, s->z, s->vx, s->vy, s->vz, s->ax, s->ay, s->az};
+    for (int a = 0; a < 9; a++)
+        if (!all_finite(arrays[a], n)) return 0;
+    for (int32_t r = 0; r < s->n_rocks; r++) {
+        const cs_rock_state *k = &s->rocks[r];
+        const float f[15] = {k->x.x, k->x.y, k->x.z, k->v.x, k->v.y, k->v.z, k->w.x, k->w.y, k->w.z,
+                             k->a.x, k->a.y, k->a.z, k->alpha.x, k->alpha.y, k->alpha.z};
+        if (!all_finite(f, 15) || !all_finite(k->q, 4)) return 0;
+    }
+    return isfinite(s->time);
+}
 
 cs_status cs_snapshot_save(cs_sim *sim, void *buf, size_t cap, size_t *len)
 {
@@ -131,6 +171,9 @@ cs_status cs_snapshot_save(cs_sim *sim, void *buf, size_t cap, size_t *len)
     cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
     if (st != CS_OK) return st;
     const cs_state *s = &sim->state;
+    /* What a load would refuse is not written (a command on an extreme state can make its
+     * accelerations overflow; the next step finds that and rolls back). */
+    if (!state_finite(s)) return cs_fail(sim, CS_E_NONFINITE, NULL, "the state is not finite: it is not saved");
     const size_t n = (size_t)s->n;
     wbuf b = {(unsigned char *)buf + SNAP_HEADER, 0};
     for (size_t i = 0; i < cs_param_count(); i++) {
@@ -173,13 +216,6 @@ cs_status cs_snapshot_save(cs_sim *sim, void *buf, size_t cap, size_t *len)
     return CS_OK;
 }
 
-static int all_finite(const float *f, size_t n)
-{
-    for (size_t i = 0; i < n; i++)
-        if (!isfinite(f[i])) return 0;
-    return 1;
-}
-
 /* Reads the table rows into scene and params; CS_OK or the refusal. */
 static cs_status load_table(cs_sim *sim, rbuf *b, cs_scene *scene, cs_params *params)
 {
@@ -210,10 +246,17 @@ static cs_status load_state(cs_sim *sim, rbuf *b, const cs_scene *scene, cs_stat
     const uint32_t n_rocks = get_u32(b);
     s->next_rock_id = get_u32(b);
     if (b->bad) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot is truncated");
-    if (!isfinite(s->time) || s->grab < -1 || s->grab >= s->n ||
-        !(isfinite(s->grab_target.x) && isfinite(s->grab_target.y) && isfinite(s->grab_target.z)))
-        return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds a bad clock or grab");
+    if (s->step > CS_STEP_MAX)
+        return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds step %llu, past 2^63 - 1", (unsigned long long)s->step);
+    if (!(isfinite(s->time) && s->time >= 0.0))
+        return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds a bad clock (time %g s)", s->time);
+    if (s->grab < -1 || s->grab >= s->n || !in_reach(s->grab_target))
+        return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds a bad grab (vertex %d, or its target)", (int)s->grab);
     if (n_rocks > CS_MAX_ROCKS) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds %u rocks, more than %d", n_rocks, CS_MAX_ROCKS);
+    if (n_rocks > (uint32_t)sim->rock_limit)
+        return cs_fail(sim, CS_E_LIMIT, "max_rocks", "snapshot holds %u rocks, more than max_rocks (%d)", n_rocks,
+                       (int)sim->rock_limit);
+    if (s->next_rock_id == 0) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds a next rock id of 0 (ids start at 1)");
     float *arrays[] = {s->x, s->y, s->z, s->vx, s->vy, s->vz, s->ax, s->ay, s->az};
     for (int a = 0; a < 9; a++) get_floats(b, arrays[a], n);
     get_floats(b, s->L0, n * CS_NTYPES);
@@ -230,8 +273,15 @@ static cs_status load_state(cs_sim *sim, rbuf *b, const cs_scene *scene, cs_stat
                 return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds a bad rest length");
         }
     }
-    for (size_t v = 0; v < n; v++)
+    for (size_t v = 0; v < n; v++) {
+        const int grabbed = (int32_t)v == s->grab;
         if (s->pinned[v] > 1) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds bad pins");
+        /* What pins and grabs leave: a pinned vertex at rest (unless grabbed), no acceleration on
+         * a fixed one. */
+        if ((s->pinned[v] && !grabbed && !(s->vx[v] == 0.0f && s->vy[v] == 0.0f && s->vz[v] == 0.0f)) ||
+            ((s->pinned[v] || grabbed) && !(s->ax[v] == 0.0f && s->ay[v] == 0.0f && s->az[v] == 0.0f)))
+            return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds a pinned or grabbed vertex (%zu) that moves", v);
+    }
     if (n_rocks) {
         if (!(s->rocks = calloc(n_rocks, sizeof *s->rocks))) return cs_fail(sim, CS_E_NOMEM, NULL, "out of memory");
         s->rock_cap = (int32_t)n_rocks;
@@ -264,6 +314,14 @@ static cs_status load_state(cs_sim *sim, rbuf *b, const cs_scene *scene, cs_stat
     /* The mask from pins and grab, without touching velocities (they are restored as saved). */
     for (size_t v = 0; v < n; v++) s->w[v] = (s->pinned[v] || (int32_t)v == s->grab) ? 0.0f : 1.0f;
     return CS_OK;
+}
+
+size_t cs_snapshot_length(const void *buf, size_t len)
+{
+    if (!buf || len < SNAP_HEADER || memcmp(buf, SNAP_MAGIC, 4) != 0) return 0;
+    rbuf h = {buf, SNAP_HEADER, 16, 0};
+    const uint64_t plen = get_u64(&h);
+    return plen <= len - SNAP_HEADER ? SNAP_HEADER + (size_t)plen : 0;
 }
 
 cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
@@ -306,11 +364,8 @@ cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
     cs_model model = sim->model;
     if (st == CS_OK) {
         cs_model_derive(&model, &scene, &params, substeps, dt_max);
-        st = sim->backend->upload(sim->ctx, &model, &s);
-        if (st != CS_OK) {
-            if (sim->backend->upload(sim->ctx, &sim->model, &sim->state) != CS_OK) st = CS_E_DEVICE;
-            cs_backend_fail(sim, st, "could not take the snapshot");
-        }
+        st = sim->backend->upload(sim->ctx, &model, &s); /* on failure the backend is as it was */
+        if (st != CS_OK) cs_backend_fail(sim, st, "could not take the snapshot");
     }
     if (st != CS_OK) {
         cs_state_free(&s);

@@ -6,7 +6,7 @@ import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import { chmodSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
-import { CLOTHD, start, stop, call, tempDir, until, execChecked } from './harness.mjs';
+import { CLOTHD, start, stop, call, tempDir, until, execChecked, metric } from './harness.mjs';
 import { connect, next } from './wsclient.mjs';
 
 const run = execChecked; // execFile, and a sanitizer report fails the test
@@ -176,6 +176,7 @@ test('a page of another origin cannot open the stream', async () => {
     ['https://viewer.example.attacker', host]]) {
     await assert.rejects(tryOrigin(origin, h), `${origin} with Host ${h}`);
   }
-  await until('the refusals counted', async () => /clothd_stream_refused_total 5/.test((await call(d, 'GET', '/metrics')).text));
+  await until('the refusals counted', async () => metric((await call(d, 'GET', '/metrics')).text, 'clothd_stream_refused_total',
+    'reason="origin"') === 4 && metric((await call(d, 'GET', '/metrics')).text, 'clothd_stream_refused_total', 'reason="host"') === 1);
   await stop(d);
 });

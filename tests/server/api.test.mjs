@@ -64,11 +64,13 @@ test('GET /v1/sim while running, then pause, step, resume', async () => {
   assert.equal((await ok(d, 'GET', '/v1/sim')).step, paused.step);
 
   const stepped = await ok(d, 'POST', '/v1/sim/step', { frames: 2 });
-  assert.deepEqual(keys(stepped), ['frame', 'sim_time', 'state_hash', 'step']);
+  assert.deepEqual(keys(stepped), ['frame', 'frames_run', 'interrupted', 'sim_time', 'state_hash', 'step', 'substeps_run']);
   assert.equal(stepped.step, paused.step + 2 * paused.substeps);
   assert.equal(stepped.frame, paused.frame + 2);
+  assert.deepEqual([stepped.frames_run, stepped.substeps_run, stepped.interrupted], [2, 2 * paused.substeps, false]);
   const sub = await ok(d, 'POST', '/v1/sim/step', { substeps: 7 });
   assert.equal(sub.step, stepped.step + 7);
+  assert.deepEqual([sub.frames_run, sub.substeps_run, sub.interrupted], [0, 7, false]);
   assert.equal((await ok(d, 'GET', '/v1/sim')).state_hash, sub.state_hash);
 
   const resumed = await ok(d, 'POST', '/v1/sim/resume');
@@ -249,12 +251,12 @@ test('X-Request-Id is echoed, on success and on error', async () => {
   assert.equal(c.headers.get('x-request-id'), 'r7');
 });
 
-test('unknown routes are 404, wrong methods 405 with Allow', async () => {
+test('unknown routes are 404, wrong methods 405 with Allow (HEAD with every GET)', async () => {
   assertProblem(await call(d, 'GET', '/v1/nothing'), 404);
   const r = await call(d, 'DELETE', '/v1/sim');
   assertProblem(r, 405);
-  assert.equal(r.headers.get('allow'), 'GET');
-  assert.equal((await call(d, 'POST', '/v1/params')).headers.get('allow'), 'GET, PATCH');
+  assert.equal(r.headers.get('allow'), 'GET, HEAD');
+  assert.equal((await call(d, 'POST', '/v1/params')).headers.get('allow'), 'GET, HEAD, PATCH');
 });
 
 test('static files from web_root', async () => {

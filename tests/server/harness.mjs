@@ -7,6 +7,8 @@ import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { promisify } from 'node:util';
 import { after } from 'node:test';
+import YAML from 'yaml';
+import Ajv2020 from 'ajv/dist/2020.js';
 
 export const CLOTHD = process.env.CLOTHD_BIN;
 if (!CLOTHD) throw new Error('CLOTHD_BIN must name the clothd binary (ctest sets it)');
@@ -127,8 +129,54 @@ export async function execChecked(file, args, options) {
   return r;
 }
 
-// One request. body: an object (sent as JSON), a string or a Buffer (sent as is).
-export async function call(daemon, method, path, body, headers = {}) {
+// proto/openapi.yaml, read once: every answer call() gets from the API is checked against it (its
+// status must be one the operation lists, its body must match the schema of that status and
+// content type), errors included. ajv takes the whole document as one schema, so the spec's own
+// '#/components/...' references resolve; OpenAPI's other keywords are not JSON Schema and ajv
+// leaves them be (strict off), as it does formats such as binary.
+export const SPEC = YAML.parse(readFileSync(join(process.env.CLOTHD_SOURCE, 'proto', 'openapi.yaml'), 'utf8'));
+const ajv = new Ajv2020({ strict: false, allErrors: true, validateFormats: false });
+ajv.addSchema(SPEC, 'openapi.yaml');
+const validators = new Map();
+const pointer = (...parts) => parts.map((p) => `/${String(p).replaceAll('~', '~0').replaceAll('/', '~1')}`).join('');
+// Statuses any operation may answer (PROTOCOL.md "Conventions"; the spec's description).
+const ANY_OPERATION = ['405', '414', '501'];
+
+export function checkAnswer(method, path, status, type, json) {
+  const route = path.split('?')[0];
+  if (!route.startsWith('/v1/') && route !== '/metrics') return; // the viewer's files
+  const what = `${method} ${path} -> ${status}`;
+  const fail = (why) => { throw new Error(`${what}: ${why} (proto/openapi.yaml)`); };
+  const validate = (ptr) => {
+    if (!validators.has(ptr)) validators.set(ptr, ajv.compile({ $ref: `openapi.yaml#${ptr}` }));
+    const v = validators.get(ptr);
+    if (!v(json)) fail(`the body does not match ${ptr}: ${ajv.errorsText(v.errors)}: ${JSON.stringify(json).slice(0, 300)}`);
+  };
+  const problemPointer = pointer('components', 'responses', 'Problem', 'content', 'application/problem+json', 'schema');
+  const entry = Object.entries(SPEC.paths).find(([tpl]) => new RegExp(`^${tpl.replace(/\{[^}]+\}/g, '[^/]+')}$`).test(route));
+  const op = entry?.[1][method === 'HEAD' ? 'get' : method.toLowerCase()];
+  let response = op?.responses[String(status)], at = op && pointer('paths', entry[0], method === 'HEAD' ? 'get' : method.toLowerCase(),
+    'responses', String(status));
+  if (!op || (!response && ANY_OPERATION.includes(String(status)))) {
+    // An unknown route or method: refused before routing (400, 401, 403, 429) or 404 / 405.
+    if (status < 400) fail('a success from an unknown route or method');
+    response = { $ref: '#/components/responses/Problem' };
+  }
+  if (!response) fail(`the operation lists no ${status}`);
+  if (response.$ref) {
+    at = pointer(...response.$ref.slice(2).split('/'));
+    response = response.$ref.slice(2).split('/').reduce((o, k) => o[k], SPEC);
+  }
+  if (method === 'HEAD' || !response.content) return;
+  const base = type.split(';')[0].trim();
+  if (!response.content[base]) fail(`content type ${type} is not one of ${Object.keys(response.content).join(', ')}`);
+  if (base.endsWith('json')) validate(at === undefined ? problemPointer : `${at}${pointer('content', base, 'schema')}`);
+}
+
+// One request. body: an object (sent as JSON), a string or a Buffer (sent as is). The answer is
+// checked against proto/openapi.yaml (checkAnswer); { spec: false } leaves it unchecked, for a
+// test that wants to see a broken answer itself.
+export async function call(daemon, method, path, body, headers = {}, { spec = true } = {}) {
   const init = { method, headers: { ...headers } };
   if (body !== undefined) {
     init.body = typeof body === 'string' || body instanceof Uint8Array ? body : JSON.stringify(body);
@@ -138,6 +186,7 @@ export async function call(daemon, method, path, body, headers = {}) {
   const type = res.headers.get('content-type') || '';
   let json;
   if (type.includes('json')) json = JSON.parse(buf.toString('utf8'));
+  if (spec) checkAnswer(method, path, res.status, type, json);
   return { status: res.status, headers: res.headers, type, buf, text: buf.toString('utf8'), json };
 }
 

@@ -2,12 +2,12 @@
 #include "testkit.h"
 
 /* Every tunable of DESIGN.md section 2's table that belongs to the engine, and the contact
- * model's (contact_model, max_depenetration_speed). */
+ * model's (contact_model, max_depenetration_speed, placement_overlap). */
 static const char *const design_names[] = {
     "nx", "ny", "size_x", "size_y", "height", "orientation", "pins", "areal_density", "gravity", "wind",
     "k_structural", "k_shear", "k_bend", "c_spring", "drag", "plastic_yield", "tear_strain", "plastic_rate",
     "k_contact", "c_contact", "c_tangent", "mu", "contact_offset", "friction_model", "contact_model",
-    "max_depenetration_speed", "k_rock", "c_rock", "mu_rock",
+    "max_depenetration_speed", "placement_overlap", "k_rock", "c_rock", "mu_rock",
     "ground", "ground_z", "frame_rate", "substeps", "max_substeps", "auto_substeps", "stability_safety",
     "integrator", "time_scale", "max_speed", "grab_speed", "auto_drop_interval", "auto_drop_max", "seed",
     "checkpoint_interval"};

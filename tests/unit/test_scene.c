@@ -118,19 +118,33 @@ static void test_memory_estimate(void **unused)
     cs_scene sc;
     cs_scene_default(&sc);
     uint64_t small, big;
-    assert_int_equal(cs_scene_memory(&sc, &small), CS_OK);
+    assert_int_equal(cs_scene_memory(&sc, CS_MAX_ROCKS, &small), CS_OK);
     sc.nx = sc.ny = 4096;
-    assert_int_equal(cs_scene_memory(&sc, &big), CS_OK);
+    assert_int_equal(cs_scene_memory(&sc, CS_MAX_ROCKS, &big), CS_OK);
     /* At least the 22 floats a vertex holds (positions, velocities, accelerations, mask, two
      * rest-length buffers of 6). */
     assert_true(big >= 4096ull * 4096ull * 22 * 4);
     assert_true(small < big);
     /* 2^31 x 2^31 vertices of 89 bytes overflow 64 bits: refused, not wrapped to a small size. */
     sc.nx = sc.ny = INT32_MAX;
-    assert_int_equal(cs_scene_memory(&sc, &big), CS_E_LIMIT);
+    assert_int_equal(cs_scene_memory(&sc, CS_MAX_ROCKS, &big), CS_E_LIMIT);
     sc.nx = 1;
-    assert_int_equal(cs_scene_memory(&sc, &small), CS_E_RANGE);
-    assert_int_equal(cs_scene_memory(NULL, &small), CS_E_INVALID);
+    assert_int_equal(cs_scene_memory(&sc, CS_MAX_ROCKS, &small), CS_E_RANGE);
+    assert_int_equal(cs_scene_memory(NULL, CS_MAX_ROCKS, &small), CS_E_INVALID);
+    assert_int_equal(cs_scene_memory(&sc, -1, &small), CS_E_INVALID);
+    /* Rocks cost their state (twice: a rock change copies the list) and the CPU backend's
+     * partials, 6 floats per chunk of a row (256 vertices) and rock. A 300 x 300 cloth has 600
+     * chunks; 10 rocks instead of none (which still take one row of partials) add 20 rock states
+     * and 600 x 9 x 6 x 4 bytes of partials. */
+    cs_scene_default(&sc);
+    sc.nx = sc.ny = 300;
+    uint64_t r0, r10;
+    assert_int_equal(cs_scene_memory(&sc, 0, &r0), CS_OK);
+    assert_int_equal(cs_scene_memory(&sc, 10, &r10), CS_OK);
+    assert_true(r10 - r0 == 20 * sizeof(cs_rock_state) + 600ull * 9 * 6 * 4);
+    /* With no rocks: the state of 89 bytes a vertex, twice (a rebuild makes the new one beside
+     * the old), one row of partials per chunk and a float4 staging buffer per vertex. */
+    assert_true(r0 == 2 * (90000ull * 89 + sizeof(cs_state)) + 600ull * 6 * 4 + 90000ull * 16);
 }
 
 /* M = rho 4/3 pi R^3, I = 2/5 M R^2: R = 0.5, rho = 6 gives M = pi, I = pi/10. */

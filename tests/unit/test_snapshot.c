@@ -5,7 +5,9 @@
  * same hash as the run that was never interrupted. A snapshot of another scene size switches the
  * scene. Refusals - truncated, corrupted, another version, another magic, and buffers whose
  * checksum is fixed up but which hold a NaN, a bad rest length or an out-of-range parameter -
- * return CS_E_FORMAT or CS_E_VERSION and leave the simulation exactly as it was.
+ * return CS_E_FORMAT or CS_E_VERSION and leave the simulation exactly as it was. Whatever a command
+ * would refuse is refused too (test_api_rules), rock ids and the step count stop at their limits
+ * with a clear refusal and every state on the way saves and loads again.
  *
  * The layout is rebuilt here from the format's documentation (snapshot.c's header comment):
  * header "CSNP", u32 version, u64 layout id, u64 payload bytes, u64 FNV-1a 64 of the payload;
@@ -91,6 +93,13 @@ static size_t off_rest(size_t n, size_t li) { return off_arrays() + 4 * (9 * n +
 static size_t off_pins(size_t n) { return off_arrays() + 4 * (15 * n); }
 static size_t off_rock(size_t n, int r) { return off_pins(n) + (n + 3) / 4 * 4 + (size_t)r * (8 + 4 * 21); }
 
+/* The clock, the grab and the rock counters, and the accelerations, the grab and the rock counters in the whole buffer. */
+static size_t off_step(void) { return HEADER + table_offset(NULL); }
+static size_t off_time(void) { return off_step() + 8; }
+static size_t off_target(void) { return off_step() + 20; }
+static size_t off_next_id(void) { return off_step() + 36; }
+static size_t off_ax(size_t n, size_t v) { return off_arrays() + 4 * (6 * n + v); }
+
 static size_t expected_size(size_t n, size_t rocks)
 {
     return off_pins(n) + (n + 3) / 4 * 4 + rocks * (8 + 4 * 21);
@@ -100,6 +109,29 @@ static size_t expected_size(size_t n, size_t rocks)
 static void fix_checksum(unsigned char *b, size_t len)
 {
     put_u64(b + 24, fnv1a64(b + HEADER, len - HEADER));
+}
+
+/* One field of a buffer set to a value, the checksum kept right. */
+typedef enum { E_F32, E_F64, E_U32, E_U64 } edit_kind;
+typedef struct edit {
+    const char *what;
+    size_t off;
+    edit_kind kind;
+    double value; /* E_F32, E_F64 */
+    uint64_t u;   /* E_U32, E_U64 */
+} edit;
+
+/* t = buf (len bytes; may be t itself) with the edit. */
+static void apply_edit(unsigned char *t, const unsigned char *buf, size_t len, const edit *e)
+{
+    if (t != buf) memcpy(t, buf, len);
+    switch (e->kind) {
+    case E_F32: put_f32(t + e->off, (float)e->value); break;
+    case E_F64: put_f64(t + e->off, e->value); break;
+    case E_U32: put_u32(t + e->off, (uint32_t)e->u); break;
+    case E_U64: put_u64(t + e->off, e->u); break;
+    }
+    fix_checksum(t, len);
 }
 
 /* ---- the scene ---- */
@@ -457,41 +489,61 @@ static void test_fixed_up_checksum(void **unused)
     view before;
     take_view(sim, &before);
 
-    struct {
-        const char *what;
-        size_t off;
-        int f64;
-        double value;
-    } edits[] = {
-        {"NaN x[0]", off_x(0), 0, NAN},
-        {"NaN x[129]", off_x(129), 0, NAN},
-        {"infinite vz[3]", off_vz(n, 3), 0, INFINITY},
-        {"NaN rest length", off_rest(n, 2), 0, NAN},
-        {"negative rest length", off_rest(n, 2), 0, -0.5},
-        {"zero rest length", off_rest(n, 2), 0, 0.0},
-        {"rest length where the grid has no spring", off_rest(n, 12), 0, 0.1}, /* SX owned by (12, 0), the last column */
-        {"NaN rock position", off_rock(n, 0) + 8, 0, NAN},
-        {"zero rock radius", off_rock(n, 0) + 8 + 4 * 19, 0, 0.0},
-        {"k_structural -1", HEADER + table_offset("k_structural"), 1, -1.0},
-        {"k_structural NaN", HEADER + table_offset("k_structural"), 1, NAN},
-        {"stability_safety 2", HEADER + table_offset("stability_safety"), 1, 2.0},
-        {"substeps 2.5", HEADER + table_offset("substeps"), 1, 2.5},
-        {"substeps above max_substeps", HEADER + table_offset("substeps"), 1, 5000.0},
-        {"integrator 7", HEADER + table_offset("integrator"), 1, 7.0},
-        {"ground 0.5", HEADER + table_offset("ground"), 1, 0.5},
-        {"gravity z -1e4", HEADER + table_offset("gravity") + 16, 1, -1e4},
-        {"nx 1", HEADER + table_offset("nx"), 1, 1.0},
-        {"areal_density 0", HEADER + table_offset("areal_density"), 1, 0.0},
+    const edit edits[] = {
+        {"NaN x[0]", off_x(0), E_F32, NAN, 0},
+        {"NaN x[129]", off_x(129), E_F32, NAN, 0},
+        {"infinite vz[3]", off_vz(n, 3), E_F32, INFINITY, 0},
+        {"NaN rest length", off_rest(n, 2), E_F32, NAN, 0},
+        {"negative rest length", off_rest(n, 2), E_F32, -0.5, 0},
+        {"zero rest length", off_rest(n, 2), E_F32, 0.0, 0},
+        {"rest length where the grid has no spring", off_rest(n, 12), E_F32, 0.1, 0}, /* SX owned by (12, 0), the last column */
+        {"NaN rock position", off_rock(n, 0) + 8, E_F32, NAN, 0},
+        {"zero rock radius", off_rock(n, 0) + 8 + 4 * 19, E_F32, 0.0, 0},
+        {"k_structural -1", HEADER + table_offset("k_structural"), E_F64, -1.0, 0},
+        {"k_structural NaN", HEADER + table_offset("k_structural"), E_F64, NAN, 0},
+        {"stability_safety 2", HEADER + table_offset("stability_safety"), E_F64, 2.0, 0},
+        {"substeps 2.5", HEADER + table_offset("substeps"), E_F64, 2.5, 0},
+        {"substeps above max_substeps", HEADER + table_offset("substeps"), E_F64, 5000.0, 0},
+        {"integrator 7", HEADER + table_offset("integrator"), E_F64, 7.0, 0},
+        {"ground 0.5", HEADER + table_offset("ground"), E_F64, 0.5, 0},
+        {"gravity z -1e4", HEADER + table_offset("gravity") + 16, E_F64, -1e4, 0},
+        {"nx 1", HEADER + table_offset("nx"), E_F64, 1.0, 0},
+        {"areal_density 0", HEADER + table_offset("areal_density"), E_F64, 0.0, 0},
+        /* What no command or step makes (the source has rocks 1 and 2, next id 3; vertex 6 pinned
+         * and at rest, 61 grabbed). */
+        {"next rock id 0", off_next_id(), E_U32, 0, 0},
+        {"next rock id 2, not above rock 2", off_next_id(), E_U32, 0, 2},
+        {"step 2^63", off_step(), E_U64, 0, CS_STEP_MAX + 1},
+        {"step 2^64 - 1", off_step(), E_U64, 0, UINT64_MAX},
+        {"time -1 s", off_time(), E_F64, -1.0, 0},
+        {"grab target x 2e6 m", off_target(), E_F32, 2e6, 0},
+        {"pinned vertex 6 moving", off_vz(n, 6), E_F32, 0.25, 0},
+        {"pinned vertex 6 accelerating", off_ax(n, 6), E_F32, 1.0, 0},
+        {"grabbed vertex 61 accelerating", off_ax(n, 61), E_F32, -3.0, 0},
     };
+    assert_true(get_u64(buf + off_next_id()) % (1ull << 32) == 3);
+    assert_true(cs_is_pinned(src, 6) && cs_grabbed(src, NULL) == 61);
+    assert_true(get_f32(buf + off_vz(n, 6)) == 0.0f && get_f32(buf + off_ax(n, 61)) == 0.0f);
     /* A rest length where the grid has no spring must be CS_TORN: check the chosen one is absent. */
     assert_true(get_f32(buf + off_rest(n, 12)) == CS_TORN);
     for (size_t k = 0; k < sizeof edits / sizeof edits[0]; k++) {
-        memcpy(t, buf, len);
-        if (edits[k].f64) put_f64(t + edits[k].off, edits[k].value);
-        else put_f32(t + edits[k].off, (float)edits[k].value);
-        fix_checksum(t, len);
+        apply_edit(t, buf, len, &edits[k]);
         refuse(sim, &before, t, len, CS_E_FORMAT, edits[k].what);
     }
+    /* The controls of those rules: at the edges they allow, the same edits load. */
+    const edit fine[] = {
+        {"next rock id 4294967295 (every id used)", off_next_id(), E_U32, 0, 4294967295u},
+        {"step 2^63 - 1", off_step(), E_U64, 0, CS_STEP_MAX},
+        {"grab target x 1e6 m", off_target(), E_F32, 1e6, 0},
+        {"free vertex 7 accelerating", off_ax(n, 7), E_F32, 1.0, 0},
+    };
+    cs_sim *edge = busy_sim();
+    for (size_t k = 0; k < sizeof fine / sizeof fine[0]; k++) {
+        apply_edit(t, buf, len, &fine[k]);
+        const cs_status st = cs_snapshot_load(edge, t, len);
+        if (st != CS_OK) fail_msg("%s: refused (%s)", fine[k].what, cs_sim_error(edge));
+    }
+    cs_sim_destroy(edge);
     /* A grab of a vertex that does not exist, and a rock id past the next id. */
     const size_t clock = HEADER + table_offset(NULL);
     memcpy(t, buf, len);
@@ -528,6 +580,170 @@ static void test_fixed_up_checksum(void **unused)
     cs_sim_destroy(src);
 }
 
+/* A snapshot of sim with one edit (the checksum kept right). */
+static unsigned char *save_edited(cs_sim *sim, size_t off, edit_kind kind, uint64_t u, size_t *len)
+{
+    unsigned char *buf = save(sim, len);
+    const edit e = {"", off, kind, 0, u};
+    apply_edit(buf, buf, *len, &e);
+    return buf;
+}
+
+/* What a command would refuse, a snapshot is refused too (the edits of test_fixed_up_checksum):
+ * here what needs a scene of its own, a next rock id of 0 with no rock and a rock limit. */
+static void test_api_rules(void **unused)
+{
+    (void)unused;
+    cs_sim *src = busy_sim();
+    size_t len;
+    unsigned char *buf = save(src, &len);
+    /* Without rocks, a next id of 0 has no rock to contradict it: refused all the same (the next
+     * rock would be id 0, which no route can address). */
+    cs_scene small;
+    cs_scene_default(&small);
+    small.nx = small.ny = 6;
+    cs_sim *bare = tk_sim(&small, NULL);
+    size_t blen;
+    unsigned char *b0 = save_edited(bare, off_next_id(), E_U32, 0, &blen);
+    view bare_before;
+    take_view(bare, &bare_before);
+    refuse(bare, &bare_before, b0, blen, CS_E_FORMAT, "no rocks, next rock id 0");
+    free(b0);
+    cs_sim_destroy(bare);
+
+    /* More rocks than the rock limit (max_rocks): CS_E_LIMIT naming it, as cs_rock_add does. */
+    cs_sim *one = tk_sim(&small, NULL);
+    assert_int_equal(cs_sim_set_rock_limit(one, 1), CS_OK);
+    assert_int_equal(cs_sim_rock_limit(one), 1);
+    assert_int_equal(cs_sim_set_rock_limit(one, 0), CS_E_RANGE);
+    assert_int_equal(cs_sim_set_rock_limit(one, CS_MAX_ROCKS + 1), CS_E_RANGE);
+    tk_add_rock(one, 0.0f, 0.0f, 2.0f, 0.1f, 300.0f);
+    cs_rock_def d;
+    cs_rock_def_default(&d);
+    assert_int_equal(cs_rock_add(one, &d, NULL), CS_E_LIMIT);
+    assert_string_equal(cs_sim_error_param(one), "max_rocks");
+    view one_before;
+    take_view(one, &one_before);
+    assert_int_equal(cs_snapshot_load(one, buf, len), CS_E_LIMIT);
+    assert_string_equal(cs_sim_error_param(one), "max_rocks");
+    refuse(one, &one_before, buf, len, CS_E_LIMIT, "2 rocks past a limit of 1");
+    assert_int_equal(cs_sim_set_rock_limit(one, 2), CS_OK);
+    assert_int_equal(cs_snapshot_load(one, buf, len), CS_OK);
+    cs_sim_destroy(one);
+    free(buf);
+    cs_sim_destroy(src);
+}
+
+/* Snapshot and reload: the same bytes. */
+static void assert_reloads(cs_sim *sim, const char *what)
+{
+    size_t len, len2;
+    unsigned char *a = save(sim, &len);
+    cs_sim *other = tk_sim(NULL, NULL);
+    const cs_status st = cs_snapshot_load(other, a, len);
+    if (st != CS_OK) fail_msg("%s: its own snapshot is refused: %s", what, cs_sim_error(other));
+    unsigned char *b = save(other, &len2);
+    assert_int_equal(len, len2);
+    assert_memory_equal(a, b, len);
+    free(a);
+    free(b);
+    cs_sim_destroy(other);
+}
+
+/* Rock ids run out at CS_ROCK_ID_MAX: the last one is given, then cs_rock_add refuses (a clear
+ * CS_E_LIMIT) instead of wrapping the next id to 0, and every state on the way saves and loads. A
+ * rebuild starts again from 1. */
+static void test_rock_ids_run_out(void **unused)
+{
+    (void)unused;
+    cs_sim *sim = tk_sim(NULL, NULL);
+    size_t len;
+    unsigned char *buf = save_edited(sim, off_next_id(), E_U32, CS_ROCK_ID_MAX - 1, &len);
+    assert_int_equal(cs_snapshot_load(sim, buf, len), CS_OK);
+    free(buf);
+    cs_rock_def d;
+    cs_rock_def_default(&d);
+    d.position[2] = 2.0f;
+    uint32_t id = 0;
+    assert_int_equal(cs_rock_add(sim, &d, &id), CS_OK);
+    assert_true(id == CS_ROCK_ID_MAX - 1);
+    d.position[0] = 0.5f;
+    assert_int_equal(cs_rock_add(sim, &d, &id), CS_OK);
+    assert_true(id == CS_ROCK_ID_MAX);
+    assert_true(id == 4294967294u);
+    assert_reloads(sim, "the last id given");
+    const uint64_t h = cs_state_hash(sim);
+    d.position[0] = -0.5f;
+    assert_int_equal(cs_rock_add(sim, &d, &id), CS_E_LIMIT);
+    assert_true(strstr(cs_sim_error(sim), "used up") != NULL);
+    assert_true(cs_state_hash(sim) == h);
+    assert_int_equal(cs_rock_count(sim), 2);
+    /* Removing one frees no id: ids are never reused within a scene. */
+    assert_int_equal(cs_rock_remove(sim, CS_ROCK_ID_MAX), CS_OK);
+    assert_int_equal(cs_rock_add(sim, &d, &id), CS_E_LIMIT);
+    assert_reloads(sim, "ids used up");
+    assert_int_equal(cs_sim_reset(sim), CS_OK);
+    assert_int_equal(cs_rock_add(sim, &d, &id), CS_OK);
+    assert_int_equal(id, 1);
+    cs_sim_destroy(sim);
+}
+
+/* The step count stops at CS_STEP_MAX (2^63 - 1): a step past it is refused whole, one up to it
+ * runs, and the state there saves and loads. */
+static void test_step_limit(void **unused)
+{
+    (void)unused;
+    cs_scene sc;
+    cs_scene_default(&sc);
+    sc.nx = sc.ny = 4;
+    cs_sim *sim = tk_sim_serial(&sc, NULL);
+    size_t len;
+    unsigned char *buf = save_edited(sim, off_step(), E_U64, CS_STEP_MAX - 10, &len);
+    assert_int_equal(cs_snapshot_load(sim, buf, len), CS_OK);
+    free(buf);
+    const uint64_t h = cs_state_hash(sim);
+    assert_int_equal(cs_sim_step(sim, 11), CS_E_LIMIT);
+    assert_string_equal(cs_sim_error_param(sim), "substeps");
+    cs_info info;
+    cs_sim_info(sim, &info);
+    assert_true(info.step == CS_STEP_MAX - 10 && cs_state_hash(sim) == h);
+    assert_int_equal(cs_sim_step(sim, 10), CS_OK);
+    cs_sim_info(sim, &info);
+    assert_true(info.step == CS_STEP_MAX);
+    assert_reloads(sim, "the last step");
+    assert_int_equal(cs_sim_step(sim, 1), CS_E_LIMIT);
+    assert_int_equal(cs_sim_step(sim, 0), CS_OK);
+    assert_int_equal(cs_sim_step_frames(sim, 1), CS_E_LIMIT);
+    cs_sim_destroy(sim);
+}
+
+/* cs_snapshot_bytes tells a snapshot's size from the scene alone: what the layout above gives. */
+static void test_snapshot_bytes(void **unused)
+{
+    (void)unused;
+    cs_sim *sim = busy_sim();
+    cs_scene sc;
+    cs_sim_scene(sim, &sc);
+    uint64_t bytes = 0;
+    assert_int_equal(cs_snapshot_bytes(&sc, 2, &bytes), CS_OK);
+    assert_true(bytes == expected_size(130, 2) && bytes == cs_snapshot_size(sim));
+    assert_int_equal(cs_snapshot_bytes(&sc, 0, &bytes), CS_OK);
+    assert_true(bytes == expected_size(130, 0));
+    /* The length a buffer's header gives, with other bytes after it (a bundle, a state file). */
+    size_t len;
+    unsigned char *buf = save(sim, &len);
+    unsigned char *more = malloc(len + 5);
+    memcpy(more, buf, len);
+    memcpy(more + len, "{...}", 5);
+    assert_int_equal(cs_snapshot_length(more, len + 5), len);
+    assert_int_equal(cs_snapshot_length(more, len - 1), 0);
+    assert_int_equal(cs_snapshot_length("CSNQ", 4), 0);
+    assert_int_equal(cs_snapshot_length(NULL, 0), 0);
+    free(more);
+    free(buf);
+    cs_sim_destroy(sim);
+}
+
 static void test_save_needs_room(void **unused)
 {
     (void)unused;
@@ -552,6 +768,10 @@ int main(void)
         cmocka_unit_test(test_version_and_magic),
         cmocka_unit_test(test_fixed_up_checksum),
         cmocka_unit_test(test_save_needs_room),
+        cmocka_unit_test(test_api_rules),
+        cmocka_unit_test(test_rock_ids_run_out),
+        cmocka_unit_test(test_step_limit),
+        cmocka_unit_test(test_snapshot_bytes),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -23,6 +23,13 @@ extern "C" {
 #define CS_VERSION "0.1.0"
 /* Most rocks one simulation holds. */
 #define CS_MAX_ROCKS 1024
+/* The largest rock id. Ids run 1, 2, ... within a scene and are never reused; once this one has
+ * been given, cs_rock_add refuses (CS_E_LIMIT) until the scene is rebuilt, so the next id always
+ * fits its 32 bits and every state can be saved and loaded again. */
+#define CS_ROCK_ID_MAX 4294967294u
+/* The largest step count, 2^63 - 1 (what a signed 64-bit JSON integer holds): stepping past it is
+ * refused (CS_E_LIMIT), and so is a snapshot beyond it. */
+#define CS_STEP_MAX 9223372036854775807ull
 
 typedef enum cs_status {
     CS_OK = 0,
@@ -67,11 +74,24 @@ const char *cs_sim_backend_note(const cs_sim *sim);
 /* CPU threads (1..256; 0 = OpenMP's default). Results do not depend on it. */
 cs_status cs_sim_set_threads(cs_sim *sim, int threads);
 
-/* Bytes a scene's state needs, computed with overflow checks; CS_E_LIMIT when it overflows. */
-cs_status cs_scene_memory(const cs_scene *scene, uint64_t *bytes);
-/* Caps the state a scene change or a snapshot may bring (cs_scene_memory's bytes; 0: no cap):
- * a larger one is CS_E_LIMIT, refused before anything is allocated. */
-cs_status cs_sim_set_memory_limit(cs_sim *sim, uint64_t bytes);
+/* Host bytes a scene costs the engine with up to `rocks` rocks: its state twice (a scene change or
+ * a snapshot load builds the new one beside the old), and the backends' host scratch (the CPU
+ * backend's per-chunk rock partials, a device backend's staging buffer), computed with overflow
+ * checks; CS_E_LIMIT when it overflows. */
+cs_status cs_scene_memory(const cs_scene *scene, int32_t rocks, uint64_t *bytes);
+/* Bytes of a snapshot of a scene with `rocks` rocks (cs_snapshot_size of such a state). */
+cs_status cs_snapshot_bytes(const cs_scene *scene, int32_t rocks, uint64_t *bytes);
+/* What a scene costs whoever runs it, in bytes: cs_scene_memory's part and what the owner keeps
+ * per scene besides (checkpoints, frame buffers); CS_OK, or CS_E_LIMIT when it overflows. */
+typedef cs_status (*cs_cost_fn)(const cs_scene *scene, int32_t rocks, void *ctx, uint64_t *bytes);
+/* Caps what a scene change or a snapshot may bring (0: no cap): a scene whose cost - cost(scene,
+ * the rock limit, ctx), or cs_scene_memory when cost is NULL - passes `bytes` is CS_E_LIMIT
+ * (naming nx), refused before anything is allocated for it. */
+cs_status cs_sim_set_memory_limit(cs_sim *sim, uint64_t bytes, cs_cost_fn cost, void *ctx);
+/* Most rocks this simulation takes, 1..CS_MAX_ROCKS (CS_MAX_ROCKS when created): cs_rock_add and
+ * cs_snapshot_load refuse more with CS_E_LIMIT naming max_rocks. Rocks already there stay. */
+cs_status cs_sim_set_rock_limit(cs_sim *sim, int32_t rocks);
+int32_t cs_sim_rock_limit(const cs_sim *sim);
 
 /* ---- scene and parameters ---- */
 void cs_sim_scene(const cs_sim *sim, cs_scene *out);
@@ -86,7 +106,8 @@ cs_status cs_sim_set_params(cs_sim *sim, const cs_params *params);
 
 /* ---- time ---- */
 /* Runs substeps (0..1e9). Returns CS_E_NONFINITE when the state stopped being finite; the
- * state is then left as it is for the caller to restore from a snapshot. */
+ * state is then left as it is for the caller to restore from a snapshot. CS_E_LIMIT (nothing
+ * run) when the step count would pass CS_STEP_MAX. */
 cs_status cs_sim_step(cs_sim *sim, int64_t substeps);
 /* Runs frames of the effective substeps each. */
 cs_status cs_sim_step_frames(cs_sim *sim, int64_t frames);
@@ -120,10 +141,11 @@ typedef struct cs_rock {
 
 /* A resting rock of radius 0.1 m and density 2500 kg/m^3 (stone: granite is 2700) at the origin. */
 void cs_rock_def_default(cs_rock_def *def);
-/* Adds a rock; ids start at 1 and are never reused within a scene. CS_E_OVERLAP when it would
- * overlap another rock (centres closer than the sum of the radii) or hold part of the cloth's
- * surface inside it (closer to its centre than its radius: deeper than contact_offset into its
- * contact layer); cs_sim_error() names what it overlaps. */
+/* Adds a rock; ids start at 1 and are never reused within a scene (CS_E_LIMIT past the rock
+ * limit, or once CS_ROCK_ID_MAX has been given). CS_E_OVERLAP when it would overlap another rock
+ * (centres closer than the sum of the radii) or hold part of the cloth's surface inside it (closer
+ * to its centre than its radius: deeper than contact_offset into its contact layer);
+ * cs_sim_error() names what it overlaps. */
 cs_status cs_rock_add(cs_sim *sim, const cs_rock_def *def, uint32_t *id);
 cs_status cs_rock_get(cs_sim *sim, uint32_t id, cs_rock *out);
 /* Changes every field of a rock (teleport, new radius, kinematic or not). A new position or radius
@@ -172,17 +194,27 @@ void cs_hash_hex(uint64_t hash, char out[17]);
 
 /* What the backend knows of its own speed (0 where it does not say). */
 typedef struct cs_backend_stats {
-    double bytes_per_vertex_substep; /* memory traffic per vertex and substep, by the kernels' design */
-    double copy_bandwidth;           /* measured device copy bandwidth, bytes/s (read + write) */
+    double bytes_per_vertex_substep; /* memory traffic per vertex and substep, from its cost model */
+    double peak_bandwidth;           /* the device's memory bandwidth by its clock and bus width, bytes/s */
 } cs_backend_stats;
-/* Fills the stats; measuring the bandwidth takes a moment on the first call. */
+/* Fills the stats (allocates nothing and measures nothing). */
 cs_status cs_sim_backend_stats(cs_sim *sim, cs_backend_stats *out);
 
 /* ---- snapshots: the whole state as a versioned, checksummed byte buffer ---- */
 size_t cs_snapshot_size(cs_sim *sim);
-/* Writes a snapshot into buf (cap bytes); *len receives its size. */
+/* Writes a snapshot into buf (cap bytes); *len receives its size. CS_E_NONFINITE when the state
+ * is not finite (what a load refuses is never written). */
 cs_status cs_snapshot_save(cs_sim *sim, void *buf, size_t cap, size_t *len);
-/* Restores a snapshot, or changes nothing (CS_E_FORMAT, CS_E_VERSION, ...). */
+/* Bytes of the snapshot buf starts with, from its header (a snapshot may be followed by other
+ * data: a journal, a state file's trailer); 0 when buf does not start with a snapshot's header or
+ * is shorter than the header says. */
+size_t cs_snapshot_length(const void *buf, size_t len);
+/* Restores a snapshot, or changes nothing (CS_E_FORMAT, CS_E_VERSION, ...). What a command would
+ * refuse a snapshot is refused too: parameters out of range or unstable (CS_E_UNSTABLE), more
+ * rocks than the rock limit or a scene past the memory limit (CS_E_LIMIT), and states no command
+ * or step makes (CS_E_FORMAT): a next rock id of 0 or not above every rock's, a step past
+ * CS_STEP_MAX, a negative or non-finite time, a pinned vertex that moves, a fixed vertex (pinned
+ * or grabbed) with an acceleration, a grab target beyond 1e6 m. */
 cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len);
 
 #ifdef __cplusplus

@@ -62,6 +62,7 @@ typedef enum cs_contact_model { CS_CONTACT_VERTEX = 0, CS_CONTACT_SURFACE = 1 } 
     X(friction_model, ENUM, "-", CS_FRICTION_COULOMB_VISCOUS, 0, 1, FRICTION, "coulomb_viscous (seed 000) or resultant (seed 003)") \
     X(contact_model, ENUM, "-", CS_CONTACT_SURFACE, 0, 1, CONTACT, "surface: rocks meet the cloth's triangles; vertex: seed 000's contact per vertex") \
     X(max_depenetration_speed, FLOAT, "m/s", 3.0, 0, 1e4, NONE, "No contact pushes two bodies apart faster than this; 0 = no cap") \
+    X(placement_overlap, FLOAT, "m", 0.0, 0, 10, NONE, "How far a rock placement may overlap another rock or hold the cloth inside its radius; deeper is refused") \
     X(k_rock, FLOAT, "N/(m kg)", 1e6, 0, 1e10, NONE, "Stiffness of rock-rock and rock-ground contact per kg of the pair's reduced mass") \
     X(c_rock, FLOAT, "N s/(m kg)", 500.0, 0, 1e8, NONE, "Normal and tangential damping of rock contact per kg of reduced mass") \
     X(mu_rock, FLOAT, "-", 0.5, 0, 100, NONE, "Coulomb friction coefficient of rock contact")             \
