@@ -47,7 +47,7 @@ static cs_sim *make(const char *backend, int nx, int ny, int strain)
     p.tear_strain = strain ? 2.0f : 0.0f;
     p.auto_drop_interval = 0;
     p.max_substeps = 100000;
-    p.contact_model = CS_CONTACT_VERTEX; /* the CUDA kernels have no surface contact yet */
+    p.contact_model = CS_CONTACT_VERTEX; /* the cost model counts the vertex model's traffic */
     p.placement_overlap = 1.0f;          /* packed rocks on purpose */
     cs_sim *sim = NULL;
     char err[256];
