@@ -21,6 +21,7 @@ static const struct {
     {"not-found", "Not found"},
     {"method-not-allowed", "Method not allowed"},
     {"wrong-state", "Wrong state"},
+    {"overlap", "Overlap"},
     {"too-large", "Request body too large"},
     {"bad-snapshot", "Bad snapshot"},
     {"unavailable", "Service unavailable"},
