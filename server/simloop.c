@@ -10,7 +10,6 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "clothsim/physics.h"
 #include "commands.h"
 #include "log.h"
 #include "simloop.h"
@@ -223,7 +222,7 @@ static float *scratch(simloop *sl, size_t floats)
 
 /* The stream's scalars: speed (255 at SCALAR_SPEED_FULL) and strain, the largest stretch of a
  * vertex's intact structural springs (255 at SCALAR_STRAIN_FULL). */
-static void fill_scalars(simloop *sl, raw_frame *f, unsigned want, int32_t nx)
+static void fill_scalars(simloop *sl, raw_frame *f, unsigned want)
 {
     const int32_t n = f->n;
     float *buf;
@@ -237,23 +236,10 @@ static void fill_scalars(simloop *sl, raw_frame *f, unsigned want, int32_t nx)
         }
         f->has[SCALAR_SPEED] = 1;
     }
-    if ((want & (1u << SCALAR_STRAIN)) && (buf = scratch(sl, (size_t)CS_NTYPES * n)) &&
-        cs_read_rest_lengths(sl->sim, buf, (size_t)CS_NTYPES * n) == CS_OK) {
-        memset(f->scalar[SCALAR_STRAIN], 0, (size_t)n);
-        const float *x = f->xyz;
-        for (int t = CS_SX; t <= CS_SY; t++) {
-            const int32_t off = t == CS_SX ? 1 : nx;
-            for (int32_t v = 0; v < n; v++) {
-                const float L0 = buf[(size_t)t * n + v];
-                if (!(L0 > 0.0f)) continue; /* torn, or off the grid */
-                const int32_t o = v + off;
-                const float dx = x[3 * o] - x[3 * v], dy = x[3 * o + 1] - x[3 * v + 1], dz = x[3 * o + 2] - x[3 * v + 2];
-                const float e = (sqrtf(dx * dx + dy * dy + dz * dz) - L0) / L0;
-                float q = e / SCALAR_STRAIN_FULL * 255.0f;
-                q = q < 0.0f ? 0.0f : (q > 255.0f ? 255.0f : q);
-                if ((uint8_t)q > f->scalar[SCALAR_STRAIN][v]) f->scalar[SCALAR_STRAIN][v] = (uint8_t)q;
-                if ((uint8_t)q > f->scalar[SCALAR_STRAIN][o]) f->scalar[SCALAR_STRAIN][o] = (uint8_t)q;
-            }
+    if ((want & (1u << SCALAR_STRAIN)) && (buf = scratch(sl, (size_t)n)) && cs_read_strain(sl->sim, buf, (size_t)n) == CS_OK) {
+        for (int32_t v = 0; v < n; v++) {
+            const float q = buf[v] / SCALAR_STRAIN_FULL * 255.0f;
+            f->scalar[SCALAR_STRAIN][v] = (uint8_t)(q < 255.0f ? q : 255.0f);
         }
         f->has[SCALAR_STRAIN] = 1;
     }
@@ -269,8 +255,6 @@ static void publish_frame(simloop *sl, const cs_info *info, const cs_rock *rocks
         stream_frame_discard(sl->stream, f);
         return;
     }
-    cs_scene sc;
-    cs_sim_scene(sl->sim, &sc);
     if (raw_frame_reserve(f, info->n_vertices, n_rocks) != 0 ||
         cs_read_positions(sl->sim, f->xyz, 3 * (size_t)info->n_vertices) != CS_OK) {
         stream_frame_discard(sl->stream, f); /* clients keep the frame they have */
@@ -292,7 +276,7 @@ static void publish_frame(simloop *sl, const cs_info *info, const cs_rock *rocks
         memcpy(k->orientation, rocks[r].def.orientation, sizeof k->orientation);
     }
     raw_frame_bbox(f);
-    fill_scalars(sl, f, want, sc.nx);
+    fill_scalars(sl, f, want);
     sl->framed_changes = sl->changes;
     sl->framed_scalars = want;
     stream_frame_publish(sl->stream, f);
@@ -700,7 +684,7 @@ static uint64_t cloth_json_cap(uint64_t n) { return 128 + n * 2 * 3 * 18; }
 
 /* Bytes of the torn-spring list (ids of u32) and of its JSON ("4294967295," at most) when every
  * spring of n vertices is torn. */
-static uint64_t torn_cap(uint64_t n) { return (uint64_t)CS_NTYPES * n * (sizeof(uint32_t) + 11) + 16; }
+static uint64_t torn_cap(uint64_t n) { return (uint64_t)CS_SPRING_TYPES_PER_VERTEX * n * (sizeof(uint32_t) + 11) + 16; }
 
 cs_status simloop_scene_cost(const cs_scene *scene, int32_t rocks, void *ctx, uint64_t *bytes)
 {
@@ -713,7 +697,7 @@ cs_status simloop_scene_cost(const cs_scene *scene, int32_t rocks, void *ctx, ui
     if (n > INT32_MAX) return CS_E_LIMIT;
     /* cloth_state's JSON and the positions and velocities it is made from, or a snapshot */
     const uint64_t cloth = cloth_json_cap(n) + 2 * 3 * sizeof(float) * n, answer = cloth > snap ? cloth : snap;
-    const uint64_t scalars = sizeof(float) * (uint64_t)CS_NTYPES * n; /* fill_scalars' strain scratch */
+    const uint64_t scalars = sizeof(float) * 3 * n; /* fill_scalars' scratch (velocities, or strains) */
     *bytes = engine + 2 * snap + answer + stream_memory((int32_t)n, rocks) + scalars + 2 * torn_cap(n);
     return CS_OK;
 }

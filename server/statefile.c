@@ -19,11 +19,12 @@ char *statefile_trailer(int paused, size_t *len)
 
 statefile_error statefile_parse(const unsigned char *buf, size_t len, statefile *out, char *why, size_t why_len)
 {
-    if (len < 4 || memcmp(buf, "CSNP", 4) != 0) {
+    cs_snapshot_info head;
+    if (cs_snapshot_peek(buf, len, &head) != CS_OK) {
         snprintf(why, why_len, "does not start with a clothsim snapshot");
         return STATEFILE_FOREIGN;
     }
-    const size_t snap = cs_snapshot_length(buf, len);
+    const size_t snap = head.length;
     if (snap == 0) {
         snprintf(why, why_len, "snapshot length does not match its header (truncated?)");
         return STATEFILE_DAMAGED;

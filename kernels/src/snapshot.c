@@ -324,6 +324,19 @@ size_t cs_snapshot_length(const void *buf, size_t len)
     return plen <= len - SNAP_HEADER ? SNAP_HEADER + (size_t)plen : 0;
 }
 
+cs_status cs_snapshot_peek(const void *buf, size_t len, cs_snapshot_info *out)
+{
+    if (!out) return CS_E_INVALID;
+    memset(out, 0, sizeof *out);
+    if (!buf || len < 4 || memcmp(buf, SNAP_MAGIC, 4) != 0) return CS_E_FORMAT;
+    rbuf h = {buf, len < SNAP_HEADER ? len : SNAP_HEADER, 4, 0};
+    out->version = get_u32(&h);
+    const uint64_t layout = get_u64(&h);
+    out->length = cs_snapshot_length(buf, len);
+    out->readable = !h.bad && out->version == SNAP_VERSION && layout == layout_id();
+    return CS_OK;
+}
+
 cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
 {
     if (!sim) return CS_E_INVALID;

@@ -452,6 +452,51 @@ static void test_version_and_magic(void **unused)
     cs_sim_destroy(sim);
 }
 
+/* cs_snapshot_peek reads the header without loading: its length and version, whether this build
+ * reads it; what does not start with the magic is no snapshot at all, however long. */
+static void test_peek(void **unused)
+{
+    (void)unused;
+    cs_sim *sim = busy_sim();
+    size_t len;
+    unsigned char *buf = save(sim, &len);
+    unsigned char *t = malloc(len + 7);
+    assert_non_null(t);
+    memcpy(t, buf, len);
+    memcpy(t + len, "trailer", 7);
+    cs_snapshot_info info;
+    assert_int_equal(cs_snapshot_peek(t, len + 7, &info), CS_OK);
+    assert_int_equal(info.length, len); /* what follows it is not part of it */
+    assert_int_equal(info.version, 1);
+    assert_true(info.readable);
+    /* Cut short: still a snapshot's start, with no length (it is not all there). */
+    assert_int_equal(cs_snapshot_peek(t, len - 1, &info), CS_OK);
+    assert_int_equal(info.length, 0);
+    assert_int_equal(cs_snapshot_peek(t, 6, &info), CS_OK);
+    assert_int_equal(info.length, 0);
+    assert_int_equal(info.version, 0);
+    /* Another version, or another parameter table: a snapshot this build does not read. */
+    put_u32(t + 4, 7);
+    assert_int_equal(cs_snapshot_peek(t, len, &info), CS_OK);
+    assert_int_equal(info.version, 7);
+    assert_false(info.readable);
+    put_u32(t + 4, 1);
+    t[8] ^= 1; /* the layout id */
+    assert_int_equal(cs_snapshot_peek(t, len, &info), CS_OK);
+    assert_false(info.readable);
+    assert_int_equal(info.length, len);
+    /* No magic: not a snapshot. */
+    memcpy(t, "CSNQ", 4);
+    assert_int_equal(cs_snapshot_peek(t, len, &info), CS_E_FORMAT);
+    assert_int_equal(info.length, 0);
+    assert_int_equal(cs_snapshot_peek("CSN", 3, &info), CS_E_FORMAT);
+    assert_int_equal(cs_snapshot_peek(NULL, 0, &info), CS_E_FORMAT);
+    assert_int_equal(cs_snapshot_peek(buf, len, NULL), CS_E_INVALID);
+    free(t);
+    free(buf);
+    cs_sim_destroy(sim);
+}
+
 /* Edits with the checksum fixed up: a benign edit loads (so the fix-up is right), a NaN, an
  * infinity, a bad rest length or rock, or an out-of-range parameter is refused. */
 static void test_fixed_up_checksum(void **unused)
@@ -766,6 +811,7 @@ int main(void)
         cmocka_unit_test(test_truncated),
         cmocka_unit_test(test_corrupted_byte),
         cmocka_unit_test(test_version_and_magic),
+        cmocka_unit_test(test_peek),
         cmocka_unit_test(test_fixed_up_checksum),
         cmocka_unit_test(test_save_needs_room),
         cmocka_unit_test(test_api_rules),
