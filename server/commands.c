@@ -34,14 +34,13 @@ static int op_params(cs_sim *sim, const json_t *cmd, json_t **journal, json_t **
 {
     static const char *const fields[] = {"op", "params", NULL};
     if (only_fields(cmd, fields, pr) != 0) return -1;
-    cs_scene sc;
-    cs_params p;
-    cs_sim_scene(sim, &sc);
-    cs_sim_params(sim, &p);
-    if (params_from_json(json_object_get(cmd, "params"), CS_KIND_LIVE, &sc, &p, pr) != 0) return -1;
-    const cs_status st = cs_sim_set_params(sim, &p);
+    scene_config sc;
+    cs_sim_scene(sim, &sc.fields);
+    cs_sim_params(sim, &sc.params);
+    if (params_from_json(json_object_get(cmd, "params"), SET_LIVE, &sc, pr) != 0) return -1;
+    const cs_status st = cs_sim_set_params(sim, &sc.params);
     if (st != CS_OK) return refused(sim, st, pr);
-    json_t *full = params_to_json(CS_KIND_LIVE, &sc, &p);
+    json_t *full = params_to_json(SET_LIVE, &sc);
     *journal = json_pack("{s:s, s:O}", "op", "params", "params", full);
     *result = json_pack("{s:o}", "params", full);
     return 0;
@@ -51,19 +50,18 @@ static int op_scene(cs_sim *sim, const json_t *cmd, json_t **journal, json_t **r
 {
     static const char *const fields[] = {"op", "scene", NULL};
     if (only_fields(cmd, fields, pr) != 0) return -1;
-    cs_scene sc;
-    cs_params p;
-    cs_sim_scene(sim, &sc);
-    cs_sim_params(sim, &p);
+    scene_config sc;
+    cs_sim_scene(sim, &sc.fields);
+    cs_sim_params(sim, &sc.params);
     /* No scene member (a journal written by hand): a patch of nothing. */
     const json_t *patch = json_object_get(cmd, "scene");
     json_t *none = patch ? NULL : json_object();
-    const int bad = params_from_json(patch ? patch : none, CS_KIND_SCENE, &sc, &p, pr);
+    const int bad = params_from_json(patch ? patch : none, SET_SCENE, &sc, pr);
     json_decref(none);
     if (bad) return -1;
-    const cs_status st = cs_sim_set_scene(sim, &sc);
+    const cs_status st = cs_sim_set_scene(sim, &sc.fields);
     if (st != CS_OK) return refused(sim, st, pr);
-    json_t *full = params_to_json(CS_KIND_SCENE, &sc, &p);
+    json_t *full = params_to_json(SET_SCENE, &sc);
     *journal = json_pack("{s:s, s:O}", "op", "scene", "scene", full);
     *result = full;
     return 0;
@@ -249,11 +247,9 @@ int command_from_request(const char *op, const char *body, size_t len, long long
     if (strcmp(op, "params") == 0) {
         /* Refused here without bothering the sim thread; the sim thread merges the patch with the
          * parameters of the moment it applies it (so a 422 there may be no 422 here). */
-        cs_scene sc;
-        cs_params p;
-        cs_scene_default(&sc);
-        cs_params_default(&p);
-        if (params_from_json(b, CS_KIND_LIVE, &sc, &p, pr) != 0 && pr->status == 400) {
+        clothd_config defaults;
+        settings_default(&defaults);
+        if (params_from_json(b, SET_LIVE, &defaults.scene, pr) != 0 && pr->status == 400) {
             json_decref(b);
             return -1;
         }

@@ -306,12 +306,12 @@ static cs_sim *make_engine(const clothd_config *cfg)
     cs_sim *sim = NULL;
     const uint64_t limit = (uint64_t)cfg->set.max_state_mb << 20;
     uint64_t bytes;
-    if (simloop_scene_cost(&cfg->scene, cfg->set.max_rocks, NULL, &bytes) != CS_OK || bytes > limit) {
-        log_msg("cannot start the simulation: a %d x %d cloth needs more than max_state_mb (%d MiB)", (int)cfg->scene.nx,
-                (int)cfg->scene.ny, (int)cfg->set.max_state_mb);
+    if (simloop_scene_cost(&cfg->scene.fields, cfg->set.max_rocks, NULL, &bytes) != CS_OK || bytes > limit) {
+        log_msg("cannot start the simulation: a %d x %d cloth needs more than max_state_mb (%d MiB)", (int)cfg->scene.fields.nx,
+                (int)cfg->scene.fields.ny, (int)cfg->set.max_state_mb);
         return NULL;
     }
-    const cs_status st = cs_sim_create(&cfg->scene, &cfg->params, backend_names[cfg->set.backend], &sim, err, sizeof err);
+    const cs_status st = cs_sim_create(&cfg->scene.fields, &cfg->scene.params, backend_names[cfg->set.backend], &sim, err, sizeof err);
     if (st != CS_OK) {
         log_msg("cannot start the simulation: %s", err);
         return NULL;
@@ -424,9 +424,9 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     cs_sim *sim = make_engine(cfg);
     if (!sim) return EXIT_START;
     if (strcmp(cs_sim_backend(sim), "cuda") == 0 && !cfg->scene_size_given) {
-        cs_scene sc = cfg->scene;
+        cs_scene sc = cfg->scene.fields;
         sc.nx = sc.ny = 256; /* a GPU takes a finer cloth in real time */
-        if (cs_sim_set_scene(sim, &sc) == CS_OK) cfg->scene = sc;
+        if (cs_sim_set_scene(sim, &sc) == CS_OK) cfg->scene.fields = sc;
     }
     log_msg("backend: %s on %s (%s)", cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim));
     int was_paused = 0;
@@ -560,7 +560,12 @@ int main(int argc, char **argv, char **envp)
     clothd_config cfg;
     settings_default(&cfg);
     char why[600];
-    if (settings_load(&cfg, argc - first, argv + first, envp, why, sizeof why) != 0) {
+#ifdef CLOTHD_TEST_HOOKS
+    const char *skip = "TEST_"; /* the test daemon's hooks (testhooks.h) */
+#else
+    const char *skip = NULL;
+#endif
+    if (settings_load(&cfg, argc - first, argv + first, envp, skip, why, sizeof why) != 0) {
         fprintf(stderr, "clothd: %s\n", why);
         return EXIT_USAGE;
     }

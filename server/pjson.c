@@ -148,25 +148,26 @@ json_t *json_float(float f)
     return json_real((double)f);
 }
 
-json_t *param_to_json(const cs_param_info *p, const void *base)
+json_t *setting_to_json(const setting *s, const void *field)
 {
-    switch (p->type) {
-    case CS_T_INT: return json_integer((json_int_t)cs_param_get(p, base, 0));
-    case CS_T_BOOL: return json_boolean(cs_param_get(p, base, 0) != 0);
-    case CS_T_ENUM: return json_string(p->choices[(int)cs_param_get(p, base, 0)]);
-    case CS_T_VEC3:
-        return json_pack("[o, o, o]", json_float((float)cs_param_get(p, base, 0)),
-                         json_float((float)cs_param_get(p, base, 1)), json_float((float)cs_param_get(p, base, 2)));
-    default: return json_float((float)cs_param_get(p, base, 0));
+    switch (s->type) {
+    case SET_STR: return json_string(field);
+    case SET_INT: return json_integer((json_int_t)setting_get(s, field, 0));
+    case SET_BOOL: return json_boolean(setting_get(s, field, 0) != 0);
+    case SET_ENUM: return json_string(s->choices[(int)setting_get(s, field, 0)]);
+    case SET_VEC3:
+        return json_pack("[o, o, o]", json_float((float)setting_get(s, field, 0)), json_float((float)setting_get(s, field, 1)),
+                         json_float((float)setting_get(s, field, 2)));
+    default: return json_float((float)setting_get(s, field, 0));
     }
 }
 
-json_t *params_to_json(cs_param_kind kind, const cs_scene *scene, const cs_params *params)
+json_t *params_to_json(setting_kind kind, const scene_config *sc)
 {
     json_t *o = json_object();
-    for (size_t i = 0; i < cs_param_count(); i++) {
-        const cs_param_info *p = cs_param_at(i);
-        if (p->kind == kind) json_object_set_new(o, p->name, param_to_json(p, CS_PARAM_BASE(p, scene, params)));
+    for (size_t i = 0; i < settings_count(); i++) {
+        const setting *s = settings_at(i);
+        if (s->kind == kind) json_object_set_new(o, s->name, setting_to_json(s, setting_field(s, NULL, (scene_config *)sc)));
     }
     return o;
 }
@@ -252,111 +253,84 @@ int request_body_object(const char *body, size_t len, int required, json_t **out
 }
 
 /* One member onto a parameter: type checked (400), then range checked by the table (422). */
-static int param_from_value(const cs_param_info *p, void *base, const json_t *v, problem *pr)
+static int param_from_value(const setting *s, void *field, const json_t *v, problem *pr)
 {
     double d[3] = {0, 0, 0};
     char why[200];
-    switch (p->type) {
-    case CS_T_VEC3: {
+    switch (s->type) {
+    case SET_VEC3: {
         float f[3];
-        if (vec3_from_json(v, f, p->name, pr) != 0) return -1;
+        if (vec3_from_json(v, f, s->name, pr) != 0) return -1;
         for (int k = 0; k < 3; k++) d[k] = json_number_value(json_array_get(v, (size_t)k));
         break;
     }
-    case CS_T_BOOL:
-        if (!json_is_boolean(v)) return problem_set(pr, 400, "wrong-type", p->name, "%s must be true or false", p->name);
+    case SET_BOOL:
+        if (!json_is_boolean(v)) return problem_set(pr, 400, "wrong-type", s->name, "%s must be true or false", s->name);
         d[0] = json_is_true(v);
         break;
-    case CS_T_ENUM: {
-        const int k = json_is_string(v) ? cs_param_choice(p, json_string_value(v)) : -2;
-        if (k == -2) return problem_set(pr, 400, "wrong-type", p->name, "%s must be a string", p->name);
+    case SET_ENUM: {
+        const int k = json_is_string(v) ? setting_choice(s, json_string_value(v)) : -2;
+        if (k == -2) return problem_set(pr, 400, "wrong-type", s->name, "%s must be a string", s->name);
         if (k < 0) {
             char list[160] = "";
-            for (int c = 0; p->choices[c]; c++)
-                snprintf(list + strlen(list), sizeof list - strlen(list), "%s%s", c ? ", " : "", p->choices[c]);
-            return problem_set(pr, 422, "out-of-range", p->name, "%s must be one of %s", p->name, list);
+            for (int c = 0; s->choices[c]; c++)
+                snprintf(list + strlen(list), sizeof list - strlen(list), "%s%s", c ? ", " : "", s->choices[c]);
+            return problem_set(pr, 422, "out-of-range", s->name, "%s must be one of %s", s->name, list);
         }
         d[0] = k;
         break;
     }
     default:
         if (!json_is_number(v))
-            return problem_set(pr, 400, "wrong-type", p->name, "%s must be a number, not %s", p->name, type_word(v));
+            return problem_set(pr, 400, "wrong-type", s->name, "%s must be a number, not %s", s->name, type_word(v));
         d[0] = json_number_value(v);
         break;
     }
-    if (cs_param_set(p, base, d, why, sizeof why) != 0) return problem_set(pr, 422, "out-of-range", p->name, "%s", why);
+    if (setting_set(s, field, d, why, sizeof why) != 0) return problem_set(pr, 422, "out-of-range", s->name, "%s", why);
     return 0;
 }
 
-int params_from_json(const json_t *obj, cs_param_kind kind, cs_scene *scene, cs_params *params, problem *pr)
+int params_from_json(const json_t *obj, setting_kind kind, scene_config *sc, problem *pr)
 {
     if (!json_is_object(obj)) return problem_set(pr, 400, "wrong-type", NULL, "the body must be a JSON object");
-    cs_scene s = *scene;
-    cs_params p = *params;
+    scene_config next = *sc;
     const char *key;
     json_t *v;
     json_object_foreach((json_t *)obj, key, v) {
-        const cs_param_info *info = cs_param_find(key);
-        if (!info) return problem_set(pr, 400, "unknown-field", key, "unknown parameter '%s'", key);
-        if (info->kind != kind)
+        const setting *s = settings_find(key);
+        if (!s || s->kind == SET_STARTUP) return problem_set(pr, 400, "unknown-field", key, "unknown parameter '%s'", key);
+        if (s->kind != kind)
             return problem_set(pr, 400, "unknown-field", key, "%s is a %s parameter: change it with %s", key,
-                               cs_param_kind_name(info->kind),
-                               info->kind == CS_KIND_SCENE ? "PUT /v1/scene" : "PATCH /v1/params");
-        if (param_from_value(info, CS_PARAM_BASE(info, &s, &p), v, pr) != 0) return -1;
+                               setting_kind_name(s->kind), s->kind == SET_SCENE ? "PUT /v1/scene" : "PATCH /v1/params");
+        if (param_from_value(s, setting_field(s, NULL, &next), v, pr) != 0) return -1;
     }
     char why[200];
     const char *bad = NULL;
-    if (kind == CS_KIND_LIVE && cs_params_validate(&p, &bad, why, sizeof why) != 0)
+    if (kind == SET_LIVE && cs_params_validate(&next.params, &bad, why, sizeof why) != 0)
         return problem_set(pr, 422, "out-of-range", bad, "%s", why);
-    *scene = s;
-    *params = p;
+    *sc = next;
     return 0;
 }
 
 json_t *schema_to_json(void)
 {
-    cs_scene sc;
-    cs_params pp;
-    cs_scene_default(&sc);
-    cs_params_default(&pp);
+    clothd_config defaults;
+    settings_default(&defaults);
     json_t *list = json_array();
-    for (size_t i = 0; i < cs_param_count(); i++) {
-        const cs_param_info *p = cs_param_at(i);
-        json_t *choices = json_null();
-        if (p->choices) {
-            choices = json_array();
-            for (int c = 0; p->choices[c]; c++) json_array_append_new(choices, json_string(p->choices[c]));
-        }
-        const int ranged = p->type != CS_T_ENUM && p->type != CS_T_BOOL;
-        json_array_append_new(
-            list, json_pack("{s:s, s:s, s:s, s:o, s:o, s:o, s:o, s:s, s:s}", "name", p->name, "type",
-                            cs_param_type_name(p->type), "unit", p->unit, "default",
-                            param_to_json(p, CS_PARAM_BASE(p, &sc, &pp)), "min", ranged ? json_real(p->min) : json_null(),
-                            "max", ranged ? json_real(p->max) : json_null(), "choices", choices, "kind",
-                            cs_param_kind_name(p->kind), "help", p->help));
-    }
     for (size_t i = 0; i < settings_count(); i++) {
-        const setting_info *s = settings_at(i);
-        json_t *choices = json_null(), *def;
+        const setting *s = settings_at(i);
+        json_t *choices = json_null();
         if (s->choices) {
             choices = json_array();
-            char buf[128];
-            snprintf(buf, sizeof buf, "%s", s->choices);
-            char *save = NULL;
-            for (char *t = strtok_r(buf, "|", &save); t; t = strtok_r(NULL, "|", &save))
-                json_array_append_new(choices, json_string(t));
+            for (int c = 0; s->choices[c]; c++) json_array_append_new(choices, json_string(s->choices[c]));
         }
-        if (strcmp(s->type, "string") == 0) def = json_string(s->def_text);
-        else if (strcmp(s->type, "enum") == 0) def = json_incref(json_array_get(choices, (size_t)s->def_number));
-        else if (strcmp(s->type, "bool") == 0) def = json_boolean(s->def_number != 0);
-        else def = json_integer((json_int_t)s->def_number);
-        const int ranged = strcmp(s->type, "int") == 0;
-        json_array_append_new(list, json_pack("{s:s, s:s, s:s, s:o, s:o, s:o, s:o, s:s, s:s}", "name", s->name, "type",
-                                              s->type, "unit", "-", "default", def, "min",
-                                              ranged ? json_real(s->min) : json_null(), "max",
-                                              ranged ? json_real(s->max) : json_null(), "choices", choices, "kind",
-                                              "startup", "help", s->help));
+        const int ranged = s->type != SET_ENUM && s->type != SET_BOOL && s->type != SET_STR;
+        json_t *def = setting_to_json(s, setting_field(s, &defaults.set, &defaults.scene));
+        json_array_append_new(
+            list, json_pack("{s:s, s:s, s:s, s:o, s:o, s:o, s:o, s:s, s:s}", "name", s->name, "type",
+                            setting_type_name(s->type), "unit", s->unit, "default", def, "min",
+                            ranged ? json_real(s->min) : json_null(), "max", ranged ? json_real(s->max) : json_null(),
+                            "choices", choices, "kind", setting_kind_name(s->kind), "help", s->help));
     }
     return json_pack("{s:o}", "params", list);
 }

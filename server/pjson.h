@@ -6,6 +6,7 @@
 #include <jansson.h>
 
 #include "clothsim/clothsim.h"
+#include "settings.h"
 
 /* Floats print with 9 significant digits: enough to round-trip a float32, and short. */
 #define PJSON_DUMP_FLAGS (JSON_COMPACT | JSON_REAL_PRECISION(9))
@@ -45,17 +46,15 @@ json_t *json_text(const char *s);
 /* A float as the shortest decimal that reads back as the same float (9.81f is 9.81, not
  * 9.81000042). */
 json_t *json_float(float f);
-/* One parameter's value as JSON: number, integer, true/false, choice name or [x, y, z]. */
-json_t *param_to_json(const cs_param_info *p, const void *base);
-/* Every parameter of a kind as one object. */
-json_t *params_to_json(cs_param_kind kind, const cs_scene *scene, const cs_params *params);
-/* Applies the members of obj to scene/params: only parameters of kind `kind`; unknown names and
- * the wrong kind are 400, wrong JSON types 400, values out of range 422. All or nothing: on
- * failure scene and params are unchanged. */
-int params_from_json(const json_t *obj, cs_param_kind kind, cs_scene *scene, cs_params *params, problem *pr);
+/* One row's value as JSON: number, integer, true/false, choice name, [x, y, z] or string. */
+json_t *setting_to_json(const setting *s, const void *field);
+/* Every row of a kind (scene or live) as one object. */
+json_t *params_to_json(setting_kind kind, const scene_config *sc);
+/* Applies the members of obj to sc: only rows of kind `kind`; unknown names and the wrong kind are
+ * 400, wrong JSON types 400, values out of range 422. All or nothing: on failure sc is unchanged. */
+int params_from_json(const json_t *obj, setting_kind kind, scene_config *sc, problem *pr);
 
-/* {params: [{name, type, unit, default, min, max, choices, kind, help}]} of the engine and the
- * daemon's startup settings. */
+/* {params: [{name, type, unit, default, min, max, choices, kind, help}]}: the settings table. */
 json_t *schema_to_json(void);
 
 /* A rock as the API shows it. */

@@ -1,8 +1,9 @@
-/* settings.c - the startup settings table, and setting any item (startup setting or engine
- * parameter) from text: config file lines, CLOTHD_* variables, command-line flags. */
+/* settings.c - the one settings table (see settings.h) and setting any row from text: config file
+ * lines, CLOTHD_* variables, command-line flags. */
 #include <ctype.h>
 #include <errno.h>
 #include <math.h>
+#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -10,54 +11,120 @@
 
 #include "settings.h"
 
-typedef enum { T_STR, T_INT, T_BOOL, T_ENUM } stype;
+static const char *const ch_BACKEND[] = {CLOTHD_CHOICES_BACKEND, NULL};
+static const char *const ch_STATE_FILE_INVALID[] = {CLOTHD_CHOICES_STATE_FILE_INVALID, NULL};
+#define CH_NONE NULL
+#define CH_BACKEND ch_BACKEND
+#define CH_STATE_FILE_INVALID ch_STATE_FILE_INVALID
 
-typedef struct srow {
-    setting_info info;
-    stype type;
-    size_t offset, size;
-} srow;
+#define STARTUP_ROW_OF(name, type, unit, def_number, def_text, lo, hi, ch, help)                      \
+    {#name, type, unit, {def_number, 0, 0}, def_text, lo, hi, CH_##ch, SET_STARTUP, help, IN_SETTINGS,     \
+     offsetof(clothd_settings, name)},
+#define STARTUP_ROW_STR(name, unit, def, lo, hi, ch, help) STARTUP_ROW_OF(name, SET_STR, unit, 0, def, lo, hi, ch, help)
+#define STARTUP_ROW_INT(name, unit, def, lo, hi, ch, help) STARTUP_ROW_OF(name, SET_INT, unit, def, NULL, lo, hi, ch, help)
+#define STARTUP_ROW_BOOL(name, unit, def, lo, hi, ch, help) STARTUP_ROW_OF(name, SET_BOOL, unit, def, NULL, lo, hi, ch, help)
+#define STARTUP_ROW_ENUM(name, unit, def, lo, hi, ch, help) STARTUP_ROW_OF(name, SET_ENUM, unit, def, NULL, lo, hi, ch, help)
+#define STARTUP_ROW(name, type, unit, def, lo, hi, ch, help) STARTUP_ROW_##type(name, unit, def, lo, hi, ch, help)
 
-#define ROW_STR(name, def, lo, hi, choices, help)                                                      \
-    {{#name, "string", help, choices, lo, hi, def, 0}, T_STR, offsetof(clothd_settings, name),         \
-     sizeof(((clothd_settings *)0)->name)},
-#define ROW_INT(name, def, lo, hi, choices, help)                                                      \
-    {{#name, "int", help, choices, lo, hi, NULL, def}, T_INT, offsetof(clothd_settings, name), 4},
-#define ROW_BOOL(name, def, lo, hi, choices, help)                                                     \
-    {{#name, "bool", help, choices, lo, hi, NULL, def}, T_BOOL, offsetof(clothd_settings, name), 4},
-#define ROW_ENUM(name, def, lo, hi, choices, help)                                                     \
-    {{#name, "enum", help, choices, lo, hi, NULL, def}, T_ENUM, offsetof(clothd_settings, name), 4},
-#define ROW(name, type, def, lo, hi, choices, help) ROW_##type(name, def, lo, hi, choices, help)
+static const setting startup_rows[] = {CLOTHD_SETTINGS(STARTUP_ROW)};
+#define N_STARTUP (sizeof startup_rows / sizeof startup_rows[0])
 
-static const srow rows[] = {CLOTHD_SETTINGS(ROW)};
-#define NROWS (sizeof rows / sizeof rows[0])
+/* The engine's rows (read from its table at first use), then the daemon's. */
+static setting rows[256];
+static size_t n_rows;
+static pthread_once_t rows_once = PTHREAD_ONCE_INIT;
 
-size_t settings_count(void) { return NROWS; }
-const setting_info *settings_at(size_t i) { return i < NROWS ? &rows[i].info : NULL; }
-
-/* The index of word in "a|b|c", or -1. */
-static int choice_index(const char *choices, const char *word)
+static void build_rows(void)
 {
-    int k = 0;
-    for (const char *s = choices; s && *s; k++) {
-        const char *bar = strchr(s, '|');
-        const size_t len = bar ? (size_t)(bar - s) : strlen(s);
-        if (strlen(word) == len && strncmp(s, word, len) == 0) return k;
-        s = bar ? bar + 1 : s + len;
+    for (size_t i = 0; i < cs_param_count() && n_rows < sizeof rows / sizeof rows[0]; i++) {
+        const cs_param_info *p = cs_param_at(i);
+        const int scene = p->kind == CS_KIND_SCENE;
+        rows[n_rows++] = (setting){p->name, (setting_type)p->type, p->unit, {p->def[0], p->def[1], p->def[2]}, NULL,
+                                   p->min, p->max, p->choices, scene ? SET_SCENE : SET_LIVE, p->help,
+                                   scene ? IN_FIELDS : IN_PARAMS, p->offset};
     }
+    for (size_t i = 0; i < N_STARTUP && n_rows < sizeof rows / sizeof rows[0]; i++) rows[n_rows++] = startup_rows[i];
+}
+
+size_t settings_count(void)
+{
+    pthread_once(&rows_once, build_rows);
+    return n_rows;
+}
+
+const setting *settings_at(size_t i) { return i < settings_count() ? &rows[i] : NULL; }
+
+const setting *settings_find(const char *name)
+{
+    for (size_t i = 0; name && i < settings_count(); i++)
+        if (strcmp(rows[i].name, name) == 0) return &rows[i];
+    return NULL;
+}
+
+const char *setting_type_name(setting_type t) { return t == SET_STR ? "string" : cs_param_type_name((cs_param_type)t); }
+
+const char *setting_kind_name(setting_kind k)
+{
+    static const char *const names[] = {"scene", "live", "startup"};
+    return (unsigned)k < 3 ? names[k] : "?";
+}
+
+void *setting_field(const setting *s, clothd_settings *set, scene_config *scene)
+{
+    switch (s->home) {
+    case IN_SETTINGS: return set ? (char *)set + s->offset : NULL;
+    case IN_FIELDS: return scene ? (char *)&scene->fields + s->offset : NULL;
+    case IN_PARAMS: return scene ? (char *)&scene->params + s->offset : NULL;
+    }
+    return NULL;
+}
+
+/* A number row as the engine's table describes one, at offset 0 of its field: the engine's own
+ * reads, checks and writes then serve every number row. */
+static cs_param_info engine_view(const setting *s)
+{
+    cs_param_info p = {s->name, (cs_param_type)s->type, s->unit, {s->def[0], s->def[1], s->def[2]}, s->min, s->max,
+                       s->choices, s->kind == SET_SCENE ? CS_KIND_SCENE : CS_KIND_LIVE, s->help, 0};
+    return p;
+}
+
+double setting_get(const setting *s, const void *field, int i)
+{
+    const cs_param_info p = engine_view(s);
+    return cs_param_get(&p, field, i);
+}
+
+int setting_set(const setting *s, void *field, const double *v, char *why, size_t why_len)
+{
+    const cs_param_info p = engine_view(s);
+    return cs_param_set(&p, field, v, why, why_len);
+}
+
+int setting_choice(const setting *s, const char *name)
+{
+    for (int k = 0; s->choices && name && s->choices[k]; k++)
+        if (strcmp(s->choices[k], name) == 0) return k;
     return -1;
+}
+
+/* "a|b|c", the way --help and the errors name an enum's choices. */
+static void choice_list(const setting *s, const char *sep, char *out, size_t cap)
+{
+    out[0] = '\0';
+    for (int k = 0; s->choices && s->choices[k]; k++)
+        snprintf(out + strlen(out), cap - strlen(out), "%s%s", k ? sep : "", s->choices[k]);
 }
 
 void settings_default(clothd_config *c)
 {
     memset(c, 0, sizeof *c);
-    for (size_t i = 0; i < NROWS; i++) {
-        char *field = (char *)&c->set + rows[i].offset;
-        if (rows[i].type == T_STR) snprintf(field, rows[i].size, "%s", rows[i].info.def_text);
-        else *(int32_t *)field = (int32_t)rows[i].info.def_number;
+    char why[8];
+    for (size_t i = 0; i < settings_count(); i++) {
+        const setting *s = &rows[i];
+        void *field = setting_field(s, &c->set, &c->scene);
+        if (s->type == SET_STR) snprintf(field, SETTING_TEXT_MAX, "%s", s->def_text);
+        else setting_set(s, field, s->def, why, sizeof why);
     }
-    cs_scene_default(&c->scene);
-    cs_params_default(&c->params);
 }
 
 static int parse_bool(const char *t, double *out)
@@ -81,103 +148,87 @@ static int parse_number(const char *t, double *out)
     return 0;
 }
 
-static const srow *find_row(const char *name)
+/* "x,y,z" into v[0..3); the whole text is read (a long one is refused, not cut). */
+static int parse_vec3(const char *text, double v[3])
 {
-    for (size_t i = 0; i < NROWS; i++)
-        if (strcmp(rows[i].info.name, name) == 0) return &rows[i];
-    return NULL;
+    char buf[256];
+    if (strlen(text) >= sizeof buf) return -1; /* cut, its tail would go unread: "1,2,3<spaces>,4" */
+    snprintf(buf, sizeof buf, "%s", text);
+    char *save = NULL, *tok = strtok_r(buf, ",", &save);
+    int k = 0;
+    for (; tok && k < 3; k++, tok = strtok_r(NULL, ",", &save))
+        if (parse_number(tok, &v[k]) != 0) return -1;
+    return k == 3 && !tok ? 0 : -1;
 }
 
-static int set_startup(clothd_config *c, const srow *r, const char *text, char *why, size_t why_len)
-{
-    char *field = (char *)&c->set + r->offset;
-    double v;
-    switch (r->type) {
-    case T_STR:
-        if (strlen(text) >= r->size) {
-            snprintf(why, why_len, "%s is longer than %zu characters", r->info.name, r->size - 1);
-            return -1;
-        }
-        snprintf(field, r->size, "%s", text);
-        return 0;
-    case T_ENUM: {
-        const int k = choice_index(r->info.choices, text);
-        if (k < 0) {
-            snprintf(why, why_len, "%s must be one of %s (got '%s')", r->info.name, r->info.choices, text);
-            return -1;
-        }
-        *(int32_t *)field = k;
-        return 0;
-    }
-    case T_BOOL:
-        if (parse_bool(text, &v) != 0) {
-            snprintf(why, why_len, "%s must be true or false (got '%s')", r->info.name, text);
-            return -1;
-        }
-        *(int32_t *)field = (int32_t)v;
-        return 0;
-    case T_INT:
-        if (parse_number(text, &v) != 0 || v != floor(v) || v < r->info.min || v > r->info.max) {
-            snprintf(why, why_len, "%s must be a whole number from %g to %g (got '%s')", r->info.name, r->info.min,
-                     r->info.max, text);
-            return -1;
-        }
-        *(int32_t *)field = (int32_t)v;
-        return 0;
-    }
-    return -1;
-}
-
-static int set_engine(clothd_config *c, const cs_param_info *p, const char *text, char *why, size_t why_len)
+/* One row from its text form, into its field. */
+static int set_from_text(const setting *s, void *field, const char *text, char *why, size_t why_len)
 {
     double v[3] = {0, 0, 0};
-    if (p->type == CS_T_ENUM) {
-        const int k = cs_param_choice(p, text);
-        if (k < 0) {
-            snprintf(why, why_len, "%s: unknown choice '%s'", p->name, text);
+    char list[160];
+    switch (s->type) {
+    case SET_STR:
+        if (strlen(text) >= SETTING_TEXT_MAX) {
+            snprintf(why, why_len, "%s is longer than %d characters", s->name, SETTING_TEXT_MAX - 1);
             return -1;
         }
-        v[0] = k;
-    } else if (p->type == CS_T_BOOL) {
+        snprintf(field, SETTING_TEXT_MAX, "%s", text);
+        return 0;
+    case SET_ENUM:
+        if ((v[0] = setting_choice(s, text)) < 0) {
+            choice_list(s, "|", list, sizeof list);
+            snprintf(why, why_len, "%s must be one of %s (got '%s')", s->name, list, text);
+            return -1;
+        }
+        break;
+    case SET_BOOL:
         if (parse_bool(text, &v[0]) != 0) {
-            snprintf(why, why_len, "%s must be true or false (got '%s')", p->name, text);
+            snprintf(why, why_len, "%s must be true or false (got '%s')", s->name, text);
             return -1;
         }
-    } else if (p->type == CS_T_VEC3) {
-        char buf[256];
-        if (strlen(text) >= sizeof buf) { /* cut, its tail would go unread: "1,2,3<spaces>,4" */
-            snprintf(why, why_len, "%s must be three numbers 'x,y,z' (got %zu characters)", p->name, strlen(text));
+        break;
+    case SET_INT:
+        if (parse_number(text, &v[0]) != 0 || setting_set(s, field, v, why, why_len) != 0) {
+            snprintf(why, why_len, "%s must be a whole number from %g to %g (got '%s')", s->name, s->min, s->max, text);
             return -1;
         }
-        snprintf(buf, sizeof buf, "%s", text);
-        char *save = NULL, *tok = strtok_r(buf, ",", &save);
-        int k = 0;
-        for (; tok && k < 3; k++, tok = strtok_r(NULL, ",", &save))
-            if (parse_number(tok, &v[k]) != 0) break;
-        if (k != 3 || tok) {
-            snprintf(why, why_len, "%s must be three numbers 'x,y,z' (got '%s')", p->name, text);
+        return 0;
+    case SET_VEC3:
+        if (parse_vec3(text, v) != 0) {
+            if (strlen(text) >= 256) snprintf(why, why_len, "%s must be three numbers 'x,y,z' (got %zu characters)", s->name, strlen(text));
+            else snprintf(why, why_len, "%s must be three numbers 'x,y,z' (got '%s')", s->name, text);
             return -1;
         }
-    } else if (parse_number(text, &v[0]) != 0) {
-        snprintf(why, why_len, "%s must be a number (got '%s')", p->name, text);
-        return -1;
+        break;
+    case SET_FLOAT:
+        if (parse_number(text, &v[0]) != 0) {
+            snprintf(why, why_len, "%s must be a number (got '%s')", s->name, text);
+            return -1;
+        }
+        break;
     }
-    if (cs_param_set(p, CS_PARAM_BASE(p, &c->scene, &c->params), v, why, why_len) != 0) return -1;
-    if (strcmp(p->name, "nx") == 0 || strcmp(p->name, "ny") == 0) c->scene_size_given = 1;
-    return 0;
+    return setting_set(s, field, v, why, why_len);
+}
+
+/* A name as the table spells it: dashes as underscores, lowercase. */
+static void table_name(const char *name, char *key, size_t cap)
+{
+    snprintf(key, cap, "%s", name);
+    for (char *k = key; *k; k++) *k = *k == '-' ? '_' : (char)tolower((unsigned char)*k);
 }
 
 int settings_set_text(clothd_config *c, const char *name, const char *text, char *why, size_t why_len)
 {
     char key[128];
-    snprintf(key, sizeof key, "%s", name);
-    for (char *k = key; *k; k++) *k = *k == '-' ? '_' : (char)tolower((unsigned char)*k);
-    const srow *r = find_row(key);
-    if (r) return set_startup(c, r, text, why, why_len);
-    const cs_param_info *p = cs_param_find(key);
-    if (p) return set_engine(c, p, text, why, why_len);
-    snprintf(why, why_len, "unknown setting '%s' (clothd --help lists them)", name);
-    return -1;
+    table_name(name, key, sizeof key);
+    const setting *s = settings_find(key);
+    if (!s) {
+        snprintf(why, why_len, "unknown setting '%s' (clothd --help lists them)", name);
+        return -1;
+    }
+    if (set_from_text(s, setting_field(s, &c->set, &c->scene), text, why, why_len) != 0) return -1;
+    if (strcmp(s->name, "nx") == 0 || strcmp(s->name, "ny") == 0) c->scene_size_given = 1;
+    return 0;
 }
 
 static char *trim(char *s)
@@ -251,19 +302,7 @@ static int load_file(clothd_config *c, const char *path, char *why, size_t why_l
     return rc;
 }
 
-/* What a command-line name is: -1 unknown, 1 a boolean (may go without a value), 0 other. */
-static int kind_of(const char *name)
-{
-    char key[128];
-    snprintf(key, sizeof key, "%s", name);
-    for (char *k = key; *k; k++) *k = *k == '-' ? '_' : *k;
-    const srow *r = find_row(key);
-    if (r) return r->type == T_BOOL;
-    const cs_param_info *p = cs_param_find(key);
-    return p ? p->type == CS_T_BOOL : -1;
-}
-
-int settings_load(clothd_config *c, int argc, char **argv, char **env, char *why, size_t why_len)
+int settings_load(clothd_config *c, int argc, char **argv, char **env, const char *skip, char *why, size_t why_len)
 {
     const char *config = NULL;
     for (char **e = env; e && *e; e++)
@@ -276,7 +315,7 @@ int settings_load(clothd_config *c, int argc, char **argv, char **env, char *why
         if (load_file(c, config, why, why_len) != 0) return -1;
         snprintf(c->set.config, sizeof c->set.config, "%s", config);
     }
-    char inner[512];
+    char inner[512], key[128];
     for (char **e = env; e && *e; e++) {
         if (strncmp(*e, "CLOTHD_", 7) != 0) continue;
         const char *eq = strchr(*e, '=');
@@ -286,14 +325,9 @@ int settings_load(clothd_config *c, int argc, char **argv, char **env, char *why
         if (len == 0 || len >= sizeof name) continue;
         memcpy(name, *e + 7, len);
         name[len] = '\0';
-        if (strcmp(name, "CONFIG") == 0) continue;
-#ifdef CLOTHD_TEST_HOOKS
-        if (strncmp(name, "TEST_", 5) == 0) continue; /* the test daemon's hooks (testhooks.h) */
-#endif
-        char key[128];
-        snprintf(key, sizeof key, "%s", name);
-        for (char *k = key; *k; k++) *k = (char)tolower((unsigned char)*k);
-        if (!find_row(key) && !cs_param_find(key)) {
+        if (strcmp(name, "CONFIG") == 0 || (skip && strncmp(name, skip, strlen(skip)) == 0)) continue;
+        table_name(name, key, sizeof key);
+        if (!settings_find(key)) {
             /* Not ours (another tool's variable, or a typo): said, not fatal. */
             fprintf(stderr, "clothd: ignoring environment variable CLOTHD_%s: no such setting\n", name);
             continue;
@@ -317,13 +351,14 @@ int settings_load(clothd_config *c, int argc, char **argv, char **env, char *why
             value = eq + 1;
         } else {
             snprintf(name, sizeof name, "%s", a + 2);
-            const int kind = kind_of(name);
-            if (kind < 0) {
+            table_name(name, key, sizeof key);
+            const setting *s = settings_find(key);
+            if (!s) {
                 snprintf(why, why_len, "unknown setting '%s' (clothd --help lists them)", name);
                 return -1;
             }
             if (i + 1 < argc && strncmp(argv[i + 1], "--", 2) != 0) value = argv[++i];
-            else if (kind == 1) value = "true";
+            else if (s->type == SET_BOOL) value = "true";
             else {
                 snprintf(why, why_len, "--%s needs a value", name);
                 return -1;
@@ -337,24 +372,31 @@ int settings_load(clothd_config *c, int argc, char **argv, char **env, char *why
     return 0;
 }
 
+/* "--name" and "CLOTHD_NAME" of a row. */
+static void flag_of(const setting *s, char *out, size_t cap)
+{
+    snprintf(out, cap, "--%s", s->name);
+    for (char *k = out + 2; *k; k++) *k = *k == '_' ? '-' : *k;
+}
+
 void settings_usage(FILE *out)
 {
-    fprintf(out, "Startup settings (flag, CLOTHD_<NAME> variable, or 'name = value' in the config file):\n");
-    for (size_t i = 0; i < NROWS; i++) {
-        const setting_info *s = &rows[i].info;
-        char flag[64];
-        snprintf(flag, sizeof flag, "--%s", s->name);
-        for (char *k = flag + 2; *k; k++) *k = *k == '_' ? '-' : *k;
-        if (s->choices) fprintf(out, "  %-22s %s (%s)\n", flag, s->help, s->choices);
+    static const char *const headings[] = {
+        [SET_SCENE] = "Scene fields (changing one rebuilds the cloth; PUT /v1/scene)",
+        [SET_LIVE] = "Live parameters (PATCH /v1/params)",
+        [SET_STARTUP] = "Startup settings",
+    };
+    fprintf(out, "Every row below is a flag, a CLOTHD_<NAME> variable and a 'name = value' line of the config\n"
+                 "file alike (GET /v1/params/schema lists the same table).\n");
+    for (size_t i = 0; i < settings_count(); i++) {
+        const setting *s = &rows[i];
+        if (i == 0 || rows[i - 1].kind != s->kind) fprintf(out, "\n%s:\n", headings[s->kind]);
+        char flag[64], list[160];
+        flag_of(s, flag, sizeof flag);
+        choice_list(s, "|", list, sizeof list);
+        if (s->kind != SET_STARTUP) fprintf(out, "  %-22s %s [%s]\n", flag, s->help, s->unit);
+        else if (s->choices) fprintf(out, "  %-22s %s (%s)\n", flag, s->help, list);
         else fprintf(out, "  %-22s %s\n", flag, s->help);
-    }
-    fprintf(out, "\nEngine parameters, the same ways (see GET /v1/params/schema):\n");
-    for (size_t i = 0; i < cs_param_count(); i++) {
-        const cs_param_info *p = cs_param_at(i);
-        char flag[64];
-        snprintf(flag, sizeof flag, "--%s", p->name);
-        for (char *k = flag + 2; *k; k++) *k = *k == '_' ? '-' : *k;
-        fprintf(out, "  %-22s %s [%s, %s]\n", flag, p->help, p->unit, cs_param_kind_name(p->kind));
     }
 }
 
@@ -374,35 +416,27 @@ static void md_text(FILE *out, const char *s)
 void settings_markdown(FILE *out)
 {
     fprintf(out, "| setting | flag, variable | default | range | meaning |\n|---|---|---|---|---|\n");
-    for (size_t i = 0; i < NROWS; i++) {
-        const srow *r = &rows[i];
-        const setting_info *s = &r->info;
-        char flag[64], var[64];
-        snprintf(flag, sizeof flag, "--%s", s->name);
-        for (char *k = flag + 2; *k; k++) *k = *k == '_' ? '-' : *k;
+    for (size_t i = 0; i < settings_count(); i++) {
+        const setting *s = &rows[i];
+        if (s->kind != SET_STARTUP) continue;
+        char flag[64], var[64], list[160];
+        flag_of(s, flag, sizeof flag);
         snprintf(var, sizeof var, "CLOTHD_%s", s->name);
         for (char *k = var + 7; *k; k++) *k = (char)toupper((unsigned char)*k);
         fprintf(out, "| `%s` | `%s`, `%s` | ", s->name, flag, var);
-        switch (r->type) {
-        case T_STR:
+        switch (s->type) {
+        case SET_STR:
             if (strcmp(s->name, "web_root") == 0) fprintf(out, "the build's `web/`");
             else if (s->def_text[0]) fprintf(out, "`%s`", s->def_text);
             else fprintf(out, "-");
             fprintf(out, " | - | ");
             break;
-        case T_INT: fprintf(out, "%.0f | %.0f .. %.0f | ", s->def_number, s->min, s->max); break;
-        case T_BOOL: fprintf(out, "%s | true, false | ", s->def_number != 0 ? "true" : "false"); break;
-        case T_ENUM: {
-            const char *c = s->choices;
-            for (int k = 0; k < (int)s->def_number && strchr(c, '|'); k++) c = strchr(c, '|') + 1;
-            fprintf(out, "%.*s | ", (int)(strchr(c, '|') ? (size_t)(strchr(c, '|') - c) : strlen(c)), c);
-            for (c = s->choices; *c; c++) {
-                if (*c == '|') fputs(", ", out);
-                else fputc(*c, out);
-            }
-            fprintf(out, " | ");
+        case SET_BOOL: fprintf(out, "%s | true, false | ", s->def[0] != 0 ? "true" : "false"); break;
+        case SET_ENUM:
+            choice_list(s, ", ", list, sizeof list);
+            fprintf(out, "%s | %s | ", s->choices[(int)s->def[0]], list);
             break;
-        }
+        default: fprintf(out, "%.0f | %.0f .. %.0f | ", s->def[0], s->min, s->max); break;
         }
         md_text(out, s->help);
         fprintf(out, " |\n");

@@ -314,11 +314,10 @@ static void publish(simloop *sl, int with_hash)
     json_decref(o);
     if (sim_json) sim_len = strlen(sim_json);
 
-    cs_scene sc;
-    cs_params p;
-    cs_sim_scene(sl->sim, &sc);
-    cs_sim_params(sl->sim, &p);
-    json_t *pj = params_to_json(CS_KIND_LIVE, &sc, &p), *sj = params_to_json(CS_KIND_SCENE, &sc, &p);
+    scene_config sc;
+    cs_sim_scene(sl->sim, &sc.fields);
+    cs_sim_params(sl->sim, &sc.params);
+    json_t *pj = params_to_json(SET_LIVE, &sc), *sj = params_to_json(SET_SCENE, &sc);
     char *params_json = json_dumps(pj, PJSON_DUMP_FLAGS), *scene_json = json_dumps(sj, PJSON_DUMP_FLAGS);
     json_decref(pj);
     json_decref(sj);
@@ -765,10 +764,9 @@ static void snapshot_put(simloop *sl, sim_cmd *c)
     c->result = json_pack("{s:I, s:I, s:s}", "applied_step", (json_int_t)info.step, "step", (json_int_t)info.step,
                           "state_hash", hex);
     /* Everything may have changed: the event carries what a viewer needs to redraw, like hello. */
-    cs_scene sc;
-    cs_params p;
-    cs_sim_scene(sl->sim, &sc);
-    cs_sim_params(sl->sim, &p);
+    scene_config sc;
+    cs_sim_scene(sl->sim, &sc.fields);
+    cs_sim_params(sl->sim, &sc.params);
     json_t *rocks = json_array();
     for (int32_t r = 0; r < cs_rock_count(sl->sim); r++) {
         cs_rock k;
@@ -783,8 +781,8 @@ static void snapshot_put(simloop *sl, sim_cmd *c)
         free(ids);
     }
     emit(sl, json_pack("{s:s, s:I, s:o, s:o, s:o, s:o}", "event", "snapshot_restored", "applied_step",
-                       (json_int_t)info.step, "scene", params_to_json(CS_KIND_SCENE, &sc, &p), "params",
-                       params_to_json(CS_KIND_LIVE, &sc, &p), "rocks", rocks, "torn", torn),
+                       (json_int_t)info.step, "scene", params_to_json(SET_SCENE, &sc), "params",
+                       params_to_json(SET_LIVE, &sc), "rocks", rocks, "torn", torn),
          c->request_id);
 }
 
