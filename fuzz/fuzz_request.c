@@ -29,6 +29,7 @@ static const char *const OPS[] = {"params", "scene", "rock_add", "rock_set", "ro
 
 static cs_sim *sim_a, *sim_b;   /* the request's, and the replay's */
 static unsigned char *pristine; /* the state of a fresh fuzz_sim() */
+static loop_settings fuzz_loop; /* the daemon-loop settings' defaults */
 static size_t pristine_len;
 
 int LLVMFuzzerInitialize(int *argc, char ***argv)
@@ -38,6 +39,9 @@ int LLVMFuzzerInitialize(int *argc, char ***argv)
     sim_a = fuzz_sim();
     sim_b = fuzz_sim();
     pristine = fuzz_state(sim_a, &pristine_len);
+    clothd_config defaults;
+    settings_default(&defaults);
+    fuzz_loop = defaults.scene.loop;
     return 0;
 }
 
@@ -61,7 +65,8 @@ static void apply(const json_t *cmd, const char *what)
     json_t *journal = NULL, *result = NULL;
     problem pr;
     memset(&pr, 0, sizeof pr);
-    if (command_apply(a, cmd, &journal, &result, &pr) != 0) {
+    loop_settings loop_a = fuzz_loop, loop_b = fuzz_loop;
+    if (command_apply(a, &loop_a, cmd, &journal, &result, &pr) != 0) {
         check_problem(&pr, what);
         if (journal || result) fuzz_fail("%s: a refusal returned a journal entry or a result", what);
         if (!fuzz_state_is(a, pristine, pristine_len)) fuzz_fail("%s: a refused command changed the simulation", what);
@@ -81,9 +86,10 @@ static void apply(const json_t *cmd, const char *what)
     if (!again) fuzz_fail("%s: the journal entry does not read back: %s", what, err.text);
     fuzz_reset(b, pristine, pristine_len);
     json_t *j2 = NULL, *r2 = NULL;
-    if (command_apply(b, again, &j2, &r2, &pr) != 0)
+    if (command_apply(b, &loop_b, again, &j2, &r2, &pr) != 0)
         fuzz_fail("%s: the journal entry %s is refused on replay: %s", what, text, pr.detail);
-    if (!fuzz_same_state(a, b)) fuzz_fail("%s: replaying the journal entry %s gives another state", what, text);
+    if (!fuzz_same_state(a, b) || memcmp(&loop_a, &loop_b, sizeof loop_a) != 0)
+        fuzz_fail("%s: replaying the journal entry %s gives another state", what, text);
     /* One substep of whatever the command set up: the same on both. */
     const cs_status sa = cs_sim_step(a, 1), sb = cs_sim_step(b, 1);
     if (sa != sb) fuzz_fail("%s: a substep after %s: %s, after its replay: %s", what, text, cs_status_name(sa), cs_status_name(sb));

@@ -30,16 +30,18 @@ static int get_id(const json_t *cmd, uint32_t *id, problem *pr)
     return 0;
 }
 
-static int op_params(cs_sim *sim, const json_t *cmd, json_t **journal, json_t **result, problem *pr)
+static int op_params(cs_sim *sim, loop_settings *loop, const json_t *cmd, json_t **journal, json_t **result, problem *pr)
 {
     static const char *const fields[] = {"op", "params", NULL};
     if (only_fields(cmd, fields, pr) != 0) return -1;
     scene_config sc;
     cs_sim_scene(sim, &sc.fields);
     cs_sim_params(sim, &sc.params);
+    sc.loop = *loop;
     if (params_from_json(json_object_get(cmd, "params"), SET_LIVE, &sc, pr) != 0) return -1;
     const cs_status st = cs_sim_set_params(sim, &sc.params);
     if (st != CS_OK) return refused(sim, st, pr);
+    *loop = sc.loop;
     json_t *full = params_to_json(SET_LIVE, &sc);
     *journal = json_pack("{s:s, s:O}", "op", "params", "params", full);
     *result = json_pack("{s:o}", "params", full);
@@ -51,6 +53,7 @@ static int op_scene(cs_sim *sim, const json_t *cmd, json_t **journal, json_t **r
     static const char *const fields[] = {"op", "scene", NULL};
     if (only_fields(cmd, fields, pr) != 0) return -1;
     scene_config sc;
+    memset(&sc, 0, sizeof sc);
     cs_sim_scene(sim, &sc.fields);
     cs_sim_params(sim, &sc.params);
     /* No scene member (a journal written by hand): a patch of nothing. */
@@ -204,12 +207,12 @@ static int op_simple(cs_sim *sim, const json_t *cmd, const char *op, json_t **jo
 
 int command_rebuilds(const char *op) { return strcmp(op, "scene") == 0 || strcmp(op, "reset") == 0; }
 
-int command_apply(cs_sim *sim, const json_t *cmd, json_t **journal, json_t **result, problem *pr)
+int command_apply(cs_sim *sim, loop_settings *loop, const json_t *cmd, json_t **journal, json_t **result, problem *pr)
 {
     *journal = *result = NULL;
     const char *op = json_string_value(json_object_get(cmd, "op"));
     if (!op) return problem_set(pr, 400, "wrong-type", "op", "a command needs an op");
-    if (strcmp(op, "params") == 0) return op_params(sim, cmd, journal, result, pr);
+    if (strcmp(op, "params") == 0) return op_params(sim, loop, cmd, journal, result, pr);
     if (strcmp(op, "scene") == 0) return op_scene(sim, cmd, journal, result, pr);
     if (strcmp(op, "rock_add") == 0) return op_rock_add(sim, cmd, journal, result, pr);
     if (strcmp(op, "rock_set") == 0) return op_rock_set(sim, cmd, journal, result, pr);

@@ -15,11 +15,12 @@
 #include "clothsim/clothsim.h"
 #include "pjson.h"
 
-/* Applies cmd to sim. On success returns 0 with *journal (the complete command, or NULL for
+/* Applies cmd to sim and loop (the scene's daemon-loop settings: a params command sets them too).
+ * On success returns 0 with *journal (the complete command, or NULL for
  * none: every op here is journaled) and *result (the response body, without applied_step; NULL
  * for none). On refusal returns -1 with the problem; the simulation is unchanged. The engine's
  * own limits hold (cs_sim_set_rock_limit: max_rocks; rock ids; the memory limit). */
-int command_apply(cs_sim *sim, const json_t *cmd, json_t **journal, json_t **result, problem *pr);
+int command_apply(cs_sim *sim, loop_settings *loop, const json_t *cmd, json_t **journal, json_t **result, problem *pr);
 
 /* Whether an op rebuilds the cloth (the journal starts afresh after it). */
 int command_rebuilds(const char *op);

@@ -143,11 +143,11 @@ static int write_atomic(const char *path, const void *data, size_t len, char *wh
 
 /* Saves the engine's state, or the last checkpoint when the engine cannot be read any more (a
  * lost device), as a state file (statefile.h) with the run state. */
-static int save_state(cs_sim *sim, const unsigned char *fallback, size_t fallback_len, int paused, const char *path,
-                      char *why, size_t why_len)
+static int save_state(cs_sim *sim, const unsigned char *fallback, size_t fallback_len, int paused,
+                      const loop_settings *loop, const char *path, char *why, size_t why_len)
 {
     size_t tlen = 0, len = cs_snapshot_size(sim);
-    char *trailer = statefile_trailer(paused, &tlen);
+    char *trailer = statefile_trailer(paused, loop, &tlen);
     unsigned char *buf = trailer ? malloc(len + tlen) : NULL;
     int rc = -1;
     if (!buf) {
@@ -229,10 +229,11 @@ static int move_aside(const char *path, char *to, size_t to_len)
 }
 
 /* Resumes from the state file when there is one. Returns 0 (resumed, or nothing to resume), or
- * -1 when the start must stop (logged); *paused says whether the state was saved paused. A file
+ * -1 when the start must stop (logged); *paused says whether the state was saved paused, and the
+ * daemon-loop settings it holds are set in *loop. A file
  * that is corrupt, foreign or from another version stops it too, unless state_file_invalid is
  * fresh: then it is moved aside and the start goes on with the configured scene. */
-static int resume(cs_sim *sim, const clothd_settings *set, int *paused)
+static int resume(cs_sim *sim, const clothd_settings *set, int *paused, loop_settings *loop)
 {
     const char *path = set->state_file;
     *paused = 0;
@@ -255,7 +256,8 @@ static int resume(cs_sim *sim, const clothd_settings *set, int *paused)
         return -1;
     }
     statefile layout;
-    const statefile_error fe = statefile_parse(buf, len, &layout, why, sizeof why);
+    loop_settings saved = *loop;
+    const statefile_error fe = statefile_parse(buf, len, &layout, &saved, why, sizeof why);
     const cs_status st = fe == STATEFILE_OK ? cs_snapshot_load(sim, buf, layout.snapshot_len) : CS_E_FORMAT;
     const char *bad = fe == STATEFILE_FOREIGN  ? "is not a clothd state file"
                       : fe == STATEFILE_NEWER  ? "was written by a newer clothd"
@@ -270,9 +272,11 @@ static int resume(cs_sim *sim, const clothd_settings *set, int *paused)
         char hex[17];
         cs_hash_hex(cs_state_hash(sim), hex);
         *paused = layout.paused;
-        log_msg("resumed from %s at step %llu, state hash %s, %s as it was saved%s", path,
+        *loop = saved;
+        log_msg("resumed from %s at step %llu, state hash %s, %s as it was saved%s%s", path,
                 (unsigned long long)info.step, hex, layout.paused ? "paused" : "running",
-                layout.format < STATEFILE_FORMAT ? " (a state file of format 1, which kept no run state)" : "");
+                layout.format == 1 ? " (a state file of format 1, which kept no run state)" : "",
+                layout.format < 3 && layout.loop_given ? "; its daemon-loop settings from its snapshot" : "");
         return 0;
     }
     if (!bad) { /* the file is kept whatever state_file_invalid says */
@@ -353,6 +357,7 @@ static int replay(const char *file, const clothd_config *cfg)
         cs_info info;
         size_t k;
         json_t *e;
+        loop_settings loop = cfg->scene.loop; /* a params command sets them too; they change no state */
         rc = 0;
         json_array_foreach(json_object_get(j, "entries"), k, e)
         {
@@ -361,7 +366,7 @@ static int replay(const char *file, const clothd_config *cfg)
             json_t *journal = NULL, *result = NULL;
             problem pr;
             if (step < (long long)info.step || cs_sim_step(sim, step - (long long)info.step) != CS_OK ||
-                command_apply(sim, json_object_get(e, "command"), &journal, &result, &pr) != 0) {
+                command_apply(sim, &loop, json_object_get(e, "command"), &journal, &result, &pr) != 0) {
                 fprintf(stderr, "clothd replay: entry %zu (step %lld) could not be replayed: %s\n", k, step,
                         pr.detail[0] ? pr.detail : cs_sim_error(sim));
                 rc = 1;
@@ -400,7 +405,7 @@ static int save_on_exit(simloop *sl, const char *path)
     size_t cl = 0;
     const unsigned char *cp = simloop_checkpoint(sl, &cl);
     char why[1400];
-    if (save_state(simloop_engine(sl), cp, cl, simloop_paused(sl), path, why, sizeof why) != 0) {
+    if (save_state(simloop_engine(sl), cp, cl, simloop_paused(sl), simloop_loop(sl), path, why, sizeof why) != 0) {
         log_msg("could not save the state to %s: %s; the previous state file, if any, is unchanged", path, why);
         return -1;
     }
@@ -430,7 +435,7 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     }
     log_msg("backend: %s on %s (%s)", cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim));
     int was_paused = 0;
-    if (resume(sim, &cfg->set, &was_paused) != 0) {
+    if (resume(sim, &cfg->set, &was_paused, &cfg->scene.loop) != 0) {
         cs_sim_destroy(sim);
         return EXIT_START;
     }

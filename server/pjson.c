@@ -312,6 +312,32 @@ int params_from_json(const json_t *obj, setting_kind kind, scene_config *sc, pro
     return 0;
 }
 
+json_t *loop_to_json(const loop_settings *loop)
+{
+    json_t *o = json_object();
+    for (size_t i = 0; i < settings_count(); i++) {
+        const setting *s = settings_at(i);
+        if (s->home == IN_LOOP) json_object_set_new(o, s->name, setting_to_json(s, (const char *)loop + s->offset));
+    }
+    return o;
+}
+
+int loop_from_json(const json_t *obj, loop_settings *loop, problem *pr)
+{
+    const char *key;
+    json_t *v;
+    json_object_foreach((json_t *)obj, key, v) {
+        const setting *s = settings_find(key);
+        if (!s || s->home != IN_LOOP) return problem_set(pr, 400, "unknown-field", key, "'%s' is not a daemon-loop setting", key);
+    }
+    clothd_config c;
+    settings_default(&c);
+    c.scene.loop = *loop;
+    if (params_from_json(obj, SET_LIVE, &c.scene, pr) != 0) return -1;
+    *loop = c.scene.loop;
+    return 0;
+}
+
 json_t *schema_to_json(void)
 {
     clothd_config defaults;

@@ -54,6 +54,11 @@ json_t *params_to_json(setting_kind kind, const scene_config *sc);
  * 400, wrong JSON types 400, values out of range 422. All or nothing: on failure sc is unchanged. */
 int params_from_json(const json_t *obj, setting_kind kind, scene_config *sc, problem *pr);
 
+/* The daemon-loop settings as one object, and back: members of obj onto *loop, all or nothing -
+ * a name that is not a daemon-loop setting is 400, a value out of range 422. */
+json_t *loop_to_json(const loop_settings *loop);
+int loop_from_json(const json_t *obj, loop_settings *loop, problem *pr);
+
 /* {params: [{name, type, unit, default, min, max, choices, kind, help}]}: the settings table. */
 json_t *schema_to_json(void);
 

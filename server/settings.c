@@ -9,6 +9,7 @@
 #include <string.h>
 #include <strings.h>
 
+#include "clothsim/clothsim.h"
 #include "settings.h"
 
 static const char *const ch_BACKEND[] = {CLOTHD_CHOICES_BACKEND, NULL};
@@ -29,7 +30,16 @@ static const char *const ch_STATE_FILE_INVALID[] = {CLOTHD_CHOICES_STATE_FILE_IN
 static const setting startup_rows[] = {CLOTHD_SETTINGS(STARTUP_ROW)};
 #define N_STARTUP (sizeof startup_rows / sizeof startup_rows[0])
 
-/* The engine's rows (read from its table at first use), then the daemon's. */
+#define LOOP_DEF_INT(d) {(double)(d), 0, 0}
+#define LOOP_DEF_FLOAT(d) {(double)(d), 0, 0}
+#define LOOP_DEF_BOOL(d) {(double)(d), 0, 0}
+#define LOOP_ROW(name, type, unit, def, lo, hi, ch, help)                                              \
+    {#name, SET_##type, unit, LOOP_DEF_##type(def), NULL, lo, hi, CH_##ch, SET_LIVE, help, IN_LOOP,        \
+     offsetof(loop_settings, name)},
+static const setting loop_rows[] = {CLOTHD_LOOP_SETTINGS(LOOP_ROW)};
+#define N_LOOP (sizeof loop_rows / sizeof loop_rows[0])
+
+/* The engine's rows (read from its table at first use), then the daemon's: loop, startup. */
 static setting rows[256];
 static size_t n_rows;
 static pthread_once_t rows_once = PTHREAD_ONCE_INIT;
@@ -43,6 +53,7 @@ static void build_rows(void)
                                    p->min, p->max, p->choices, scene ? SET_SCENE : SET_LIVE, p->help,
                                    scene ? IN_FIELDS : IN_PARAMS, p->offset};
     }
+    for (size_t i = 0; i < N_LOOP && n_rows < sizeof rows / sizeof rows[0]; i++) rows[n_rows++] = loop_rows[i];
     for (size_t i = 0; i < N_STARTUP && n_rows < sizeof rows / sizeof rows[0]; i++) rows[n_rows++] = startup_rows[i];
 }
 
@@ -75,6 +86,7 @@ void *setting_field(const setting *s, clothd_settings *set, scene_config *scene)
     case IN_SETTINGS: return set ? (char *)set + s->offset : NULL;
     case IN_FIELDS: return scene ? (char *)&scene->fields + s->offset : NULL;
     case IN_PARAMS: return scene ? (char *)&scene->params + s->offset : NULL;
+    case IN_LOOP: return scene ? (char *)&scene->loop + s->offset : NULL;
     }
     return NULL;
 }
@@ -105,6 +117,19 @@ int setting_choice(const setting *s, const char *name)
     for (int k = 0; s->choices && name && s->choices[k]; k++)
         if (strcmp(s->choices[k], name) == 0) return k;
     return -1;
+}
+
+int loop_from_snapshot(loop_settings *loop, const void *snapshot, size_t len)
+{
+    int found = 0;
+    char why[8];
+    for (size_t i = 0; i < settings_count(); i++) {
+        const setting *s = &rows[i];
+        double v[3];
+        if (s->home != IN_LOOP || cs_snapshot_value(snapshot, len, s->name, v) != CS_OK) continue;
+        found += setting_set(s, (char *)loop + s->offset, v, why, sizeof why) == 0;
+    }
+    return found;
 }
 
 /* "a|b|c", the way --help and the errors name an enum's choices. */

@@ -1,13 +1,14 @@
 /* settings.h - the one table of everything clothd can be told, and reading it from text.
  *
  * A row is a startup setting (listen, port, limits, ...: CLI flags, CLOTHD_* variables and the
- * config file only) or an engine parameter (clothsim/params.h: the scene fields and the live
- * parameters). Every row has the same shape - name, type, unit, default, range or choices,
+ * config file only), an engine parameter (clothsim/params.h: the scene fields and the live
+ * parameters) or a daemon-loop setting (live too, but the daemon's: pacing, automatic drops,
+ * checkpoints). Every row has the same shape - name, type, unit, default, range or choices,
  * kind, help - so that the command line, the environment, the config file, --help,
  * --help-markdown and GET /v1/params/schema each loop over one table once.
  *
- * Startup settings are declared once in the X-macro below, in the engine's row shape; engine
- * parameters come from the engine's own table. Adding either is one line. */
+ * Startup and daemon-loop settings are declared once in the X-macros below, in the engine's row
+ * shape; engine parameters come from the engine's own table. Adding any is one line. */
 #ifndef CLOTHD_SETTINGS_H
 #define CLOTHD_SETTINGS_H
 
@@ -66,6 +67,17 @@ enum { STATE_INVALID_REFUSE, STATE_INVALID_FRESH };
     X(stream_events_mb, INT, "-", 16, 1, 65536, NONE, "MiB of recent events kept for stream clients to read; one that falls further behind is disconnected") \
     X(queue_max, INT, "-", 1024, 1, 1000000, NONE, "Most commands waiting for the simulation thread (503 busy beyond)")
 
+/* The daemon's own live parameters of a scene: how the sim thread paces it, drops rocks into it
+ * and keeps its checkpoints. Changed with PATCH /v1/params like the engine's, kept by the daemon
+ * beside the engine (not in its snapshots: the state file keeps them). Same row shape. */
+#define CLOTHD_LOOP_SETTINGS(X)                                                                        \
+    X(time_scale, FLOAT, "-", 1.0, 0.001, 1000, NONE, "Simulated seconds per wall-clock second")       \
+    X(max_speed, BOOL, "-", 0, 0, 1, NONE, "Run as fast as the backend can, ignoring time_scale")     \
+    X(auto_drop_interval, FLOAT, "s", 3.0, 0, 3600, NONE, "Simulated seconds between automatic rock drops; 0 = off") \
+    X(auto_drop_max, INT, "-", 8, 0, 1024, NONE, "Automatic rocks kept; past this the oldest is removed") \
+    X(seed, INT, "-", 1, 0, 2147483647, NONE, "Seed of the automatic drops' random positions")       \
+    X(checkpoint_interval, INT, "frames", 60, 1, 1000000, NONE, "Frames between in-memory checkpoints used to roll back")
+
 /* A STR setting holds at most this many bytes, its NUL included. */
 #define SETTING_TEXT_MAX 512
 
@@ -80,11 +92,22 @@ typedef struct clothd_settings {
     CLOTHD_SETTINGS(CLOTHD_FIELD_DECL)
 } clothd_settings;
 
-/* What a scene is built from and runs with: its scene fields and the engine's live parameters. */
+/* The daemon-loop settings' values. */
+typedef struct loop_settings {
+    CLOTHD_LOOP_SETTINGS(CS_FIELD_DECL)
+} loop_settings;
+
+/* What a scene is built from and runs with: its scene fields, the engine's live parameters and the
+ * daemon-loop settings. */
 typedef struct scene_config {
     cs_scene fields;
     cs_params params;
+    loop_settings loop;
 } scene_config;
+
+/* The daemon-loop settings a snapshot holds: one written before they left the engine's table
+ * (cs_snapshot_value) carries them; a newer one none. Returns how many it set in loop. */
+int loop_from_snapshot(loop_settings *loop, const void *snapshot, size_t len);
 
 /* Everything a configuration source can set, and whether the cloth's size was given (the daemon
  * picks a larger default cloth on CUDA). */
@@ -111,7 +134,7 @@ typedef enum setting_type {
 typedef enum setting_kind { SET_SCENE, SET_LIVE, SET_STARTUP } setting_kind;
 
 /* The struct a row's value lives in. */
-typedef enum setting_home { IN_SETTINGS, IN_FIELDS, IN_PARAMS } setting_home;
+typedef enum setting_home { IN_SETTINGS, IN_FIELDS, IN_PARAMS, IN_LOOP } setting_home;
 
 /* One row. */
 typedef struct setting {
@@ -128,7 +151,8 @@ typedef struct setting {
     size_t offset;              /* of the field in its struct */
 } setting;
 
-/* The table: scene fields, live parameters, then startup settings. */
+/* The table: scene fields, live parameters (the engine's, then the daemon-loop settings), then
+ * startup settings. */
 size_t settings_count(void);
 const setting *settings_at(size_t i);
 /* The row of a name ("k_bend", "port"), or NULL. */

@@ -37,7 +37,7 @@ typedef struct step_job {
 
 struct simloop {
     cs_sim *sim;
-    clothd_config cfg;
+    loop_settings loop; /* the daemon-loop settings (PATCH /v1/params changes them) */
     metrics *m;
     journal *j;
     pthread_t thread;
@@ -117,13 +117,13 @@ static cs_params params_of(const simloop *sl)
 /* Restart the automatic drops: seeded afresh, the first one within a second. */
 static void reseed(simloop *sl)
 {
-    const cs_params p = params_of(sl);
+    const loop_settings *p = &sl->loop;
     cs_info info;
     cs_sim_info(sl->sim, &info);
-    sl->seed = p.seed;
-    sl->rng = (uint64_t)p.seed;
+    sl->seed = p->seed;
+    sl->rng = (uint64_t)p->seed;
     sl->n_autos = 0;
-    sl->next_drop = info.time + (p.auto_drop_interval < 1.0f ? p.auto_drop_interval : 1.0);
+    sl->next_drop = info.time + (p->auto_drop_interval < 1.0f ? p->auto_drop_interval : 1.0);
 }
 
 static void take_checkpoint(simloop *sl)
@@ -317,6 +317,7 @@ static void publish(simloop *sl, int with_hash)
     scene_config sc;
     cs_sim_scene(sl->sim, &sc.fields);
     cs_sim_params(sl->sim, &sc.params);
+    sc.loop = sl->loop;
     json_t *pj = params_to_json(SET_LIVE, &sc), *sj = params_to_json(SET_SCENE, &sc);
     char *params_json = json_dumps(pj, PJSON_DUMP_FLAGS), *scene_json = json_dumps(sj, PJSON_DUMP_FLAGS);
     json_decref(pj);
@@ -404,6 +405,7 @@ const unsigned char *simloop_checkpoint(simloop *sl, size_t *len)
     return sl->checkpoint;
 }
 cs_sim *simloop_engine(simloop *sl) { return sl->sim; }
+const loop_settings *simloop_loop(simloop *sl) { return &sl->loop; }
 
 int simloop_paused(simloop *sl) { return simloop_healthy(sl) ? sl->paused : sl->paused_before_failure; }
 
@@ -415,8 +417,8 @@ static int apply(simloop *sl, const json_t *cmd, const char *request_id, json_t 
     cs_info info;
     cs_sim_info(sl->sim, &info);
     json_t *entry = NULL;
-    const int32_t seed_before = params_of(sl).seed;
-    if (command_apply(sl->sim, cmd, &entry, result, pr) != 0) return -1;
+    const int32_t seed_before = sl->loop.seed;
+    if (command_apply(sl->sim, &sl->loop, cmd, &entry, result, pr) != 0) return -1;
     const char *op = json_string_value(json_object_get(entry, "op"));
     if (command_rebuilds(op)) {
         sl->frame = 0;
@@ -425,10 +427,10 @@ static int apply(simloop *sl, const json_t *cmd, const char *request_id, json_t 
     } else {
         journal_append(sl->j, info.step, entry);
         if (journal_full(sl->j)) rebase(sl);
-        if (params_of(sl).seed != seed_before) reseed(sl);
-        const cs_params p = params_of(sl);
-        if (p.auto_drop_interval > 0 && sl->next_drop > info.time + p.auto_drop_interval)
-            sl->next_drop = info.time + p.auto_drop_interval;
+        if (sl->loop.seed != seed_before) reseed(sl);
+        const loop_settings *p = &sl->loop;
+        if (p->auto_drop_interval > 0 && sl->next_drop > info.time + p->auto_drop_interval)
+            sl->next_drop = info.time + p->auto_drop_interval;
     }
     if (*result) json_object_set_new(*result, "applied_step", json_integer((json_int_t)info.step));
     emit(sl, json_pack("{s:s, s:I, s:O, s:O}", "event", op, "applied_step", (json_int_t)info.step, "command", entry,
@@ -563,8 +565,7 @@ static int advance_frame(simloop *sl, double budget)
     metrics_frame(sl->m, info.substeps, sl->frame_wall);
     sl->frame++;
     auto_drop(sl);
-    const cs_params p = params_of(sl);
-    if (++sl->frames_since_checkpoint >= (uint64_t)p.checkpoint_interval) take_checkpoint(sl);
+    if (++sl->frames_since_checkpoint >= (uint64_t)sl->loop.checkpoint_interval) take_checkpoint(sl);
     return 1;
 }
 
@@ -754,6 +755,7 @@ static void snapshot_put(simloop *sl, sim_cmd *c)
         problem_from_engine(&c->pr, st, cs_sim_error(sl->sim), cs_sim_error_param(sl->sim));
         return;
     }
+    loop_from_snapshot(&sl->loop, c->blob_in, c->blob_in_len); /* one written before they left its table */
     cs_info info;
     cs_sim_info(sl->sim, &info);
     sl->frame = info.step / (uint64_t)info.substeps;
@@ -767,6 +769,7 @@ static void snapshot_put(simloop *sl, sim_cmd *c)
     scene_config sc;
     cs_sim_scene(sl->sim, &sc.fields);
     cs_sim_params(sl->sim, &sc.params);
+    sc.loop = sl->loop;
     json_t *rocks = json_array();
     for (int32_t r = 0; r < cs_rock_count(sl->sim); r++) {
         cs_rock k;
@@ -943,11 +946,12 @@ static void *run(void *arg)
         }
         const double t = now_s();
         const cs_params p = params_of(sl);
+        const loop_settings *loop = &sl->loop;
         const int running = !sl->paused;
         /* Wait for commands while paused, or until the next frame is due. */
-        const int wait = !running || (!p.max_speed && t < sl->due);
+        const int wait = !running || (!loop->max_speed && t < sl->due);
         if (drain(sl, wait, running ? sl->due : 0)) break;
-        if (sl->job.cmd || sl->paused || (!p.max_speed && now_s() < sl->due)) continue;
+        if (sl->job.cmd || sl->paused || (!loop->max_speed && now_s() < sl->due)) continue;
         const int r = run_frame(sl);
         if (r == 0) continue; /* stopping part way through a long frame: the next drain says so */
         if (r < 0) {
@@ -955,11 +959,11 @@ static void *run(void *arg)
             continue;
         }
         const double after = now_s();
-        const double frame_wall = 1.0 / ((double)p.frame_rate * (double)p.time_scale);
+        const double frame_wall = 1.0 / ((double)p.frame_rate * (double)loop->time_scale);
         sl->due += frame_wall;
         if (after - sl->due > MAX_LAG) sl->due = after; /* too slow to keep up: do not try to catch up */
         update_rtf(sl, after);
-        if (!p.max_speed || after - sl->last_publish >= PUBLISH_EVERY) publish(sl, 0);
+        if (!loop->max_speed || after - sl->last_publish >= PUBLISH_EVERY) publish(sl, 0);
     }
     end_step(sl, "shutdown"); /* a step in progress (or one that came with the stop) */
     return NULL;
@@ -969,17 +973,17 @@ static void *run(void *arg)
 
 static void auto_drop(simloop *sl)
 {
-    const cs_params p = params_of(sl);
-    if (p.seed != sl->seed) reseed(sl);
-    if (p.auto_drop_interval <= 0 || p.auto_drop_max <= 0) return;
+    const loop_settings *p = &sl->loop;
+    if (p->seed != sl->seed) reseed(sl);
+    if (p->auto_drop_interval <= 0 || p->auto_drop_max <= 0) return;
     cs_info info;
     cs_sim_info(sl->sim, &info);
     if (info.time < sl->next_drop) return;
-    sl->next_drop = info.time + p.auto_drop_interval;
+    sl->next_drop = info.time + p->auto_drop_interval;
     json_t *result = NULL;
     problem pr;
     /* The oldest automatic rocks go first. */
-    while (sl->n_autos > 0 && sl->n_autos >= p.auto_drop_max) {
+    while (sl->n_autos > 0 && sl->n_autos >= p->auto_drop_max) {
         json_t *cmd = json_pack("{s:s, s:I, s:s}", "op", "rock_remove", "id", (json_int_t)sl->autos[0], "by", "auto");
         if (apply(sl, cmd, NULL, &result, &pr) == 0) json_decref(result);
         json_decref(cmd);
@@ -1021,7 +1025,7 @@ simloop *simloop_new(cs_sim *sim, const clothd_config *cfg, metrics *m)
     simloop *sl = calloc(1, sizeof *sl);
     if (!sl) return NULL;
     sl->sim = sim;
-    sl->cfg = *cfg;
+    sl->loop = cfg->scene.loop;
     sl->queue_max = cfg->set.queue_max;
     sl->m = m;
     sl->healthy = 1;

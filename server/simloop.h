@@ -89,6 +89,8 @@ cs_sim *simloop_engine(simloop *sl);
 /* Whether the simulation was paused, for the state file once the loop has stopped (a backend
  * failure pauses it: then whether it was paused before). */
 int simloop_paused(simloop *sl);
+/* The daemon-loop settings, for the state file once the loop has stopped. */
+const loop_settings *simloop_loop(simloop *sl);
 /* The last in-memory checkpoint (a snapshot), for when the engine cannot be read any more. */
 const unsigned char *simloop_checkpoint(simloop *sl, size_t *len);
 void simloop_free(simloop *sl);

@@ -43,7 +43,6 @@ static void small_scene(cs_scene *sc, cs_params *p)
     sc->size_x = 1.0f;
     sc->size_y = 0.9f;
     sc->height = 0.6f;
-    p->auto_drop_interval = 0;
 }
 
 /* A simulation on one thread: results do not depend on the thread count (test_determinism), and

@@ -218,6 +218,11 @@ typedef struct cs_snapshot_info {
 /* CS_OK with *out when buf starts with a snapshot's magic (however short or damaged the rest);
  * CS_E_FORMAT when it does not: it is no snapshot at all. */
 cs_status cs_snapshot_peek(const void *buf, size_t len, cs_snapshot_info *out);
+/* A parameter's value (out[0..3): 3 components for a vector, else 1) as the snapshot buf starts
+ * with holds it, by name - also one of a row the table has since lost, which a snapshot written
+ * before still carries (clothd's daemon-loop settings, once engine parameters). CS_E_NOT_FOUND
+ * when the snapshot has no such row; CS_E_FORMAT or CS_E_VERSION when it is none this build reads. */
+cs_status cs_snapshot_value(const void *buf, size_t len, const char *name, double out[3]);
 /* Restores a snapshot, or changes nothing (CS_E_FORMAT, CS_E_VERSION, ...). What a command would
  * refuse a snapshot is refused too: parameters out of range or unstable (CS_E_UNSTABLE), more
  * rocks than the rock limit or a scene past the memory limit (CS_E_LIMIT), and states no command
