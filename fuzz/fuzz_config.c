@@ -7,7 +7,7 @@
 #include <stdint.h>
 
 #include "fuzz_common.h"
-#include "settings.h"
+#include "core/settings.h"
 
 int LLVMFuzzerInitialize(int *argc, char ***argv)
 {

@@ -15,7 +15,9 @@
 
 #include <jansson.h>
 
-#include "commands.h"
+#include "core/json_read.h"
+#include "core/json_write.h"
+#include "sim/commands.h"
 #include "fuzz_common.h"
 
 /* The first byte: one of these characters (a readable corpus), or any other byte modulo their
@@ -74,12 +76,12 @@ static void apply(const json_t *cmd, const char *what)
     }
     if (!journal) fuzz_fail("%s: an accepted command has no journal entry", what);
     if (result) {
-        char *text = json_dumps(result, PJSON_DUMP_FLAGS);
+        char *text = json_dumps(result, JSON_DUMP_FLAGS);
         if (!text) fuzz_fail("%s: the result cannot be written as JSON", what);
         free(text);
     }
     /* The journal keeps entries as text (journal_append) and replay reads them back. */
-    char *text = json_dumps(journal, PJSON_DUMP_FLAGS);
+    char *text = json_dumps(journal, JSON_DUMP_FLAGS);
     if (!text) fuzz_fail("%s: the journal entry cannot be written as JSON", what);
     json_error_t err;
     json_t *again = json_loads(text, JSON_REJECT_DUPLICATES, &err);

@@ -20,7 +20,7 @@
 #include <stdint.h>
 
 #include "fuzz_common.h"
-#include "statefile.h"
+#include "core/statefile.h"
 
 /* A small rock limit (the daemon's max_rocks), so that snapshots past it are found. */
 #define FUZZ_ROCK_LIMIT 4

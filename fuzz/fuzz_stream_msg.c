@@ -9,9 +9,9 @@
 
 #include <jansson.h>
 
-#include "commands.h"
+#include "sim/commands.h"
 #include "fuzz_common.h"
-#include "stream_msg.h"
+#include "core/stream_msg.h"
 
 static cs_sim *sim;
 static unsigned char *pristine; /* the state of a fresh fuzz_sim() */

@@ -26,15 +26,15 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "access.h"
-#include "commands.h"
-#include "http.h"
-#include "log.h"
-#include "metrics.h"
-#include "settings.h"
-#include "simloop.h"
-#include "statefile.h"
-#include "stream.h"
+#include "core/access.h"
+#include "sim/commands.h"
+#include "http/http.h"
+#include "core/log.h"
+#include "core/metrics.h"
+#include "core/settings.h"
+#include "sim/simloop.h"
+#include "core/statefile.h"
+#include "stream/stream.h"
 #ifdef CLOTHD_TEST_HOOKS
 #include "testhooks.h"
 #endif
@@ -456,6 +456,9 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
         return EXIT_START;
     }
     simloop_attach_stream(sl, st);
+#ifdef CLOTHD_TEST_HOOKS
+    simloop_set_frame_hook(sl, testhooks_before_frame);
+#endif
     const http_info info = {cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim), CLOTHD_VERSION, st,
                             stream_port(st), acc};
     http_server *http = http_start(&cfg->set, sl, m, &info, err, sizeof err);

@@ -4,7 +4,7 @@
 #include <time.h>
 
 #include "cs_testhooks.h"
-#include "log.h"
+#include "core/log.h"
 #include "testhooks.h"
 
 static long long nan_frame = -1, fail_frame = -1, save_pause_ms = -1;

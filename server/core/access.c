@@ -8,7 +8,7 @@
 #include <strings.h>
 #include <sys/stat.h>
 
-#include "access.h"
+#include "core/access.h"
 
 #define TOKEN_MIN 16
 #define TOKEN_MAX 512

@@ -1,57 +1,10 @@
-/* frame.c - encoding stream frames (layout in proto/clothd_frame.h). */
-#include <math.h>
+/* wire.c - encoding a pose as the stream's binary message (layout in proto/clothd_frame.h). */
 #include <meshoptimizer.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "clothd_frame.h"
-#include "frame.h"
-
-int raw_frame_reserve(raw_frame *f, int32_t n, int32_t r)
-{
-    if ((size_t)n > f->cap_n) {
-        float *xyz = realloc(f->xyz, sizeof(float) * 3 * (size_t)n);
-        if (!xyz) return -1;
-        f->xyz = xyz;
-        for (int k = 1; k < SCALAR_KINDS; k++) {
-            uint8_t *s = realloc(f->scalar[k], (size_t)n);
-            if (!s) return -1;
-            f->scalar[k] = s;
-        }
-        f->cap_n = (size_t)n;
-    }
-    if ((size_t)r > f->cap_rocks) {
-        frame_rock *rk = realloc(f->rocks, sizeof *rk * (size_t)r);
-        if (!rk) return -1;
-        f->rocks = rk;
-        f->cap_rocks = (size_t)r;
-    }
-    return 0;
-}
-
-void raw_frame_free(raw_frame *f)
-{
-    free(f->xyz);
-    for (int k = 0; k < SCALAR_KINDS; k++) free(f->scalar[k]);
-    free(f->rocks);
-    memset(f, 0, sizeof *f);
-}
-
-void raw_frame_bbox(raw_frame *f)
-{
-    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (int32_t v = 0; v < f->n; v++) {
-        for (int c = 0; c < 3; c++) {
-            const float x = f->xyz[3 * v + c];
-            lo[c] = x < lo[c] ? x : lo[c];
-            hi[c] = x > hi[c] ? x : hi[c];
-        }
-    }
-    for (int c = 0; c < 3; c++) {
-        f->bbox[c] = f->n ? lo[c] : 0.0f;
-        f->bbox[3 + c] = f->n ? hi[c] : 0.0f;
-    }
-}
+#include "core/wire.h"
 
 static void put_u16(unsigned char *p, uint16_t v)
 {
@@ -79,9 +32,9 @@ static void put_f64(unsigned char *p, double f)
     put_u64(p, u);
 }
 
-static int wants_scalar(const raw_frame *f, int scalar) { return scalar != SCALAR_NONE && f->has[scalar]; }
+static int wants_scalar(const pose *f, int scalar) { return scalar != SCALAR_NONE && f->has[scalar]; }
 
-size_t frame_bound(const raw_frame *f, int encoding, int scalar)
+size_t wire_bound(const pose *f, int encoding, int scalar)
 {
     const size_t n = (size_t)f->n;
     size_t pos;
@@ -101,7 +54,7 @@ static uint16_t quantize(float x, float lo, float scale)
     return (uint16_t)q;
 }
 
-size_t frame_encode(const raw_frame *f, int encoding, int scalar, unsigned char *out)
+size_t wire_encode(const pose *f, int encoding, int scalar, unsigned char *out)
 {
     const size_t n = (size_t)f->n;
     const int with_scalar = wants_scalar(f, scalar);
@@ -150,7 +103,7 @@ size_t frame_encode(const raw_frame *f, int encoding, int scalar, unsigned char 
         while (at % 4) out[at++] = 0;
     }
     for (int32_t r = 0; r < f->n_rocks; r++) {
-        const frame_rock *k = &f->rocks[r];
+        const pose_rock *k = &f->rocks[r];
         put_u32(out + at, k->id);
         for (int c = 0; c < 3; c++) put_f32(out + at + 4 + 4 * c, k->position[c]);
         put_f32(out + at + 16, k->radius);

@@ -1,23 +1,15 @@
 /* commands.c - applying commands to the engine, and the complete form the journal keeps. */
 #include <string.h>
 
-#include "commands.h"
+#include "core/json_read.h"
+#include "core/json_write.h"
+#include "core/params_json.h"
+#include "core/rock_json.h"
+#include "sim/commands.h"
 
 static int refused(cs_sim *sim, cs_status st, problem *pr)
 {
     return problem_from_engine(pr, st, cs_sim_error(sim), cs_sim_error_param(sim));
-}
-
-/* The fields a rock is made of (no id, no mass: the engine derives them). */
-static json_t *rock_def_json(const cs_rock_def *d)
-{
-    cs_rock r;
-    memset(&r, 0, sizeof r);
-    r.def = *d;
-    json_t *o = rock_to_json(&r);
-    json_object_del(o, "id");
-    json_object_del(o, "mass");
-    return o;
 }
 
 static int get_id(const json_t *cmd, uint32_t *id, problem *pr)
@@ -82,7 +74,7 @@ static int op_rock_add(cs_sim *sim, const json_t *cmd, json_t **journal, json_t 
     if (st != CS_OK) return refused(sim, st, pr);
     cs_rock r;
     cs_rock_get(sim, id, &r);
-    *journal = json_pack("{s:s, s:o}", "op", "rock_add", "rock", rock_def_json(&d));
+    *journal = json_pack("{s:s, s:o}", "op", "rock_add", "rock", rock_def_to_json(&d));
     const json_t *by = json_object_get(cmd, "by");
     if (json_is_string(by)) json_object_set(*journal, "by", (json_t *)by);
     *result = json_pack("{s:I, s:o}", "id", (json_int_t)id, "rock", rock_to_json(&r));
@@ -104,7 +96,7 @@ static int op_rock_set(cs_sim *sim, const json_t *cmd, json_t **journal, json_t 
     json_decref(none);
     if (bad) return -1;
     if ((st = cs_rock_set(sim, id, &r.def)) != CS_OK) return refused(sim, st, pr);
-    *journal = json_pack("{s:s, s:I, s:o}", "op", "rock_set", "id", (json_int_t)id, "rock", rock_def_json(&r.def));
+    *journal = json_pack("{s:s, s:I, s:o}", "op", "rock_set", "id", (json_int_t)id, "rock", rock_def_to_json(&r.def));
     cs_rock_get(sim, id, &r);
     *result = json_pack("{s:o}", "rock", rock_to_json(&r));
     return 0;

@@ -13,7 +13,8 @@
 #include <jansson.h>
 
 #include "clothsim/clothsim.h"
-#include "pjson.h"
+#include "core/problem.h"
+#include "core/settings.h"
 
 /* Applies cmd to sim and loop (the scene's daemon-loop settings: a params command sets them too).
  * On success returns 0 with *journal (the complete command, or NULL for

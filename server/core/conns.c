@@ -5,7 +5,7 @@
 #include <string.h>
 #include <sys/socket.h>
 
-#include "conns.h"
+#include "core/conns.h"
 
 const char *const conns_reason_names[CONNS_REASONS] = {"header_timeout", "body_rate", "evicted"};
 

@@ -34,13 +34,16 @@
 
 #include <jansson.h>
 
-#include "access.h"
+#include "core/access.h"
 #include "clothd_frame.h"
-#include "log.h"
-#include "pjson.h"
-#include "simloop.h"
-#include "stream.h"
-#include "stream_msg.h"
+#include "core/log.h"
+#include "core/json_write.h"
+#include "core/problem.h"
+#include "core/rock_json.h"
+#include "sim/simloop.h"
+#include "stream/stream.h"
+#include "core/stream_msg.h"
+#include "core/wire.h"
 
 #define PROTOCOL_NAME "clothd.v1"
 #define STREAM_PATH "/stream"
@@ -102,7 +105,7 @@ struct stream {
 
     /* frame handover */
     pthread_mutex_t flock;
-    raw_frame *latest, *spare[2];
+    pose *latest, *spare[2];
     uint64_t seq, taken;
 
     /* events */
@@ -126,7 +129,7 @@ struct stream {
     session *sessions;
     uint64_t next_id;
     wire wires[N_ENC][SCALAR_KINDS];
-    raw_frame *current;     /* the newest frame taken over, kept to encode for a new subscription */
+    pose *current;     /* the newest frame taken over, kept to encode for a new subscription */
     uint64_t current_seq;
 
     /* metrics */
@@ -143,11 +146,11 @@ static double now_s(void)
 
 /* ---- from the sim thread ---- */
 
-raw_frame *stream_frame_begin(stream *st, unsigned *scalars)
+pose *stream_frame_begin(stream *st, unsigned *scalars)
 {
     if (atomic_load(&st->clients) == 0) return NULL;
     pthread_mutex_lock(&st->flock);
-    raw_frame *f = NULL;
+    pose *f = NULL;
     for (int k = 0; k < 2 && !f; k++) {
         if (st->spare[k]) {
             f = st->spare[k];
@@ -160,7 +163,7 @@ raw_frame *stream_frame_begin(stream *st, unsigned *scalars)
     return f;
 }
 
-static void give_back(stream *st, raw_frame *f)
+static void give_back(stream *st, pose *f)
 {
     /* Caller holds flock. */
     for (int k = 0; k < 2; k++) {
@@ -169,11 +172,11 @@ static void give_back(stream *st, raw_frame *f)
             return;
         }
     }
-    raw_frame_free(f);
+    pose_free(f);
     free(f);
 }
 
-void stream_frame_publish(stream *st, raw_frame *f)
+void stream_frame_publish(stream *st, pose *f)
 {
     pthread_mutex_lock(&st->flock);
     if (st->latest) give_back(st, st->latest);
@@ -183,7 +186,7 @@ void stream_frame_publish(stream *st, raw_frame *f)
     lws_cancel_service(st->ctx);
 }
 
-void stream_frame_discard(stream *st, raw_frame *f)
+void stream_frame_discard(stream *st, pose *f)
 {
     pthread_mutex_lock(&st->flock);
     give_back(st, f);
@@ -272,7 +275,7 @@ static char *hello_text(stream *st)
     free(params);
     free(sim);
     free(torn);
-    char *text = json_dumps(o, PJSON_DUMP_FLAGS);
+    char *text = json_dumps(o, JSON_DUMP_FLAGS);
     json_decref(o);
     return text;
 }
@@ -403,7 +406,7 @@ static void handle_subscribe(stream *st, session *s, const stream_msg *m)
     if (sc != SCALAR_NONE && (!st->current || !st->current->has[sc])) request_frame(st); /* frames lack it */
     json_t *ack = json_pack("{s:s, s:s, s:i, s:s}", "type", "subscribed", "encoding", stream_encoding_names[enc],
                             "max_fps", fps, "scalar", stream_scalar_names[sc]);
-    char *text = json_dumps(ack, PJSON_DUMP_FLAGS);
+    char *text = json_dumps(ack, JSON_DUMP_FLAGS);
     json_decref(ack);
     if (text && s->n_texts < MAX_TEXTS) s->texts[s->n_texts++] = text; /* the same queue, in order */
     else free(text);
@@ -439,16 +442,16 @@ static void handle_message(stream *st, session *s)
 static const wire *wire_for(stream *st, int e, int k)
 {
     wire *w = &st->wires[e][k];
-    raw_frame *f = st->current;
+    pose *f = st->current;
     if (!f || w->seq == st->current_seq || f->n == 0) return w;
-    const size_t need = LWS_PRE + frame_bound(f, e, k);
+    const size_t need = LWS_PRE + wire_bound(f, e, k);
     if (need > w->cap) {
         unsigned char *b = realloc(w->buf, need);
         if (!b) return w;
         w->buf = b;
         w->cap = need;
     }
-    w->len = frame_encode(f, e, k, w->buf + LWS_PRE);
+    w->len = wire_encode(f, e, k, w->buf + LWS_PRE);
     w->seq = st->current_seq;
     atomic_fetch_add(&st->encoded[e], 1);
     return w;
@@ -459,7 +462,7 @@ static const wire *wire_for(stream *st, int e, int k)
 static void take_newest(stream *st)
 {
     pthread_mutex_lock(&st->flock);
-    raw_frame *f = NULL;
+    pose *f = NULL;
     if (st->latest && st->seq != st->taken) {
         f = st->latest;
         st->latest = NULL;
@@ -839,10 +842,10 @@ void stream_stop(stream *st)
     take_answers(st);
     for (int e = 0; e < N_ENC; e++)
         for (int k = 0; k < SCALAR_KINDS; k++) free(st->wires[e][k].buf);
-    raw_frame *frames[4] = {st->latest, st->spare[0], st->spare[1], st->current};
+    pose *frames[4] = {st->latest, st->spare[0], st->spare[1], st->current};
     for (int k = 0; k < 4; k++) {
         if (frames[k]) {
-            raw_frame_free(frames[k]);
+            pose_free(frames[k]);
             free(frames[k]);
         }
     }
@@ -855,11 +858,11 @@ void stream_stop(stream *st)
 
 uint64_t stream_memory(int32_t n, int32_t rocks)
 {
-    raw_frame f = {.n = n, .n_rocks = rocks, .has = {0, 1, 1}};
-    const uint64_t raw = sizeof(float) * 3 * (uint64_t)n + (SCALAR_KINDS - 1) * (uint64_t)n + sizeof(frame_rock) * (uint64_t)rocks;
+    pose f = {.n = n, .n_rocks = rocks, .has = {0, 1, 1}};
+    const uint64_t raw = sizeof(float) * 3 * (uint64_t)n + (SCALAR_KINDS - 1) * (uint64_t)n + sizeof(pose_rock) * (uint64_t)rocks;
     uint64_t wires = 0;
     for (int e = 0; e < N_ENC; e++)
-        for (int k = 0; k < SCALAR_KINDS; k++) wires += LWS_PRE + frame_bound(&f, e, k);
+        for (int k = 0; k < SCALAR_KINDS; k++) wires += LWS_PRE + wire_bound(&f, e, k);
     return 4 * (sizeof f + raw) + wires;
 }
 

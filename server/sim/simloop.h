@@ -22,10 +22,10 @@
 #include <jansson.h>
 
 #include "clothsim/clothsim.h"
-#include "journal.h"
-#include "metrics.h"
-#include "pjson.h"
-#include "settings.h"
+#include "core/journal.h"
+#include "core/metrics.h"
+#include "core/problem.h"
+#include "core/settings.h"
 
 typedef enum sim_cmd_kind {
     CMD_APPLY,        /* body: a command of commands.h */
@@ -79,6 +79,9 @@ simloop *simloop_new(cs_sim *sim, const clothd_config *cfg, metrics *m);
 cs_status simloop_scene_cost(const cs_scene *scene, int32_t rocks, void *ctx, uint64_t *bytes);
 /* Frames and events go to this stream from now on (before simloop_start). */
 void simloop_attach_stream(simloop *sl, struct stream *st);
+/* Calls hook before each frame is stepped, with the frames done so far (the test daemon's fault
+ * injection, testhooks.h; before simloop_start). */
+void simloop_set_frame_hook(simloop *sl, void (*hook)(cs_sim *sim, uint64_t frame));
 int simloop_start(simloop *sl);
 /* Queues a command; done() is called from the sim thread. While stopping, it fails at once. */
 void simloop_submit(simloop *sl, sim_cmd *cmd);

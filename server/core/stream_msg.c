@@ -1,7 +1,9 @@
 /* stream_msg.c - a stream client's text message, parsed and checked (see stream_msg.h). */
 #include <string.h>
 
-#include "stream_msg.h"
+#include "core/json_read.h"
+#include "core/json_write.h"
+#include "core/stream_msg.h"
 
 const char *const stream_encoding_names[STREAM_ENCODINGS] = {"f32", "q16", "meshopt"};
 const char *const stream_scalar_names[SCALAR_KINDS] = {"none", "speed", "strain"};
@@ -98,7 +100,7 @@ char *stream_msg_error(const char *about, int status, const char *param, const c
     json_t *o = json_pack("{s:s, s:i, s:o, s:o}", "type", "error", "status", status, "detail", json_text(detail),
                           "about", json_text(about ? about : "message"));
     if (param) json_object_set_new(o, "param", json_text(param));
-    char *text = json_dumps(o, PJSON_DUMP_FLAGS);
+    char *text = json_dumps(o, JSON_DUMP_FLAGS);
     json_decref(o);
     return text;
 }

@@ -12,8 +12,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "frame.h"
-#include "settings.h"
+#include "core/pose.h"
+#include "core/settings.h"
 
 struct simloop;
 struct access_policy;
@@ -32,11 +32,11 @@ void stream_stop(stream *st);
 
 /* From the sim thread: a frame buffer to fill, or NULL when no client listens. *scalars gets the
  * scalars someone subscribed to (bit SCALAR_SPEED, bit SCALAR_STRAIN). */
-raw_frame *stream_frame_begin(stream *st, unsigned *scalars);
+pose *stream_frame_begin(stream *st, unsigned *scalars);
 /* Hands the filled frame over (it becomes the newest; the service thread is woken). */
-void stream_frame_publish(stream *st, raw_frame *f);
+void stream_frame_publish(stream *st, pose *f);
 /* Hands a frame buffer back unpublished (nothing new to show, or it could not be filled). */
-void stream_frame_discard(stream *st, raw_frame *f);
+void stream_frame_discard(stream *st, pose *f);
 /* A text message for every client (an event); copied. */
 void stream_event(stream *st, const char *json);
 

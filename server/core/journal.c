@@ -4,8 +4,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "journal.h"
-#include "pjson.h"
+#include "core/journal.h"
+#include "core/json_write.h"
 
 struct journal {
     pthread_mutex_t lock;
@@ -62,7 +62,7 @@ int journal_rebase(journal *j, const void *snapshot, size_t len, uint64_t base_s
 int journal_append(journal *j, uint64_t step, const json_t *command)
 {
     json_t *e = json_pack("{s:I, s:O}", "step", (json_int_t)step, "command", (json_t *)command);
-    char *s = json_dumps(e, PJSON_DUMP_FLAGS);
+    char *s = json_dumps(e, JSON_DUMP_FLAGS);
     json_decref(e);
     if (!s) return -1;
     pthread_mutex_lock(&j->lock);

@@ -6,9 +6,9 @@
 
 #include <stdio.h>
 
-#include "metrics.h"
-#include "settings.h"
-#include "simloop.h"
+#include "core/metrics.h"
+#include "core/settings.h"
+#include "sim/simloop.h"
 
 typedef struct http_server http_server;
 

@@ -18,7 +18,7 @@
 
 #include <stddef.h>
 
-#include "settings.h"
+#include "core/settings.h"
 
 #define STATEFILE_FORMAT 3
 

@@ -5,14 +5,15 @@
 #include <jansson.h>
 
 #include "clothsim/clothsim.h"
-#include "pjson.h"
-#include "statefile.h"
+#include "core/json_write.h"
+#include "core/params_json.h"
+#include "core/statefile.h"
 
 char *statefile_trailer(int paused, const loop_settings *loop, size_t *len)
 {
     json_t *o = json_pack("{s:i, s:s, s:o}", "clothd_state", STATEFILE_FORMAT, "run", paused ? "paused" : "running",
                           "params", loop_to_json(loop));
-    char *s = o ? json_dumps(o, PJSON_DUMP_FLAGS) : NULL;
+    char *s = o ? json_dumps(o, JSON_DUMP_FLAGS) : NULL;
     json_decref(o);
     if (s) *len = strlen(s);
     return s;

@@ -10,13 +10,13 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "commands.h"
-#include "log.h"
-#include "simloop.h"
-#include "stream.h"
-#ifdef CLOTHD_TEST_HOOKS
-#include "testhooks.h"
-#endif
+#include "core/json_write.h"
+#include "core/params_json.h"
+#include "core/rock_json.h"
+#include "sim/commands.h"
+#include "core/log.h"
+#include "sim/simloop.h"
+#include "stream/stream.h"
 
 #define PUBLISH_EVERY 0.016  /* s of wall time between publications while running */
 #define ENERGY_EVERY 0.1     /* s of wall time between energy evaluations while running */
@@ -37,6 +37,7 @@ typedef struct step_job {
 
 struct simloop {
     cs_sim *sim;
+    void (*before_frame)(cs_sim *sim, uint64_t frame); /* the test daemon's hook (testhooks.h), or NULL */
     loop_settings loop; /* the daemon-loop settings (PATCH /v1/params changes them) */
     metrics *m;
     journal *j;
@@ -172,7 +173,7 @@ static void emit(simloop *sl, json_t *ev, const char *request_id)
     }
     json_object_set_new(ev, "type", json_string("event"));
     json_object_set_new(ev, "request_id", request_id && request_id[0] ? json_string(request_id) : json_null());
-    char *text = json_dumps(ev, PJSON_DUMP_FLAGS);
+    char *text = json_dumps(ev, JSON_DUMP_FLAGS);
     json_decref(ev);
     if (text) stream_event(sl->stream, text);
     free(text);
@@ -198,7 +199,7 @@ static json_t *update_torn(simloop *sl)
     sl->n_torn = n;
     json_t *all = json_array();
     for (int64_t k = 0; k < n; k++) json_array_append_new(all, json_integer(now[k]));
-    char *text = json_dumps(all, PJSON_DUMP_FLAGS);
+    char *text = json_dumps(all, JSON_DUMP_FLAGS);
     json_decref(all);
     pthread_mutex_lock(&sl->plock);
     char *old = sl->torn_json;
@@ -222,7 +223,7 @@ static float *scratch(simloop *sl, size_t floats)
 
 /* The stream's scalars: speed (255 at SCALAR_SPEED_FULL) and strain, the largest stretch of a
  * vertex's intact structural springs (255 at SCALAR_STRAIN_FULL). */
-static void fill_scalars(simloop *sl, raw_frame *f, unsigned want)
+static void fill_scalars(simloop *sl, pose *f, unsigned want)
 {
     const int32_t n = f->n;
     float *buf;
@@ -249,13 +250,13 @@ static void fill_scalars(simloop *sl, raw_frame *f, unsigned want)
 static void publish_frame(simloop *sl, const cs_info *info, const cs_rock *rocks, int n_rocks)
 {
     unsigned want = 0;
-    raw_frame *f = sl->stream ? stream_frame_begin(sl->stream, &want) : NULL;
+    pose *f = sl->stream ? stream_frame_begin(sl->stream, &want) : NULL;
     if (!f) return;
     if (sl->changes == sl->framed_changes && (want & ~sl->framed_scalars) == 0) {
         stream_frame_discard(sl->stream, f);
         return;
     }
-    if (raw_frame_reserve(f, info->n_vertices, n_rocks) != 0 ||
+    if (pose_reserve(f, info->n_vertices, n_rocks) != 0 ||
         cs_read_positions(sl->sim, f->xyz, 3 * (size_t)info->n_vertices) != CS_OK) {
         stream_frame_discard(sl->stream, f); /* clients keep the frame they have */
         return;
@@ -269,13 +270,13 @@ static void publish_frame(simloop *sl, const cs_info *info, const cs_rock *rocks
     f->n = info->n_vertices;
     f->n_rocks = n_rocks;
     for (int r = 0; r < n_rocks; r++) {
-        frame_rock *k = &f->rocks[r];
+        pose_rock *k = &f->rocks[r];
         k->id = rocks[r].id;
         memcpy(k->position, rocks[r].def.position, sizeof k->position);
         k->radius = rocks[r].def.radius;
         memcpy(k->orientation, rocks[r].def.orientation, sizeof k->orientation);
     }
-    raw_frame_bbox(f);
+    pose_bbox(f);
     fill_scalars(sl, f, want);
     sl->framed_changes = sl->changes;
     sl->framed_scalars = want;
@@ -310,7 +311,7 @@ static void publish(simloop *sl, int with_hash)
         sl->energy.gravity, "total", sl->energy.total, "state_hash", hash, "last_event",
         sl->last_event ? sl->last_event : json_null());
     size_t sim_len = 0, params_len = 0, scene_len = 0;
-    char *sim_json = json_dumps(o, PJSON_DUMP_FLAGS);
+    char *sim_json = json_dumps(o, JSON_DUMP_FLAGS);
     json_decref(o);
     if (sim_json) sim_len = strlen(sim_json);
 
@@ -319,7 +320,7 @@ static void publish(simloop *sl, int with_hash)
     cs_sim_params(sl->sim, &sc.params);
     sc.loop = sl->loop;
     json_t *pj = params_to_json(SET_LIVE, &sc), *sj = params_to_json(SET_SCENE, &sc);
-    char *params_json = json_dumps(pj, PJSON_DUMP_FLAGS), *scene_json = json_dumps(sj, PJSON_DUMP_FLAGS);
+    char *params_json = json_dumps(pj, JSON_DUMP_FLAGS), *scene_json = json_dumps(sj, JSON_DUMP_FLAGS);
     json_decref(pj);
     json_decref(sj);
     if (params_json) params_len = strlen(params_json);
@@ -547,9 +548,7 @@ static int advance_frame(simloop *sl, double budget)
 {
     cs_info info;
     if (sl->frame_sub == 0) {
-#ifdef CLOTHD_TEST_HOOKS
-        testhooks_before_frame(sl->sim, sl->frame);
-#endif
+        if (sl->before_frame) sl->before_frame(sl->sim, sl->frame);
         sl->frame_wall = 0;
     }
     cs_sim_info(sl->sim, &info);
@@ -1053,6 +1052,8 @@ simloop *simloop_new(cs_sim *sim, const clothd_config *cfg, metrics *m)
 }
 
 void simloop_attach_stream(simloop *sl, struct stream *st) { sl->stream = st; }
+
+void simloop_set_frame_hook(simloop *sl, void (*hook)(cs_sim *sim, uint64_t frame)) { sl->before_frame = hook; }
 
 int simloop_start(simloop *sl)
 {

@@ -15,7 +15,7 @@
 
 #include <stddef.h>
 
-#include "settings.h"
+#include "core/settings.h"
 
 typedef enum { ACCESS_NONE = 0, ACCESS_VIEW = 1, ACCESS_CONTROL = 2 } access_level;
 

@@ -8,11 +8,11 @@
 
 #include <jansson.h>
 
-#include "frame.h"
-#include "pjson.h"
+#include "core/pose.h"
+#include "core/problem.h"
 
 #define STREAM_ENCODINGS 3
-/* Names in the order of proto/clothd_frame.h's encodings and of frame.h's scalars. */
+/* Names in the order of proto/clothd_frame.h's encodings and of pose.h's scalars. */
 extern const char *const stream_encoding_names[STREAM_ENCODINGS];
 extern const char *const stream_scalar_names[SCALAR_KINDS];
 

@@ -5,7 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "ratelimit.h"
+#include "core/ratelimit.h"
 
 #define KEY_MAX 16
 #define PROBE 8 /* slots a key may live in */

@@ -25,14 +25,18 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "access.h"
-#include "commands.h"
-#include "conns.h"
-#include "http.h"
-#include "log.h"
-#include "pjson.h"
-#include "ratelimit.h"
-#include "stream.h"
+#include "core/access.h"
+#include "sim/commands.h"
+#include "core/conns.h"
+#include "http/http.h"
+#include "core/log.h"
+#include "core/json_read.h"
+#include "core/json_write.h"
+#include "core/params_json.h"
+#include "core/problem.h"
+#include "core/rock_json.h"
+#include "core/ratelimit.h"
+#include "stream/stream.h"
 
 #if MHD_VERSION < 0x00097002
 typedef int MHD_Result;
@@ -117,7 +121,7 @@ static int reply_text(reply *out, int status, const char *ctype, char *body, siz
 
 static int reply_json(reply *out, int status, json_t *o)
 {
-    char *s = json_dumps(o, PJSON_DUMP_FLAGS);
+    char *s = json_dumps(o, JSON_DUMP_FLAGS);
     json_decref(o);
     return reply_text(out, status, JSON_TYPE, s, s ? strlen(s) : 0);
 }

@@ -10,7 +10,7 @@
 #include <strings.h>
 
 #include "clothsim/clothsim.h"
-#include "settings.h"
+#include "core/settings.h"
 
 static const char *const ch_BACKEND[] = {CLOTHD_CHOICES_BACKEND, NULL};
 static const char *const ch_STATE_FILE_INVALID[] = {CLOTHD_CHOICES_STATE_FILE_INVALID, NULL};
