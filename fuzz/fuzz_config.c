@@ -6,8 +6,8 @@
  * NUL-terminated in their fields) and every engine parameter passes the table's check. */
 #include <stdint.h>
 
-#include "fuzz_common.h"
 #include "core/settings.h"
+#include "fuzz_common.h"
 
 int LLVMFuzzerInitialize(int *argc, char ***argv)
 {

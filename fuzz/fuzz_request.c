@@ -17,8 +17,8 @@
 
 #include "core/json_read.h"
 #include "core/json_write.h"
-#include "sim/commands.h"
 #include "fuzz_common.h"
+#include "sim/commands.h"
 
 /* The first byte: one of these characters (a readable corpus), or any other byte modulo their
  * number. */

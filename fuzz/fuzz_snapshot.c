@@ -19,8 +19,8 @@
  * and a trailer it writes reads back the same. */
 #include <stdint.h>
 
-#include "fuzz_common.h"
 #include "core/statefile.h"
+#include "fuzz_common.h"
 
 /* A small rock limit (the daemon's max_rocks), so that snapshots past it are found. */
 #define FUZZ_ROCK_LIMIT 4

@@ -9,9 +9,9 @@
 
 #include <jansson.h>
 
-#include "sim/commands.h"
-#include "fuzz_common.h"
 #include "core/stream_msg.h"
+#include "fuzz_common.h"
+#include "sim/commands.h"
 
 static cs_sim *sim;
 static unsigned char *pristine; /* the state of a fresh fuzz_sim() */

@@ -27,13 +27,14 @@
 #include <unistd.h>
 
 #include "core/access.h"
-#include "sim/commands.h"
-#include "http/http.h"
 #include "core/log.h"
 #include "core/metrics.h"
 #include "core/settings.h"
-#include "sim/simloop.h"
 #include "core/statefile.h"
+#include "http/http.h"
+#include "sim/commands.h"
+#include "sim/scenes.h"
+#include "sim/simloop.h"
 #include "stream/stream.h"
 #ifdef CLOTHD_TEST_HOOKS
 #include "testhooks.h"
@@ -310,7 +311,8 @@ static cs_sim *make_engine(const clothd_config *cfg)
     cs_sim *sim = NULL;
     const uint64_t limit = (uint64_t)cfg->set.max_state_mb << 20;
     uint64_t bytes;
-    if (simloop_scene_cost(&cfg->scene.fields, cfg->set.max_rocks, NULL, &bytes) != CS_OK || bytes > limit) {
+    void *sink = (void *)&stream_sink_ops; /* what the stream holds is part of a scene's cost */
+    if (scene_cost(&cfg->scene.fields, cfg->set.max_rocks, sink, &bytes) != CS_OK || bytes > limit) {
         log_msg("cannot start the simulation: a %d x %d cloth needs more than max_state_mb (%d MiB)", (int)cfg->scene.fields.nx,
                 (int)cfg->scene.fields.ny, (int)cfg->set.max_state_mb);
         return NULL;
@@ -322,7 +324,7 @@ static cs_sim *make_engine(const clothd_config *cfg)
     }
     cs_sim_set_threads(sim, cfg->set.threads);
     cs_sim_set_rock_limit(sim, cfg->set.max_rocks);
-    cs_sim_set_memory_limit(sim, limit, simloop_scene_cost, NULL);
+    cs_sim_set_memory_limit(sim, limit, scene_cost, sink);
     return sim;
 }
 
@@ -397,20 +399,46 @@ static int replay(const char *file, const clothd_config *cfg)
 
 /* ---- serve ---- */
 
-/* Saves the state file (when one is set) once the sim thread has stopped: 0, or -1 (logged; the
- * previous file is left as it was). */
-static int save_on_exit(simloop *sl, const char *path)
+/* Saves a scene's state file (when one is set) once the sim thread has stopped: 0, or -1 (logged;
+ * the previous file is left as it was). */
+static int save_on_exit(scene *sc, const char *path)
 {
     if (!path[0]) return 0;
     size_t cl = 0;
-    const unsigned char *cp = simloop_checkpoint(sl, &cl);
+    const unsigned char *cp = scene_last_checkpoint(sc, &cl);
     char why[1400];
-    if (save_state(simloop_engine(sl), cp, cl, simloop_paused(sl), simloop_loop(sl), path, why, sizeof why) != 0) {
+    if (save_state(scene_engine(sc), cp, cl, scene_paused_for_save(sc), scene_loop(sc), path, why, sizeof why) != 0) {
         log_msg("could not save the state to %s: %s; the previous state file, if any, is unchanged", path, why);
         return -1;
     }
-    log_msg("state saved to %s (%s)", path, simloop_paused(sl) ? "paused" : "running");
+    log_msg("state saved to %s (%s)", path, scene_paused_for_save(sc) ? "paused" : "running");
     return 0;
+}
+
+/* The daemon's table with its one scene, "default": the engine (taken), resumed from the state
+ * file when there is one. NULL when the start must stop (logged). */
+static scenes *default_table(cs_sim *sim, clothd_config *cfg)
+{
+    int was_paused = 0;
+    if (resume(sim, &cfg->set, &was_paused, &cfg->scene.loop) != 0) {
+        cs_sim_destroy(sim);
+        return NULL;
+    }
+    cfg->set.paused |= was_paused; /* --paused pauses a state saved running too */
+    scenes *table = scenes_new(1);
+    scene *sc = table ? scene_new(SCENE_DEFAULT, sim, &cfg->scene.loop, cfg->set.paused, &cfg->set) : NULL;
+    if (!table) cs_sim_destroy(sim);
+    if (!sc || scenes_add(table, sc) != 0) {
+        log_msg("out of memory");
+        scene_release(sc);
+        scenes_free(table);
+        return NULL;
+    }
+#ifdef CLOTHD_TEST_HOOKS
+    scene_set_frame_hook(sc, testhooks_before_frame);
+#endif
+    scene_release(sc); /* the table's from now on */
+    return table;
 }
 
 static int serve_with(clothd_config *cfg, const access_policy *acc)
@@ -434,46 +462,26 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
         if (cs_sim_set_scene(sim, &sc) == CS_OK) cfg->scene.fields = sc;
     }
     log_msg("backend: %s on %s (%s)", cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim));
-    int was_paused = 0;
-    if (resume(sim, &cfg->set, &was_paused, &cfg->scene.loop) != 0) {
-        cs_sim_destroy(sim);
-        return EXIT_START;
-    }
-    cfg->set.paused |= was_paused; /* --paused pauses a state saved running too */
+    const http_info about = {cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim), CLOTHD_VERSION, NULL, 0, acc};
+    scenes *table = default_table(sim, cfg);
+    if (!table) return EXIT_START;
+    scene *sc = scenes_get(table, SCENE_DEFAULT);
     metrics *m = metrics_new();
-    simloop *sl = m ? simloop_new(sim, cfg, m) : NULL;
-    if (!sl) {
-        log_msg("out of memory");
-        cs_sim_destroy(sim);
-        metrics_free(m);
-        return EXIT_START;
-    }
-    stream *st = stream_start(&cfg->set, sl, acc, err, sizeof err);
-    if (!st) {
-        log_msg("%s", err);
-        simloop_free(sl);
-        metrics_free(m);
-        return EXIT_START;
-    }
-    simloop_attach_stream(sl, st);
-#ifdef CLOTHD_TEST_HOOKS
-    simloop_set_frame_hook(sl, testhooks_before_frame);
-#endif
-    const http_info info = {cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim), CLOTHD_VERSION, st,
-                            stream_port(st), acc};
-    http_server *http = http_start(&cfg->set, sl, m, &info, err, sizeof err);
-    if (!http) {
-        log_msg("%s", err);
-        stream_stop(st);
-        simloop_free(sl);
-        metrics_free(m);
-        return EXIT_START;
-    }
-    if (simloop_start(sl) != 0) {
-        log_msg("cannot start the sim thread");
+    simloop *sl = m ? simloop_new(table, m) : NULL;
+    stream *st = sl ? stream_start(&cfg->set, table, acc, err, sizeof err) : NULL;
+    http_info info = about;
+    info.stream = st;
+    info.stream_port = st ? stream_port(st) : 0;
+    if (st) scene_set_sink(sc, stream_sink(st));
+    http_server *http = st ? http_start(&cfg->set, table, m, &info, err, sizeof err) : NULL;
+    const int started = http && simloop_start(sl) == 0;
+    if (!started) {
+        log_msg("%s", !m || !sl ? "out of memory" : !st || !http ? err : "cannot start the sim thread");
         http_stop(http);
         stream_stop(st);
         simloop_free(sl);
+        scene_release(sc);
+        scenes_free(table);
         metrics_free(m);
         return EXIT_START;
     }
@@ -495,7 +503,7 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
          * they were - so that a supervisor and an operator see why the daemon goes. */
         log_msg("backend failed: saving the state and exiting for a restart");
         simloop_stop(sl);
-        rc = save_on_exit(sl, cfg->set.state_file) == 0 ? EXIT_BACKEND : EXIT_SAVE;
+        rc = save_on_exit(sc, cfg->set.state_file) == 0 ? EXIT_BACKEND : EXIT_SAVE;
         http_quiesce(http);
         http_stop(http);
         stream_stop(st);
@@ -505,9 +513,11 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
         simloop_stop(sl);
         http_stop(http);
         stream_stop(st);
-        rc = save_on_exit(sl, cfg->set.state_file) == 0 ? 0 : EXIT_SAVE;
+        rc = save_on_exit(sc, cfg->set.state_file) == 0 ? 0 : EXIT_SAVE;
     }
     simloop_free(sl);
+    scene_release(sc);
+    scenes_free(table);
     metrics_free(m);
     return rc;
 }
@@ -551,7 +561,7 @@ int main(int argc, char **argv, char **envp)
         return 0;
     }
     if (strcmp(sub, "routes") == 0) {
-        http_print_routes(stdout);
+        command_print_routes(stdout);
         return 0;
     }
     const char *file = NULL;

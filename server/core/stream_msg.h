@@ -11,6 +11,10 @@
 #include "core/pose.h"
 #include "core/problem.h"
 
+/* Where the stream is served, and its subprotocol. */
+#define STREAM_PATH "/stream"
+#define STREAM_PROTOCOL "clothd.v1"
+
 #define STREAM_ENCODINGS 3
 /* Names in the order of proto/clothd_frame.h's encodings and of pose.h's scalars. */
 extern const char *const stream_encoding_names[STREAM_ENCODINGS];

@@ -1,16 +1,17 @@
 /* http.c - the HTTP API on libmicrohttpd (see http.h).
  *
- * One route table (method, pattern, handler) drives dispatch, 405 answers with Allow, metrics
- * labels and `clothd routes`. libmicrohttpd calls the access handler several times per request:
- * the first call only records the request (answering then would close a keep-alive connection),
- * body calls append to a buffer counted against max_body (413 beyond), the last call dispatches.
- * A handler either answers from published data at once, or queues a command to the sim thread
- * and suspends the connection; the sim thread resumes it once the command has been applied, and
- * the next call answers with the result. */
+ * The command table (sim/commands.h) drives dispatch, the token each route needs, 405 answers
+ * with Allow, metrics labels and `clothd routes`; this file is what libmicrohttpd needs around
+ * it. libmicrohttpd calls the access handler several times per request: the first call only
+ * records the request (answering then would close a keep-alive connection), body calls append to
+ * a buffer counted against max_body (413 beyond), the last call dispatches. A row either answers
+ * from what its scene published at once, or makes a command for the sim thread: the connection is
+ * suspended, the sim thread resumes it once the command has been run, and the next call answers
+ * with the result. A request holds its scene (a handle from the scene table) until it is
+ * answered. */
 #include <arpa/inet.h>
 #include <ctype.h>
 #include <errno.h>
-#include <fcntl.h>
 #include <limits.h>
 #include <microhttpd.h>
 #include <netdb.h>
@@ -20,22 +21,19 @@
 #include <string.h>
 #include <strings.h>
 #include <sys/resource.h>
-#include <sys/stat.h>
 #include <sys/syscall.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "core/access.h"
-#include "sim/commands.h"
+#include "core/clock.h"
 #include "core/conns.h"
-#include "http/http.h"
 #include "core/log.h"
-#include "core/json_read.h"
-#include "core/json_write.h"
-#include "core/params_json.h"
 #include "core/problem.h"
-#include "core/rock_json.h"
 #include "core/ratelimit.h"
+#include "http/http.h"
+#include "http/static_files.h"
+#include "sim/commands.h"
 #include "stream/stream.h"
 
 #if MHD_VERSION < 0x00097002
@@ -46,9 +44,10 @@ typedef enum MHD_Result MHD_Result;
 
 struct http_server {
     struct MHD_Daemon *d;
-    simloop *sl;
+    scenes *table;
     metrics *m;
     http_info info;
+    api_daemon daemon;       /* what the daemon-wide routes read */
     clothd_settings set;
     char web_root[PATH_MAX]; /* resolved; empty when the directory does not exist */
     int port;
@@ -62,81 +61,36 @@ struct http_server {
     int stopping;
 };
 
+/* An answer and what only HTTP says of it. */
 typedef struct reply {
-    int status;
-    char *body; /* malloc'd */
-    size_t len;
-    const char *ctype;
+    api_reply a;
     char allow[64];
-    int retry_after;   /* seconds, for 429 */
-    int authenticate;  /* 401: ask for a bearer token */
-    int close;         /* the request's framing is not to be trusted: answer, then close */
+    int authenticate; /* 401: ask for a bearer token */
+    int close;        /* the request's framing is not to be trusted: answer, then close */
 } reply;
 
-typedef struct req req;
-typedef int (*handler_fn)(http_server *s, req *r, reply *out);
-
-/* A handler answers at once (NOW) or has queued r->cmd (LATER). */
-enum { NOW = 0, LATER = 1 };
-
-typedef struct route {
-    const char *method, *pattern;
-    handler_fn fn;
-    int created;          /* 201 on success */
-    const char *blob_type; /* content type of a binary result */
-} route;
-
-struct req {
+typedef struct req {
     http_server *s;
     struct MHD_Connection *conn;
-    const route *rt;
     const char *label; /* route pattern for metrics */
     char method[8];
     char url[2048];
     char authority[256]; /* of an absolute-form target (http://host:port/path), which names the host */
     int malformed;       /* answered 400/414/501 on its first call */
-    long long id;      /* the {id} of the path */
     char *body;
     size_t len, cap;
     int too_large;
     char request_id[129];
-    int phase; /* 0 new, 1 waiting for the sim thread, 2 its answer is in */
-    sim_cmd cmd;
-    json_t *cmd_body;
-};
+    int phase;           /* 0 new, 1 waiting for the sim thread, 2 its answer is in */
+    scene *sc;           /* the scene addressed, held until the request is answered */
+    scene_cmd cmd;
+} req;
 
-#define JSON_TYPE "application/json"
-#define PROBLEM_TYPE "application/problem+json"
-
-/* ---- replies ---- */
-
-static int reply_text(reply *out, int status, const char *ctype, char *body, size_t len)
-{
-    out->status = status;
-    out->ctype = ctype;
-    out->body = body;
-    out->len = len;
-    return NOW;
-}
-
-static int reply_json(reply *out, int status, json_t *o)
-{
-    char *s = json_dumps(o, JSON_DUMP_FLAGS);
-    json_decref(o);
-    return reply_text(out, status, JSON_TYPE, s, s ? strlen(s) : 0);
-}
-
-static int reply_problem(reply *out, const problem *pr)
-{
-    char *s = problem_body(pr);
-    return reply_text(out, pr->status, PROBLEM_TYPE, s, s ? strlen(s) : 0);
-}
-
-static int reply_error(reply *out, int status, const char *slug, const char *param, const char *detail)
+static void reply_error(reply *out, int status, const char *slug, const char *param, const char *detail)
 {
     problem pr;
     problem_set(&pr, status, slug, param, "%s", detail);
-    return reply_problem(out, &pr);
+    api_problem(&out->a, &pr);
 }
 
 /* ---- request helpers ---- */
@@ -157,392 +111,26 @@ static int wants_binary(req *r)
     return a && strstr(a, "application/octet-stream") != NULL;
 }
 
-/* The body as a JSON object (request_body_object); on refusal, the answer is in rep. */
-static int body_object(req *r, int required, json_t **out, reply *rep)
-{
-    problem pr;
-    if (request_body_object(r->body, r->len, required, out, &pr) == 0) return 0;
-    reply_problem(rep, &pr);
-    return -1;
-}
-
-/* Queues a command for the sim thread (the connection is suspended by the caller). */
-static int later(req *r, sim_cmd_kind kind, json_t *body)
-{
-    memset(&r->cmd, 0, sizeof r->cmd);
-    r->cmd.kind = kind;
-    r->cmd.body = body;
-    r->cmd_body = body;
-    return LATER;
-}
-
-/* A command of commands.h made of the request's body (command_from_request). */
-static int later_apply(req *r, const char *op, reply *out)
-{
-    json_t *c;
-    problem pr;
-    if (command_from_request(op, r->body, r->len, r->id, &c, &pr) != 0) return reply_problem(out, &pr);
-    return later(r, CMD_APPLY, c);
-}
-
-/* ---- handlers ---- */
-
-static int h_health(http_server *s, req *r, reply *out)
-{
-    (void)r;
-    const int ok = simloop_healthy(s->sl);
-    json_t *stream = s->info.stream ? json_pack("{s:i, s:s, s:s}", "port", s->info.stream_port, "path", "/stream",
-                                                "protocol", "clothd.v1")
-                                    : json_null();
-    return reply_json(out, ok ? 200 : 503,
-                      json_pack("{s:s, s:s, s:s, s:s, s:s, s:o}", "status", ok ? "ok" : "unhealthy", "backend",
-                                s->info.backend, "device", s->info.device, "backend_note", s->info.backend_note,
-                                "version", s->info.version, "stream", stream));
-}
-
-static int h_sim(http_server *s, req *r, reply *out)
-{
-    const char *h = query(r, "hash");
-    if (h && (strcmp(h, "1") == 0 || strcmp(h, "true") == 0)) return later(r, CMD_HASH, NULL);
-    size_t len = 0;
-    char *j = simloop_sim_json(s->sl, &len);
-    return reply_text(out, 200, JSON_TYPE, j, len);
-}
-
-/* A command that takes no body (an empty one or {}). */
-static int later_bodyless(req *r, sim_cmd_kind kind, reply *out)
-{
-    json_t *b;
-    if (body_object(r, 0, &b, out) != 0) return NOW;
-    json_decref(b);
-    return later(r, kind, NULL);
-}
-
-static int h_pause(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    return later_bodyless(r, CMD_PAUSE, out);
-}
-
-static int h_resume(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    return later_bodyless(r, CMD_RESUME, out);
-}
-
-static int h_step(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    json_t *b;
-    if (body_object(r, 1, &b, out) != 0) return NOW;
-    int frames;
-    long long n;
-    problem pr;
-    if (step_from_json(b, &frames, &n, &pr) != 0) { /* refused here: it reaches no step in progress */
-        json_decref(b);
-        return reply_problem(out, &pr);
-    }
-    return later(r, CMD_STEP, b);
-}
-
-static int h_step_cancel(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    return later_bodyless(r, CMD_STEP_CANCEL, out);
-}
-
-static int h_reset(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    return later_apply(r, "reset", out);
-}
-
-static int h_params_get(http_server *s, req *r, reply *out)
-{
-    (void)r;
-    size_t len = 0;
-    char *j = simloop_params_json(s->sl, &len);
-    return reply_text(out, 200, JSON_TYPE, j, len);
-}
-
-static int h_params_patch(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    return later_apply(r, "params", out);
-}
-
-static int h_schema(http_server *s, req *r, reply *out)
-{
-    (void)s, (void)r;
-    return reply_json(out, 200, schema_to_json());
-}
-
-static int h_scene_get(http_server *s, req *r, reply *out)
-{
-    (void)r;
-    size_t len = 0;
-    char *j = simloop_scene_json(s->sl, &len);
-    return reply_text(out, 200, JSON_TYPE, j, len);
-}
-
-static int h_scene_put(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    return later_apply(r, "scene", out);
-}
-
-static int h_rocks_get(http_server *s, req *r, reply *out)
-{
-    (void)r;
-    cs_rock *rocks;
-    const int n = simloop_rocks(s->sl, &rocks);
-    json_t *list = json_array();
-    for (int k = 0; k < n; k++) json_array_append_new(list, rock_to_json(&rocks[k]));
-    free(rocks);
-    return reply_json(out, 200, json_pack("{s:o}", "rocks", list));
-}
-
-static int h_rocks_post(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    return later_apply(r, "rock_add", out);
-}
-
-static int h_rocks_delete(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    return later_apply(r, "rocks_clear", out);
-}
-
-static int h_rock_get(http_server *s, req *r, reply *out)
-{
-    cs_rock *rocks;
-    const int n = simloop_rocks(s->sl, &rocks);
-    for (int k = 0; k < n; k++) {
-        if (rocks[k].id == (uint32_t)r->id) {
-            json_t *o = rock_to_json(&rocks[k]);
-            free(rocks);
-            return reply_json(out, 200, o);
-        }
-    }
-    free(rocks);
-    problem pr;
-    problem_set(&pr, 404, "not-found", "id", "no rock with id %lld", r->id);
-    return reply_problem(out, &pr);
-}
-
-static int h_rock_patch(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    return later_apply(r, "rock_set", out);
-}
-
-static int h_rock_delete(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    return later_apply(r, "rock_remove", out);
-}
-
-static int h_pins(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    return later_apply(r, "pins", out);
-}
-
-static int h_grab(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    return later_apply(r, "grab", out);
-}
-
-static int h_release(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    return later_apply(r, "release", out);
-}
-
-static int h_cloth_state(http_server *s, req *r, reply *out)
-{
-    (void)s, (void)out;
-    return later(r, CMD_CLOTH_STATE, json_pack("{s:b}", "binary", wants_binary(r)));
-}
-
-static int h_snapshot_get(http_server *s, req *r, reply *out)
-{
-    (void)s, (void)out;
-    return later(r, CMD_SNAPSHOT_GET, NULL);
-}
-
-static int h_snapshot_put(http_server *s, req *r, reply *out)
-{
-    (void)s;
-    if (r->len == 0) return reply_error(out, 400, "bad-snapshot", NULL, "the body must be a snapshot (GET /v1/snapshot)");
-    later(r, CMD_SNAPSHOT_PUT, NULL);
-    r->cmd.blob_in = (const unsigned char *)r->body;
-    r->cmd.blob_in_len = r->len;
-    return LATER;
-}
-
-static int h_journal(http_server *s, req *r, reply *out)
-{
-    if (wants_binary(r)) return later(r, CMD_BUNDLE, NULL);
-    size_t len = 0;
-    char *j = journal_json(simloop_journal(s->sl), &len);
-    return reply_text(out, 200, JSON_TYPE, j, len);
-}
-
-static char *http_metrics(http_server *s);
-
-static int h_metrics(http_server *s, req *r, reply *out)
-{
-    (void)r;
-    metrics_gauges g;
-    simloop_gauges(s->sl, &g);
-    size_t len = 0;
-    char *own = http_metrics(s), *stream = s->info.stream ? stream_metrics(s->info.stream) : NULL;
-    char *extra = NULL;
-    if (asprintf(&extra, "%s%s", own ? own : "", stream ? stream : "") < 0) extra = NULL;
-    free(own);
-    free(stream);
-    char *text = metrics_render(s->m, &g, extra, &len);
-    free(extra);
-    return reply_text(out, 200, "text/plain; version=0.0.4; charset=utf-8", text, len);
-}
-
-#define OCTETS "application/octet-stream"
-
-static const route routes[] = {
-    {"GET", "/v1/health", h_health, 0, NULL},
-    {"GET", "/v1/sim", h_sim, 0, JSON_TYPE},
-    {"POST", "/v1/sim/pause", h_pause, 0, JSON_TYPE},
-    {"POST", "/v1/sim/resume", h_resume, 0, JSON_TYPE},
-    {"POST", "/v1/sim/step", h_step, 0, NULL},
-    {"DELETE", "/v1/sim/step", h_step_cancel, 0, NULL},
-    {"POST", "/v1/sim/reset", h_reset, 0, NULL},
-    {"GET", "/v1/params", h_params_get, 0, NULL},
-    {"PATCH", "/v1/params", h_params_patch, 0, NULL},
-    {"GET", "/v1/params/schema", h_schema, 0, NULL},
-    {"GET", "/v1/scene", h_scene_get, 0, NULL},
-    {"PUT", "/v1/scene", h_scene_put, 0, NULL},
-    {"GET", "/v1/rocks", h_rocks_get, 0, NULL},
-    {"POST", "/v1/rocks", h_rocks_post, 1, NULL},
-    {"DELETE", "/v1/rocks", h_rocks_delete, 0, NULL},
-    {"GET", "/v1/rocks/{id}", h_rock_get, 0, NULL},
-    {"PATCH", "/v1/rocks/{id}", h_rock_patch, 0, NULL},
-    {"DELETE", "/v1/rocks/{id}", h_rock_delete, 0, NULL},
-    {"PUT", "/v1/pins", h_pins, 0, NULL},
-    {"PUT", "/v1/grab", h_grab, 0, NULL},
-    {"DELETE", "/v1/grab", h_release, 0, NULL},
-    {"GET", "/v1/cloth/state", h_cloth_state, 0, NULL},
-    {"GET", "/v1/snapshot", h_snapshot_get, 0, OCTETS},
-    {"PUT", "/v1/snapshot", h_snapshot_put, 0, NULL},
-    {"GET", "/v1/journal", h_journal, 0, OCTETS},
-    {"GET", "/metrics", h_metrics, 0, NULL},
-};
-#define NROUTES (sizeof routes / sizeof routes[0])
-
-void http_print_routes(FILE *out)
-{
-    for (size_t i = 0; i < NROUTES; i++) fprintf(out, "%s %s\n", routes[i].method, routes[i].pattern);
-}
-
-/* Whether url matches pattern; {id} takes one segment of digits (into *id, -1 if not digits). */
-static int path_matches(const char *pattern, const char *url, long long *id)
-{
-    const char *brace = strstr(pattern, "{id}");
-    if (!brace) return strcmp(pattern, url) == 0;
-    const size_t pre = (size_t)(brace - pattern);
-    if (strncmp(pattern, url, pre) != 0) return 0;
-    const char *seg = url + pre;
-    const char *slash = strchr(seg, '/');
-    const size_t seglen = slash ? (size_t)(slash - seg) : strlen(seg);
-    if (seglen == 0 || strcmp(slash ? slash : "", brace + 4) != 0) return 0;
-    *id = -1;
-    if (seglen <= 10) {
-        long long v = 0;
-        size_t k = 0;
-        for (; k < seglen && isdigit((unsigned char)seg[k]); k++) v = v * 10 + (seg[k] - '0');
-        if (k == seglen) *id = v;
-    }
-    return 1;
-}
-
-/* ---- static files ---- */
-
-static const char *content_type(const char *path)
-{
-    static const struct {
-        const char *ext, *type;
-    } types[] = {{".html", "text/html; charset=utf-8"}, {".js", "text/javascript; charset=utf-8"},
-                 {".mjs", "text/javascript; charset=utf-8"}, {".css", "text/css; charset=utf-8"},
-                 {".json", "application/json"}, {".map", "application/json"}, {".svg", "image/svg+xml"},
-                 {".png", "image/png"}, {".ico", "image/x-icon"}, {".wasm", "application/wasm"},
-                 {".txt", "text/plain; charset=utf-8"}};
-    const char *dot = strrchr(path, '.');
-    for (size_t i = 0; dot && i < sizeof types / sizeof types[0]; i++)
-        if (strcmp(dot, types[i].ext) == 0) return types[i].type;
-    return "application/octet-stream";
-}
-
-static const char placeholder[] =
-    "<!doctype html><meta charset=utf-8><title>clothd</title>"
-    "<h1>clothd is running</h1><p>The viewer is not built yet. The API is at <a href=/v1/sim>/v1/sim</a>; "
-    "see proto/PROTOCOL.md.</p>\n";
-
-/* Serves a file of web_root, or 404. The path may not leave web_root: no '..' segment, no
- * backslash or NUL, and the resolved real path (links followed) must lie under web_root. */
-static struct MHD_Response *static_file(http_server *s, const char *url, int *status, int *fd_out)
-{
-    *fd_out = -1;
-    const char *path = strcmp(url, "/") == 0 ? "/index.html" : url;
-    int safe = path[0] == '/' && !strchr(path, '\\') && strlen(path) < 400;
-    for (const char *p = path; safe && (p = strstr(p, "..")); p += 2)
-        if ((p == path || p[-1] == '/') && (p[2] == '/' || p[2] == '\0')) safe = 0;
-    if (safe && s->web_root[0]) {
-        char full[PATH_MAX + 512], real[PATH_MAX];
-        snprintf(full, sizeof full, "%s%s", s->web_root, path);
-        const size_t rl = strlen(s->web_root);
-        if (realpath(full, real) && strncmp(real, s->web_root, rl) == 0 && real[rl] == '/') {
-            const int fd = open(real, O_RDONLY | O_CLOEXEC);
-            struct stat st;
-            if (fd >= 0 && fstat(fd, &st) == 0 && S_ISREG(st.st_mode)) {
-                struct MHD_Response *resp = MHD_create_response_from_fd((uint64_t)st.st_size, fd);
-                if (resp) {
-                    MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, content_type(real));
-                    *status = 200;
-                    return resp;
-                }
-            }
-            if (fd >= 0) close(fd);
-        }
-    }
-    if (safe && strcmp(path, "/index.html") == 0) {
-        struct MHD_Response *resp =
-            MHD_create_response_from_buffer(sizeof placeholder - 1, (void *)placeholder, MHD_RESPMEM_PERSISTENT);
-        MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, "text/html; charset=utf-8");
-        *status = 200;
-        return resp;
-    }
-    return NULL;
-}
+static char *http_metrics(void *ctx);
 
 /* ---- libmicrohttpd glue ---- */
 
 static MHD_Result send_reply(req *r, reply *rep)
 {
+    api_reply *a = &rep->a;
     struct MHD_Response *resp =
-        MHD_create_response_from_buffer(rep->body ? rep->len : 0, rep->body ? rep->body : (void *)"",
-                                         rep->body ? MHD_RESPMEM_MUST_FREE : MHD_RESPMEM_PERSISTENT);
+        MHD_create_response_from_buffer(a->body ? a->len : 0, a->body ? a->body : (void *)"",
+                                         a->body ? MHD_RESPMEM_MUST_FREE : MHD_RESPMEM_PERSISTENT);
     if (!resp) {
-        free(rep->body);
+        free(a->body);
         return MHD_NO;
     }
-    if (rep->ctype) MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, rep->ctype);
+    if (a->ctype) MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, a->ctype);
     MHD_add_response_header(resp, MHD_HTTP_HEADER_CACHE_CONTROL, "no-store");
     if (rep->allow[0]) MHD_add_response_header(resp, MHD_HTTP_HEADER_ALLOW, rep->allow);
-    if (rep->retry_after > 0) {
+    if (a->retry_after > 0) {
         char v[16];
-        snprintf(v, sizeof v, "%d", rep->retry_after);
+        snprintf(v, sizeof v, "%d", a->retry_after);
         MHD_add_response_header(resp, MHD_HTTP_HEADER_RETRY_AFTER, v);
     }
     if (rep->authenticate) MHD_add_response_header(resp, MHD_HTTP_HEADER_WWW_AUTHENTICATE, "Bearer realm=\"clothd\"");
@@ -554,60 +142,18 @@ static MHD_Result send_reply(req *r, reply *rep)
         MHD_add_response_header(resp, "Access-Control-Allow-Origin", origin);
         MHD_add_response_header(resp, "Vary", "Origin");
     }
-    const MHD_Result ret = MHD_queue_response(r->conn, (unsigned int)rep->status, resp);
+    const MHD_Result ret = MHD_queue_response(r->conn, (unsigned int)a->status, resp);
     MHD_destroy_response(resp);
-    metrics_http(r->s->m, r->label, r->method, rep->status);
+    metrics_http(r->s->m, r->label, r->method, a->status);
     return ret;
 }
 
-/* The answer of a command the sim thread has applied. */
-static void finish(req *r, reply *rep)
-{
-    sim_cmd *c = &r->cmd;
-    if (c->failed) {
-        reply_problem(rep, &c->pr);
-        if (strcmp(c->pr.slug, "busy") == 0) rep->retry_after = 1; /* the queue drains within a slice */
-    } else if (c->blob) {
-        const char *type = r->rt->blob_type ? r->rt->blob_type : JSON_TYPE;
-        if (c->kind == CMD_CLOTH_STATE && wants_binary(r)) type = OCTETS;
-        reply_text(rep, 200, type, (char *)c->blob, c->blob_len);
-        c->blob = NULL;
-    } else {
-        reply_json(rep, r->rt->created ? 201 : 200, c->result ? c->result : json_object());
-        c->result = NULL;
-    }
-}
-
-static void resume_cb(sim_cmd *c, void *arg)
+static void resume_cb(scene_cmd *c, void *arg)
 {
     (void)c;
     req *r = arg;
     r->phase = 2;
     MHD_resume_connection(r->conn);
-}
-
-/* Finds the route (HEAD takes a GET route: the answer without its body); sets *allow to the
- * methods of the path when the method does not match, HEAD with every GET. */
-static const route *match(req *r, char *allow, size_t allow_len, int *path_known)
-{
-    *path_known = 0;
-    allow[0] = '\0';
-    const char *method = strcmp(r->method, "HEAD") == 0 ? "GET" : r->method;
-    for (size_t i = 0; i < NROUTES; i++) {
-        long long id = -1;
-        if (!path_matches(routes[i].pattern, r->url, &id)) continue;
-        *path_known = 1;
-        r->label = routes[i].pattern;
-        if (strcmp(routes[i].method, method) == 0) {
-            r->id = id;
-            allow[0] = '\0';
-            return &routes[i];
-        }
-        const int get = strcmp(routes[i].method, "GET") == 0;
-        snprintf(allow + strlen(allow), allow_len - strlen(allow), "%s%s%s", allow[0] ? ", " : "", routes[i].method,
-                 get ? ", HEAD" : "");
-    }
-    return NULL;
 }
 
 static void copy_request_id(req *r)
@@ -619,11 +165,6 @@ static void copy_request_id(req *r)
     for (size_t k = 0; k < n; k++)
         if (!isalnum((unsigned char)id[k]) && !strchr("-_.:/+=", id[k])) return; /* not echoed */
     memcpy(r->request_id, id, n + 1);
-}
-
-static int is_change(const char *method)
-{
-    return strcmp(method, "GET") != 0 && strcmp(method, "HEAD") != 0 && strcmp(method, "OPTIONS") != 0;
 }
 
 /* The client's address as a rate-limit key (4 or 16 bytes); 0 when unknown. */
@@ -642,11 +183,20 @@ static size_t client_key(req *r, unsigned char key[16])
     return 0;
 }
 
-static double mono_s(void)
+/* 429 when the address has spent a budget (the rate limiter's), with Retry-After. */
+static int over_budget(req *r, ratelimit *budget, const char *what, reply *rep)
 {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+    unsigned char key[16];
+    const size_t kl = client_key(r, key);
+    const int wait = kl ? ratelimit_take(budget, key, kl, clock_mono()) : 0;
+    if (wait <= 0) return 0;
+    problem p;
+    problem_set(&p, 429, "rate-limited", NULL,
+                "more than rate_limit (%d per second, after a burst of %d) %s from this address; retry in %d s",
+                (int)r->s->set.rate_limit, (int)r->s->set.rate_burst, what, wait);
+    api_problem(&rep->a, &p);
+    rep->a.retry_after = wait;
+    return 1;
 }
 
 /* A refusal (401, 403) spends the address's refused budget, not the one of its accepted
@@ -654,19 +204,8 @@ static double mono_s(void)
  * and the control client behind the same address (loopback, NAT, a proxy) keeps its own. */
 static int refuse(req *r, reply *rep, const problem *pr)
 {
-    unsigned char key[16];
-    const size_t kl = client_key(r, key);
-    const int wait = kl ? ratelimit_take(r->s->refused_rate, key, kl, mono_s()) : 0;
-    if (wait > 0) {
-        problem p;
-        problem_set(&p, 429, "rate-limited", NULL,
-                    "more than rate_limit (%d per second, after a burst of %d) refused requests from this address; "
-                    "retry in %d s", (int)r->s->set.rate_limit, (int)r->s->set.rate_burst, wait);
-        reply_problem(rep, &p);
-        rep->retry_after = wait;
-        return 1;
-    }
-    reply_problem(rep, pr);
+    if (over_budget(r, r->s->refused_rate, "refused requests", rep)) return 1;
+    api_problem(&rep->a, pr);
     rep->authenticate = pr->status == 401;
     return 1;
 }
@@ -678,17 +217,18 @@ static const char *request_host(req *r)
 }
 
 /* In order: the cross-site rule for changing requests (before anything else runs), Host (DNS
- * rebinding), the token an API route needs, the rate of changing requests. 1 and rep filled when
- * the request is refused. /v1/health answers everyone (liveness probes carry no secrets) and the
- * viewer's static files are public. */
-static int refused(req *r, int api, reply *rep)
+ * rebinding), the token the route needs (`needs`: the command table's access; the viewer's static
+ * files and /v1/health are public), the rate of changing requests. 1 and rep filled when the
+ * request is refused. */
+static int refused(req *r, access_level needs, reply *rep)
 {
     http_server *s = r->s;
     const access_policy *acc = s->info.access;
     if (!acc) return 0;
     const char *host = request_host(r);
+    const int changes = command_method_changes(r->method);
     problem pr;
-    if (is_change(r->method)) {
+    if (changes) {
         const char *origin = header(r, "Origin"), *site = header(r, "Sec-Fetch-Site");
         if (!access_change_ok(acc, origin, site, host, s->port)) {
             problem_set(&pr, 403, "cross-site", NULL,
@@ -704,8 +244,7 @@ static int refused(req *r, int api, reply *rep)
                     "allowed_hosts (a guard against DNS rebinding)", host);
         return refuse(r, rep, &pr);
     }
-    if (!api) return 0;
-    if (strcmp(r->url, "/v1/health") != 0) {
+    if (needs != ACCESS_NONE) {
         const char *authorization = header(r, MHD_HTTP_HEADER_AUTHORIZATION);
         const access_level level = access_bearer(acc, authorization);
         if (level == ACCESS_NONE) {
@@ -714,85 +253,81 @@ static int refused(req *r, int api, reply *rep)
                                       : "this server needs a token: send 'Authorization: Bearer <token>'");
             return refuse(r, rep, &pr);
         }
-        if (level == ACCESS_VIEW && is_change(r->method)) {
+        if (level < needs) {
             problem_set(&pr, 403, "forbidden", NULL, "the view token reads only; changes need the control token");
             return refuse(r, rep, &pr);
         }
     }
-    if (is_change(r->method)) {
-        unsigned char key[16];
-        const size_t kl = client_key(r, key);
-        const int wait = kl ? ratelimit_take(s->rate, key, kl, mono_s()) : 0;
-        if (wait > 0) {
-            problem_set(&pr, 429, "rate-limited", NULL,
-                        "more than rate_limit (%d per second, after a burst of %d) changing requests from this "
-                        "address; retry in %d s", (int)s->set.rate_limit, (int)s->set.rate_burst, wait);
-            reply_problem(rep, &pr);
-            rep->retry_after = wait;
-            return 1;
-        }
+    return changes && over_budget(r, s->rate, "changing requests", rep);
+}
+
+/* The viewer's files: GET and HEAD only. */
+static MHD_Result serve_file(req *r)
+{
+    http_server *s = r->s;
+    reply rep = {0};
+    r->label = "static";
+    if (strcmp(r->method, "GET") != 0 && strcmp(r->method, "HEAD") != 0) {
+        snprintf(rep.allow, sizeof rep.allow, "GET, HEAD");
+        reply_error(&rep, 405, "method-not-allowed", NULL, "static files are read with GET");
+        return send_reply(r, &rep);
     }
-    return 0;
+    int status = 404;
+    struct MHD_Response *resp = static_file(s->web_root, r->url, &status);
+    if (!resp) {
+        reply_error(&rep, 404, "not-found", NULL, "no such file");
+        return send_reply(r, &rep);
+    }
+    MHD_add_response_header(resp, MHD_HTTP_HEADER_CACHE_CONTROL, "no-cache");
+    if (r->request_id[0]) MHD_add_response_header(resp, "X-Request-Id", r->request_id);
+    const MHD_Result ret = MHD_queue_response(r->conn, (unsigned int)status, resp);
+    MHD_destroy_response(resp);
+    metrics_http(s->m, r->label, r->method, status);
+    return ret;
 }
 
 static MHD_Result dispatch(req *r)
 {
     http_server *s = r->s;
     reply rep = {0};
-    const int api = strncmp(r->url, "/v1/", 4) == 0 || strcmp(r->url, "/v1") == 0 || strcmp(r->url, "/metrics") == 0;
-    if (refused(r, api, &rep)) return send_reply(r, &rep);
+    const int api = command_is_api(r->url);
+    if (refused(r, api ? command_access(r->method, r->url) : ACCESS_NONE, &rep)) return send_reply(r, &rep);
     if (r->too_large) {
         char d[96];
         snprintf(d, sizeof d, "the body is larger than max_body (%d bytes)", (int)s->set.max_body);
         reply_error(&rep, 413, "too-large", NULL, d);
         return send_reply(r, &rep);
     }
-    if (!api) {
-        r->label = "static";
-        if (strcmp(r->method, "GET") != 0 && strcmp(r->method, "HEAD") != 0) {
-            snprintf(rep.allow, sizeof rep.allow, "GET, HEAD");
-            reply_error(&rep, 405, "method-not-allowed", NULL, "static files are read with GET");
-            return send_reply(r, &rep);
-        }
-        int status = 404, fd;
-        struct MHD_Response *resp = static_file(s, r->url, &status, &fd);
-        if (!resp) {
-            reply_error(&rep, 404, "not-found", NULL, "no such file");
-            return send_reply(r, &rep);
-        }
-        MHD_add_response_header(resp, MHD_HTTP_HEADER_CACHE_CONTROL, "no-cache");
-        if (r->request_id[0]) MHD_add_response_header(resp, "X-Request-Id", r->request_id);
-        const MHD_Result ret = MHD_queue_response(r->conn, (unsigned int)status, resp);
-        MHD_destroy_response(resp);
-        metrics_http(s->m, r->label, r->method, status);
-        return ret;
-    }
-    int known;
-    r->label = "unknown";
-    const route *rt = match(r, rep.allow, sizeof rep.allow, &known);
-    if (!rt) {
-        if (known) {
+    if (!api) return serve_file(r);
+    route_match m;
+    command_route(r->method, r->url, &m);
+    r->label = m.label;
+    if (!m.def) {
+        if (m.path_known) {
             problem pr;
+            snprintf(rep.allow, sizeof rep.allow, "%s", m.allow);
             problem_set(&pr, 405, "method-not-allowed", NULL, "%s is not allowed on %s (allowed: %s)", r->method, r->url,
-                        rep.allow);
-            reply_problem(&rep, &pr);
+                        m.allow);
+            api_problem(&rep.a, &pr);
         } else {
             reply_error(&rep, 404, "not-found", NULL, "no such route");
         }
         return send_reply(r, &rep);
     }
-    r->rt = rt;
-    if (strstr(rt->pattern, "{id}") && (r->id < 1 || r->id > 4294967295LL)) {
-        reply_error(&rep, 404, "not-found", "id", "no rock with that id");
+    if (m.def->scope == SCOPE_SCENE && !(r->sc = scenes_get(s->table, m.scene))) {
+        reply_error(&rep, 404, "not-found", "scene", "no such scene");
         return send_reply(r, &rep);
     }
-    if (rt->fn(s, r, &rep) == NOW) return send_reply(r, &rep);
+    const char *h = query(r, "hash");
+    const api_request rq = {m.def, r->sc, r->body, r->len, NULL, m.id, wants_binary(r),
+                            h && (strcmp(h, "1") == 0 || strcmp(h, "true") == 0), &s->daemon};
+    if (command_request(&rq, &rep.a, &r->cmd) == API_NOW) return send_reply(r, &rep);
     r->phase = 1;
     memcpy(r->cmd.request_id, r->request_id, sizeof r->cmd.request_id);
     r->cmd.done = resume_cb;
     r->cmd.done_arg = r;
     MHD_suspend_connection(r->conn); /* before submitting: the answer may come at once */
-    simloop_submit(s->sl, &r->cmd);
+    scene_submit(r->sc, &r->cmd);
     return MHD_YES;
 }
 
@@ -823,7 +358,7 @@ static void notify_cb(void *cls, struct MHD_Connection *c, void **socket_context
     if (toe == MHD_CONNECTION_NOTIFY_STARTED) {
         const union MHD_ConnectionInfo *fd = MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
         const union MHD_ConnectionInfo *ad = MHD_get_connection_info(c, MHD_CONNECTION_INFO_CLIENT_ADDRESS);
-        *socket_context = fd ? conns_open(s->conns, fd->connect_fd, ad ? ad->client_addr : NULL, mono_s()) : NULL;
+        *socket_context = fd ? conns_open(s->conns, fd->connect_fd, ad ? ad->client_addr : NULL, clock_mono()) : NULL;
     } else {
         conns_close(s->conns, *socket_context); /* before libmicrohttpd closes the descriptor */
         *socket_context = NULL;
@@ -909,7 +444,7 @@ static int malformed(req *r, const char *url, const char *version, reply *rep)
     problem pr;
     problem_set(&pr, status, status == 400 ? "bad-request" : status == 414 ? "uri-too-long" : "not-implemented", NULL,
                 "%s", why);
-    reply_problem(rep, &pr);
+    api_problem(&rep->a, &pr);
     rep->close = 1;
     return 1;
 }
@@ -938,7 +473,7 @@ static MHD_Result access_cb(void *cls, struct MHD_Connection *conn, const char *
     if (!r) {
         /* First call: the head is in. Record the request only (answering now would end
          * keep-alive), unless it is malformed. */
-        conns_head_done(s->conns, conn_of(conn), mono_s());
+        conns_head_done(s->conns, conn_of(conn), clock_mono());
         r = calloc(1, sizeof *r);
         if (!r) return MHD_NO;
         r->s = s;
@@ -992,7 +527,7 @@ static MHD_Result access_cb(void *cls, struct MHD_Connection *conn, const char *
     if (r->phase == 1) return MHD_YES; /* woken before its answer: keep waiting */
     if (r->phase == 2) {
         reply rep = {0};
-        finish(r, &rep);
+        command_answer(&r->cmd, wants_binary(r), &rep.a);
         r->phase = 3;
         return send_reply(r, &rep);
     }
@@ -1008,13 +543,14 @@ static void completed_cb(void *cls, struct MHD_Connection *conn, void **con_cls,
 {
     (void)toe;
     http_server *s = cls;
-    conns_done(s->conns, conn_of(conn), mono_s()); /* ready for the next request from now */
+    conns_done(s->conns, conn_of(conn), clock_mono()); /* ready for the next request from now */
     req *r = *con_cls;
     if (!r) return;
-    json_decref(r->cmd_body);
+    json_decref(r->cmd.body);
     json_decref(r->cmd.result);
     free(r->cmd.blob);
     free(r->body);
+    scene_release(r->sc);
     free(r);
     *con_cls = NULL;
 }
@@ -1036,7 +572,7 @@ static void *sweep_main(void *arg)
     pthread_mutex_lock(&s->stop_lock);
     while (!s->stopping) {
         pthread_mutex_unlock(&s->stop_lock);
-        conns_sweep(s->conns, mono_s());
+        conns_sweep(s->conns, clock_mono());
         struct timespec until;
         clock_gettime(CLOCK_REALTIME, &until);
         until.tv_nsec += 100000000L;
@@ -1058,7 +594,7 @@ static void free_server(http_server *s)
     free(s);
 }
 
-http_server *http_start(const clothd_settings *set, simloop *sl, metrics *m, const http_info *info, char *err,
+http_server *http_start(const clothd_settings *set, scenes *table, metrics *m, const http_info *info, char *err,
                         size_t err_len)
 {
     http_server *s = calloc(1, sizeof *s);
@@ -1066,10 +602,12 @@ http_server *http_start(const clothd_settings *set, simloop *sl, metrics *m, con
         snprintf(err, err_len, "out of memory");
         return NULL;
     }
-    s->sl = sl;
+    s->table = table;
     s->m = m;
     s->info = *info;
     s->set = *set;
+    s->daemon = (api_daemon){info->backend, info->device, info->backend_note, info->version,
+                             info->stream ? info->stream_port : 0, table, m, http_metrics, s};
     pthread_mutex_init(&s->stop_lock, NULL);
     pthread_cond_init(&s->stop_cond, NULL);
     s->rate = ratelimit_new(set->rate_limit, set->rate_burst);
@@ -1153,8 +691,10 @@ void http_stop(http_server *s)
     free_server(s);
 }
 
-static char *http_metrics(http_server *s)
+/* The HTTP server's own metrics and the stream's, for /metrics. */
+static char *http_metrics(void *ctx)
 {
+    http_server *s = ctx;
     uint64_t closed[CONNS_REASONS];
     conns_closed(s->conns, closed);
     char *out = NULL;
@@ -1169,6 +709,9 @@ static char *http_metrics(http_server *s)
     for (int k = 0; k < CONNS_REASONS; k++)
         fprintf(f, "clothd_http_connections_closed_total{reason=\"%s\"} %llu\n", conns_reason_names[k],
                 (unsigned long long)closed[k]);
+    char *stream = s->info.stream ? stream_metrics(s->info.stream) : NULL;
+    if (stream) fputs(stream, f);
+    free(stream);
     fclose(f);
     return out;
 }

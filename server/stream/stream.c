@@ -1,6 +1,6 @@
 /* stream.c - the WebSocket stream (see stream.h).
  *
- * Threads: the sim thread calls stream_frame_begin/publish and stream_event; libwebsockets runs
+ * Threads: the sim thread calls the sink's begin/publish/discard and event; libwebsockets runs
  * in its own service thread, which alone touches the sessions and the encoded frames. Handing a
  * frame over is a pointer swap under a mutex among three buffers (one the sim thread fills, the
  * newest, one the service thread encodes), then lws_cancel_service, whose
@@ -34,19 +34,19 @@
 
 #include <jansson.h>
 
-#include "core/access.h"
 #include "clothd_frame.h"
-#include "core/log.h"
+#include "core/access.h"
+#include "core/clock.h"
 #include "core/json_write.h"
+#include "core/log.h"
 #include "core/problem.h"
 #include "core/rock_json.h"
-#include "sim/simloop.h"
-#include "stream/stream.h"
 #include "core/stream_msg.h"
 #include "core/wire.h"
+#include "sim/commands.h"
+#include "stream/stream.h"
 
-#define PROTOCOL_NAME "clothd.v1"
-#define STREAM_PATH "/stream"
+#define PROTOCOL_NAME STREAM_PROTOCOL
 #define EVENT_RING 1024
 #define MAX_TEXTS 8 /* queued text messages (errors, acks) per client */
 #define N_ENC STREAM_ENCODINGS
@@ -65,6 +65,7 @@ typedef struct session session;
 struct session {
     struct lws *wsi;
     uint64_t id;
+    scene *sc;            /* the scene it streams: a held handle */
     session *next;
     int encoding, scalar, max_fps;
     uint64_t last_frame; /* seq of the last frame sent */
@@ -85,8 +86,9 @@ struct session {
 
 /* A grab or release on its way to the sim thread; the answer comes back through `done`. */
 typedef struct grab_req {
-    sim_cmd cmd;
+    scene_cmd cmd;
     json_t *body;
+    scene *sc;           /* held while it is on its way */
     uint64_t client;
     struct grab_req *next;
 } grab_req;
@@ -94,7 +96,7 @@ typedef struct grab_req {
 struct stream {
     struct lws_context *ctx;
     const struct lws_protocols *protocol;
-    simloop *sl;
+    scenes *table;
     pthread_t thread;
     atomic_int stop;
     int port;
@@ -122,7 +124,7 @@ struct stream {
 
     atomic_int clients;
     atomic_uint scalars_wanted;
-    atomic_int publish_asked; /* a CMD_PUBLISH is on its way to the sim thread */
+    atomic_int publish_asked; /* a "publish" command is on its way to the sim thread */
     atomic_int publish_again; /* and someone asked again meanwhile (it may come too late for them) */
 
     /* the service thread's own */
@@ -137,17 +139,12 @@ struct stream {
 };
 
 
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 /* ---- from the sim thread ---- */
 
-pose *stream_frame_begin(stream *st, unsigned *scalars)
+static pose *sink_begin(void *ctx, unsigned *scalars)
 {
+    stream *st = ctx;
     if (atomic_load(&st->clients) == 0) return NULL;
     pthread_mutex_lock(&st->flock);
     pose *f = NULL;
@@ -176,8 +173,9 @@ static void give_back(stream *st, pose *f)
     free(f);
 }
 
-void stream_frame_publish(stream *st, pose *f)
+static void sink_publish(void *ctx, pose *f)
 {
+    stream *st = ctx;
     pthread_mutex_lock(&st->flock);
     if (st->latest) give_back(st, st->latest);
     st->latest = f;
@@ -186,15 +184,17 @@ void stream_frame_publish(stream *st, pose *f)
     lws_cancel_service(st->ctx);
 }
 
-void stream_frame_discard(stream *st, pose *f)
+static void sink_discard(void *ctx, pose *f)
 {
+    stream *st = ctx;
     pthread_mutex_lock(&st->flock);
     give_back(st, f);
     pthread_mutex_unlock(&st->flock);
 }
 
-void stream_event(stream *st, const char *json)
+static void sink_event(void *ctx, const char *json)
 {
+    stream *st = ctx;
     const size_t len = strlen(json);
     char *copy = strdup(json);
     if (!copy) return;
@@ -253,15 +253,14 @@ static void client_error(stream *st, session *s, const char *about, int status, 
     lws_callback_on_writable(s->wsi);
 }
 
-static char *hello_text(stream *st)
+static char *hello_text(scene *sc)
 {
     size_t len;
-    char *scene = simloop_scene_json(st->sl, &len), *params = simloop_params_json(st->sl, &len);
-    char *sim = simloop_sim_json(st->sl, &len), *torn = simloop_torn_json(st->sl, &len);
+    char *scene = scene_doc_copy(sc, DOC_FIELDS, &len), *params = scene_doc_copy(sc, DOC_PARAMS, &len);
+    char *sim = scene_doc_copy(sc, DOC_SIM, &len), *torn = scene_doc_copy(sc, DOC_TORN, &len);
     cs_rock *rocks;
-    const int n = simloop_rocks(st->sl, &rocks);
-    json_t *list = json_array();
-    for (int k = 0; k < n; k++) json_array_append_new(list, rock_to_json(&rocks[k]));
+    const int n = scene_rocks(sc, &rocks);
+    json_t *list = rocks_to_json(rocks, n);
     free(rocks);
     json_t *sj = sim ? json_loads(sim, 0, NULL) : NULL;
     json_t *o = json_pack("{s:s, s:s, s:o, s:o, s:o, s:o, s:o, s:o, s:o}", "type", "hello", "protocol", PROTOCOL_NAME,
@@ -284,7 +283,7 @@ static char *hello_text(stream *st)
 
 static void submit_grab(stream *st, session *s, json_t *body);
 
-static void answered_cb(sim_cmd *cmd, void *arg)
+static void answered_cb(scene_cmd *cmd, void *arg)
 {
     stream *st = arg;
     grab_req *g = (grab_req *)cmd; /* cmd is the first member */
@@ -315,43 +314,54 @@ static void submit_grab(stream *st, session *s, json_t *body)
     }
     g->body = body;
     g->client = s->id;
-    g->cmd.kind = CMD_APPLY;
+    g->cmd.def = command_find(json_string_value(json_object_get(body, "op")));
     g->cmd.body = body;
     g->cmd.done = answered_cb;
     g->cmd.done_arg = st;
     snprintf(g->cmd.request_id, sizeof g->cmd.request_id, "stream-%llu", (unsigned long long)s->id);
     s->grab_in_flight = 1;
-    simloop_submit(st->sl, &g->cmd);
+    g->sc = scene_hold(s->sc);
+    scene_submit(g->sc, &g->cmd);
 }
 
-static void request_frame(stream *st);
+static void request_frame(stream *st, scene *sc);
 
-static void published_cb(sim_cmd *cmd, void *arg)
+/* A publication asked for, with the scene it was asked of. */
+typedef struct publish_req {
+    scene_cmd cmd;
+    scene *sc; /* held while it is on its way */
+} publish_req;
+
+static void published_cb(scene_cmd *cmd, void *arg)
 {
     stream *st = arg;
-    free(cmd);
+    publish_req *p = (publish_req *)cmd; /* cmd is the first member */
+    scene *sc = p->sc;
+    free(p);
     atomic_store(&st->publish_asked, 0);
-    if (atomic_exchange(&st->publish_again, 0)) request_frame(st);
+    if (atomic_exchange(&st->publish_again, 0)) request_frame(st, sc);
+    scene_release(sc);
 }
 
-/* Asks the sim thread to publish now (a paused simulation publishes only after commands). One
- * request at a time: asks that come while one is on its way make one more after it, however many
- * they are. */
-static void request_frame(stream *st)
+/* Asks the sim thread to publish a scene now (a paused scene publishes only after commands).
+ * One request at a time: asks that come while one is on its way make one more after it, however
+ * many they are. */
+static void request_frame(stream *st, scene *sc)
 {
     if (atomic_exchange(&st->publish_asked, 1)) {
         atomic_store(&st->publish_again, 1);
         return;
     }
-    sim_cmd *c = calloc(1, sizeof *c);
-    if (!c) {
+    publish_req *p = calloc(1, sizeof *p);
+    if (!p) {
         atomic_store(&st->publish_asked, 0);
         return;
     }
-    c->kind = CMD_PUBLISH;
-    c->done = published_cb;
-    c->done_arg = st;
-    simloop_submit(st->sl, c);
+    p->sc = scene_hold(sc);
+    p->cmd.def = command_find("publish");
+    p->cmd.done = published_cb;
+    p->cmd.done_arg = st;
+    scene_submit(p->sc, &p->cmd);
 }
 
 static session *find(stream *st, uint64_t id)
@@ -385,6 +395,7 @@ static void take_answers(stream *st)
         json_decref(g->body);
         json_decref(g->cmd.result);
         free(g->cmd.blob);
+        scene_release(g->sc);
         free(g);
     }
 }
@@ -403,7 +414,7 @@ static void handle_subscribe(stream *st, session *s, const stream_msg *m)
         if (o->scalar) want |= 1u << o->scalar;
     atomic_store(&st->scalars_wanted, want);
     s->last_frame = 0; /* the next frame in the new encoding at once */
-    if (sc != SCALAR_NONE && (!st->current || !st->current->has[sc])) request_frame(st); /* frames lack it */
+    if (sc != SCALAR_NONE && (!st->current || !st->current->has[sc])) request_frame(st, s->sc); /* poses lack it */
     json_t *ack = json_pack("{s:s, s:s, s:i, s:s}", "type", "subscribed", "encoding", stream_encoding_names[enc],
                             "max_fps", fps, "scalar", stream_scalar_names[sc]);
     char *text = json_dumps(ack, JSON_DUMP_FLAGS);
@@ -479,7 +490,7 @@ static void take_newest(stream *st)
 /* Stalled clients (their newest frame waiting too long) are closed. */
 static void sweep(stream *st)
 {
-    const double t = now_s();
+    const double t = clock_mono();
     for (session *s = st->sessions; s; s = s->next) {
         const wire *w = &st->wires[s->encoding][s->scalar];
         if (s->dead || w->seq <= s->last_frame) {
@@ -542,7 +553,7 @@ static int writeable(stream *st, session *s)
     }
     const wire *w = wire_for(st, s->encoding, s->scalar);
     if (w->seq > s->last_frame && w->len) {
-        const double t = now_s(), wait = 1.0 / s->max_fps - (t - s->last_send);
+        const double t = clock_mono(), wait = 1.0 / s->max_fps - (t - s->last_send);
         if (wait > 0.0005) {
             lws_set_timer_usecs(s->wsi, (lws_usec_t)(wait * 1e6));
             return 0;
@@ -693,6 +704,8 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         const access_level granted = s->access; /* set by admit() in this same allocation */
         memset(s, 0, sizeof *s);
         s->access = granted;
+        s->sc = scenes_get(st->table, SCENE_DEFAULT);
+        if (!s->sc) return -1; /* no scene to stream (never so today: "default" is never deleted) */
         s->established = 1;
         s->wsi = wsi;
         s->id = ++st->next_id;
@@ -702,10 +715,10 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         pthread_mutex_lock(&st->elock);
         s->next_event = st->event_seq; /* events from here on; hello shows the state before */
         pthread_mutex_unlock(&st->elock);
-        s->hello = hello_text(st);
+        s->hello = hello_text(s->sc);
         s->next = st->sessions;
         st->sessions = s;
-        if (atomic_fetch_add(&st->clients, 1) == 0 || !st->current) request_frame(st);
+        if (atomic_fetch_add(&st->clients, 1) == 0 || !st->current) request_frame(st, s->sc);
         lws_callback_on_writable(wsi);
         return 0;
     }
@@ -723,7 +736,9 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         for (int k = 0; k < s->n_texts; k++) free(s->texts[k]);
         free(s->rx);
         json_decref(s->grab_pending);
+        scene_release(s->sc);
         s->rx = NULL;
+        s->sc = NULL;
         return 0;
     case LWS_CALLBACK_RECEIVE: {
         if (lws_is_first_fragment(wsi) && s->rx_len == 0) s->rx_bad = lws_frame_is_binary(wsi) ? 2 : 0;
@@ -783,14 +798,14 @@ static void *service(void *arg)
 /* Ping after 10 s without traffic, hang up after 30 s without an answer. */
 static const lws_retry_bo_t keepalive = {.secs_since_valid_ping = 10, .secs_since_valid_hangup = 30};
 
-stream *stream_start(const clothd_settings *set, simloop *sl, const access_policy *acc, char *err, size_t err_len)
+stream *stream_start(const clothd_settings *set, scenes *table, const access_policy *acc, char *err, size_t err_len)
 {
     stream *st = calloc(1, sizeof *st);
     if (!st) {
         snprintf(err, err_len, "out of memory");
         return NULL;
     }
-    st->sl = sl;
+    st->table = table;
     st->acc = acc;
     st->protocol = &protocols[0];
     st->max_clients = set->stream_max_clients;
@@ -856,7 +871,10 @@ void stream_stop(stream *st)
     free(st);
 }
 
-uint64_t stream_memory(int32_t n, int32_t rocks)
+/* Bytes the stream may hold for a scene of n vertices and `rocks` rocks: its poses (the one the
+ * sim thread fills, the newest, the one being sent, a spare) and one wire message for each
+ * encoding and scalar. */
+static uint64_t sink_bytes(int32_t n, int32_t rocks)
 {
     pose f = {.n = n, .n_rocks = rocks, .has = {0, 1, 1}};
     const uint64_t raw = sizeof(float) * 3 * (uint64_t)n + (SCALAR_KINDS - 1) * (uint64_t)n + sizeof(pose_rock) * (uint64_t)rocks;
@@ -897,3 +915,7 @@ char *stream_metrics(stream *st)
     fclose(f);
     return out;
 }
+
+const frame_sink_ops stream_sink_ops = {sink_begin, sink_publish, sink_discard, sink_event, sink_bytes};
+
+frame_sink stream_sink(stream *st) { return (frame_sink){&stream_sink_ops, st}; }
