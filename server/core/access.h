@@ -48,7 +48,7 @@ int access_origin_ok(const access_policy *p, const char *origin, const char *hos
 int access_origin_listed(const access_policy *p, const char *origin);
 
 /* Whether a changing HTTP request (POST, PUT, PATCH, DELETE) may go on, given its Origin and
- * Sec-Fetch-Site headers (NULL when absent): DESIGN's cross-site rule. */
+ * Sec-Fetch-Site headers (NULL when absent): the cross-site rule (PROTOCOL.md, Access). */
 int access_change_ok(const access_policy *p, const char *origin, const char *fetch_site, const char *host,
                      int http_port);
 

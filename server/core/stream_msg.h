@@ -1,4 +1,4 @@
-/* stream_msg.h - a stream client's text message, parsed and checked (DESIGN.md section 4):
+/* stream_msg.h - a stream client's text message, parsed and checked (PROTOCOL.md, Client messages):
  * subscribe, grab and release. Pure: no session and no socket; stream.c acts on the result, so
  * the parser can be tested and fuzzed on its own. */
 #ifndef CLOTHD_STREAM_MSG_H

@@ -1,6 +1,6 @@
-/* test_guard.c - the stability guard and the non-finite guard (DESIGN.md section 2, Time).
+/* test_guard.c - the stability guard and the non-finite guard (kernels/MODEL.md, Time).
  *
- * The guard's limit is recomputed here by hand from DESIGN's formula: per vertex
+ * The guard's limit is recomputed here by hand from MODEL.md's formula: per vertex
  * K = its spring stiffnesses + k_contact, C = its spring dampings + c_contact + m drag / 2,
  * dt_i = (sqrt(C^2 + 2 m K) - C) / K; per dynamic rock the same with M, k_rock, c_rock;
  * dt_max = stability_safety x the smallest. The interior vertex of a grid of 5 x 5 or more has

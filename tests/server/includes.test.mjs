@@ -25,6 +25,15 @@ test('no include cycle among the modules of server/', () => {
   assert.deepEqual(cycles(deps), []);
 });
 
+test('the rooms are layered: core/ includes none of the others, sim/ only core/', () => {
+  const deps = dependencies(join(process.env.CLOTHD_SOURCE, 'server'));
+  for (const [m, on] of deps) {
+    const rooms = new Set([...on].map((d) => d.split('/')[0]));
+    if (m.startsWith('core/')) assert.deepEqual([...rooms].filter((r) => r !== 'core'), [], m);
+    if (m.startsWith('sim/')) assert.deepEqual([...rooms].filter((r) => r !== 'core' && r !== 'sim'), [], m);
+  }
+});
+
 test('the check finds a cycle, and nothing where there is none', () => {
   // sim/loop.c includes stream/out.h, stream/out.c includes sim/loop.h: the cycle clothd had.
   assert.deepEqual(cycles(dependencies(tree({

@@ -1,5 +1,5 @@
 /* clothsim/clothsim.h - libclothsim, the physics core of clothd: a mass-spring cloth and rigid
- * spherical rocks with penalty contact (DESIGN.md section 2).
+ * spherical rocks with penalty contact (kernels/MODEL.md).
  *
  * One cs_sim owns a scene, its parameters and its state, and steps them on a backend (CPU or
  * CUDA). Every call validates its input; a refused call returns a cs_status other than CS_OK,

@@ -1,6 +1,6 @@
 /* clothsim/params.h - the scene and the live parameters, and the one table that describes them.
  *
- * Every tunable of DESIGN.md section 2 is declared once, in the X-macro lists below: its C field,
+ * Every tunable of the engine (kernels/MODEL.md) is declared once, in the X-macro lists below: its C field,
  * type, unit, default, range, choices, kind and help text. The structs, the default values, the
  * validation and the table that the daemon, its config file and the viewer's panel read are all
  * generated from these lists, so adding a parameter is one line. */

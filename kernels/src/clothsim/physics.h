@@ -1,4 +1,4 @@
-/* clothsim/physics.h - the force math of DESIGN.md section 2, written once.
+/* clothsim/physics.h - the force math of kernels/MODEL.md, written once.
  *
  * Every function here is SIM_HD: plain C under a C compiler, __host__ __device__ under nvcc. The
  * CPU backend loops over them and the CUDA kernels call them unchanged, so both backends do the
@@ -127,7 +127,7 @@ SIM_HD static inline float cs_spring_energy(cs_vec3 xi, cs_vec3 xj, float L0, fl
     return L0 > 0.0f ? 0.5f * k * e * e : 0.0f;
 }
 
-/* New rest length of a spring of current length len after a substep (DESIGN: tear past
+/* New rest length of a spring of current length len after a substep (MODEL.md: tear past
  * tear_strain, else plastic flow past plastic_yield, tension only). Branch-free selects. */
 SIM_HD static inline float cs_strain_update(float len, float L0, const cs_phys *p)
 {
@@ -147,7 +147,7 @@ SIM_HD static inline cs_vec3 cs_air_gravity(cs_vec3 vi, const cs_phys *p)
 /* The penalty contact law shared by every contact. n: unit normal from the other body toward
  * this one; delta > 0: penetration; vrel: velocity of this body's contact point relative to the
  * other's; Ro: resultant of the non-contact forces on this body (resultant model only).
- * Fn = max(0, k delta - c vn) n; friction per model (DESIGN section 2). */
+ * Fn = max(0, k delta - c vn) n; friction per model (MODEL.md, Rocks). */
 SIM_HD static inline cs_vec3 cs_contact_law(cs_vec3 n, float delta, cs_vec3 vrel, float k, float c, float mu,
                                             float ct, int32_t model, cs_vec3 Ro)
 {
