@@ -64,6 +64,13 @@ SIM_HD static inline cs_vec3 cs_v3_from(const float *a) { return cs_v3(a[0], a[1
 enum { CS_SX, CS_SY, CS_D1, CS_D2, CS_BX, CS_BY, CS_NTYPES };
 #define CS_SPRING_TYPES(X) X(CS_SX, 1, 0) X(CS_SY, 0, 1) X(CS_D1, 1, 1) X(CS_D2, -1, 1) X(CS_BX, 2, 0) X(CS_BY, 0, 2)
 
+/* The grid's far-end rule: the spring of vertex (i, j) reaching (i + di, j + dj) exists when its far
+ * end is on the nx x ny grid (the spring types' dj is never negative). */
+SIM_HD static inline int cs_far_end_on_grid(int32_t nx, int32_t ny, int32_t i, int32_t j, int di, int dj)
+{
+    return i + di >= 0 && i + di < nx && j + dj < ny;
+}
+
 /* The fixed order in which every backend sums the 12 springs of a vertex: X(type, di, dj, fwd)
  * for the neighbour at (i + di, j + dj); fwd = 1 when the vertex owns the spring (its rest length
  * is L0[type][v]), 0 when the neighbour does (L0[type][v + di + dj nx]). */
