@@ -205,11 +205,8 @@ static void test_schema(void **unused)
 static void test_loop_from_snapshot(void **unused)
 {
     (void)unused;
-    FILE *f = fopen(CLOTHD_TEST_DATA "/clothd-0.1.0.state", "rb");
-    assert_non_null(f);
     unsigned char file[8192];
-    const size_t n = fread(file, 1, sizeof file, f);
-    fclose(f);
+    const size_t n = uk_data_file("clothd-0.1.0.state", file, sizeof file);
     loop_settings loop = uk_defaults().scene.loop;
     assert_int_equal(loop_from_snapshot(&loop, file, cs_snapshot_length(file, n)), 6);
     assert_true(loop.time_scale == 2.5f && loop.seed == 7 && loop.auto_drop_interval == 0.75f);

@@ -68,11 +68,8 @@ static void test_older_formats(void **unused)
     /* clothd 0.1.0's file: format 2, its snapshot written with the daemon-loop settings in the
      * engine's table (--time-scale 2.5 --seed 7 --auto-drop-interval 0.75 --auto-drop-max 3
      * --checkpoint-interval 17 --max-speed true). */
-    FILE *f = fopen(CLOTHD_TEST_DATA "/clothd-0.1.0.state", "rb");
-    assert_non_null(f);
     unsigned char file[8192];
-    const size_t n = fread(file, 1, sizeof file, f);
-    fclose(f);
+    const size_t n = uk_data_file("clothd-0.1.0.state", file, sizeof file);
     assert_int_equal(statefile_parse(file, n, &out, &loop, why, sizeof why), STATEFILE_OK);
     assert_int_equal(out.format, 2);
     assert_true(out.paused);

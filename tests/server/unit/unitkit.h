@@ -41,6 +41,19 @@ static inline clothd_config uk_defaults(void)
     return c;
 }
 
+/* A file of tests/data, read whole into buf (cap bytes); returns its length. */
+static inline size_t uk_data_file(const char *name, unsigned char *buf, size_t cap)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/%s", CLOTHD_TEST_DATA, name);
+    FILE *f = fopen(path, "rb");
+    if (!f) fail_msg("%s: cannot open it", path);
+    const size_t n = fread(buf, 1, cap, f);
+    fclose(f);
+    if (n == cap) fail_msg("%s: larger than %zu bytes", path, cap);
+    return n;
+}
+
 /* text parses to the same JSON as expected (member order aside). */
 #define uk_assert_json(text, expected)                                                                 \
     do {                                                                                               \
