@@ -1,8 +1,11 @@
 # assemble.cmake - puts the viewer together in one directory that clothd serves at /:
-#   cmake -DSRC=<repo>/web -DPROTO=<repo>/proto -DOUT=<build>/web -P assemble.cmake
+#   cmake -DSRC=<repo>/web -DPROTO=<repo>/proto -DOUT=<build>/web [-DCLIENT=<repo>/clients/js] \
+#         -P assemble.cmake
 # The page's own files (index.html, style.css, src/*.js) are copied as they are; the npm packages
 # of web/package-lock.json (installed by scripts/setup.sh: npm ci in web/) are copied to vendor/,
-# and proto/frame.mjs to proto/. index.html's import map names these paths. No bundler: the
+# proto/frame.mjs to proto/, and the JavaScript client (CLIENT, by default clients/js beside
+# web/) to clients/js/src/, where its import of ../../../proto/frame.mjs finds proto/ as it does
+# in the source tree. index.html's import map names these paths. No bundler: the
 # browser loads ES modules, nothing comes from a CDN. Without web/node_modules the page cannot
 # work, so nothing is assembled and clothd serves its placeholder page.
 set(vendor
@@ -33,6 +36,12 @@ foreach(i RANGE 0 ${last} 2)
     list(APPEND missing "${from}")
   endif()
 endforeach()
+if(NOT DEFINED CLIENT)
+  get_filename_component(CLIENT "${SRC}/../clients/js" ABSOLUTE)
+endif()
+if(NOT EXISTS "${CLIENT}/src/index.js")
+  message(FATAL_ERROR "assemble.cmake: no JavaScript client at ${CLIENT} (-DCLIENT=<repo>/clients/js)")
+endif()
 if(missing)
   message(WARNING "viewer not assembled: web/node_modules lacks ${missing} (run scripts/setup.sh, "
                   "or npm ci in web/); clothd serves a placeholder page at /")
@@ -40,8 +49,8 @@ if(missing)
   return()
 endif()
 
-file(REMOVE_RECURSE "${OUT}/src") # a page file removed from web/ goes from here too
-file(MAKE_DIRECTORY "${OUT}/vendor" "${OUT}/proto" "${OUT}/src")
+file(REMOVE_RECURSE "${OUT}/src" "${OUT}/clients") # a file removed from web/ or clients/js goes from here too
+file(MAKE_DIRECTORY "${OUT}/vendor" "${OUT}/proto" "${OUT}/src" "${OUT}/clients/js/src")
 file(GLOB page RELATIVE "${SRC}" "${SRC}/*.html" "${SRC}/*.css" "${SRC}/src/*.js")
 foreach(f ${page})
   file(COPY_FILE "${SRC}/${f}" "${OUT}/${f}" ONLY_IF_DIFFERENT)
@@ -53,3 +62,7 @@ foreach(i RANGE 0 ${last} 2)
   file(COPY_FILE "${SRC}/node_modules/${from}" "${OUT}/vendor/${to}" ONLY_IF_DIFFERENT)
 endforeach()
 file(COPY_FILE "${PROTO}/frame.mjs" "${OUT}/proto/frame.mjs" ONLY_IF_DIFFERENT)
+file(GLOB client RELATIVE "${CLIENT}/src" "${CLIENT}/src/*.js")
+foreach(f ${client})
+  file(COPY_FILE "${CLIENT}/src/${f}" "${OUT}/clients/js/src/${f}")
+endforeach()

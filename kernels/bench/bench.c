@@ -1,15 +1,28 @@
-/* clothd-bench - how many vertex-substeps per second a backend sustains.
+/* clothd-bench - how many vertex-substeps per second a backend sustains, and what its cost model
+ * says it should.
  *
- * Cases: cloths of 64, 128, 256 and 512 squared vertices, each without rocks and with 16 rocks
- * resting on it; velocity Verlet with every force on (springs with damping, drag, gravity,
- * ground, plasticity and tearing checks, and contact with the rocks). Each case settles briefly,
- * then runs for --seconds of wall time. Prints one line per case (JSON with --json). */
+ * Cases: square cloths (--sizes), each with the rock counts of --rocks resting on it; velocity
+ * Verlet with every force on (springs with damping, drag, gravity, ground, plasticity and tearing
+ * checks, and contact with the rocks). Each case settles briefly, then runs for --seconds of wall
+ * time. Prints one line per case (JSON with --json), with the backend's cost model: the bytes each
+ * kernel (or CPU pass) reads and writes per vertex per substep and its launches per frame; for CUDA
+ * the bandwidth roofline on an H100 (3.35 TB/s) and an H200 (4.8 TB/s), the launch floor at
+ * LAUNCH_US per dependent kernel of a graph, and what this device's memory bandwidth allows.
+ * --model prints the cost models without running anything (no device needed). */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
+#include "clothsim/backend.h"
 #include "clothsim/clothsim.h"
+
+/* What the predictions assume: HBM3 peak bandwidths, and the device time of a kernel node that
+ * depends on the previous one inside a CUDA graph (an assumption until measured). */
+#define H100_BW 3.35e12
+#define H200_BW 4.8e12
+#define LAUNCH_US 2.0
 
 static double now(void)
 {
@@ -23,39 +36,101 @@ static void usage(FILE *f)
     fprintf(f,
             "usage: clothd-bench [--backend cpu|cuda|auto] [--json] [--threads N] [--seconds S]\n"
             "                    [--sizes 64,128,256,512] [--rocks 0,16]\n"
-            "                    [--integrator velocity_verlet|symplectic_euler]\n");
+            "                    [--integrator velocity_verlet|symplectic_euler] [--model]\n");
 }
 
-/* Rocks on a 4-wide grid over the middle of the cloth, just touching it. */
+/* Rocks on a square grid over the middle of the cloth, just touching it. */
 static int add_rocks(cs_sim *sim, const cs_scene *sc, const cs_params *p, int count)
 {
+    const int cols = (int)ceil(sqrt((double)count));
     for (int k = 0; k < count; k++) {
         cs_rock_def d;
         cs_rock_def_default(&d);
         d.radius = 0.08f;
         d.density = 200.0f;
-        d.position[0] = (float)((k % 4 - 1.5) * sc->size_x / 5);
-        d.position[1] = (float)((k / 4 % 4 - 1.5) * sc->size_y / 5);
+        const double f = cols > 1 ? 0.6 / (cols - 1) : 0.0;
+        d.position[0] = (float)((k % cols * f - (cols > 1 ? 0.3 : 0.0)) * sc->size_x);
+        d.position[1] = (float)((k / cols * f - (cols > 1 ? 0.3 : 0.0)) * sc->size_y);
         d.position[2] = sc->height + d.radius + p->contact_offset;
         if (cs_rock_add(sim, &d, NULL) != CS_OK) return -1;
     }
     return 0;
 }
 
+/* Substeps per second that n vertices allow at this bandwidth, by the model's bytes. */
+static double roofline(const cs_cost_model *m, double n, double bw)
+{
+    return bw / (m->bytes_per_vertex_substep * n + m->fixed_per_substep);
+}
+
+/* The bandwidth time and the dependent kernels' time one after the other: a substep's kernels
+ * each wait for the one before, so their launch gaps are not hidden behind the traffic. */
+static double predicted(const cs_cost_model *m, double n, double bw)
+{
+    return 1.0 / (1.0 / roofline(m, n, bw) + m->nodes_per_substep * LAUNCH_US * 1e-6);
+}
+
+/* The model's rows and totals (and for CUDA its predictions) as JSON members or text lines. */
+static void print_model(const char *backend, const cs_cost_model *m, double n, int json, double measured_bw)
+{
+    const int cuda = strcmp(backend, "cuda") == 0;
+    const double launch = m->nodes_per_substep > 0 ? 1e6 / (LAUNCH_US * m->nodes_per_substep) : 0;
+    const double rh100 = roofline(m, n, H100_BW), rh200 = roofline(m, n, H200_BW);
+    const double ph100 = predicted(m, n, H100_BW), ph200 = predicted(m, n, H200_BW);
+    if (!json) {
+        printf("  %-46s %9s %9s %11s %9s\n", "kernel / pass", "read B/v", "write B/v", "fixed B", "per frame");
+        for (int i = 0; i < m->n; i++)
+            printf("  %-46s %9.2f %9.2f %11.0f %9.1f\n", m->k[i].name, m->k[i].read, m->k[i].written, m->k[i].fixed,
+                   m->k[i].per_frame);
+        printf("  %.2f bytes per vertex-substep (+ %.0f per substep), %.1f launches per frame\n",
+               m->bytes_per_vertex_substep, m->fixed_per_substep, m->launches_per_frame);
+        if (cuda)
+            printf("  %.1f graphs per frame; roofline %.0f substeps/s on an H100, %.0f on an H200; launch floor %.0f at "
+                   "%.1f us a kernel;\n  predicted (roofline time plus kernel gaps) %.0f on an H100, %.0f on an H200\n",
+                   m->graphs_per_frame, rh100, rh200, launch, LAUNCH_US, ph100, ph200);
+        return;
+    }
+    printf(",\"model\":{\"kernels\":[");
+    for (int i = 0; i < m->n; i++)
+        printf("%s{\"name\":\"%s\",\"read_per_vertex\":%.2f,\"written_per_vertex\":%.2f,\"fixed_bytes\":%.0f,"
+               "\"per_substep\":%.4f,\"per_frame\":%.2f}",
+               i ? "," : "", m->k[i].name, m->k[i].read, m->k[i].written, m->k[i].fixed, m->k[i].per_substep,
+               m->k[i].per_frame);
+    printf("],\"bytes_per_vertex_substep\":%.2f,\"fixed_bytes_per_substep\":%.0f,\"launches_per_frame\":%.1f",
+           m->bytes_per_vertex_substep, m->fixed_per_substep, m->launches_per_frame);
+    if (cuda)
+        printf(",\"graphs_per_frame\":%.1f,\"roofline_h100_substeps_per_s\":%.0f,\"roofline_h200_substeps_per_s\":%.0f,"
+               "\"launch_floor_substeps_per_s\":%.0f,\"launch_us_assumed\":%.1f,\"predicted_h100_substeps_per_s\":%.0f,"
+               "\"predicted_h200_substeps_per_s\":%.0f",
+               m->graphs_per_frame, rh100, rh200, launch, LAUNCH_US, ph100, ph200);
+    if (cuda && measured_bw > 0) printf(",\"roofline_this_device_substeps_per_s\":%.0f", roofline(m, n, measured_bw));
+    printf("}");
+}
+
+static int parse_list(const char *s, int *out, int cap)
+{
+    char list[256];
+    int n = 0;
+    snprintf(list, sizeof list, "%s", s);
+    for (char *tok = strtok(list, ","); tok && n < cap; tok = strtok(NULL, ",")) out[n++] = atoi(tok);
+    return n;
+}
+
 int main(int argc, char **argv)
 {
-    const char *backend = "cpu", *sizes = "64,128,256,512", *integrator = "velocity_verlet", *rock_cases = "0,16";
-    int json = 0, threads = 0;
+    const char *backend = "cpu", *sizes_arg = "64,128,256,512", *integrator = "velocity_verlet", *rocks_arg = "0,16";
+    int json = 0, threads = 0, model_only = 0;
     double seconds = 1.5;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         const char *val = i + 1 < argc ? argv[i + 1] : NULL;
         if (strcmp(a, "--json") == 0) json = 1;
+        else if (strcmp(a, "--model") == 0) model_only = 1;
         else if (strcmp(a, "--backend") == 0 && val) backend = val, i++;
         else if (strcmp(a, "--threads") == 0 && val) threads = atoi(val), i++;
         else if (strcmp(a, "--seconds") == 0 && val) seconds = atof(val), i++;
-        else if (strcmp(a, "--sizes") == 0 && val) sizes = val, i++;
-        else if (strcmp(a, "--rocks") == 0 && val) rock_cases = val, i++;
+        else if (strcmp(a, "--sizes") == 0 && val) sizes_arg = val, i++;
+        else if (strcmp(a, "--rocks") == 0 && val) rocks_arg = val, i++;
         else if (strcmp(a, "--integrator") == 0 && val) integrator = val, i++;
         else if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
@@ -75,19 +150,18 @@ int main(int argc, char **argv)
         fprintf(stderr, "clothd-bench: unknown integrator '%s'\n", integrator);
         return 2;
     }
-    if (!json) printf("%-7s %-9s %5s %14s %22s\n", "backend", "grid", "rocks", "substeps/s", "vertex-substeps/s");
-
-    int rock_counts[8], n_counts = 0;
-    char list[256];
-    snprintf(list, sizeof list, "%s", rock_cases);
-    for (char *tok = strtok(list, ","); tok && n_counts < 8; tok = strtok(NULL, ",")) rock_counts[n_counts++] = atoi(tok);
-    snprintf(list, sizeof list, "%s", sizes);
-    for (char *tok = strtok(list, ","); tok; tok = strtok(NULL, ",")) {
-        const int size = atoi(tok);
-        if (size < 2 || size > 4096) {
+    int sizes[16], rock_counts[8];
+    const int n_sizes = parse_list(sizes_arg, sizes, 16), n_counts = parse_list(rocks_arg, rock_counts, 8);
+    for (int s = 0; s < n_sizes; s++)
+        if (sizes[s] < 2 || sizes[s] > 4096) {
             fprintf(stderr, "clothd-bench: sizes must be 2..4096\n");
             return 2;
         }
+    if (!json && !model_only)
+        printf("%-7s %-9s %5s %14s %22s\n", "backend", "grid", "rocks", "substeps/s", "vertex-substeps/s");
+
+    for (int si = 0; si < n_sizes; si++) {
+        const int size = sizes[si];
         for (int rc = 0; rc < n_counts; rc++) {
             cs_scene sc;
             cs_params p;
@@ -95,12 +169,13 @@ int main(int argc, char **argv)
             cs_params_default(&p);
             sc.nx = sc.ny = size;
             p.integrator = integ_index;
-            p.plastic_yield = 0.5f;  /* the strain pass runs; at rest nothing yields */
+            p.plastic_yield = 0.5f; /* the strain pass runs; at rest nothing yields */
             p.tear_strain = 2.0f;
             p.max_substeps = 100000;
             cs_sim *sim = NULL;
             char err[256];
-            if (cs_sim_create(&sc, &p, backend, &sim, err, sizeof err) != CS_OK) {
+            /* The model needs the scene and rocks only: a CPU simulation holds them. */
+            if (cs_sim_create(&sc, &p, model_only ? "cpu" : backend, &sim, err, sizeof err) != CS_OK) {
                 fprintf(stderr, "clothd-bench: %dx%d: %s\n", size, size, err);
                 return 1;
             }
@@ -108,6 +183,29 @@ int main(int argc, char **argv)
             if (add_rocks(sim, &sc, &p, rock_counts[rc]) != 0) {
                 fprintf(stderr, "clothd-bench: adding rocks: %s\n", cs_sim_error(sim));
                 return 1;
+            }
+            cs_info info;
+            cs_sim_info(sim, &info);
+            if (model_only) {
+                const cs_backend *kinds[2] = {&cs_backend_cpu, cs_backend_cuda()};
+                for (int k = 0; k < 2; k++) {
+                    if (!kinds[k]) continue;
+                    cs_cost_model m;
+                    cs_sim_cost(sim, kinds[k], &m);
+                    if (json) {
+                        printf("{\"backend\":\"%s\",\"nx\":%d,\"ny\":%d,\"rocks\":%d,\"integrator\":\"%s\","
+                               "\"substeps_per_frame\":%d",
+                               kinds[k]->name, size, size, info.n_rocks, integrator, info.substeps);
+                        print_model(kinds[k]->name, &m, (double)size * size, 1, 0);
+                        printf("}\n");
+                    } else {
+                        printf("%s, %d x %d, %d rocks, %d substeps a frame:\n", kinds[k]->name, size, size,
+                               info.n_rocks, info.substeps);
+                        print_model(kinds[k]->name, &m, (double)size * size, 0, 0);
+                    }
+                }
+                cs_sim_destroy(sim);
+                continue;
             }
             /* Settle, and size a batch to about 1/20 of the measuring time. */
             int64_t batch = 1;
@@ -133,26 +231,27 @@ int main(int argc, char **argv)
             }
             const double sps = (double)done / (t - t0);
             const double vsps = sps * size * size;
-            cs_info info;
             cs_sim_info(sim, &info);
             cs_backend_stats bs;
             cs_sim_backend_stats(sim, &bs);
-            /* Where the backend models its traffic: bytes per vertex-substep, and the share of the
-             * measured copy bandwidth that this speed amounts to. */
-            char traffic[160] = "";
-            if (bs.bytes_per_vertex_substep > 0 && bs.copy_bandwidth > 0)
-                snprintf(traffic, sizeof traffic, ",\"bytes_per_vertex_substep\":%.1f,\"copy_bandwidth_gb_s\":%.1f,"
-                         "\"fraction_of_copy_bandwidth\":%.3f",
-                         bs.bytes_per_vertex_substep, bs.copy_bandwidth / 1e9,
-                         vsps * bs.bytes_per_vertex_substep / bs.copy_bandwidth);
-            if (json)
+            const cs_backend *self = strcmp(cs_sim_backend(sim), "cuda") == 0 ? cs_backend_cuda() : &cs_backend_cpu;
+            cs_cost_model m;
+            cs_sim_cost(sim, self, &m);
+            const double traffic = vsps * m.bytes_per_vertex_substep + sps * m.fixed_per_substep;
+            if (json) {
                 printf("{\"backend\":\"%s\",\"device\":\"%s\",\"nx\":%d,\"ny\":%d,\"rocks\":%d,\"integrator\":\"%s\","
                        "\"substeps_per_frame\":%d,\"substeps\":%lld,\"seconds\":%.3f,\"substeps_per_s\":%.1f,"
-                       "\"vertex_substeps_per_s\":%.0f%s}\n",
+                       "\"vertex_substeps_per_s\":%.0f,\"modelled_traffic_gb_s\":%.1f",
                        cs_sim_backend(sim), cs_sim_device(sim), size, size, info.n_rocks, integrator, info.substeps,
-                       (long long)done, t - t0, sps, vsps, traffic);
-            else
+                       (long long)done, t - t0, sps, vsps, traffic / 1e9);
+                if (bs.peak_bandwidth > 0)
+                    printf(",\"peak_bandwidth_gb_s\":%.1f,\"fraction_of_peak\":%.3f", bs.peak_bandwidth / 1e9,
+                           traffic / bs.peak_bandwidth);
+                print_model(self->name, &m, (double)size * size, 1, bs.peak_bandwidth);
+                printf("}\n");
+            } else {
                 printf("%-7s %4dx%-4d %5d %14.0f %22.0f\n", cs_sim_backend(sim), size, size, info.n_rocks, sps, vsps);
+            }
             fflush(stdout);
             cs_sim_destroy(sim);
         }

@@ -2,18 +2,43 @@
  * substep sequence of backend.h so that its state equals the CPU backend's bit for bit (both built
  * without contraction: -fmad=false here, -ffp-contract=off there).
  *
- * Layout: positions as float4 (x, y, z, w) with w the free-vertex mask, velocities and
- * accelerations as float4; positions and velocities double-buffered, so one kernel per substep can
- * read the current state of every neighbour and write the next state of its own vertex: it
- * evaluates the forces, finishes the substep's kick and - velocity Verlet - starts the next
- * substep's kick and drift. A block is one chunk (a row segment of CS_CHUNK vertices); each rock's
- * reaction is summed over the block with the tree of cs_tree_sum (shared memory, then warp
- * shuffles) into the chunk's partials, which one small kernel sums in chunk order per rock
- * (cs_rock_force) - no float atomics anywhere. The substeps of a step call are captured once in a
- * CUDA graph and replayed.
+ * Layout (structure of arrays, as the host keeps it): the state read and the state written are
+ * two buffers of x, y, z, vx, vy, vz (6 n floats each), swapped every substep, so one kernel per
+ * substep reads every neighbour's current state and writes its own vertex's next one; a byte mask
+ * (1 free, 0 pinned or grabbed); accelerations (3 n), written where a step call or a refresh ends;
+ * rest lengths in two buffers read and written alternately, with a byte per vertex saying whether
+ * its springs changed in the last update: a vertex writes its six rest lengths into the other
+ * buffer only when they changed now or then, so a cloth at rest writes 2 bytes a vertex per
+ * substep for its strain, not 24.
  *
- * Launches per velocity Verlet substep: the cloth kernel and, with rocks, the rock kernel; one
- * more drift kernel per step call. Symplectic Euler adds a strain kernel when strain is on. */
+ * The cloth kernel: a block is 256 columns (one chunk wide) and tile_rows rows of the grid, walked
+ * row by row. For each row it stores the positions and velocities of the row two below into a
+ * ring of three rows in shared memory (loaded one row ahead, so the loads overlap the work), evaluates the six springs each vertex owns (cs_spring_force once
+ * per spring, as the CPU backend does: the far end gets the exact negation), gathers each vertex's
+ * 12 springs in CS_SPRING_SLOTS order from its own registers, its neighbours' shared-memory forces
+ * and the rows above, adds air and gravity, then contacts, and writes the vertex's next state.
+ * The two rows above a tile and the three columns beside it are evaluated again by this block
+ * without being written (their owners write them). Contacts: each tile culls the rocks against
+ * its bounding box once; for each rock that may touch it and each of its rows, the vertices add
+ * the rock's force in rock order, and the row chunk's reactions are summed with cs_tree_sum's tree
+ * (shared memory, then warp shuffles) into the chunk's partial, and the chunk's bit set in the
+ * rock's word for its chunk group. A vertex pass for surface contact (triangles around each
+ * vertex) would go between the gather and the rock contacts, with its reactions summed per chunk
+ * the same way.
+ *
+ * Rocks: a warp per rock sums its partials - only the chunks whose bits are set, in chunk order
+ * within a group, then the groups in order, as cs_rock_force does - then the other rocks (tested
+ * in parallel, added in order), the ground and gravity. Up to ROCKS_FUSED rocks one block does it
+ * all and moves them; beyond, one kernel computes accelerations and another moves. No float
+ * atomics anywhere.
+ *
+ * A step call runs as CUDA graphs of at most one frame of substeps (GRAPH_MAX), kept per shape and
+ * buffer parity and updated in place (cudaGraphExecUpdate) when only pointers or launch sizes
+ * change; what changes with commands (parameters, grab, rocks' count) is read from device memory.
+ * After a call whose frame was read, the positions (and velocities, rocks) are copied on the
+ * device, then to pinned double buffers on a second stream, overlapping whatever comes next; a
+ * read waits for that copy only. Everything else (rest lengths, accelerations) is copied when a
+ * snapshot, a hash or a command asks. */
 #include <cuda_runtime.h>
 
 #include <stdio.h>
@@ -23,13 +48,61 @@
 #include "clothsim/backend.h"
 #include "clothsim/physics.h"
 
-/* ---- what the kernels read besides the state (one copy per simulation, in device memory) ---- */
+/* ---- device memory access: the CPU imitation of CUDA (tests/emu) counts bytes through these ---- */
+#ifndef CS_DEVMEM_HOOKS
+template <class T> __device__ __forceinline__ T dload(const T *p) { return *p; }
+template <class T> __device__ __forceinline__ void dstore(T *p, T v) { *p = v; }
+/* What other blocks of the same launch wrote: from L2, past this SM's L1. */
+template <class T> __device__ __forceinline__ T dload_cg(const T *p) { return __ldcg(p); }
+#endif
+#ifndef CS_DYNAMIC_SHARED
+#define CS_DYNAMIC_SHARED(T, name)                                                                     \
+    extern __shared__ __align__(16) unsigned char cs_dynamic_smem[];                                  \
+    T *name = reinterpret_cast<T *>(cs_dynamic_smem)
+#endif
 
-struct cuda_consts {
+#define TILE_W CS_CHUNK            /* threads of a cloth block: the columns of one chunk */
+#define RING_OFF 3                 /* ring rows hold columns c0 - 3 .. c0 + 258 */
+#define RING_W (TILE_W + 6)
+#define FORCE_OFF 2                /* force rows hold columns c0 - 2 .. c0 + 257 */
+#define FORCE_W (TILE_W + 4)
+#define WARPS (TILE_W / 32)
+#define MAX_TILE_ROWS 8
+#define ROCKS_FUSED 64             /* up to this many rocks, one block sums and moves them all */
+#define ROCK_WARPS 8               /* rocks per block of the split rock kernel */
+#define GRAPH_MAX 256              /* most substeps in one graph */
+#define GRAPHS 8                   /* graphs kept */
+#define FULL 0xffffffffu
+
+static_assert(CS_CHUNK_GROUP == 64, "a chunk group's chunks are the bits of one 64-bit word");
+static_assert(TILE_W % 32 == 0 && TILE_W <= 1024, "a chunk is whole warps");
+
+/* ---- what the kernels read for one scene (one struct: a per-scene table can replace it) ---- */
+
+struct cuda_scene {
     cs_phys p;
     int32_t nr;          /* rocks */
     int32_t grab;        /* grabbed vertex or -1 */
     cs_vec3 grab_target;
+    int32_t tile_rows;   /* rows of a cloth block */
+    int32_t ngroups;     /* chunk groups: ceil(nchunks / CS_CHUNK_GROUP) */
+};
+
+/* The arrays one launch works on (by value: a graph node holds them). */
+struct cuda_bufs {
+    const float *in;             /* x, y, z, vx, vy, vz: the state read (6 n) */
+    float *out;                  /* the state written (6 n) */
+    const unsigned char *mask;   /* 1 free, 0 pinned or grabbed (n) */
+    float *acc;                  /* ax, ay, az (3 n) */
+    const float *L0;             /* rest lengths read (6 n, type-major) */
+    float *L0n;                  /* the other buffer: written where a vertex's springs changed */
+    unsigned char *chg;          /* 1 where the vertex's rest lengths changed in the last update */
+    cs_rock_state *rocks;
+    float *partials;             /* [rock][chunk][6]: a chunk's force and torque on a rock */
+    unsigned long long *hits;    /* [rock][group]: bit c % 64 set when chunk c wrote its partial */
+    float *gsum;                 /* [rock][group][6]: a chunk group's force and torque on a rock */
+    int *group_done;             /* [group]: chunks of the group done this launch */
+    int *flags;
 };
 
 enum { FLAG_TORN = 0, FLAG_NONFINITE = 1, FLAG_COUNT = 2 };
@@ -42,237 +115,669 @@ enum {
     MODE_EULER,       /* v += dt a; x += dt v */
     MODE_EULER_LAST   /* the same, and store a */
 };
-
-__device__ static inline cs_vec3 xyz(float4 q) { return cs_v3(q.x, q.y, q.z); }
+/* What the rock kernels do after the forces. */
+enum { ROCKS_ACCEL, ROCKS_VERLET, ROCKS_VERLET_LAST, ROCKS_EULER, ROCKS_FIRST };
 
 __device__ static inline int finite3(cs_vec3 v) { return isfinite(v.x) && isfinite(v.y) && isfinite(v.z); }
 
-/* Sums val over the block (CS_CHUNK threads) with cs_tree_sum's tree: buf[t] += buf[t + s] for
- * s = CS_CHUNK/2 .. 1. Shared memory down to s = 32, then shuffles within the first warp (a lane
- * t < s adds lane t + s exactly as the tree does; the other lanes' sums are never used).
- * Every thread of the block must call it; the result is valid in thread 0. */
-__device__ static float block_tree_sum(float val, float *sh)
+/* ---- shared memory of the cloth kernel (floats) ---- */
+
+#define SM_RING 0                                  /* [3 slots][6][RING_W] */
+#define SM_FROW (SM_RING + 3 * 6 * RING_W)         /* [SX, BX][3][FORCE_W]; also the tree's [6][TILE_W] */
+#define SM_FPREV (SM_FROW + 2 * 3 * FORCE_W)       /* [row parity][D1, D2][3][FORCE_W] */
+#define SM_RED (SM_FPREV + 2 * 2 * 3 * FORCE_W)    /* [6][WARPS]: the tile's bounding box */
+#define SM_COUNT (SM_RED + 6 * WARPS)              /* [WARPS] ints: candidates per warp */
+#define SM_TOUCHED (SM_COUNT + WARPS)              /* [32] bits: candidates a row touches */
+#define SM_CAND (SM_TOUCHED + 32)                  /* candidate rocks (ints) */
+static_assert(2 * 3 * FORCE_W >= 6 * TILE_W, "the tree scratch fits in the force rows");
+
+static size_t cloth_smem(int32_t rock_cap) { return sizeof(float) * (size_t)(SM_CAND + rock_cap); }
+
+#define RING(sm, slot, q, k) (sm)[SM_RING + ((slot) * 6 + (q)) * RING_W + (k)]
+#define FROW(sm, which, c, k) (sm)[SM_FROW + ((which) * 3 + (c)) * FORCE_W + (k)]
+#define FPREV(sm, par, which, c, k) (sm)[SM_FPREV + (((par) * 2 + (which)) * 3 + (c)) * FORCE_W + (k)]
+
+__device__ static inline cs_vec3 ring_x(const float *sm, int32_t r, int k)
 {
-    const int t = threadIdx.x;
-    sh[t] = val;
+    const int s = r % 3;
+    return cs_v3(RING(sm, s, 0, k), RING(sm, s, 1, k), RING(sm, s, 2, k));
+}
+__device__ static inline cs_vec3 ring_v(const float *sm, int32_t r, int k)
+{
+    const int s = r % 3;
+    return cs_v3(RING(sm, s, 3, k), RING(sm, s, 4, k), RING(sm, s, 5, k));
+}
+
+/* A row of the state as one thread carries it to the ring: its column, and for threads 0..5 one
+ * of the six columns past the chunk's 256 (the ring holds columns c0 - 3 .. c0 + 258). */
+struct row_regs {
+    float q[2][6];
+};
+
+/* Loads row r's columns of this thread into registers (those that exist). */
+__device__ static void fetch_row(const cuda_bufs &b, const cs_phys *p, int32_t r, int32_t c0, row_regs *f)
+{
+    if (r < 0 || r >= p->ny) return;
+    for (int h = 0; h < 2; h++) {
+        const int k = (int)threadIdx.x + h * TILE_W;
+        const int32_t i = c0 - RING_OFF + k;
+        if (k >= RING_W || i < 0 || i >= p->nx) continue;
+        const size_t v = (size_t)r * (size_t)p->nx + (size_t)i;
+        for (int q = 0; q < 6; q++) f->q[h][q] = dload(&b.in[(size_t)q * (size_t)p->n + v]);
+    }
+}
+
+/* Stores what fetch_row loaded into row r's ring slot. */
+__device__ static void put_row(const cs_phys *p, float *sm, int32_t r, int32_t c0, const row_regs *f)
+{
+    if (r < 0 || r >= p->ny) return;
+    for (int h = 0; h < 2; h++) {
+        const int k = (int)threadIdx.x + h * TILE_W;
+        const int32_t i = c0 - RING_OFF + k;
+        if (k >= RING_W || i < 0 || i >= p->nx) continue;
+        for (int q = 0; q < 6; q++) RING(sm, r % 3, q, k) = f->q[h][q];
+    }
+}
+
+/* The springs vertex (i, r) owns, of the types in `types`, from the ring: forces F[t] (zero where
+ * the grid has no such spring or the type is not asked for), lengths len[t], rest lengths l0[t]. */
+__device__ static void eval_owned(const cuda_bufs &b, const cs_phys *p, const float *sm, int32_t i, int32_t r,
+                                  int32_t c0, unsigned types, cs_vec3 *F, float *len, float *l0)
+{
+    const int k = i - c0 + RING_OFF;
+    const cs_vec3 xi = ring_x(sm, r, k), vi = ring_v(sm, r, k);
+    const size_t v = (size_t)r * (size_t)p->nx + (size_t)i;
+#define CUDA_OWNED(t, di, dj)                                                                          \
+    F[t] = cs_v3(0.0f, 0.0f, 0.0f);                                                                    \
+    len[t] = 0.0f;                                                                                     \
+    l0[t] = CS_TORN;                                                                                   \
+    if ((types >> (t) & 1u) && i + (di) >= 0 && i + (di) < p->nx && r + (dj) < p->ny) {                \
+        l0[t] = dload(&b.L0[(size_t)(t) * (size_t)p->n + v]);                                          \
+        F[t] = cs_spring_force(xi, vi, ring_x(sm, r + (dj), k + (di)), ring_v(sm, r + (dj), k + (di)), l0[t], \
+                               p->k[t], p->c_spring, &len[t]);                                         \
+    }
+    CS_SPRING_TYPES(CUDA_OWNED)
+#undef CUDA_OWNED
+}
+
+/* Puts the owned forces other vertices gather into shared memory: SX and BX of this row, D1 and
+ * D2 for the next row (at parity r & 1). */
+__device__ static void share_owned(float *sm, int32_t r, int k, const cs_vec3 *F)
+{
+    const int par = r & 1;
+    const float sx[3] = {F[CS_SX].x, F[CS_SX].y, F[CS_SX].z}, bx[3] = {F[CS_BX].x, F[CS_BX].y, F[CS_BX].z};
+    const float d1[3] = {F[CS_D1].x, F[CS_D1].y, F[CS_D1].z}, d2[3] = {F[CS_D2].x, F[CS_D2].y, F[CS_D2].z};
+    for (int c = 0; c < 3; c++) {
+        FROW(sm, 0, c, k) = sx[c];
+        FROW(sm, 1, c, k) = bx[c];
+        FPREV(sm, par, 0, c, k) = d1[c];
+        FPREV(sm, par, 1, c, k) = d2[c];
+    }
+}
+
+__device__ static inline cs_vec3 frow_at(const float *sm, int which, int k)
+{
+    return cs_v3(FROW(sm, which, 0, k), FROW(sm, which, 1, k), FROW(sm, which, 2, k));
+}
+__device__ static inline cs_vec3 fprev_at(const float *sm, int par, int which, int k)
+{
+    return cs_v3(FPREV(sm, par, which, 0, k), FPREV(sm, par, which, 1, k), FPREV(sm, par, which, 2, k));
+}
+
+/* Sums each of q[0..5] over the block with cs_tree_sum's tree: buf[t] += buf[t + s] for
+ * s = TILE_W/2 .. 1, in shared memory down to s = 32, then by shuffles in the first warp (lane t
+ * adds lane t + s exactly as the tree does; the other lanes' sums are never used). Every thread
+ * calls it; the sums are valid in thread 0. */
+__device__ static void tree_sum6(const float *q, float *buf, float *out)
+{
+    const int t = (int)threadIdx.x;
+    for (int c = 0; c < 6; c++) buf[c * TILE_W + t] = q[c];
     __syncthreads();
-    for (int s = CS_CHUNK / 2; s >= 32; s >>= 1) {
-        if (t < s) sh[t] += sh[t + s];
+    for (int s = TILE_W / 2; s >= 32; s >>= 1) {
+        if (t < s)
+            for (int c = 0; c < 6; c++) buf[c * TILE_W + t] += buf[c * TILE_W + t + s];
         __syncthreads();
     }
-    float v = t < 32 ? sh[t] : 0.0f;
-    __syncthreads(); /* sh may be reused by the caller */
     if (t < 32) {
-        for (int s = 16; s > 0; s >>= 1) v += __shfl_down_sync(0xffffffffu, v, s);
+        float v[6];
+        for (int c = 0; c < 6; c++) v[c] = buf[c * TILE_W + t];
+        for (int s = 16; s > 0; s >>= 1)
+            for (int c = 0; c < 6; c += 2) { /* two floats a shuffle */
+                const unsigned long long w = __shfl_down_sync(
+                    FULL, (unsigned long long)__float_as_uint(v[c]) | (unsigned long long)__float_as_uint(v[c + 1]) << 32,
+                    (unsigned)s);
+                v[c] += __uint_as_float((unsigned)w);
+                v[c + 1] += __uint_as_float((unsigned)(w >> 32));
+            }
+        for (int c = 0; c < 6; c++) out[c] = v[c];
     }
-    return v;
 }
 
-/* The cloth kernel: one thread per vertex, one block per chunk. */
-template <int MODE, bool STRAIN>
-__global__ void __launch_bounds__(CS_CHUNK)
-    k_cloth(const cuda_consts *__restrict__ kc, const float4 *__restrict__ pos, const float4 *__restrict__ vel, float4 *__restrict__ pos_out,
-            float4 *__restrict__ vel_out, float4 *__restrict__ acc, const float *__restrict__ L0,
-            float *__restrict__ L0n, const cs_rock_state *__restrict__ rocks, float *__restrict__ partials,
-            int *__restrict__ flags)
+/* Whether a sphere may touch a box (never a false no: the exact test is per vertex). */
+__device__ static inline int sphere_may_touch(cs_vec3 c, float r, cs_vec3 lo, cs_vec3 hi)
 {
-    __shared__ float sh[CS_CHUNK];
-    const cs_phys *p = &kc->p;
-    const int32_t nx = p->nx, ny = p->ny, n = p->n, nr = kc->nr;
-    const int32_t chunk = (int32_t)blockIdx.x, j = chunk / p->nseg;
-    const int32_t i = (chunk - j * p->nseg) * CS_CHUNK + (int32_t)threadIdx.x;
-    const bool live = i < nx;
-    const int32_t v = j * nx + i;
+    const float dx = c.x < lo.x ? lo.x - c.x : (c.x > hi.x ? c.x - hi.x : 0.0f);
+    const float dy = c.y < lo.y ? lo.y - c.y : (c.y > hi.y ? c.y - hi.y : 0.0f);
+    const float dz = c.z < lo.z ? lo.z - c.z : (c.z > hi.z ? c.z - hi.z : 0.0f);
+    const float reach = r * 1.001f + 1e-6f;
+    return dx * dx + dy * dy + dz * dz <= reach * reach;
+}
 
-    cs_vec3 xi = cs_v3(0.0f, 0.0f, 0.0f), vi = xi, F = xi;
-    float w = 0.0f;
-    int torn = 0;
-    if (live) {
-        const float4 P = pos[v], V = vel[v];
-        xi = xyz(P);
-        vi = xyz(V);
-        w = P.w;
-        float len;
-#define CUDA_SLOT(t, di, dj, fwd)                                                                      \
-    {                                                                                                  \
-        const size_t li = (size_t)(t) * n + ((fwd) ? v : v + (di) + (dj) * nx);                        \
-        if (i + (di) >= 0 && i + (di) < nx && j + (dj) >= 0 && j + (dj) < ny) {                        \
-            const int32_t o = v + (di) + (dj) * nx;                                                    \
-            const float l0 = L0[li];                                                                   \
-            F = cs_add(F, cs_spring_force(xi, vi, xyz(pos[o]), xyz(vel[o]), l0, p->k[t], p->c_spring, &len)); \
-            if ((fwd) && STRAIN) {                                                                     \
-                const float nl = cs_strain_update(len, l0, p);                                         \
-                L0n[li] = nl;                                                                          \
-                torn += l0 > 0.0f && nl <= 0.0f;                                                       \
-            }                                                                                          \
-        } else if ((fwd) && STRAIN) {                                                                  \
-            L0n[li] = L0[li];                                                                          \
-        }                                                                                              \
-    }
-        CS_SPRING_SLOTS(CUDA_SLOT)
-#undef CUDA_SLOT
-        F = cs_add(F, cs_air_gravity(vi, p));
-    }
-    const cs_vec3 ro = F;
-    for (int32_t r = 0; r < nr; r++) {
-        cs_vec3 Fc = cs_v3(0.0f, 0.0f, 0.0f), arm = Fc;
-        const int hit = live && cs_vertex_rock_contact(xi, vi, ro, &rocks[r], p, &Fc, &arm);
-        if (hit) F = cs_add(F, Fc);
-        float *out = partials + ((size_t)chunk * nr + r) * 6;
-        if (__syncthreads_or(hit)) {
-            const cs_vec3 R = hit ? cs_neg(Fc) : cs_v3(0.0f, 0.0f, 0.0f);
-            const cs_vec3 T = hit ? cs_cross(arm, R) : cs_v3(0.0f, 0.0f, 0.0f);
-            const float q[6] = {R.x, R.y, R.z, T.x, T.y, T.z};
-#pragma unroll
-            for (int k = 0; k < 6; k++) {
-                const float s = block_tree_sum(q[k], sh);
-                if (threadIdx.x == 0) out[k] = s;
+/* The rocks that may touch the tile (rows j0 .. j1-1, this block's columns), in index order, into
+ * shared memory; returns how many. */
+__device__ static int cull_rocks(const cuda_scene *sc, const cuda_bufs &b, float *sm, int32_t j0, int32_t j1,
+                                 int32_t i)
+{
+    const cs_phys *p = &sc->p;
+    const int t = (int)threadIdx.x, lane = t & 31, warp = t >> 5;
+    static_assert(WARPS >= 6, "six warps reduce the box");
+    const float big = 3.0e38f;
+    float lo[3] = {big, big, big}, hi[3] = {-big, -big, -big};
+    if (i < p->nx)
+        for (int32_t r = j0; r < j1; r++) {
+            const size_t v = (size_t)r * (size_t)p->nx + (size_t)i;
+            for (int c = 0; c < 3; c++) {
+                const float x = dload(&b.in[(size_t)c * (size_t)p->n + v]);
+                lo[c] = x < lo[c] ? x : lo[c];
+                hi[c] = x > hi[c] ? x : hi[c];
             }
-        } else if (threadIdx.x < 6) {
-            out[threadIdx.x] = 0.0f; /* what the tree of +0 gives */
+        }
+    /* The box over the block: each of six warps reduces one bound (min and max are exact, so the
+     * order does not matter). The force rows are free until the row loop. */
+    float *box = sm + SM_FROW;
+    for (int c = 0; c < 3; c++) {
+        box[c * TILE_W + t] = lo[c];
+        box[(3 + c) * TILE_W + t] = hi[c];
+    }
+    __syncthreads();
+    if (warp < 6) {
+        const bool mx = warp >= 3;
+        float e = box[warp * TILE_W + lane];
+        for (int k = lane + 32; k < TILE_W; k += 32) {
+            const float x = box[warp * TILE_W + k];
+            e = mx ? (x > e ? x : e) : (x < e ? x : e);
+        }
+        for (int s = 16; s > 0; s >>= 1) {
+            const float x = __shfl_xor_sync(FULL, e, s);
+            e = mx ? (x > e ? x : e) : (x < e ? x : e);
+        }
+        if (lane == 0) sm[SM_RED + warp] = e;
+    }
+    __syncthreads();
+    const cs_vec3 blo = cs_v3(sm[SM_RED], sm[SM_RED + 1], sm[SM_RED + 2]);
+    const cs_vec3 bhi = cs_v3(sm[SM_RED + 3], sm[SM_RED + 4], sm[SM_RED + 5]);
+    int *count = reinterpret_cast<int *>(sm + SM_COUNT), *cand = reinterpret_cast<int *>(sm + SM_CAND);
+    int total = 0;
+    for (int32_t base = 0; base < sc->nr; base += TILE_W) {
+        const int32_t k = base + t;
+        int near = 0;
+        if (k < sc->nr) {
+            const cs_vec3 x = dload(&b.rocks[k].x);
+            near = sphere_may_touch(x, dload(&b.rocks[k].radius) + p->contact_offset, blo, bhi);
+        }
+        const unsigned ballot = __ballot_sync(FULL, near);
+        if (lane == 0) count[warp] = __popc(ballot);
+        __syncthreads();
+        int before = total;
+        for (int w = 0; w < warp; w++) before += count[w];
+        if (near) cand[before + __popc(ballot & ((1u << lane) - 1u))] = k;
+        for (int w = 0; w < WARPS; w++) total += count[w];
+        __syncthreads(); /* count is rewritten next round; cand is read after the last */
+    }
+    return total;
+}
+
+/* Chunk group g's share of each rock's force: for every rock a chunk of the group touched, its
+ * partials in chunk order (cs_rock_group_sum's order; the chunks that did not touch are +0), into
+ * gsum. A warp per rock: lanes load 32 chunks' partials at a time, every lane adds them in order.
+ * Run by the last block of the cloth kernel to finish its part of the group, so the groups are
+ * summed in parallel, as they end. */
+__device__ static void group_sums(const cuda_scene *sc, const cuda_bufs &b, int32_t g)
+{
+    const cs_phys *p = &sc->p;
+    const int lane = (int)(threadIdx.x & 31u), warp = (int)(threadIdx.x >> 5);
+    const int32_t gc = g * CS_CHUNK_GROUP;
+    for (int32_t r = warp; r < sc->nr; r += WARPS) {
+        const size_t rg = (size_t)r * (size_t)sc->ngroups + (size_t)g;
+        unsigned long long left = dload_cg(&b.hits[rg]); /* written by other blocks' atomics */
+        if (!left) continue;                             /* warp-uniform */
+        cs_vec3 f = cs_v3(0.0f, 0.0f, 0.0f), tq = f;
+        while (left) {
+            const int cnt = __popcll(left) < 32 ? __popcll(left) : 32;
+            unsigned long long mine = left;
+            for (int k = 0; k < lane && mine; k++) mine &= mine - 1ull;
+            float q[6] = {0, 0, 0, 0, 0, 0};
+            if (lane < cnt) {
+                const int32_t c = gc + __ffsll((long long)mine) - 1;
+                const float *src = b.partials + ((size_t)r * (size_t)p->nchunks + (size_t)c) * 6;
+                for (int k = 0; k < 6; k++) q[k] = dload_cg(&src[k]);
+            }
+            for (int m = 0; m < cnt; m++) {
+                f = cs_add(f, cs_v3(__shfl_sync(FULL, q[0], m), __shfl_sync(FULL, q[1], m), __shfl_sync(FULL, q[2], m)));
+                tq = cs_add(tq, cs_v3(__shfl_sync(FULL, q[3], m), __shfl_sync(FULL, q[4], m), __shfl_sync(FULL, q[5], m)));
+            }
+            for (int m = 0; m < cnt; m++) left &= left - 1ull;
+        }
+        if (lane == 0) {
+            const float o[6] = {f.x, f.y, f.z, tq.x, tq.y, tq.z};
+            for (int k = 0; k < 6; k++) dstore(&b.gsum[rg * 6 + (size_t)k], o[k]);
         }
     }
-    if (torn) atomicAdd(&flags[FLAG_TORN], torn);
-    if (!live) return;
-    cs_vec3 Fg;
-    if (cs_vertex_ground_contact(xi, vi, ro, p, &Fg)) F = cs_add(F, Fg);
-    const cs_vec3 a = cs_scale(F, p->inv_mass * w);
+}
 
-    if (MODE == MODE_ACCEL) {
-        acc[v] = make_float4(a.x, a.y, a.z, 0.0f);
-        return;
-    }
-    const bool euler = MODE == MODE_EULER || MODE == MODE_EULER_LAST;
-    const float h = euler ? p->dt : p->hdt;
-    cs_vec3 vv = vi, xx = xi;
-    if (MODE == MODE_VERLET_LAST) {
-        vv = cs_add(vv, cs_scale(a, h)); /* the last substep's kick */
-    } else {
-        if (v == kc->grab) vv = cs_grab_velocity(xi, kc->grab_target, p);
-        vv = cs_add(vv, cs_scale(a, h)); /* Verlet: finish; Euler: the update */
-        if (MODE == MODE_VERLET) vv = cs_add(vv, cs_scale(a, h)); /* the next substep's half kick */
-        xx = cs_add(xi, cs_scale(vv, p->dt));
-    }
-    pos_out[v] = make_float4(xx.x, xx.y, xx.z, w);
-    vel_out[v] = make_float4(vv.x, vv.y, vv.z, 0.0f);
-    if (MODE == MODE_VERLET_LAST || MODE == MODE_EULER_LAST) {
-        acc[v] = make_float4(a.x, a.y, a.z, 0.0f);
-        if (!finite3(xx) || !finite3(vv)) atomicOr(&flags[FLAG_NONFINITE], 1);
+/* After a block's rows: it counts its chunks into each chunk group they belong to; the block that
+ * completes a group sums it (the pattern of cuda-samples' threadFenceReduction). */
+__device__ static void finish_groups(const cuda_scene *sc, const cuda_bufs &b, float *sm, int32_t j0, int32_t j1,
+                                     int32_t seg)
+{
+    const cs_phys *p = &sc->p;
+    int *last = reinterpret_cast<int *>(sm + SM_COUNT);
+    const int32_t g0 = (j0 * p->nseg + seg) / CS_CHUNK_GROUP, g1 = ((j1 - 1) * p->nseg + seg) / CS_CHUNK_GROUP;
+    __threadfence(); /* this block's partials and hit words, before it counts itself */
+    __syncthreads();
+    if (threadIdx.x == 0)
+        for (int32_t g = g0; g < g0 + 4; g++) {
+            last[g - g0] = -1;
+            if (g > g1) continue;
+            int mine = 0;
+            for (int32_t r = j0; r < j1; r++) mine += (r * p->nseg + seg) / CS_CHUNK_GROUP == g;
+            const int size = p->nchunks - g * CS_CHUNK_GROUP < CS_CHUNK_GROUP ? p->nchunks - g * CS_CHUNK_GROUP : CS_CHUNK_GROUP;
+            if (atomicAdd(&b.group_done[g], mine) + mine == size) last[g - g0] = g;
+        }
+    __syncthreads();
+    for (int k = 0; k < 4; k++) {
+        const int32_t g = last[k]; /* block-uniform */
+        if (g < 0) continue;
+        __threadfence();
+        group_sums(sc, b, g);
+        if (threadIdx.x == 0) b.group_done[g] = 0; /* every block of this launch has counted */
     }
 }
 
-/* Velocity Verlet's first substep of a step call: grab, kick, drift (no kick to finish). */
-__global__ void k_drift_first(const cuda_consts *__restrict__ kc, const float4 *__restrict__ pos, const float4 *__restrict__ vel,
-                              const float4 *__restrict__ acc, float4 *__restrict__ pos_out,
-                              float4 *__restrict__ vel_out)
+/* The cloth kernel (see the top of the file). Grid: (chunks per row, tiles); TILE_W threads. */
+template <int MODE, bool STRAIN, bool ROCKS>
+__global__ void __launch_bounds__(TILE_W) k_cloth(const cuda_scene *__restrict__ sc, cuda_bufs b)
 {
-    const cs_phys *p = &kc->p;
-    const int32_t v = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x);
-    if (v >= p->n) return;
-    const float4 P = pos[v], V = vel[v], A = acc[v];
-    const cs_vec3 xi = xyz(P);
-    cs_vec3 vv = v == kc->grab ? cs_grab_velocity(xi, kc->grab_target, p) : xyz(V);
-    vv = cs_add(vv, cs_scale(xyz(A), p->hdt));
+    CS_DYNAMIC_SHARED(float, sm);
+    const cs_phys *p = &sc->p;
+    const int t = (int)threadIdx.x;
+    const int32_t nx = p->nx, seg = (int32_t)blockIdx.x, c0 = seg * TILE_W, i = c0 + t;
+    const int32_t j0 = (int32_t)blockIdx.y * sc->tile_rows;
+    const int32_t j1 = j0 + sc->tile_rows < p->ny ? j0 + sc->tile_rows : p->ny;
+    const bool live = i < nx;
+    const int kf = t + FORCE_OFF; /* this column in the force rows */
+    /* Rows above row 0 have no springs: their forces read as zeros. */
+    for (int k = t; k < 2 * 2 * 3 * FORCE_W; k += TILE_W) sm[SM_FPREV + k] = 0.0f;
+    const int ncand = ROCKS ? cull_rocks(sc, b, sm, j0, j1, i) : 0;
+    const int *cand = reinterpret_cast<const int *>(sm + SM_CAND);
+    /* The two rows above the tile into the ring; the next row in flight in registers, so its
+     * loads overlap a row's work (each iteration stores row r+2 and fetches row r+3). */
+    row_regs next;
+    for (int32_t r = j0 - 2; r < j0; r++) {
+        fetch_row(b, p, r, c0, &next);
+        put_row(p, sm, r, c0, &next);
+    }
+    fetch_row(b, p, j0, c0, &next);
+    cs_vec3 sy_prev = cs_v3(0.0f, 0.0f, 0.0f), by1 = sy_prev, by2 = sy_prev; /* SY of row r-1; BY of r-1, r-2 */
+    int torn = 0, bad = 0;
+    for (int32_t r = j0 - 2; r < j1; r++) {
+        put_row(p, sm, r + 2, c0, &next);
+        if (r + 3 < j1 + 2) fetch_row(b, p, r + 3, c0, &next);
+        __syncthreads(); /* rows r .. r+2 are in the ring */
+        const bool own = r >= j0;
+        /* Above the tile only what rows j0, j0+1 gather: BY of row j0-2; SY, D1, D2, BY of j0-1. */
+        const unsigned types = own ? 0x3fu
+                                   : r == j0 - 1 ? (1u << CS_SY) | (1u << CS_D1) | (1u << CS_D2) | (1u << CS_BY)
+                                                 : (1u << CS_BY);
+        cs_vec3 F[CS_NTYPES];
+        float len[CS_NTYPES], l0[CS_NTYPES];
+        cs_vec3 xi = cs_v3(0.0f, 0.0f, 0.0f), vi = xi;
+        if (r >= 0) {
+            if (live) {
+                eval_owned(b, p, sm, i, r, c0, types, F, len, l0);
+                xi = ring_x(sm, r, t + RING_OFF);
+                vi = ring_v(sm, r, t + RING_OFF);
+            } else {
+                for (int q = 0; q < CS_NTYPES; q++) F[q] = cs_v3(0.0f, 0.0f, 0.0f);
+            }
+            share_owned(sm, r, kf, F);
+            /* The three columns beside the chunk: c0-2, c0-1 (left), c0+256 (right). */
+            if (t < 3) {
+                const int32_t ih = t < 2 ? c0 - 2 + t : c0 + TILE_W;
+                cs_vec3 Fh[CS_NTYPES];
+                float lh[CS_NTYPES], l0h[CS_NTYPES];
+                if (ih >= 0 && ih < nx) eval_owned(b, p, sm, ih, r, c0, types, Fh, lh, l0h);
+                else
+                    for (int q = 0; q < CS_NTYPES; q++) Fh[q] = cs_v3(0.0f, 0.0f, 0.0f);
+                share_owned(sm, r, ih - c0 + FORCE_OFF, Fh);
+            }
+            if (ROCKS && own && t < (ncand + 31) / 32) reinterpret_cast<unsigned *>(sm + SM_TOUCHED)[t] = 0u;
+            if (STRAIN && own && live) {
+                const size_t v = (size_t)r * (size_t)nx + (size_t)i, n = (size_t)p->n;
+                float nl[CS_NTYPES];
+                int changed = 0;
+                for (int q = 0; q < CS_NTYPES; q++) {
+                    nl[q] = l0[q] > 0.0f ? cs_strain_update(len[q], l0[q], p) : l0[q];
+                    torn += l0[q] > 0.0f && nl[q] <= 0.0f;
+                    changed |= nl[q] != l0[q];
+                }
+                const unsigned char before = dload(&b.chg[v]);
+                if (changed || before)
+                    for (int q = 0; q < CS_NTYPES; q++) dstore(&b.L0n[(size_t)q * n + v], nl[q]);
+                if ((unsigned char)changed != before) dstore(&b.chg[v], (unsigned char)changed);
+            }
+        }
+        __syncthreads(); /* the owned forces are shared */
+        if (own) {
+            const int par = (r - 1) & 1;
+            cs_vec3 f = cs_v3(0.0f, 0.0f, 0.0f);
+            /* The 12 springs in CS_SPRING_SLOTS order; a neighbour's spring enters negated. */
+#define CUDA_BACK(t, di, dj)                                                                           \
+    ((dj) == 0 ? frow_at(sm, (t) == CS_SX ? 0 : 1, kf + (di))                                          \
+               : (dj) == -2 ? by2 : (t) == CS_SY ? sy_prev : fprev_at(sm, par, (t) == CS_D1 ? 0 : 1, kf + (di)))
+#define CUDA_GATHER(t, di, dj, fwd) f = cs_add(f, (fwd) ? F[t] : cs_neg(CUDA_BACK(t, di, dj)));
+            if (live) {
+                CS_SPRING_SLOTS(CUDA_GATHER)
+                f = cs_add(f, cs_air_gravity(vi, p));
+            }
+#undef CUDA_GATHER
+#undef CUDA_BACK
+            const cs_vec3 ro = f;
+            const int32_t chunk = r * p->nseg + seg;
+            /* Each vertex adds the candidates' forces in rock order and marks the ones it touches;
+             * then, for each rock the row touched, the chunk's reactions go through the tree. */
+            unsigned *touched = reinterpret_cast<unsigned *>(sm + SM_TOUCHED);
+            for (int c32 = 0; c32 < ncand; c32 += 32) {
+                unsigned mine = 0;
+                for (int k = 0; k < 32 && c32 + k < ncand; k++) {
+                    cs_vec3 Fc, arm;
+                    if (live && cs_vertex_rock_contact(xi, vi, ro, &b.rocks[cand[c32 + k]], p, &Fc, &arm)) {
+                        f = cs_add(f, Fc);
+                        mine |= 1u << k;
+                    }
+                }
+                if (mine) atomicOr(&touched[c32 / 32], mine);
+            }
+            if (ncand) __syncthreads(); /* every vertex has marked what it touches */
+            for (int c32 = 0; c32 < ncand; c32 += 32)
+                for (unsigned hits = touched[c32 / 32]; hits; hits &= hits - 1u) {
+                    const int32_t rk = cand[c32 + __ffs((int)hits) - 1];
+                    cs_vec3 Fc = cs_v3(0.0f, 0.0f, 0.0f), arm = Fc;
+                    const int hit = live && cs_vertex_rock_contact(xi, vi, ro, &b.rocks[rk], p, &Fc, &arm);
+                    const cs_vec3 R = hit ? cs_neg(Fc) : cs_v3(0.0f, 0.0f, 0.0f);
+                    const cs_vec3 T = hit ? cs_cross(arm, R) : cs_v3(0.0f, 0.0f, 0.0f);
+                    const float q[6] = {R.x, R.y, R.z, T.x, T.y, T.z};
+                    float s6[6];
+                    tree_sum6(q, sm + SM_FROW, s6);
+                    if (t == 0) {
+                        float *out = b.partials + ((size_t)rk * (size_t)p->nchunks + (size_t)chunk) * 6;
+                        for (int c = 0; c < 6; c++) dstore(&out[c], s6[c]);
+                        atomicOr(&b.hits[(size_t)rk * (size_t)sc->ngroups + (size_t)(chunk / CS_CHUNK_GROUP)],
+                                 1ull << (chunk % CS_CHUNK_GROUP));
+                    }
+                }
+            if (live) {
+                cs_vec3 Fg;
+                if (cs_vertex_ground_contact(xi, vi, ro, p, &Fg)) f = cs_add(f, Fg);
+                const size_t v = (size_t)r * (size_t)nx + (size_t)i, n = (size_t)p->n;
+                const float w = (float)dload(&b.mask[v]);
+                const cs_vec3 a = cs_scale(f, p->inv_mass * w);
+                if (MODE == MODE_ACCEL || MODE == MODE_VERLET_LAST || MODE == MODE_EULER_LAST) {
+                    dstore(&b.acc[v], a.x);
+                    dstore(&b.acc[n + v], a.y);
+                    dstore(&b.acc[2 * n + v], a.z);
+                }
+                if (MODE != MODE_ACCEL) {
+                    const bool euler = MODE == MODE_EULER || MODE == MODE_EULER_LAST;
+                    const float h = euler ? p->dt : p->hdt;
+                    cs_vec3 vv = vi, xx = xi;
+                    if (MODE == MODE_VERLET_LAST) {
+                        vv = cs_add(vv, cs_scale(a, h)); /* the last substep's kick */
+                    } else {
+                        if ((int32_t)v == sc->grab) vv = cs_grab_velocity(xi, sc->grab_target, p);
+                        vv = cs_add(vv, cs_scale(a, h)); /* Verlet: finish; Euler: the update */
+                        if (MODE == MODE_VERLET) vv = cs_add(vv, cs_scale(a, h)); /* the next half kick */
+                        xx = cs_add(xi, cs_scale(vv, p->dt));
+                    }
+                    const float o[6] = {xx.x, xx.y, xx.z, vv.x, vv.y, vv.z};
+                    for (int q = 0; q < 6; q++) dstore(&b.out[(size_t)q * n + v], o[q]);
+                    if (MODE == MODE_VERLET_LAST || MODE == MODE_EULER_LAST) bad |= !finite3(xx) || !finite3(vv);
+                }
+            }
+        }
+        /* Registers for the rows below: SY of this row, BY of this row and the one above. */
+        if (r >= 0) {
+            sy_prev = F[CS_SY];
+            by2 = by1;
+            by1 = F[CS_BY];
+        }
+    }
+    if (ROCKS) finish_groups(sc, b, sm, j0, j1, seg);
+    if (torn) atomicAdd(&b.flags[FLAG_TORN], torn);
+    if (bad) atomicOr(&b.flags[FLAG_NONFINITE], 1);
+}
+
+/* Velocity Verlet's first substep of a graph: grab, kick, drift of every vertex (no kick to
+ * finish: a is complete) in place, and of every rock (block 0). */
+__global__ void k_drift_first(const cuda_scene *__restrict__ sc, cuda_bufs b)
+{
+    const cs_phys *p = &sc->p;
+    if (blockIdx.x == 0)
+        for (int32_t r = (int32_t)threadIdx.x; r < sc->nr; r += (int32_t)blockDim.x) {
+            cs_rock_state k = dload(&b.rocks[r]);
+            cs_rock_kick(&k, p->hdt);
+            cs_rock_drift(&k, p->dt);
+            dstore(&b.rocks[r], k);
+        }
+    const size_t v = (size_t)blockIdx.x * blockDim.x + threadIdx.x, n = (size_t)p->n;
+    if (v >= n) return;
+    float *s = b.out; /* in place: in == out */
+    const cs_vec3 xi = cs_v3(dload(&s[v]), dload(&s[n + v]), dload(&s[2 * n + v]));
+    const cs_vec3 a = cs_v3(dload(&b.acc[v]), dload(&b.acc[n + v]), dload(&b.acc[2 * n + v]));
+    cs_vec3 vv = (int32_t)v == sc->grab ? cs_grab_velocity(xi, sc->grab_target, p)
+                                        : cs_v3(dload(&s[3 * n + v]), dload(&s[4 * n + v]), dload(&s[5 * n + v]));
+    vv = cs_add(vv, cs_scale(a, p->hdt));
     const cs_vec3 xx = cs_add(xi, cs_scale(vv, p->dt));
-    pos_out[v] = make_float4(xx.x, xx.y, xx.z, P.w);
-    vel_out[v] = make_float4(vv.x, vv.y, vv.z, 0.0f);
+    const float o[6] = {xx.x, xx.y, xx.z, vv.x, vv.y, vv.z};
+    for (int q = 0; q < 6; q++) dstore(&s[(size_t)q * n + v], o[q]);
 }
 
-/* What the rock kernel does after the forces. */
-enum { ROCKS_ACCEL, ROCKS_VERLET, ROCKS_VERLET_LAST, ROCKS_EULER, ROCKS_FIRST };
-
-/* One block, a thread per rock: forces from the chunk partials (cs_rock_force), then the moves. */
-template <int MODE>
-__global__ void k_rocks(const cuda_consts *__restrict__ kc, cs_rock_state *__restrict__ rocks,
-                        const float *__restrict__ partials, int *__restrict__ flags)
+/* Symplectic Euler's strain pass on the new positions (b.in), rest lengths as in k_cloth. */
+__global__ void k_strain(const cuda_scene *__restrict__ sc, cuda_bufs b)
 {
-    const cs_phys *p = &kc->p;
-    const int32_t r = (int32_t)threadIdx.x, nr = kc->nr;
-    cs_vec3 F = cs_v3(0.0f, 0.0f, 0.0f), T = F;
-    if (MODE != ROCKS_FIRST && r < nr) cs_rock_force(rocks, nr, r, partials, p->nchunks, p, &F, &T);
-    __syncthreads(); /* every rock's force read the others' state before any changes */
-    if (r >= nr) return;
-    cs_rock_state *k = &rocks[r];
-    switch (MODE) {
-    case ROCKS_ACCEL: cs_rock_accel(k, F, T); break;
-    case ROCKS_FIRST:
-        cs_rock_kick(k, p->hdt);
-        cs_rock_drift(k, p->dt);
-        break;
-    case ROCKS_VERLET:
-        cs_rock_accel(k, F, T);
-        cs_rock_kick(k, p->hdt);
-        cs_rock_kick(k, p->hdt);
-        cs_rock_drift(k, p->dt);
-        break;
-    case ROCKS_VERLET_LAST:
-        cs_rock_accel(k, F, T);
-        cs_rock_kick(k, p->hdt);
-        break;
-    case ROCKS_EULER:
-        cs_rock_accel(k, F, T);
-        cs_rock_kick(k, p->dt);
-        cs_rock_drift(k, p->dt);
-        break;
-    }
-    if (MODE == ROCKS_VERLET_LAST || MODE == ROCKS_EULER) {
-        if (!finite3(k->x) || !finite3(k->v) || !finite3(k->w)) atomicOr(&flags[FLAG_NONFINITE], 1);
-    }
-}
-
-/* Symplectic Euler's strain pass on the new positions. */
-__global__ void k_strain(const cuda_consts *__restrict__ kc, const float4 *__restrict__ pos,
-                         const float *__restrict__ L0, float *__restrict__ L0n, int *__restrict__ flags)
-{
-    const cs_phys *p = &kc->p;
+    const cs_phys *p = &sc->p;
     const int32_t v = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x);
     if (v >= p->n) return;
     const int32_t nx = p->nx, ny = p->ny, i = v % nx, j = v / nx;
-    const cs_vec3 xi = xyz(pos[v]);
-    int torn = 0;
+    const size_t n = (size_t)p->n;
+    const cs_vec3 xi = cs_v3(dload(&b.in[v]), dload(&b.in[n + v]), dload(&b.in[2 * n + v]));
+    float nl[CS_NTYPES], l0[CS_NTYPES];
+    int torn = 0, changed = 0;
 #define CUDA_STRAIN(t, di, dj)                                                                         \
-    {                                                                                                  \
-        const size_t li = (size_t)(t) * p->n + v;                                                      \
-        float nl = L0[li];                                                                             \
-        if (i + (di) >= 0 && i + (di) < nx && j + (dj) < ny) {                                         \
-            nl = cs_strain_update(cs_len(cs_sub(xyz(pos[v + (di) + (dj) * nx]), xi)), L0[li], p);      \
-            torn += L0[li] > 0.0f && nl <= 0.0f;                                                       \
-        }                                                                                              \
-        L0n[li] = nl;                                                                                  \
+    l0[t] = dload(&b.L0[(size_t)(t) * n + v]);                                                         \
+    nl[t] = l0[t];                                                                                     \
+    if (l0[t] > 0.0f && i + (di) >= 0 && i + (di) < nx && j + (dj) < ny) {                             \
+        const size_t o = (size_t)(v + (di) + (dj) * nx);                                               \
+        const cs_vec3 xo = cs_v3(dload(&b.in[o]), dload(&b.in[n + o]), dload(&b.in[2 * n + o]));       \
+        nl[t] = cs_strain_update(cs_len(cs_sub(xo, xi)), l0[t], p);                                    \
+        torn += nl[t] <= 0.0f;                                                                         \
+        changed |= nl[t] != l0[t];                                                                     \
     }
     CS_SPRING_TYPES(CUDA_STRAIN)
 #undef CUDA_STRAIN
-    if (torn) atomicAdd(&flags[FLAG_TORN], torn);
+    const unsigned char before = dload(&b.chg[v]);
+    if (changed || before)
+        for (int q = 0; q < CS_NTYPES; q++) dstore(&b.L0n[(size_t)q * n + v], nl[q]);
+    if ((unsigned char)changed != before) dstore(&b.chg[v], (unsigned char)changed);
+    if (torn) atomicAdd(&b.flags[FLAG_TORN], torn);
+}
+
+/* ---- rocks ---- */
+
+/* Total force and torque on rock r, in cs_rock_force's order, by one warp: the sums of the chunk
+ * groups that touched it (group_sums; the others are +0) in group order; then the other rocks
+ * (tested by the lanes, added in index order), the ground, gravity. The hit words read are
+ * cleared for the next substep. Every lane ends with the same sums. */
+__device__ static void rock_force(const cuda_scene *sc, const cuda_bufs &b, int32_t r, cs_vec3 *F_out, cs_vec3 *T_out)
+{
+    const cs_phys *p = &sc->p;
+    const int lane = (int)(threadIdx.x & 31u);
+    const int32_t nr = sc->nr, ng = sc->ngroups;
+    cs_vec3 F = cs_v3(0.0f, 0.0f, 0.0f), T = F;
+    for (int32_t g0 = 0; g0 < ng; g0 += 32) {
+        const int32_t g = g0 + lane;
+        const size_t rg = (size_t)r * (size_t)ng + (size_t)g;
+        unsigned long long bits = 0;
+        float q[6] = {0, 0, 0, 0, 0, 0};
+        if (g < ng && (bits = dload(&b.hits[rg])) != 0) {
+            dstore(&b.hits[rg], 0ull); /* clean for the next substep */
+            for (int k = 0; k < 6; k++) q[k] = dload(&b.gsum[rg * 6 + (size_t)k]);
+        }
+        for (unsigned m = __ballot_sync(FULL, bits != 0); m; m &= m - 1u) {
+            const int l = __ffs((int)m) - 1;
+            F = cs_add(F, cs_v3(__shfl_sync(FULL, q[0], l), __shfl_sync(FULL, q[1], l), __shfl_sync(FULL, q[2], l)));
+            T = cs_add(T, cs_v3(__shfl_sync(FULL, q[3], l), __shfl_sync(FULL, q[4], l), __shfl_sync(FULL, q[5], l)));
+        }
+    }
+    /* Through pointers: these read positions, velocities, spins and radii only, never the
+     * accelerations that other warps of k_rock_force write meanwhile. */
+    const cs_rock_state *me = &b.rocks[r];
+    for (int32_t b0 = 0; b0 < nr; b0 += 32) {
+        const int32_t o = b0 + lane;
+        cs_vec3 f = cs_v3(0.0f, 0.0f, 0.0f), tq = f;
+        int touch = 0;
+        if (o < nr && o != r) touch = cs_rock_pair_contact(me, &b.rocks[o], p, &f, &tq);
+        for (unsigned m = __ballot_sync(FULL, touch); m; m &= m - 1u) {
+            const int l = __ffs((int)m) - 1;
+            F = cs_add(F, cs_v3(__shfl_sync(FULL, f.x, l), __shfl_sync(FULL, f.y, l), __shfl_sync(FULL, f.z, l)));
+            T = cs_add(T, cs_v3(__shfl_sync(FULL, tq.x, l), __shfl_sync(FULL, tq.y, l), __shfl_sync(FULL, tq.z, l)));
+        }
+    }
+    cs_vec3 f, tq;
+    if (cs_rock_ground_contact(me, p, &f, &tq)) {
+        F = cs_add(F, f);
+        T = cs_add(T, tq);
+    }
+    *F_out = cs_add(F, cs_scale(p->gravity, me->mass));
+    *T_out = T;
+}
+
+/* A rock's velocity and position steps after its accelerations are stored (backend.h). */
+__device__ static void rock_move(int mode, cs_rock_state *k, const cs_phys *p, int *flags)
+{
+    switch (mode) {
+    case ROCKS_VERLET:
+        cs_rock_kick(k, p->hdt);
+        cs_rock_kick(k, p->hdt);
+        cs_rock_drift(k, p->dt);
+        break;
+    case ROCKS_VERLET_LAST: cs_rock_kick(k, p->hdt); break;
+    case ROCKS_EULER:
+        cs_rock_kick(k, p->dt);
+        cs_rock_drift(k, p->dt);
+        break;
+    default: break;
+    }
+    if ((mode == ROCKS_VERLET_LAST || mode == ROCKS_EULER) && (!finite3(k->x) || !finite3(k->v) || !finite3(k->w)))
+        atomicOr(&flags[FLAG_NONFINITE], 1);
+}
+
+/* Up to ROCKS_FUSED rocks: one block of 32 warps, a warp per rock (two rounds), then the moves. */
+template <int MODE> __global__ void __launch_bounds__(1024) k_rocks(const cuda_scene *__restrict__ sc, cuda_bufs b)
+{
+    const int warp = (int)(threadIdx.x >> 5), lane = (int)(threadIdx.x & 31u);
+    cs_vec3 F[2] = {cs_v3(0.0f, 0.0f, 0.0f), cs_v3(0.0f, 0.0f, 0.0f)}, T[2] = {F[0], F[1]};
+    for (int k = 0; k < 2; k++) {
+        const int32_t r = warp + 32 * k;
+        if (r < sc->nr) rock_force(sc, b, r, &F[k], &T[k]); /* warp-uniform */
+    }
+    __syncthreads(); /* every force read the other rocks before any moves */
+    if (lane == 0)
+        for (int k = 0; k < 2; k++) {
+            const int32_t r = warp + 32 * k;
+            if (r >= sc->nr) continue;
+            cs_rock_state rk = dload(&b.rocks[r]);
+            cs_rock_accel(&rk, F[k], T[k]);
+            rock_move(MODE, &rk, &sc->p, b.flags);
+            dstore(&b.rocks[r], rk);
+        }
+}
+
+/* More rocks: accelerations (a warp per rock; a rock's force never reads another's a) ... */
+__global__ void __launch_bounds__(32 * ROCK_WARPS) k_rock_force(const cuda_scene *__restrict__ sc, cuda_bufs b)
+{
+    const int32_t r = (int32_t)(blockIdx.x * ROCK_WARPS + (threadIdx.x >> 5));
+    if (r >= sc->nr) return; /* warp-uniform */
+    cs_vec3 F, T;
+    rock_force(sc, b, r, &F, &T);
+    if ((threadIdx.x & 31u) == 0) {
+        cs_vec3 a = cs_scale(F, dload(&b.rocks[r].inv_mass)), al = cs_scale(T, dload(&b.rocks[r].inv_inertia));
+        dstore(&b.rocks[r].a, a);
+        dstore(&b.rocks[r].alpha, al);
+    }
+}
+
+/* ... then the moves, a thread per rock. */
+template <int MODE> __global__ void k_rock_move(const cuda_scene *__restrict__ sc, cuda_bufs b)
+{
+    const int32_t r = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x);
+    if (r >= sc->nr) return;
+    cs_rock_state k = dload(&b.rocks[r]);
+    rock_move(MODE, &k, &sc->p, b.flags);
+    dstore(&b.rocks[r], k);
 }
 
 /* ---- host side ---- */
 
-#define GRAPHS 4
-
+/* A graph's shape: what its kernels are. Pointers and launch sizes can change under it (update). */
+struct graph_key {
+    int32_t len;          /* substeps */
+    int integrator, strain, rocks; /* rocks: 0 none, 1 fused, 2 split */
+    int pos, rest;        /* buffer parities at its start */
+};
 struct graph_entry {
+    graph_key key;
     cudaGraphExec_t exec;
-    int32_t substeps, nr, integrator, strain;
-    int pos_cur, rest_cur;
+    uint64_t epoch;       /* the buffers it was built for */
+    int32_t nr;           /* the rock count its launch sizes are for (split kernels) */
+    uint64_t used;
+};
+
+/* Buffers sized by the cloth (n vertices). */
+struct vertex_bufs {
+    int32_t n;
+    float *state[2], *acc, *rest[2];
+    unsigned char *chg, *mask;
+    float *frame_dev[2], *frame_host[2]; /* positions and velocities of a read frame (6 n) */
+    unsigned char *mask_stage;           /* pageable, for converting the host's mask */
+};
+/* Buffers sized by the rock capacity and the chunks. */
+struct rock_bufs {
+    int32_t cap, nchunks, ngroups;
+    cs_rock_state *rocks, *frame_rocks_dev[2], *frame_rocks_host[2];
+    float *partials, *gsum;
+    unsigned long long *hits;
+    int *group_done;
 };
 
 struct cuda_ctx {
-    int dev;
-    cudaStream_t stream;
-    int32_t n, nchunks;          /* sizes allocated for */
-    float4 *pos[2], *vel[2], *acc;
-    int cur;                     /* which pos/vel buffer holds the state */
-    float *rest[2];
-    int rest_cur;
-    cs_rock_state *rocks;
-    int32_t rock_cap, nr;
-    float *partials;
-    size_t partials_cap;
-    int *flags, *host_flags;     /* device counters and their pinned host copy */
-    cuda_consts *consts;         /* device copy of what the kernels read */
-    float4 *stage;               /* pinned staging for uploads and downloads */
+    int dev, sms;
+    cudaStream_t stream, copy;
+    vertex_bufs vb;
+    rock_bufs rb;
+    int cur, rest_cur;         /* which state and rest-length buffers hold the state */
+    cuda_scene host_sc, *sc;   /* the scene struct and its device copy */
+    int *flags, *host_flags;   /* device counters and their pinned host copy */
+    /* frames: after a step call, what the host read of the previous frame, copied ahead */
+    cudaEvent_t ready[2], copied[2];
+    int slot;
+    int64_t calls, frame_call; /* step calls so far; the call the frame in `slot` is of */
+    unsigned frame_parts;      /* CS_SYNC_* parts in that frame */
+    int frame_waited;          /* its copy is known to be done */
+    unsigned wanted;           /* parts downloaded since the last step call */
     graph_entry graphs[GRAPHS];
     int n_graphs;
-    double copy_bandwidth;       /* measured once, bytes/s */
+    uint64_t epoch, uses;
     char device[320];
     char err[256];
 };
@@ -300,6 +805,9 @@ static cs_status cuda_fail(cuda_ctx *c, cudaError_t e, const char *call, int lin
 {
     snprintf(c->err, sizeof c->err, "%s (%s) at backend_cuda.cu:%d in %s", cudaGetErrorString(e), cudaGetErrorName(e),
              line, call);
+    /* Handled: clear it, or the next launch's cudaGetLastError would report it as its own (a
+     * failed cudaMalloc of a refused scene then failed the next step). */
+    (void)cudaGetLastError();
     if (sticky(e)) return CS_E_DEVICE;
     return e == cudaErrorMemoryAllocation ? CS_E_NOMEM : CS_E_BACKEND;
 }
@@ -333,33 +841,92 @@ static void drop_graphs(cuda_ctx *c)
     c->n_graphs = 0;
 }
 
-static void free_state(cuda_ctx *c)
+static void free_vertex_bufs(vertex_bufs *v)
 {
-    drop_graphs(c);
-    for (int b = 0; b < 2; b++) {
-        cudaFree(c->pos[b]);
-        cudaFree(c->vel[b]);
-        cudaFree(c->rest[b]);
-        c->pos[b] = c->vel[b] = NULL;
-        c->rest[b] = NULL;
+    for (int k = 0; k < 2; k++) {
+        cudaFree(v->state[k]);
+        cudaFree(v->rest[k]);
+        cudaFree(v->frame_dev[k]);
+        cudaFreeHost(v->frame_host[k]);
     }
-    cudaFree(c->acc);
-    cudaFreeHost(c->stage);
-    c->acc = c->stage = NULL;
-    c->n = 0;
+    cudaFree(v->acc);
+    cudaFree(v->chg);
+    cudaFree(v->mask);
+    free(v->mask_stage);
+    memset(v, 0, sizeof *v);
+}
+
+static void free_rock_bufs(rock_bufs *r)
+{
+    for (int k = 0; k < 2; k++) {
+        cudaFree(r->frame_rocks_dev[k]);
+        cudaFreeHost(r->frame_rocks_host[k]);
+    }
+    cudaFree(r->rocks);
+    cudaFree(r->partials);
+    cudaFree(r->gsum);
+    cudaFree(r->hits);
+    cudaFree(r->group_done);
+    memset(r, 0, sizeof *r);
+}
+
+/* Allocates a new set; on failure frees what it got and leaves *v empty. */
+static cudaError_t alloc_vertex_bufs(vertex_bufs *v, int32_t n)
+{
+    memset(v, 0, sizeof *v);
+    const size_t f = sizeof(float) * (size_t)n;
+    cudaError_t e = cudaSuccess;
+    for (int k = 0; k < 2 && e == cudaSuccess; k++) {
+        e = cudaMalloc((void **)&v->state[k], 6 * f);
+        if (e == cudaSuccess) e = cudaMalloc((void **)&v->rest[k], CS_NTYPES * f);
+        if (e == cudaSuccess) e = cudaMalloc((void **)&v->frame_dev[k], 6 * f);
+        if (e == cudaSuccess) e = cudaMallocHost((void **)&v->frame_host[k], 6 * f);
+    }
+    if (e == cudaSuccess) e = cudaMalloc((void **)&v->acc, 3 * f);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&v->chg, (size_t)n);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&v->mask, (size_t)n);
+    if (e == cudaSuccess && !(v->mask_stage = (unsigned char *)malloc((size_t)n))) e = cudaErrorMemoryAllocation;
+    if (e != cudaSuccess) free_vertex_bufs(v);
+    else v->n = n;
+    return e;
+}
+
+static cudaError_t alloc_rock_bufs(rock_bufs *r, int32_t cap, int32_t nchunks)
+{
+    memset(r, 0, sizeof *r);
+    const int32_t ngroups = (nchunks + CS_CHUNK_GROUP - 1) / CS_CHUNK_GROUP;
+    cudaError_t e = cudaMalloc((void **)&r->rocks, sizeof(cs_rock_state) * (size_t)cap);
+    for (int k = 0; k < 2 && e == cudaSuccess; k++) {
+        e = cudaMalloc((void **)&r->frame_rocks_dev[k], sizeof(cs_rock_state) * (size_t)cap);
+        if (e == cudaSuccess) e = cudaMallocHost((void **)&r->frame_rocks_host[k], sizeof(cs_rock_state) * (size_t)cap);
+    }
+    if (e == cudaSuccess) e = cudaMalloc((void **)&r->partials, sizeof(float) * 6 * (size_t)cap * (size_t)nchunks);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&r->hits, sizeof(unsigned long long) * (size_t)cap * (size_t)ngroups);
+    if (e == cudaSuccess) e = cudaMemset(r->hits, 0, sizeof(unsigned long long) * (size_t)cap * (size_t)ngroups);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&r->gsum, sizeof(float) * 6 * (size_t)cap * (size_t)ngroups);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&r->group_done, sizeof(int) * (size_t)ngroups);
+    if (e == cudaSuccess) e = cudaMemset(r->group_done, 0, sizeof(int) * (size_t)ngroups);
+    if (e != cudaSuccess) free_rock_bufs(r);
+    else r->cap = cap, r->nchunks = nchunks, r->ngroups = ngroups;
+    return e;
 }
 
 static void cuda_destroy(void *ctx)
 {
     cuda_ctx *c = (cuda_ctx *)ctx;
     if (!c) return;
-    free_state(c);
-    cudaFree(c->rocks);
-    cudaFree(c->partials);
+    drop_graphs(c);
+    free_vertex_bufs(&c->vb);
+    free_rock_bufs(&c->rb);
     cudaFree(c->flags);
-    cudaFree(c->consts);
+    cudaFree(c->sc);
     cudaFreeHost(c->host_flags);
+    for (int k = 0; k < 2; k++) {
+        if (c->ready[k]) cudaEventDestroy(c->ready[k]);
+        if (c->copied[k]) cudaEventDestroy(c->copied[k]);
+    }
     if (c->stream) cudaStreamDestroy(c->stream);
+    if (c->copy) cudaStreamDestroy(c->copy);
     free(c);
 }
 
@@ -375,15 +942,21 @@ static cs_status cuda_create(void **out, char *err, size_t err_len)
         snprintf(err, err_len, "out of memory");
         return CS_E_NOMEM;
     }
+    c->frame_call = -1;
     cs_status st = CS_OK;
     cudaDeviceProp prop;
     do {
         cudaError_t e = cudaGetDevice(&c->dev);
         if (e == cudaSuccess) e = cudaGetDeviceProperties(&prop, c->dev);
         if (e == cudaSuccess) e = cudaStreamCreateWithFlags(&c->stream, cudaStreamNonBlocking);
+        if (e == cudaSuccess) e = cudaStreamCreateWithFlags(&c->copy, cudaStreamNonBlocking);
+        for (int k = 0; k < 2 && e == cudaSuccess; k++) {
+            e = cudaEventCreateWithFlags(&c->ready[k], cudaEventDisableTiming);
+            if (e == cudaSuccess) e = cudaEventCreateWithFlags(&c->copied[k], cudaEventDisableTiming);
+        }
         if (e == cudaSuccess) e = cudaMalloc((void **)&c->flags, FLAG_COUNT * sizeof(int));
         if (e == cudaSuccess) e = cudaMallocHost((void **)&c->host_flags, FLAG_COUNT * sizeof(int));
-        if (e == cudaSuccess) e = cudaMalloc((void **)&c->consts, sizeof(cuda_consts));
+        if (e == cudaSuccess) e = cudaMalloc((void **)&c->sc, sizeof(cuda_scene));
         if (e != cudaSuccess) st = cuda_fail(c, e, "setting up the device", __LINE__);
     } while (0);
     if (st != CS_OK) {
@@ -391,65 +964,79 @@ static cs_status cuda_create(void **out, char *err, size_t err_len)
         cuda_destroy(c);
         return st;
     }
+    c->sms = prop.multiProcessorCount > 0 ? prop.multiProcessorCount : 1;
     snprintf(c->device, sizeof c->device, "%s (sm_%d%d, %d SMs, %.0f GiB)", prop.name, prop.major, prop.minor,
              prop.multiProcessorCount, (double)prop.totalGlobalMem / (1024.0 * 1024.0 * 1024.0));
     *out = c;
     return CS_OK;
 }
 
+/* Rows of a cloth block: as many as keep about four blocks per SM busy, at most 8 (fewer rows,
+ * more blocks: small cloths are latency-bound, large ones bandwidth-bound). */
+static int32_t tile_rows_for(const cs_phys *p, int sms)
+{
+    int32_t tr = MAX_TILE_ROWS;
+    while (tr > 1 && (int64_t)p->nseg * ((p->ny + tr - 1) / tr) < 4 * (int64_t)sms) tr >>= 1;
+    return tr;
+}
+
+static int32_t rock_cap_for(int32_t nr)
+{
+    int32_t cap = 8;
+    while (cap < nr) cap *= 2;
+    return cap < CS_MAX_ROCKS ? cap : CS_MAX_ROCKS;
+}
+
+/* Room for this state. New buffers are allocated before the old ones are freed: on failure the
+ * device state is as it was. */
 static cs_status reserve(cuda_ctx *c, const cs_model *m, const cs_state *s)
 {
-    const int32_t n = s->n, nr = s->n_rocks;
-    if (n != c->n) {
-        free_state(c);
-        for (int b = 0; b < 2; b++) {
-            CUDA_CHECK(cudaMalloc((void **)&c->pos[b], sizeof(float4) * (size_t)n));
-            CUDA_CHECK(cudaMalloc((void **)&c->vel[b], sizeof(float4) * (size_t)n));
-            CUDA_CHECK(cudaMalloc((void **)&c->rest[b], sizeof(float) * (size_t)n * CS_NTYPES));
+    const int32_t n = s->n, nchunks = m->phys.nchunks;
+    const bool new_v = n != c->vb.n;
+    const bool new_r = s->n_rocks > c->rb.cap || (c->rb.cap && nchunks != c->rb.nchunks);
+    vertex_bufs v;
+    rock_bufs r;
+    if (new_v) {
+        const cudaError_t e = alloc_vertex_bufs(&v, n);
+        if (e != cudaSuccess) return cuda_fail(c, e, "allocating the cloth", __LINE__);
+    }
+    if (new_r) {
+        const cudaError_t e = alloc_rock_bufs(&r, rock_cap_for(s->n_rocks > c->rb.cap ? s->n_rocks : c->rb.cap), nchunks);
+        if (e != cudaSuccess) {
+            if (new_v) free_vertex_bufs(&v);
+            return cuda_fail(c, e, "allocating the rocks", __LINE__);
         }
-        CUDA_CHECK(cudaMalloc((void **)&c->acc, sizeof(float4) * (size_t)n));
-        CUDA_CHECK(cudaMallocHost((void **)&c->stage, sizeof(float4) * (size_t)n));
-        c->n = n;
     }
-    if (nr > c->rock_cap) {
-        drop_graphs(c);
-        cudaFree(c->rocks);
-        c->rocks = NULL;
-        c->rock_cap = 0;
-        CUDA_CHECK(cudaMalloc((void **)&c->rocks, sizeof(cs_rock_state) * (size_t)nr));
-        c->rock_cap = nr;
+    if (new_v) {
+        free_vertex_bufs(&c->vb);
+        c->vb = v;
+        c->cur = c->rest_cur = 0;
     }
-    const size_t need = (size_t)m->phys.nchunks * (size_t)(nr > 0 ? nr : 1) * 6;
-    if (need > c->partials_cap) {
-        drop_graphs(c);
-        cudaFree(c->partials);
-        c->partials = NULL;
-        c->partials_cap = 0;
-        CUDA_CHECK(cudaMalloc((void **)&c->partials, sizeof(float) * need));
-        c->partials_cap = need;
+    if (new_r) {
+        free_rock_bufs(&c->rb);
+        c->rb = r;
     }
+    if (new_v || new_r) c->epoch++; /* graphs take the new pointers at their next use */
     return CS_OK;
 }
 
-/* Host arrays -> one float4 array on the device, through the pinned stage. */
-static cs_status put4(cuda_ctx *c, float4 *dst, const float *a, const float *b, const float *d, const float *w)
+static cuda_bufs bufs_of(const cuda_ctx *c, int pos, int rest)
 {
-    for (int32_t v = 0; v < c->n; v++) c->stage[v] = make_float4(a[v], b[v], d[v], w ? w[v] : 0.0f);
-    CUDA_CHECK(cudaMemcpyAsync(dst, c->stage, sizeof(float4) * (size_t)c->n, cudaMemcpyHostToDevice, c->stream));
-    CUDA_CHECK(cudaStreamSynchronize(c->stream));
-    return CS_OK;
-}
-
-static cs_status get4(cuda_ctx *c, const float4 *src, float *a, float *b, float *d)
-{
-    CUDA_CHECK(cudaMemcpyAsync(c->stage, src, sizeof(float4) * (size_t)c->n, cudaMemcpyDeviceToHost, c->stream));
-    CUDA_CHECK(cudaStreamSynchronize(c->stream));
-    for (int32_t v = 0; v < c->n; v++) {
-        a[v] = c->stage[v].x;
-        b[v] = c->stage[v].y;
-        d[v] = c->stage[v].z;
-    }
-    return CS_OK;
+    cuda_bufs b;
+    b.in = c->vb.state[pos];
+    b.out = c->vb.state[pos ^ 1];
+    b.mask = c->vb.mask;
+    b.acc = c->vb.acc;
+    b.L0 = c->vb.rest[rest];
+    b.L0n = c->vb.rest[rest ^ 1];
+    b.chg = c->vb.chg;
+    b.rocks = c->rb.rocks;
+    b.partials = c->rb.partials;
+    b.hits = c->rb.hits;
+    b.gsum = c->rb.gsum;
+    b.group_done = c->rb.group_done;
+    b.flags = c->flags;
+    return b;
 }
 
 static cs_status cuda_upload(void *ctx, const cs_model *m, cs_state *s)
@@ -457,166 +1044,235 @@ static cs_status cuda_upload(void *ctx, const cs_model *m, cs_state *s)
     cuda_ctx *c = (cuda_ctx *)ctx;
     cs_status st = reserve(c, m, s);
     if (st != CS_OK) return st;
-    cuda_consts k;
+    const size_t n = (size_t)s->n, f = sizeof(float) * n;
+    cuda_scene k;
     memset(&k, 0, sizeof k);
     k.p = m->phys;
     k.nr = s->n_rocks;
     k.grab = s->grab;
     k.grab_target = s->grab_target;
-    CUDA_CHECK(cudaMemcpyAsync(c->consts, &k, sizeof k, cudaMemcpyHostToDevice, c->stream));
-    c->cur = 0;
-    c->rest_cur = 0;
-    if ((st = put4(c, c->pos[0], s->x, s->y, s->z, s->w)) != CS_OK) return st;
-    if ((st = put4(c, c->vel[0], s->vx, s->vy, s->vz, NULL)) != CS_OK) return st;
-    if ((st = put4(c, c->acc, s->ax, s->ay, s->az, NULL)) != CS_OK) return st;
-    CUDA_CHECK(cudaMemcpyAsync(c->rest[0], s->L0, sizeof(float) * (size_t)s->n * CS_NTYPES, cudaMemcpyHostToDevice,
-                               c->stream));
+    k.tile_rows = tile_rows_for(&m->phys, c->sms);
+    k.ngroups = (m->phys.nchunks + CS_CHUNK_GROUP - 1) / CS_CHUNK_GROUP;
+    c->host_sc = k;
+    /* From pageable memory: each copy is done when it returns (after the work queued before it). */
+    CUDA_CHECK(cudaMemcpyAsync(c->sc, &k, sizeof k, cudaMemcpyHostToDevice, c->stream));
+    const float *parts[] = {s->x, s->y, s->z, s->vx, s->vy, s->vz};
+    float *st_dev = c->vb.state[c->cur];
+    for (int q = 0; q < 6; q++)
+        CUDA_CHECK(cudaMemcpyAsync(st_dev + (size_t)q * n, parts[q], f, cudaMemcpyHostToDevice, c->stream));
+    const float *acc[] = {s->ax, s->ay, s->az};
+    for (int q = 0; q < 3; q++)
+        CUDA_CHECK(cudaMemcpyAsync(c->vb.acc + (size_t)q * n, acc[q], f, cudaMemcpyHostToDevice, c->stream));
+    for (size_t v = 0; v < n; v++) c->vb.mask_stage[v] = s->w[v] != 0.0f;
+    CUDA_CHECK(cudaMemcpyAsync(c->vb.mask, c->vb.mask_stage, n, cudaMemcpyHostToDevice, c->stream));
+    CUDA_CHECK(cudaMemcpyAsync(c->vb.rest[c->rest_cur], s->L0, CS_NTYPES * f, cudaMemcpyHostToDevice, c->stream));
+    /* The other rest-length buffer is not a copy of this one: every vertex writes it once. */
+    CUDA_CHECK(cudaMemsetAsync(c->vb.chg, 1, n, c->stream));
     if (s->n_rocks)
-        CUDA_CHECK(cudaMemcpyAsync(c->rocks, s->rocks, sizeof(cs_rock_state) * (size_t)s->n_rocks,
+        CUDA_CHECK(cudaMemcpyAsync(c->rb.rocks, s->rocks, sizeof(cs_rock_state) * (size_t)s->n_rocks,
                                    cudaMemcpyHostToDevice, c->stream));
-    CUDA_CHECK(cudaStreamSynchronize(c->stream));
-    c->nr = s->n_rocks;
-    c->nchunks = m->phys.nchunks;
-    /* Graphs hold buffer parities and sizes; start afresh after any upload. */
-    drop_graphs(c);
+    c->frame_call = -1; /* a frame copied before this is no longer the state */
     return CS_OK;
 }
 
-static cs_status cuda_download(void *ctx, const cs_model *m, cs_state *s, unsigned what)
+/* Which rock kernels: 0 none, 1 one fused block, 2 forces then moves. */
+static int rock_path(int32_t nr) { return nr == 0 ? 0 : nr <= ROCKS_FUSED ? 1 : 2; }
+
+/* Launches of one kind of cloth kernel. */
+template <bool S, bool R>
+static void launch_cloth(int mode, dim3 grid, size_t smem, cudaStream_t st, const cuda_scene *sc, const cuda_bufs &b)
 {
-    cuda_ctx *c = (cuda_ctx *)ctx;
-    (void)m;
-    cs_status st = get4(c, c->pos[c->cur], s->x, s->y, s->z);
-    if (st != CS_OK || what == CS_SYNC_POSITIONS) return st;
-    if ((st = get4(c, c->vel[c->cur], s->vx, s->vy, s->vz)) != CS_OK) return st;
-    if ((st = get4(c, c->acc, s->ax, s->ay, s->az)) != CS_OK) return st;
-    CUDA_CHECK(cudaMemcpyAsync(s->L0, c->rest[c->rest_cur], sizeof(float) * (size_t)s->n * CS_NTYPES,
-                               cudaMemcpyDeviceToHost, c->stream));
-    if (s->n_rocks)
-        CUDA_CHECK(cudaMemcpyAsync(s->rocks, c->rocks, sizeof(cs_rock_state) * (size_t)s->n_rocks,
-                                   cudaMemcpyDeviceToHost, c->stream));
-    CUDA_CHECK(cudaStreamSynchronize(c->stream));
-    return CS_OK;
+    switch (mode) {
+    case MODE_ACCEL: k_cloth<MODE_ACCEL, false, R><<<grid, TILE_W, smem, st>>>(sc, b); break;
+    case MODE_VERLET: k_cloth<MODE_VERLET, S, R><<<grid, TILE_W, smem, st>>>(sc, b); break;
+    case MODE_VERLET_LAST: k_cloth<MODE_VERLET_LAST, S, R><<<grid, TILE_W, smem, st>>>(sc, b); break;
+    case MODE_EULER: k_cloth<MODE_EULER, false, R><<<grid, TILE_W, smem, st>>>(sc, b); break;
+    default: k_cloth<MODE_EULER_LAST, false, R><<<grid, TILE_W, smem, st>>>(sc, b); break;
+    }
 }
 
-static int rock_threads(int32_t nr) { return (nr + 31) / 32 * 32; }
+static void cloth(const cuda_ctx *c, int mode, bool strain, int pos, int rest)
+{
+    const cs_phys *p = &c->host_sc.p;
+    const dim3 grid((unsigned)p->nseg, (unsigned)((p->ny + c->host_sc.tile_rows - 1) / c->host_sc.tile_rows));
+    const bool rocks = c->host_sc.nr > 0;
+    const size_t smem = cloth_smem(rocks ? c->rb.cap : 0);
+    const cuda_bufs b = bufs_of(c, pos, rest);
+    if (strain && rocks) launch_cloth<true, true>(mode, grid, smem, c->stream, c->sc, b);
+    else if (strain) launch_cloth<true, false>(mode, grid, smem, c->stream, c->sc, b);
+    else if (rocks) launch_cloth<false, true>(mode, grid, smem, c->stream, c->sc, b);
+    else launch_cloth<false, false>(mode, grid, smem, c->stream, c->sc, b);
+}
 
-/* Accelerations on the device; the core reads them back when it needs the host copy. */
+static void rocks(const cuda_ctx *c, int mode, int pos, int rest)
+{
+    const int32_t nr = c->host_sc.nr;
+    const cuda_bufs b = bufs_of(c, pos, rest);
+    cudaStream_t st = c->stream;
+    if (rock_path(nr) == 1) {
+        switch (mode) {
+        case ROCKS_ACCEL: k_rocks<ROCKS_ACCEL><<<1, 1024, 0, st>>>(c->sc, b); break;
+        case ROCKS_VERLET: k_rocks<ROCKS_VERLET><<<1, 1024, 0, st>>>(c->sc, b); break;
+        case ROCKS_VERLET_LAST: k_rocks<ROCKS_VERLET_LAST><<<1, 1024, 0, st>>>(c->sc, b); break;
+        default: k_rocks<ROCKS_EULER><<<1, 1024, 0, st>>>(c->sc, b); break;
+        }
+    } else if (rock_path(nr) == 2) {
+        const unsigned fb = (unsigned)((nr + ROCK_WARPS - 1) / ROCK_WARPS), mb = (unsigned)((nr + 255) / 256);
+        k_rock_force<<<fb, 32 * ROCK_WARPS, 0, st>>>(c->sc, b);
+        switch (mode) {
+        case ROCKS_ACCEL: break;
+        case ROCKS_VERLET: k_rock_move<ROCKS_VERLET><<<mb, 256, 0, st>>>(c->sc, b); break;
+        case ROCKS_VERLET_LAST: k_rock_move<ROCKS_VERLET_LAST><<<mb, 256, 0, st>>>(c->sc, b); break;
+        default: k_rock_move<ROCKS_EULER><<<mb, 256, 0, st>>>(c->sc, b); break;
+        }
+    }
+}
+
+/* Accelerations of cloth and rocks from the current state, on the device; nothing waits. */
 static cs_status cuda_refresh(void *ctx, const cs_model *m, cs_state *s)
 {
     cuda_ctx *c = (cuda_ctx *)ctx;
-    (void)s;
-    const int cur = c->cur;
-    k_cloth<MODE_ACCEL, false><<<m->phys.nchunks, CS_CHUNK, 0, c->stream>>>(
-        c->consts, c->pos[cur], c->vel[cur], NULL, NULL, c->acc, c->rest[c->rest_cur], NULL, c->rocks, c->partials,
-        c->flags);
+    (void)m, (void)s;
+    cloth(c, MODE_ACCEL, false, c->cur, c->rest_cur);
     CUDA_CHECK(cudaGetLastError());
-    if (c->nr) {
-        k_rocks<ROCKS_ACCEL><<<1, rock_threads(c->nr), 0, c->stream>>>(c->consts, c->rocks, c->partials, c->flags);
-        CUDA_CHECK(cudaGetLastError());
-    }
-    CUDA_CHECK(cudaStreamSynchronize(c->stream));
+    rocks(c, ROCKS_ACCEL, c->cur, c->rest_cur);
+    CUDA_CHECK(cudaGetLastError());
+    c->frame_call = -1;
     return CS_OK;
 }
 
-/* Enqueues one step call's kernels on the stream (for capture), from buffer parities pc, rc. */
-static cs_status enqueue_step(cuda_ctx *c, const cs_model *m, int32_t substeps, int pc, int rc)
+/* One graph's kernels onto the stream (for capture), from buffer parities pos, rest. */
+static void enqueue_graph(const cuda_ctx *c, const graph_key *k)
 {
-    const cs_phys *p = &m->phys;
-    const int32_t nr = c->nr, blocks = p->nchunks, vblocks = (p->n + 255) / 256;
-    const int rt = rock_threads(nr);
-    const bool strain = p->strain_on != 0;
-    cudaStream_t st = c->stream;
-    CUDA_CHECK(cudaMemsetAsync(c->flags, 0, FLAG_COUNT * sizeof(int), st));
-    if (p->integrator == CS_VELOCITY_VERLET) {
-        k_drift_first<<<vblocks, 256, 0, st>>>(c->consts, c->pos[pc], c->vel[pc], c->acc, c->pos[pc ^ 1], c->vel[pc ^ 1]);
-        if (nr) k_rocks<ROCKS_FIRST><<<1, rt, 0, st>>>(c->consts, c->rocks, c->partials, c->flags);
-        pc ^= 1;
-        for (int32_t it = 0; it < substeps; it++) {
-            const bool last = it == substeps - 1;
-            float4 *po = c->pos[pc ^ 1], *vo = c->vel[pc ^ 1];
-            const float *L = c->rest[rc];
-            float *Ln = c->rest[rc ^ 1];
-            if (last) {
-                if (strain)
-                    k_cloth<MODE_VERLET_LAST, true><<<blocks, CS_CHUNK, 0, st>>>(c->consts, c->pos[pc], c->vel[pc], po, vo, c->acc, L,
-                                                                                 Ln, c->rocks, c->partials, c->flags);
-                else
-                    k_cloth<MODE_VERLET_LAST, false><<<blocks, CS_CHUNK, 0, st>>>(c->consts, c->pos[pc], c->vel[pc], po, vo, c->acc,
-                                                                                  L, Ln, c->rocks, c->partials, c->flags);
-                if (nr) k_rocks<ROCKS_VERLET_LAST><<<1, rt, 0, st>>>(c->consts, c->rocks, c->partials, c->flags);
-            } else {
-                if (strain)
-                    k_cloth<MODE_VERLET, true><<<blocks, CS_CHUNK, 0, st>>>(c->consts, c->pos[pc], c->vel[pc], po, vo, c->acc, L, Ln,
-                                                                            c->rocks, c->partials, c->flags);
-                else
-                    k_cloth<MODE_VERLET, false><<<blocks, CS_CHUNK, 0, st>>>(c->consts, c->pos[pc], c->vel[pc], po, vo, c->acc, L,
-                                                                             Ln, c->rocks, c->partials, c->flags);
-                if (nr) k_rocks<ROCKS_VERLET><<<1, rt, 0, st>>>(c->consts, c->rocks, c->partials, c->flags);
-            }
-            pc ^= 1;
-            if (strain) rc ^= 1;
+    int pos = k->pos, rest = k->rest;
+    const cs_phys *p = &c->host_sc.p;
+    const bool strain = k->strain != 0;
+    if (k->integrator == CS_VELOCITY_VERLET) {
+        const unsigned vblocks = (unsigned)((p->n + 255) / 256);
+        k_drift_first<<<vblocks, 256, 0, c->stream>>>(c->sc, bufs_of(c, pos ^ 1, rest)); /* out = state[pos] */
+        for (int32_t it = 0; it < k->len; it++) {
+            const bool last = it == k->len - 1;
+            cloth(c, last ? MODE_VERLET_LAST : MODE_VERLET, strain, pos, rest);
+            rocks(c, last ? ROCKS_VERLET_LAST : ROCKS_VERLET, pos, rest);
+            pos ^= 1;
+            if (strain) rest ^= 1;
         }
     } else {
-        for (int32_t it = 0; it < substeps; it++) {
-            const bool last = it == substeps - 1;
-            float4 *po = c->pos[pc ^ 1], *vo = c->vel[pc ^ 1];
-            if (last)
-                k_cloth<MODE_EULER_LAST, false><<<blocks, CS_CHUNK, 0, st>>>(c->consts, c->pos[pc], c->vel[pc], po, vo, c->acc,
-                                                                             c->rest[rc], NULL, c->rocks, c->partials,
-                                                                             c->flags);
-            else
-                k_cloth<MODE_EULER, false><<<blocks, CS_CHUNK, 0, st>>>(c->consts, c->pos[pc], c->vel[pc], po, vo, c->acc,
-                                                                        c->rest[rc], NULL, c->rocks, c->partials,
-                                                                        c->flags);
-            if (nr) k_rocks<ROCKS_EULER><<<1, rt, 0, st>>>(c->consts, c->rocks, c->partials, c->flags);
-            pc ^= 1;
+        for (int32_t it = 0; it < k->len; it++) {
+            const bool last = it == k->len - 1;
+            cloth(c, last ? MODE_EULER_LAST : MODE_EULER, false, pos, rest);
+            rocks(c, ROCKS_EULER, pos, rest);
+            pos ^= 1;
             if (strain) {
-                k_strain<<<vblocks, 256, 0, st>>>(c->consts, c->pos[pc], c->rest[rc], c->rest[rc ^ 1], c->flags);
-                rc ^= 1;
+                const unsigned vblocks = (unsigned)((p->n + 255) / 256);
+                k_strain<<<vblocks, 256, 0, c->stream>>>(c->sc, bufs_of(c, pos, rest));
+                rest ^= 1;
             }
         }
     }
-    CUDA_CHECK(cudaMemcpyAsync(c->host_flags, c->flags, FLAG_COUNT * sizeof(int), cudaMemcpyDeviceToHost, st));
-    CUDA_CHECK(cudaGetLastError()); /* a bad launch configuration */
+}
+
+/* Captures a graph of this shape with the current buffers. */
+static cs_status capture(cuda_ctx *c, const graph_key *k, cudaGraph_t *out)
+{
+    CUDA_CHECK(cudaStreamBeginCapture(c->stream, cudaStreamCaptureModeThreadLocal));
+    enqueue_graph(c, k);
+    const cudaError_t launched = cudaGetLastError();
+    const cudaError_t ended = cudaStreamEndCapture(c->stream, out);
+    if (launched != cudaSuccess) {
+        if (ended == cudaSuccess) cudaGraphDestroy(*out);
+        return cuda_fail(c, launched, "a launch while capturing a graph", __LINE__);
+    }
+    CUDA_CHECK(ended);
     return CS_OK;
 }
 
-/* The graph for this call, captured on first use. */
-static cs_status graph_for(cuda_ctx *c, const cs_model *m, int32_t substeps, cudaGraphExec_t *out)
+/* The graph for this shape: kept, updated in place when only pointers or rock launch sizes
+ * changed, or built. */
+static cs_status graph_for(cuda_ctx *c, const graph_key *k, cudaGraphExec_t *out)
 {
-    const int32_t integ = m->phys.integrator, strain = m->phys.strain_on;
-    for (int g = 0; g < c->n_graphs; g++) {
-        const graph_entry *e = &c->graphs[g];
-        if (e->substeps == substeps && e->nr == c->nr && e->integrator == integ && e->strain == strain &&
-            e->pos_cur == c->cur && e->rest_cur == c->rest_cur) {
+    const int32_t nr = c->host_sc.nr;
+    graph_entry *e = NULL;
+    for (int g = 0; g < c->n_graphs; g++)
+        if (memcmp(&c->graphs[g].key, k, sizeof *k) == 0) e = &c->graphs[g];
+    if (e && e->epoch == c->epoch && (k->rocks != 2 || e->nr == nr)) {
+        e->used = ++c->uses;
+        *out = e->exec;
+        return CS_OK;
+    }
+    cudaGraph_t graph;
+    cs_status st = capture(c, k, &graph);
+    if (st != CS_OK) return st;
+    if (e) {
+        cudaGraphExecUpdateResultInfo info;
+        if (cudaGraphExecUpdate(e->exec, graph, &info) == cudaSuccess) {
+            cudaGraphDestroy(graph);
+            e->epoch = c->epoch, e->nr = nr, e->used = ++c->uses;
             *out = e->exec;
             return CS_OK;
         }
+        (void)cudaGetLastError(); /* the update was refused: build it anew */
+        cudaGraphExecDestroy(e->exec);
+        *e = c->graphs[--c->n_graphs];
     }
-    if (c->n_graphs == GRAPHS) {
-        cudaGraphExecDestroy(c->graphs[0].exec);
-        memmove(&c->graphs[0], &c->graphs[1], sizeof c->graphs[0] * (GRAPHS - 1));
-        c->n_graphs--;
+    if (c->n_graphs == GRAPHS) { /* drop the least recently used */
+        int old = 0;
+        for (int g = 1; g < GRAPHS; g++)
+            if (c->graphs[g].used < c->graphs[old].used) old = g;
+        cudaGraphExecDestroy(c->graphs[old].exec);
+        c->graphs[old] = c->graphs[--c->n_graphs];
     }
-    cudaGraph_t graph;
-    CUDA_CHECK(cudaStreamBeginCapture(c->stream, cudaStreamCaptureModeThreadLocal));
-    const cs_status queued = enqueue_step(c, m, substeps, c->cur, c->rest_cur);
-    const cudaError_t ended = cudaStreamEndCapture(c->stream, &graph);
-    if (queued != CS_OK) {
-        if (ended == cudaSuccess) cudaGraphDestroy(graph);
-        return queued;
-    }
-    CUDA_CHECK(ended);
     cudaGraphExec_t exec;
-    const cudaError_t e = cudaGraphInstantiate(&exec, graph, 0);
+    const cudaError_t ie = cudaGraphInstantiate(&exec, graph, 0);
     cudaGraphDestroy(graph);
-    if (e != cudaSuccess) return cuda_fail(c, e, "cudaGraphInstantiate", __LINE__);
+    if (ie != cudaSuccess) return cuda_fail(c, ie, "cudaGraphInstantiate", __LINE__);
     graph_entry *n = &c->graphs[c->n_graphs++];
+    n->key = *k;
     n->exec = exec;
-    n->substeps = substeps, n->nr = c->nr, n->integrator = integ, n->strain = strain;
-    n->pos_cur = c->cur, n->rest_cur = c->rest_cur;
+    n->epoch = c->epoch;
+    n->nr = nr;
+    n->used = ++c->uses;
     *out = exec;
+    return CS_OK;
+}
+
+/* Substeps of one graph: a frame, at most GRAPH_MAX. */
+static int32_t graph_len(const cs_model *m) { return m->substeps < GRAPH_MAX ? m->substeps : GRAPH_MAX; }
+
+/* After a step call: the parts of the state the host read of the last frame, copied on the device
+ * (the next call overwrites the state) and then, on the copy stream, into pinned memory. */
+static cs_status copy_frame(cuda_ctx *c)
+{
+    const unsigned parts = c->wanted & (CS_SYNC_POSITIONS | CS_SYNC_VELOCITIES | CS_SYNC_ROCKS);
+    c->wanted = 0;
+    c->frame_call = -1;
+    if (!parts) return CS_OK;
+    const int k = c->slot ^= 1;
+    const size_t n = (size_t)c->vb.n, f3 = 3 * sizeof(float) * n;
+    const size_t rocks = sizeof(cs_rock_state) * (size_t)c->host_sc.nr;
+    /* The copy made two calls ago from this slot must be done before the slot is rewritten. */
+    CUDA_CHECK(cudaStreamWaitEvent(c->stream, c->copied[k], 0));
+    const float *st = c->vb.state[c->cur];
+    if (parts & CS_SYNC_POSITIONS)
+        CUDA_CHECK(cudaMemcpyAsync(c->vb.frame_dev[k], st, f3, cudaMemcpyDeviceToDevice, c->stream));
+    if (parts & CS_SYNC_VELOCITIES)
+        CUDA_CHECK(cudaMemcpyAsync(c->vb.frame_dev[k] + 3 * n, st + 3 * n, f3, cudaMemcpyDeviceToDevice, c->stream));
+    if ((parts & CS_SYNC_ROCKS) && rocks)
+        CUDA_CHECK(cudaMemcpyAsync(c->rb.frame_rocks_dev[k], c->rb.rocks, rocks, cudaMemcpyDeviceToDevice, c->stream));
+    CUDA_CHECK(cudaEventRecord(c->ready[k], c->stream));
+    CUDA_CHECK(cudaStreamWaitEvent(c->copy, c->ready[k], 0));
+    if (parts & CS_SYNC_POSITIONS)
+        CUDA_CHECK(cudaMemcpyAsync(c->vb.frame_host[k], c->vb.frame_dev[k], f3, cudaMemcpyDeviceToHost, c->copy));
+    if (parts & CS_SYNC_VELOCITIES)
+        CUDA_CHECK(cudaMemcpyAsync(c->vb.frame_host[k] + 3 * n, c->vb.frame_dev[k] + 3 * n, f3, cudaMemcpyDeviceToHost,
+                                   c->copy));
+    if ((parts & CS_SYNC_ROCKS) && rocks)
+        CUDA_CHECK(cudaMemcpyAsync(c->rb.frame_rocks_host[k], c->rb.frame_rocks_dev[k], rocks, cudaMemcpyDeviceToHost,
+                                   c->copy));
+    CUDA_CHECK(cudaEventRecord(c->copied[k], c->copy));
+    c->frame_call = c->calls;
+    c->frame_parts = parts;
+    c->frame_waited = 0;
     return CS_OK;
 }
 
@@ -627,70 +1283,143 @@ static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t su
     rep->torn = 0;
     rep->finite = 1;
     if (substeps <= 0) return CS_OK;
-    cudaGraphExec_t exec;
-    cs_status st = graph_for(c, m, substeps, &exec);
-    if (st != CS_OK) return st;
-    CUDA_CHECK(cudaGraphLaunch(exec, c->stream));
+    CUDA_CHECK(cudaMemsetAsync(c->flags, 0, FLAG_COUNT * sizeof(int), c->stream));
+    const int strain = m->phys.strain_on != 0;
+    for (int32_t left = substeps; left > 0;) {
+        graph_key k;
+        memset(&k, 0, sizeof k);
+        k.len = left < graph_len(m) ? left : graph_len(m);
+        k.integrator = m->phys.integrator;
+        k.strain = strain;
+        k.rocks = rock_path(c->host_sc.nr);
+        k.pos = c->cur;
+        k.rest = c->rest_cur;
+        cudaGraphExec_t exec;
+        const cs_status st = graph_for(c, &k, &exec);
+        if (st != CS_OK) return st;
+        CUDA_CHECK(cudaGraphLaunch(exec, c->stream));
+        c->cur ^= k.len & 1; /* the drift of a graph's first substep is in place */
+        if (strain) c->rest_cur ^= k.len & 1;
+        left -= k.len;
+    }
+    c->calls++;
+    const cs_status fs = copy_frame(c);
+    if (fs != CS_OK) return fs;
+    CUDA_CHECK(cudaMemcpyAsync(c->host_flags, c->flags, FLAG_COUNT * sizeof(int), cudaMemcpyDeviceToHost, c->stream));
     CUDA_CHECK(cudaStreamSynchronize(c->stream));
-    /* Buffer parities after the call: Verlet moves positions substeps + 1 times, Euler substeps. */
-    const int moves = m->phys.integrator == CS_VELOCITY_VERLET ? substeps + 1 : substeps;
-    c->cur ^= moves & 1;
-    if (m->phys.strain_on) c->rest_cur ^= substeps & 1;
     rep->torn = c->host_flags[FLAG_TORN];
     rep->finite = c->host_flags[FLAG_NONFINITE] == 0;
     return CS_OK;
 }
 
-/* Device-to-device copy of 256 MiB, best of 5 after a warm-up: the bandwidth the kernels can
- * hope for (each byte read once and written once). */
-static cs_status copy_bandwidth(cuda_ctx *c, void *a, void *b, cudaEvent_t e0, cudaEvent_t e1, size_t bytes,
-                                double *best)
+static cs_status cuda_download(void *ctx, const cs_model *m, cs_state *s, unsigned what)
 {
-    for (int k = 0; k < 6; k++) {
-        float ms = 0;
-        CUDA_CHECK(cudaEventRecord(e0, c->stream));
-        CUDA_CHECK(cudaMemcpyAsync(b, a, bytes, cudaMemcpyDeviceToDevice, c->stream));
-        CUDA_CHECK(cudaEventRecord(e1, c->stream));
-        CUDA_CHECK(cudaEventSynchronize(e1));
-        CUDA_CHECK(cudaEventElapsedTime(&ms, e0, e1));
-        const double bw = 2.0 * (double)bytes / (ms * 1e-3);
-        if (k > 0 && bw > *best) *best = bw;
+    cuda_ctx *c = (cuda_ctx *)ctx;
+    (void)m;
+    const size_t n = (size_t)s->n, f = sizeof(float) * n;
+    c->wanted |= what;
+    /* What the frame copied ahead holds: wait for that copy only. */
+    unsigned from_frame = c->frame_call == c->calls ? what & c->frame_parts : 0;
+    if (!(c->host_sc.nr)) from_frame &= ~(unsigned)CS_SYNC_ROCKS;
+    if (from_frame) {
+        const int k = c->slot;
+        if (!c->frame_waited) CUDA_CHECK(cudaEventSynchronize(c->copied[k]));
+        c->frame_waited = 1;
+        const float *h = c->vb.frame_host[k];
+        float *pos[] = {s->x, s->y, s->z}, *vel[] = {s->vx, s->vy, s->vz};
+        if (from_frame & CS_SYNC_POSITIONS)
+            for (int q = 0; q < 3; q++) memcpy(pos[q], h + (size_t)q * n, f);
+        if (from_frame & CS_SYNC_VELOCITIES)
+            for (int q = 0; q < 3; q++) memcpy(vel[q], h + (size_t)(3 + q) * n, f);
+        if (from_frame & CS_SYNC_ROCKS)
+            memcpy(s->rocks, c->rb.frame_rocks_host[k], sizeof(cs_rock_state) * (size_t)s->n_rocks);
+        what &= ~from_frame;
     }
+    /* The rest from the device's current buffers, into pageable memory: each copy is done when it
+     * returns. */
+    const float *st = c->vb.state[c->cur];
+    float *arrays[] = {s->x, s->y, s->z, s->vx, s->vy, s->vz};
+    for (int q = 0; q < 6; q++)
+        if (what & (q < 3 ? CS_SYNC_POSITIONS : CS_SYNC_VELOCITIES))
+            CUDA_CHECK(cudaMemcpyAsync(arrays[q], st + (size_t)q * n, f, cudaMemcpyDeviceToHost, c->stream));
+    float *acc[] = {s->ax, s->ay, s->az};
+    if (what & CS_SYNC_ACCELERATIONS)
+        for (int q = 0; q < 3; q++)
+            CUDA_CHECK(cudaMemcpyAsync(acc[q], c->vb.acc + (size_t)q * n, f, cudaMemcpyDeviceToHost, c->stream));
+    if (what & CS_SYNC_REST)
+        CUDA_CHECK(cudaMemcpyAsync(s->L0, c->vb.rest[c->rest_cur], CS_NTYPES * f, cudaMemcpyDeviceToHost, c->stream));
+    if ((what & CS_SYNC_ROCKS) && s->n_rocks)
+        CUDA_CHECK(cudaMemcpyAsync(s->rocks, c->rb.rocks, sizeof(cs_rock_state) * (size_t)s->n_rocks,
+                                   cudaMemcpyDeviceToHost, c->stream));
     return CS_OK;
 }
 
-static double measure_copy_bandwidth(cuda_ctx *c)
+/* The device's memory bandwidth by its clock and bus (0 where it does not say). */
+static double peak_bandwidth(int dev)
 {
-    const size_t bytes = (size_t)256 << 20;
-    void *a = NULL, *b = NULL;
-    cudaEvent_t e0 = NULL, e1 = NULL;
-    double best = 0;
-    if (cudaMalloc(&a, bytes) == cudaSuccess && cudaMalloc(&b, bytes) == cudaSuccess &&
-        cudaEventCreate(&e0) == cudaSuccess && cudaEventCreate(&e1) == cudaSuccess)
-        copy_bandwidth(c, a, b, e0, e1, bytes, &best);
-    if (e0) cudaEventDestroy(e0);
-    if (e1) cudaEventDestroy(e1);
-    cudaFree(a);
-    cudaFree(b);
-    return best;
+    int khz = 0, bits = 0;
+    if (cudaDeviceGetAttribute(&khz, cudaDevAttrMemoryClockRate, dev) != cudaSuccess ||
+        cudaDeviceGetAttribute(&bits, cudaDevAttrGlobalMemoryBusWidth, dev) != cudaSuccess) {
+        (void)cudaGetLastError();
+        return 0;
+    }
+    return 2.0 * (double)khz * 1e3 * (double)bits / 8.0; /* double data rate */
 }
 
-/* Memory traffic per vertex and substep of the kernels above, counting each vertex's own data
- * once (its neighbours' reads hit in cache): the cloth kernel reads position, velocity (16 B
- * each) and its six rest lengths (24 B), writes position and velocity (32 B), and with strain
- * the new rest lengths (24 B); once per step call, Verlet's first drift (80 B) and the final
- * acceleration (16 B); Euler's strain kernel reads positions and rest lengths and writes rest
- * lengths (64 B). */
+/* The cost model (backend.h): the distinct bytes each kernel reads and writes per vertex, from the
+ * loads and stores written above; tests/gpu/test_datapath.c holds it to what the CPU imitation of
+ * CUDA sees the kernels touch. Per vertex of the cloth kernel: the state read (6 floats), the
+ * mask (1 byte), the six owned rest lengths, the state written; with strain the change byte (read
+ * and, where it flips, written) and the rest lengths of vertices whose springs are changing (none
+ * at rest); the acceleration where a graph ends. (A vertex at a border owns fewer springs.) Rock kernels scale with rocks, not vertices. */
+static void cuda_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
+{
+    const cs_phys *p = &m->phys;
+    const double G = graph_len(m), F = m->substeps, graphs = ceil(F / G);
+    const bool verlet = p->integrator == CS_VELOCITY_VERLET, strain = p->strain_on != 0;
+    const double rock = (double)sizeof(cs_rock_state);
+    memset(out, 0, sizeof *out);
+    /* A vertex reads the rest lengths of the springs it owns that the grid has. */
+    const double nx = p->nx, ny = p->ny;
+    const double springs = (nx - 1) * ny + nx * (ny - 1) + 2 * (nx - 1) * (ny - 1) + (nx - 2) * ny + nx * (ny - 2);
+    const double cloth_read = 24.0 + 1.0 + 4.0 * springs / (nx * ny) + (verlet && strain ? 1.0 : 0.0);
+    const double last = (G - 1.0) / G, once = 1.0 / G;
+    const char *name = verlet ? "k_cloth (velocity Verlet)" : "k_cloth (symplectic Euler)";
+    const char *name_last = verlet ? "k_cloth (the last substep of a graph)" : "k_cloth (the last substep of a graph, Euler)";
+    /* Culling reads each rock's centre and radius, the group sums its word of each chunk group
+     * (and 24 bytes for each chunk that touched it: contact-dependent, not modelled). */
+    const double ng = ceil((double)p->nchunks / CS_CHUNK_GROUP);
+    const double cull = (16.0 + 8.0 * ng) * n_rocks;
+    cs_cost_add(out, name, cloth_read, 24.0, cull, last, F - graphs);
+    cs_cost_add(out, name_last, cloth_read, 24.0 + 12.0, cull, once, graphs);
+    if (verlet) cs_cost_add(out, "k_drift_first (the first substep of a graph)", 36.0, 24.0, 2 * rock * n_rocks, once, graphs);
+    if (!verlet && strain) cs_cost_add(out, "k_strain", 12.0 + 24.0 + 1.0, 0.0, 0.0, 1.0, F);
+    if (n_rocks > 0) {
+        /* Each rock: its state read (by every warp: the same bytes), its hit words read, its state
+         * written; plus 24 bytes for each chunk group that touched it (contact-dependent, not
+         * modelled). */
+        const double nr = n_rocks;
+        if (n_rocks <= ROCKS_FUSED)
+            cs_cost_add(out, "k_rocks (forces and moves, one block)", 0, 0, nr * (rock + 8.0 * ng + rock), 1.0, F);
+        else {
+            cs_cost_add(out, "k_rock_force (a warp per rock)", 0, 0, nr * (rock + 8.0 * ng + 24.0), 1.0, F);
+            cs_cost_add(out, "k_rock_move", 0, 0, nr * 2 * rock, 1.0, F);
+        }
+    }
+    /* The frame the host reads, copied on the device once per step call. */
+    cs_cost_add(out, "frame copy (positions, on the device)", 12.0, 12.0, 0, 1.0 / F, 0);
+    out->graphs_per_frame = graphs;
+    out->nodes_per_substep = 1.0 + (n_rocks > 0 ? (n_rocks <= ROCKS_FUSED ? 1.0 : 2.0) : 0.0) +
+                             (!verlet && strain ? 1.0 : 0.0) + (verlet ? 1.0 / G : 0.0);
+}
+
 static void cuda_stats(void *ctx, const cs_model *m, cs_backend_stats *out)
 {
     cuda_ctx *c = (cuda_ctx *)ctx;
-    const cs_phys *p = &m->phys;
-    const double per_call = (p->integrator == CS_VELOCITY_VERLET ? 80.0 : 0.0) + 16.0;
-    double bytes = 56.0 + 32.0 + per_call / m->substeps;
-    if (p->strain_on) bytes += p->integrator == CS_VELOCITY_VERLET ? 24.0 : 64.0;
-    if (c->copy_bandwidth == 0) c->copy_bandwidth = measure_copy_bandwidth(c);
-    out->bytes_per_vertex_substep = bytes;
-    out->copy_bandwidth = c->copy_bandwidth;
+    cs_cost_model cm;
+    cuda_cost(m, c->host_sc.nr, &cm);
+    out->bytes_per_vertex_substep = cm.bytes_per_vertex_substep;
+    out->peak_bandwidth = peak_bandwidth(c->dev);
 }
 
 static const char *cuda_device(void *ctx, const cs_model *) { return ((cuda_ctx *)ctx)->device; }
@@ -698,7 +1427,7 @@ static const char *cuda_error(void *ctx) { return ((cuda_ctx *)ctx)->err; }
 
 static const cs_backend cuda_backend = {
     "cuda", cuda_available, cuda_create, cuda_destroy, cuda_upload, cuda_download, cuda_refresh, cuda_step,
-    cuda_device, cuda_error, cuda_stats,
+    cuda_device, cuda_error, cuda_stats, cuda_cost,
 };
 
 extern "C" const cs_backend *cs_backend_cuda(void) { return &cuda_backend; }

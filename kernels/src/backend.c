@@ -1,4 +1,4 @@
-/* backend.c - choosing a backend by name. */
+/* backend.c - choosing a backend by name; the rows of a cost model. */
 #include <stdio.h>
 #include <string.h>
 
@@ -43,4 +43,20 @@ cs_status cs_backend_pick(const char *name, const cs_backend **out, char *note, 
     }
     snprintf(note, note_len, "unknown backend '%s' (cpu, cuda or auto)", name);
     return CS_E_INVALID;
+}
+
+void cs_cost_add(cs_cost_model *c, const char *name, double read, double written, double fixed, double per_substep,
+                 double per_frame)
+{
+    if (c->n >= CS_COST_ROWS) return;
+    cs_kernel_cost *k = &c->k[c->n++];
+    k->name = name;
+    k->read = read;
+    k->written = written;
+    k->fixed = fixed;
+    k->per_substep = per_substep;
+    k->per_frame = per_frame;
+    c->bytes_per_vertex_substep += (read + written) * per_substep;
+    c->fixed_per_substep += fixed * per_substep;
+    c->launches_per_frame += per_frame;
 }

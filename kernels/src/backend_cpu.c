@@ -648,14 +648,35 @@ static const char *cpu_error(void *ctx)
     return "out of memory for the CPU backend's scratch buffers";
 }
 
+/* The cost model (backend.h): the arrays each parallel pass above streams, per vertex (rows a
+ * block re-evaluates come from cache). Velocity Verlet: move_row reads x, v, a and writes x, v;
+ * the force pass reads x, v, the six rest lengths and w, writes a and, with strain, the six new
+ * rest lengths; the last kick of a call reads v, a and writes v. Symplectic Euler: the force pass,
+ * then move_row, then with strain strain_row (x and rest lengths in, rest lengths out). Rocks run
+ * on one thread: each reads every chunk's partial (24 bytes) and every other rock. */
+static void cpu_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
+{
+    const cs_phys *p = &m->phys;
+    const double F = m->substeps, rock = (double)sizeof(cs_rock_state);
+    const int verlet = p->integrator == CS_VELOCITY_VERLET, strain = p->strain_on != 0;
+    memset(out, 0, sizeof *out);
+    cs_cost_add(out, "move_row (kick, drift)", 36.0, 24.0, 0, 1.0, F);
+    cs_cost_add(out, "force pass (springs, air, contacts)", 52.0, 12.0 + (verlet && strain ? 24.0 : 0.0),
+                24.0 * p->nchunks * n_rocks, 1.0, F);
+    if (!verlet && strain) cs_cost_add(out, "strain_row", 36.0, 24.0, 0, 1.0, F);
+    if (verlet) cs_cost_add(out, "kick_row (the last kick of a call)", 24.0, 12.0, 0, 1.0 / F, 1.0);
+    if (n_rocks) cs_cost_add(out, "rocks (one thread)", 0, 0, (24.0 * p->nchunks + rock * n_rocks) * n_rocks, 1.0, 0);
+    out->nodes_per_substep = verlet ? 2.0 : 2.0 + strain;
+}
+
 static void cpu_stats(void *ctx, const cs_model *m, cs_backend_stats *out)
 {
     (void)ctx, (void)m;
     out->bytes_per_vertex_substep = 0;
-    out->copy_bandwidth = 0;
+    out->peak_bandwidth = 0;
 }
 
 const cs_backend cs_backend_cpu = {
     "cpu", cpu_available, cpu_create, cpu_destroy, cpu_upload, cpu_download, cpu_refresh, cpu_step, cpu_device,
-    cpu_error, cpu_stats,
+    cpu_error, cpu_stats, cpu_cost,
 };

@@ -29,7 +29,7 @@ cs_status cs_read_positions(cs_sim *sim, float *xyz, size_t n_floats)
 cs_status cs_read_velocities(cs_sim *sim, float *xyz, size_t n_floats)
 {
     if (!sim) return CS_E_INVALID;
-    const cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    const cs_status st = cs_sim_sync(sim, CS_SYNC_VELOCITIES);
     if (st != CS_OK) return st;
     return read3(sim, sim->state.vx, sim->state.vy, sim->state.vz, xyz, n_floats, "velocities");
 }
@@ -39,7 +39,7 @@ cs_status cs_read_rest_lengths(cs_sim *sim, float *out, size_t n_floats)
     if (!sim) return CS_E_INVALID;
     const size_t need = (size_t)sim->state.n * CS_NTYPES;
     if (!out || n_floats < need) return cs_fail(sim, CS_E_INVALID, NULL, "rest-length buffer must hold %zu floats", need);
-    const cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    const cs_status st = cs_sim_sync(sim, CS_SYNC_REST);
     if (st != CS_OK) return st;
     memcpy(out, sim->state.L0, need * sizeof(float));
     cs_ok(sim);
@@ -63,7 +63,7 @@ int64_t cs_torn_list(int32_t nx, int32_t ny, const float *L0, uint32_t *ids, siz
 
 int64_t cs_read_torn(cs_sim *sim, uint32_t *ids, size_t cap)
 {
-    if (!sim || cs_sim_sync(sim, CS_SYNC_ALL) != CS_OK) return 0;
+    if (!sim || cs_sim_sync(sim, CS_SYNC_REST) != CS_OK) return 0;
     return cs_torn_list(sim->model.scene.nx, sim->model.scene.ny, sim->state.L0, ids, cap);
 }
 
@@ -93,7 +93,7 @@ cs_status cs_read_strain(cs_sim *sim, float *out, size_t n_floats)
 cs_status cs_energy_get(cs_sim *sim, cs_energy *out)
 {
     if (!sim || !out) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "out is NULL") : CS_E_INVALID;
-    const cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    const cs_status st = cs_sim_sync(sim, CS_SYNC_POSITIONS | CS_SYNC_VELOCITIES | CS_SYNC_REST | CS_SYNC_ROCKS);
     if (st != CS_OK) return st;
     const cs_state *s = &sim->state;
     const cs_phys *p = &sim->model.phys;

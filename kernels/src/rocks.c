@@ -139,7 +139,7 @@ cs_status cs_rock_get(cs_sim *sim, uint32_t id, cs_rock *out)
     if (!sim || !out) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "out is NULL") : CS_E_INVALID;
     const int32_t r = find(sim, id);
     if (r < 0) return not_found(sim, id);
-    const cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    const cs_status st = cs_sim_sync(sim, CS_SYNC_ROCKS);
     if (st != CS_OK) return st;
     state_to_rock(&sim->state.rocks[r], out);
     cs_ok(sim);
@@ -202,7 +202,7 @@ cs_status cs_rock_at(cs_sim *sim, int32_t index, cs_rock *out)
     if (!sim || !out) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "out is NULL") : CS_E_INVALID;
     if (index < 0 || index >= sim->state.n_rocks)
         return cs_fail(sim, CS_E_RANGE, "index", "rock index %d is not in 0..%d", (int)index, (int)sim->state.n_rocks - 1);
-    const cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    const cs_status st = cs_sim_sync(sim, CS_SYNC_ROCKS);
     if (st != CS_OK) return st;
     state_to_rock(&sim->state.rocks[index], out);
     cs_ok(sim);

@@ -18,22 +18,24 @@ cs_status cs_backend_fail(cs_sim *sim, cs_status st, const char *what)
 
 cs_status cs_sim_sync(cs_sim *sim, unsigned what)
 {
-    if (!sim->host_stale) return CS_OK;
-    const cs_status st = sim->backend->download(sim->ctx, &sim->model, &sim->state, what);
+    const unsigned need = what & sim->host_stale;
+    if (!need) return CS_OK;
+    const cs_status st = sim->backend->download(sim->ctx, &sim->model, &sim->state, need);
     if (st != CS_OK) return cs_backend_fail(sim, st, "could not hand the state back");
-    if (what == CS_SYNC_ALL) sim->host_stale = 0;
+    sim->host_stale &= ~need;
     return CS_OK;
 }
 
-/* A device backend recomputes accelerations on its side; the host copy is then behind. */
-static int device_backend(const cs_sim *sim) { return sim->backend != &cs_backend_cpu; }
+/* A device backend keeps its own copy: after it steps, the host copy is behind in every part;
+ * after a refresh, in the accelerations (of the cloth and the rocks). */
+static unsigned stale_after(const cs_sim *sim, unsigned parts) { return sim->backend != &cs_backend_cpu ? parts : 0; }
 
 cs_status cs_sim_commit(cs_sim *sim)
 {
     cs_status st = sim->backend->upload(sim->ctx, &sim->model, &sim->state);
     if (st == CS_OK) st = sim->backend->refresh(sim->ctx, &sim->model, &sim->state);
     if (st != CS_OK) return cs_backend_fail(sim, st, "failed to take the new state");
-    sim->host_stale = device_backend(sim);
+    sim->host_stale = stale_after(sim, CS_SYNC_ACCELERATIONS | CS_SYNC_ROCKS);
     return CS_OK;
 }
 
@@ -108,18 +110,24 @@ static cs_status rebuild(cs_sim *sim, const cs_scene *scene, const cs_params *p)
     cs_scene_build(scene, &fresh);
     cs_model model = sim->model;
     cs_model_derive(&model, scene, p, substeps, dt_max);
+    /* A failed upload leaves the backend's state as it was. A failed refresh leaves the new state
+     * on the device: the old one goes back only if the host copy is current, else it is lost. */
     st = sim->backend->upload(sim->ctx, &model, &fresh);
-    if (st == CS_OK) st = sim->backend->refresh(sim->ctx, &model, &fresh);
     if (st != CS_OK) {
         cs_state_free(&fresh);
-        if (sim->state.x && sim->backend->upload(sim->ctx, &sim->model, &sim->state) != CS_OK) st = CS_E_DEVICE;
+        return cs_backend_fail(sim, st, "could not take the new scene");
+    }
+    if ((st = sim->backend->refresh(sim->ctx, &model, &fresh)) != CS_OK) {
+        cs_state_free(&fresh);
+        if (!sim->state.x || sim->host_stale || sim->backend->upload(sim->ctx, &sim->model, &sim->state) != CS_OK)
+            st = CS_E_DEVICE;
         return cs_backend_fail(sim, st, "could not take the new scene");
     }
     cs_state_free(&sim->state);
     sim->state = fresh;
     sim->model = model;
     sim->combos = combos;
-    sim->host_stale = device_backend(sim);
+    sim->host_stale = stale_after(sim, CS_SYNC_ACCELERATIONS | CS_SYNC_ROCKS);
     return CS_OK;
 }
 
@@ -191,6 +199,14 @@ cs_status cs_sim_backend_stats(cs_sim *sim, cs_backend_stats *out)
 {
     if (!sim || !out) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "out is NULL") : CS_E_INVALID;
     sim->backend->stats(sim->ctx, &sim->model, out);
+    cs_ok(sim);
+    return CS_OK;
+}
+
+cs_status cs_sim_cost(cs_sim *sim, const cs_backend *backend, cs_cost_model *out)
+{
+    if (!sim || !backend || !out) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "backend or out is NULL") : CS_E_INVALID;
+    backend->cost(&sim->model, sim->state.n_rocks, out);
     cs_ok(sim);
     return CS_OK;
 }
@@ -276,7 +292,7 @@ cs_status cs_sim_step(cs_sim *sim, int64_t substeps)
         cs_step_report rep = {0, 1};
         const cs_status st = sim->backend->step(sim->ctx, &sim->model, &sim->state, now, &rep);
         if (st != CS_OK) return cs_backend_fail(sim, st, "failed while stepping");
-        sim->host_stale = device_backend(sim);
+        sim->host_stale = stale_after(sim, CS_SYNC_ALL);
         sim->state.step += (uint64_t)now;
         /* One addition per substep: the clock reads the same however the substeps were split
          * into calls (a frame stepped in slices, a replay stepped in one go). */

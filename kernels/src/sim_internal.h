@@ -20,7 +20,7 @@ struct cs_sim {
     cs_state state;
     const cs_backend *backend;
     void *ctx;
-    int host_stale;        /* the backend has advanced past the host arrays */
+    unsigned host_stale;   /* CS_SYNC_* parts of the host arrays the backend has moved past */
     cs_combos combos;      /* the grid's spring counts, for the guard */
     char backend_note[160];
     char err[256];

@@ -446,11 +446,8 @@ cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
     cs_model model = sim->model;
     if (st == CS_OK) {
         cs_model_derive(&model, &scene, &params, substeps, dt_max);
-        st = sim->backend->upload(sim->ctx, &model, &s);
-        if (st != CS_OK) {
-            if (sim->backend->upload(sim->ctx, &sim->model, &sim->state) != CS_OK) st = CS_E_DEVICE;
-            cs_backend_fail(sim, st, "could not take the snapshot");
-        }
+        st = sim->backend->upload(sim->ctx, &model, &s); /* on failure the backend is as it was */
+        if (st != CS_OK) cs_backend_fail(sim, st, "could not take the snapshot");
     }
     if (st != CS_OK) {
         cs_state_free(&s);

@@ -61,7 +61,7 @@ cs_status cs_test_break_backend(cs_sim *sim)
     broken.step = lost_step;
     broken.error = lost_error;
     sim->backend = &broken;
-    sim->host_stale = 1;
+    sim->host_stale = CS_SYNC_ALL;
     cs_ok(sim);
     return CS_OK;
 }

@@ -245,7 +245,10 @@ test('a client that reads nothing stays within its memory bound, and the others 
     }, { timeout: 180000, every: 250 });
     const grown = peak - rss0;
     const made = (await framesMade()) - madeBefore, got = fast.frames.length - framesBefore;
-    assert.ok(grown < STALL_BOUND_KIB, `the daemon grew by ${grown} KiB while making ${made} frames`);
+    // Under ASan the RSS also counts the sanitizer's own allocator caches and shadow pages (18 MB
+    // was seen with a 4 MB quarantine), so the bound is checked in the plain build, as the memory
+    // tests do; the skipped-frame counts below hold in both.
+    if (!SANITIZED) assert.ok(grown < STALL_BOUND_KIB, `the daemon grew by ${grown} KiB while making ${made} frames`);
     // The other client keeps up with the sim: it is not held back by the one that reads nothing.
     assert.ok(got >= 0.8 * made, `the other client got ${got} of the ${made} frames made`);
     // The stalled client was skipped: sent far fewer frames than the sim made (the fast client's

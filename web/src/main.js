@@ -1,8 +1,8 @@
-// main.js - the clothd viewer: wires the HTTP API (api.js), the stream (stream.js), the 3D view
-// (view.js), the mouse (interact.js), the panel (panel.js), the chart (chart.js) and the HUD.
-// Everything goes through the public API and stream of PROTOCOL.md; no physics here.
-import { Api } from './api.js';
-import { Stream } from './stream.js';
+// main.js - the clothd viewer: wires the JavaScript client (clients/js: every HTTP call and the
+// stream), the 3D view (view.js), the mouse (interact.js), the panel (panel.js), the chart
+// (chart.js) and the HUD. Everything goes through the public API and stream of PROTOCOL.md; no
+// physics here.
+import { Client } from 'clothd/client';
 import { View, MODES } from './view.js';
 import { Interaction } from './interact.js';
 import { Panel } from './panel.js';
@@ -40,7 +40,17 @@ function askToken(reason) {
   });
 }
 
-const api = new Api({ askToken });
+// The token, once asked for, is kept for the tab.
+const TOKEN_KEY = 'clothd.token';
+const api = new Client({
+  token: sessionStorage.getItem(TOKEN_KEY),
+  requestIdPrefix: `viewer-${Math.random().toString(36).slice(2, 8)}`,
+  async askToken(reason) {
+    const token = await askToken(reason);
+    if (token) sessionStorage.setItem(TOKEN_KEY, token);
+    return token;
+  },
+});
 const refused = (what) => (e) => problem(`${what} refused: ${e.message}`);
 
 // ---- state mirrored from the server ----
@@ -100,7 +110,7 @@ function setViewValue(name, value) {
 }
 
 // ---- the stream ----
-const stream = new Stream(api, {
+const stream = api.stream({
   onStatus(s, detail) {
     status(s === 'open' ? '' : s === 'connecting' ? 'connecting to clothd…' : `disconnected: ${detail}`);
   },
@@ -148,29 +158,29 @@ const stream = new Stream(api, {
     else if (m.type === 'error') problem(`stream refused ${m.about ?? 'a message'}: ${m.detail}`);
   },
   onProblem(text) { problem(text); },
-});
+}, { pull: true, subscription: { encoding: 'q16', max_fps: 60, scalar: 'none' } });
 
 // ---- actions of the panel and the mouse ----
 const actions = {
   async playPause() {
-    const res = await api.post(state.running ? '/v1/sim/pause' : '/v1/sim/resume').catch(refused('pause/resume'));
+    const res = await (state.running ? api.pause() : api.resume()).catch(refused('pause/resume'));
     if (res) setRunning(res.state === 'running');
   },
   async step() {
     if (state.running) {
-      const res = await api.post('/v1/sim/pause').catch(refused('pause'));
+      const res = await api.pause().catch(refused('pause'));
       if (!res) return;
       setRunning(false);
     }
-    await api.post('/v1/sim/step', { frames: 1 }).catch(refused('step'));
+    await api.step({ frames: 1 }).catch(refused('step'));
   },
-  reset: () => api.post('/v1/sim/reset').catch(refused('reset')),
-  clearRocks: () => api.delete('/v1/rocks').catch(refused('remove rocks')),
+  reset: () => api.reset().catch(refused('reset')),
+  clearRocks: () => api.clearRocks().catch(refused('remove rocks')),
   async download() {
-    const res = await api.request('GET', '/v1/snapshot', undefined, { accept: 'application/octet-stream', raw: true }).catch(refused('snapshot'));
-    if (!res) return;
+    const bytes = await api.snapshot().catch(refused('snapshot'));
+    if (!bytes) return;
     const a = document.createElement('a');
-    a.href = URL.createObjectURL(await res.blob());
+    a.href = URL.createObjectURL(new Blob([bytes]));
     a.download = `clothd-step-${state.sim?.step ?? 0}.snapshot`;
     a.click();
     setTimeout(() => URL.revokeObjectURL(a.href), 10000);
@@ -180,7 +190,7 @@ const actions = {
     input.value = '';
     input.onchange = async () => {
       const file = input.files[0];
-      if (file) await api.put('/v1/snapshot', await file.arrayBuffer()).catch(refused('snapshot upload'));
+      if (file) await api.restoreSnapshot(await file.arrayBuffer()).catch(refused('snapshot upload'));
     };
     input.click();
   },
@@ -192,7 +202,7 @@ const mouse = {
     const r = viewValues.dropRadius;
     const back = r * 1.5 + 0.05; // just in front of the surface, toward the camera
     const position = point.map((x, k) => x - dir[k] * back);
-    return api.post('/v1/rocks', { position, radius: r, density: viewValues.dropDensity }).catch(refused('rock'));
+    return api.addRock({ position, radius: r, density: viewValues.dropDensity }).catch(refused('rock'));
   },
   selectRock(id) {
     rockSpeed.id = rockSpeed.id === id ? null : id;
@@ -206,7 +216,7 @@ const mouse = {
     if (rockMove?.busy) { rockMove.next = position; return; }
     rockMove = { busy: true, next: null };
     for (let p = position; p; p = rockMove.next, rockMove.next = null)
-      await api.patch(`/v1/rocks/${id}`, { position: p }).catch(refused('rock move'));
+      await api.setRock(id, { position: p }).catch(refused('rock move'));
     rockMove = null;
   },
   groundZ: () => (state.params.ground ? state.params.ground_z : null),
@@ -235,7 +245,7 @@ function hud() {
 
 async function pollSim() {
   try {
-    state.sim = await api.get('/v1/sim');
+    state.sim = await api.sim();
     if (state.sim.state === 'running' !== state.running) setRunning(state.sim.state === 'running');
     if (viewValues.chart && chart) chart.push(state.sim.sim_time, state.sim.energy, rockSpeed.speed);
   } catch {
@@ -254,7 +264,7 @@ async function start() {
   let schema;
   for (let wait = 500; ; wait = Math.min(wait * 2, 8000)) {
     try {
-      [schema, state.health] = await Promise.all([api.get('/v1/params/schema'), api.get('/v1/health')]);
+      [schema, state.health] = await Promise.all([api.paramsSchema(), api.health()]);
       break;
     } catch (e) {
       status(`cannot reach clothd (${e.message}); trying again`);
@@ -262,8 +272,8 @@ async function start() {
     }
   }
   panel = new Panel($('panel'), schema, {
-    patchParams: (p) => api.patch('/v1/params', p),
-    putScene: (s) => api.put('/v1/scene', s),
+    patchParams: (p) => api.setParams(p),
+    putScene: (s) => api.setScene(s),
     actions,
     view: { values: viewValues, onChange: setViewValue },
   });
@@ -273,7 +283,7 @@ async function start() {
   panel.setRunning(state.running);
   setInterval(hud, 500);
   setInterval(pollSim, 250);
-  setInterval(() => api.get('/v1/health').then((h) => (state.health = h), () => {}), 5000);
+  setInterval(() => api.health().then((h) => (state.health = h), () => {}), 5000);
   window.__clothd.panel = panel;
   window.__clothd.ready = true;
 }

@@ -9,7 +9,7 @@ export class Panel {
   /**
    * @param {HTMLElement} container
    * @param {{patchParams, putScene, actions: object, view: object}} hooks
-   *   patchParams(obj) and putScene(obj) answer the server's body or throw an ApiError;
+   *   patchParams(obj) and putScene(obj) answer the server's body or throw a ClothdError (clients/js);
    *   actions: {playPause, step, reset, clearRocks, download, upload}; view: the View folder's
    *   object (mode, camera, encoding, drop radius and density), with onChange(name, value).
    */

@@ -194,10 +194,10 @@ void cs_hash_hex(uint64_t hash, char out[17]);
 
 /* What the backend knows of its own speed (0 where it does not say). */
 typedef struct cs_backend_stats {
-    double bytes_per_vertex_substep; /* memory traffic per vertex and substep, by the kernels' design */
-    double copy_bandwidth;           /* measured device copy bandwidth, bytes/s (read + write) */
+    double bytes_per_vertex_substep; /* memory traffic per vertex and substep, from its cost model */
+    double peak_bandwidth;           /* the device's memory bandwidth by its clock and bus width, bytes/s */
 } cs_backend_stats;
-/* Fills the stats; measuring the bandwidth takes a moment on the first call. */
+/* Fills the stats (allocates nothing and measures nothing). */
 cs_status cs_sim_backend_stats(cs_sim *sim, cs_backend_stats *out);
 
 /* ---- snapshots: the whole state as a versioned, checksummed byte buffer ---- */

@@ -72,7 +72,38 @@ typedef struct cs_step_report {
     int finite;       /* 1 when every position, velocity and rock value is finite */
 } cs_step_report;
 
-enum { CS_SYNC_POSITIONS = 1, CS_SYNC_ALL = 3 };
+/* Parts of the host state a download brings up to date. A frame needs positions and rocks (and
+ * velocities or rest lengths for its scalars); a snapshot, a hash or a command needs all. */
+enum {
+    CS_SYNC_POSITIONS = 1,
+    CS_SYNC_VELOCITIES = 2,
+    CS_SYNC_ACCELERATIONS = 4,
+    CS_SYNC_REST = 8,
+    CS_SYNC_ROCKS = 16,
+    CS_SYNC_ALL = 31
+};
+
+/* A backend's cost model: for each kernel (or CPU pass), the distinct bytes of memory it reads
+ * and writes per vertex each time it runs, and how often it runs. Counted from the kernels; for
+ * CUDA checked against the bytes the CPU imitation of CUDA sees them touch (tests/gpu). */
+typedef struct cs_kernel_cost {
+    const char *name;
+    double read, written;  /* bytes per vertex per run */
+    double fixed;          /* bytes per run that do not scale with the cloth (rocks, parameters) */
+    double per_substep;    /* runs per substep, amortized (once per graph of G substeps: 1/G) */
+    double per_frame;      /* runs per frame */
+} cs_kernel_cost;
+
+#define CS_COST_ROWS 16
+typedef struct cs_cost_model {
+    cs_kernel_cost k[CS_COST_ROWS];
+    int n;
+    double bytes_per_vertex_substep; /* sum of (read + written) per_substep */
+    double fixed_per_substep;        /* sum of fixed per_substep */
+    double launches_per_frame;       /* kernels (or parallel passes) per frame */
+    double graphs_per_frame;         /* CUDA graph launches per frame (0: none) */
+    double nodes_per_substep;        /* kernels per substep on the critical path */
+} cs_cost_model;
 
 typedef struct cs_backend {
     const char *name;
@@ -80,9 +111,10 @@ typedef struct cs_backend {
     int (*available)(char *why, size_t why_len);
     cs_status (*create)(void **ctx, char *err, size_t err_len);
     void (*destroy)(void *ctx);
-    /* The host state changed from outside (scene, command, snapshot): take all of it. */
+    /* The host state changed from outside (scene, command, snapshot): take all of it. On failure
+     * the backend's own state is as it was before the call (a device keeps its old copy). */
     cs_status (*upload)(void *ctx, const cs_model *m, cs_state *s);
-    /* Bring the host state's arrays up to date (what: CS_SYNC_*). */
+    /* Bring these parts of the host state up to date (what: CS_SYNC_* bits). */
     cs_status (*download)(void *ctx, const cs_model *m, cs_state *s, unsigned what);
     /* Recompute accelerations of cloth and rocks from the current positions and velocities. */
     cs_status (*refresh)(void *ctx, const cs_model *m, cs_state *s);
@@ -94,7 +126,17 @@ typedef struct cs_backend {
     const char *(*error)(void *ctx);
     /* What it knows of its speed for this model (zeros where nothing). */
     void (*stats)(void *ctx, const cs_model *m, cs_backend_stats *out);
+    /* Its cost model for this model and rock count; needs no device. */
+    void (*cost)(const cs_model *m, int32_t n_rocks, cs_cost_model *out);
 } cs_backend;
+
+/* Adds a row to a cost model and its totals. */
+void cs_cost_add(cs_cost_model *c, const char *name, double read, double written, double fixed, double per_substep,
+                 double per_frame);
+
+/* The cost model of a backend (cs_backend_cpu, cs_backend_cuda()) for this simulation's scene,
+ * parameters and rocks, whichever backend the simulation runs on. */
+cs_status cs_sim_cost(cs_sim *sim, const cs_backend *backend, cs_cost_model *out);
 
 /* The CPU backend; always available. */
 extern const cs_backend cs_backend_cpu;

@@ -1,0 +1,393 @@
+// stream.js - clothd's WebSocket stream (PROTOCOL.md, "The stream") in a page or in node 20+
+// (the `ws` package where there is no global WebSocket): finds the port (GET /v1/health), opens
+// the stream with the client's token, subscribes, decodes binary frames with proto/frame.mjs,
+// passes text messages on, sends grabs, and reconnects by itself with backoff (0.25 s doubling to
+// 8 s) when the daemon goes away, until stop().
+//
+// Nothing a server sends can stop it: a frame that does not decode, a message that is not JSON or
+// of an unknown type, a protocol other than clothd.v1 - each is reported to onProblem and the
+// stream goes on.
+//
+// Frames are decoded as they come (push), or, with `pull: true` (a page that draws at its own
+// rate), held undecoded until takeFrame(): a frame that arrives before the last one was taken
+// replaces it, undecoded and counted in stats.skipped.
+import { decodeFrame } from '../../../proto/frame.mjs';
+
+export const PROTOCOL = 'clothd.v1';
+export const DEFAULT_SCENE = 'default';
+export const BACKOFF_MIN_MS = 250;
+export const BACKOFF_MAX_MS = 8000;
+const OPEN = 1; // WebSocket.OPEN, the same in the browser and in ws
+
+const HANDLERS = {
+  hello: 'onHello', frame: 'onFrame', frameReady: 'onFrameReady', event: 'onEvent',
+  message: 'onMessage', status: 'onStatus', problem: 'onProblem',
+};
+
+const view = (data) => (data instanceof ArrayBuffer ? new Uint8Array(data)
+  : new Uint8Array(data.buffer, data.byteOffset, data.byteLength));
+
+let wsClass = null;
+async function webSocketClass() {
+  if (globalThis.WebSocket) return globalThis.WebSocket;
+  if (!wsClass) {
+    try {
+      wsClass = (await import('ws')).default;
+    } catch (e) {
+      throw new Error(`there is no WebSocket here: node needs the ws package (npm install ws): ${e.message}`);
+    }
+  }
+  return wsClass;
+}
+
+/**
+ * @typedef {object} StreamHandlers
+ * @property {(hello: object) => void} [onHello] the hello: everything a late joiner needs
+ * @property {(frame: object, ms: number) => void} [onFrame] a decoded frame (decodeFrame's result) and the decode time
+ * @property {() => void} [onFrameReady] with pull: a frame waits for takeFrame()
+ * @property {(event: object) => void} [onEvent] an event message
+ * @property {(message: object) => void} [onMessage] `subscribed` and `error` messages
+ * @property {(state: 'connecting'|'open'|'closed', detail: string) => void} [onStatus]
+ * @property {(text: string) => void} [onProblem] something the server sent that does not fit the protocol
+ */
+
+/**
+ * @typedef {object} StreamOptions
+ * @property {{encoding?: 'f32'|'q16'|'meshopt', max_fps?: number, scalar?: 'none'|'speed'|'strain'}} [subscription]
+ *   sent on every (re)connect; the server's default (f32, 60 fps, no scalar) otherwise
+ * @property {boolean} [pull] hold frames undecoded until takeFrame()
+ * @property {{decodeVertexBuffer: Function, ready: Promise<void>}} [meshopt] the meshoptimizer
+ *   package's MeshoptDecoder (default: imported when the first meshopt frame comes)
+ * @property {string} [scene] the scene (client.scene(id).stream() sets it)
+ */
+
+export class Stream {
+  /**
+   * @param {import('./client.js').Client} client
+   * @param {StreamHandlers} [handlers]
+   * @param {StreamOptions} [options]
+   */
+  constructor(client, handlers = {}, options = {}) {
+    this.client = client;
+    this.h = handlers;
+    this.scene = options.scene ?? DEFAULT_SCENE;
+    this.pull = options.pull ?? false;
+    this.subscription = { ...options.subscription };
+    /** {positions, scalar, scratch}: arrays frames decode into when they are large enough. */
+    this.targets = {};
+    this.ws = null;
+    this.hello = null;
+    this.subscribed = null;
+    this.closedByUs = false;
+    this.backoff = BACKOFF_MIN_MS;
+    this.retryTimer = null;
+    this.retryMs = null;
+    this.connecting = false;
+    this.listeners = new Set();
+    this.meshoptGiven = options.meshopt ?? null;
+    this.meshopt = null;
+    this.meshoptLoad = null;
+    this.awaitingMeshopt = null;
+    this.pending = null;
+    this.pendingGrab = null;
+    this.lastData = null;
+    this.stats = { frames: 0, decoded: 0, skipped: 0, bytes: 0, badFrames: 0, badMessages: 0, reconnects: 0, decodeMs: { f32: [], q16: [], meshopt: [] } };
+    if (this.subscription.encoding === 'meshopt') this.loadMeshopt();
+  }
+
+  /** Adds a listener of one kind (hello, frame, frameReady, event, message, status, problem); returns its remover. */
+  on(kind, fn) {
+    const entry = { kind, fn };
+    this.listeners.add(entry);
+    return () => this.listeners.delete(entry);
+  }
+
+  /** @private */
+  emit(kind, ...args) {
+    this.h[HANDLERS[kind]]?.(...args);
+    for (const l of [...this.listeners]) if (l.kind === kind) l.fn(...args);
+  }
+
+  /**
+   * The next message of a kind that matches: resolves with it, or rejects after `timeout` ms.
+   * @param {string} kind @param {(m: any) => boolean} [match] @param {{timeout?: number}} [options]
+   */
+  waitFor(kind, match = () => true, { timeout = 15000 } = {}) {
+    return new Promise((resolve, reject) => {
+      const timer = setTimeout(() => { off(); reject(new Error(`no ${kind} message in ${timeout} ms`)); }, timeout);
+      const off = this.on(kind, (m) => {
+        if (!match(m)) return;
+        clearTimeout(timer);
+        off();
+        resolve(m);
+      });
+    });
+  }
+
+  /**
+   * Decoded frames as they come, newest first: a frame that comes before the loop asks for the
+   * next replaces the one waiting. Ends when the stream is stopped.
+   */
+  async *frames() {
+    let next = null, wake = null;
+    const offFrame = this.on('frame', (f) => { next = f; wake?.(); });
+    const offStatus = this.on('status', () => wake?.());
+    try {
+      for (;;) {
+        while (!next) {
+          if (this.closedByUs) return;
+          await new Promise((r) => { wake = r; });
+          wake = null;
+        }
+        const f = next;
+        next = null;
+        yield f;
+      }
+    } finally {
+      offFrame();
+      offStatus();
+    }
+  }
+
+  /** Connects, and keeps connecting until stop(). Started already: nothing more. */
+  start() {
+    const started = !this.closedByUs && (this.ws || this.retryTimer || this.connecting);
+    this.closedByUs = false;
+    if (!started) this.connect();
+    return this;
+  }
+
+  stop() {
+    this.closedByUs = true;
+    clearTimeout(this.retryTimer);
+    this.retryTimer = null;
+    if (this.ws) this.ws.close();
+    else this.emit('status', 'closed', 'stopped');
+  }
+
+  /** @private */
+  async connect() {
+    this.connecting = true;
+    try {
+      await this.open();
+    } finally {
+      this.connecting = false;
+    }
+  }
+
+  /** @private One attempt: the port from GET /v1/health, then the WebSocket. */
+  async open() {
+    clearTimeout(this.retryTimer);
+    this.retryTimer = null;
+    if (this.closedByUs) return;
+    this.emit('status', 'connecting', '');
+    let url, stream, WS;
+    try {
+      url = new URL(this.client.base || globalThis.location?.href);
+    } catch {
+      return this.fail(`no URL to find the stream from: give the client a base (new Client({ base: 'http://host:port' }))`);
+    }
+    try {
+      // Another scene's stream: the server says whether it has that scene (404 otherwise).
+      if (this.scene !== DEFAULT_SCENE) await this.client.scene(this.scene).sim();
+      stream = (await this.client.health()).stream;
+    } catch (e) {
+      // 503 (unhealthy) still answers the stream's port; a scene that does not exist ends it.
+      if (e.status === 503 && e.body?.stream) stream = e.body.stream;
+      else if (e.status === 404 && this.scene !== DEFAULT_SCENE) return this.fail(`no scene ${JSON.stringify(this.scene)} on this clothd (${e.message})`);
+      else return this.retry(`no answer from clothd (${e.message})`);
+    }
+    if (!stream) return this.retry('this clothd has no stream');
+    try {
+      WS = await webSocketClass();
+    } catch (e) {
+      return this.fail(e.message);
+    }
+    if (this.closedByUs) return;
+    url.protocol = url.protocol === 'https:' ? 'wss:' : 'ws:';
+    url.port = String(stream.port);
+    url.pathname = stream.path || '/stream';
+    url.search = this.scene === DEFAULT_SCENE ? '' : `?scene=${encodeURIComponent(this.scene)}`;
+    url.hash = '';
+    let ws;
+    try {
+      // The token rides in the subprotocol list (a page cannot set Authorization on a
+      // WebSocket); the server answers with clothd.v1 alone.
+      const token = this.client.token;
+      ws = new WS(url.href, token ? [PROTOCOL, `bearer.${token}`] : PROTOCOL);
+    } catch (e) {
+      return this.retry(`cannot open ${url.href}: ${e.message}`);
+    }
+    ws.binaryType = 'arraybuffer';
+    this.ws = ws;
+    this.pending = null;
+    ws.onopen = () => {
+      if (Object.keys(this.subscription).length) this.send({ type: 'subscribe', ...this.subscription });
+    };
+    ws.onmessage = (m) => (typeof m.data === 'string' ? this.onText(m.data) : this.onBinary(m.data));
+    ws.onerror = () => {}; // the close that follows says it
+    ws.onclose = (e) => {
+      if (this.ws !== ws) return;
+      this.ws = null;
+      if (!this.closedByUs) this.retry(e.reason || `stream closed (${e.code})`);
+      else this.emit('status', 'closed', 'stopped');
+    };
+  }
+
+  /** @private A condition no retry mends: says so and stops. */
+  fail(reason) {
+    this.closedByUs = true;
+    this.emit('problem', reason);
+    this.emit('status', 'closed', reason);
+  }
+
+  /** @private */
+  retry(reason) {
+    if (this.closedByUs) return;
+    const wait = Math.round(this.backoff * (0.75 + 0.5 * Math.random())); // +-25%: clients part ways
+    this.backoff = Math.min(this.backoff * 2, BACKOFF_MAX_MS);
+    this.stats.reconnects++;
+    /** The wait before the next attempt, in ms. */
+    this.retryMs = wait;
+    this.emit('status', 'closed', `${reason}; reconnecting in ${(wait / 1000).toFixed(1)} s`);
+    this.retryTimer = setTimeout(() => this.connect(), wait);
+  }
+
+  /** Sends a client message (an object, as JSON); false when the stream is not open. */
+  send(message) {
+    if (this.ws?.readyState !== OPEN) return false;
+    this.ws.send(JSON.stringify(message));
+    return true;
+  }
+
+  /** Changes the subscription (any subset of encoding, max_fps, scalar); kept across reconnects. */
+  subscribe(change) {
+    Object.assign(this.subscription, change);
+    if (change.encoding === 'meshopt') this.loadMeshopt();
+    return this.send({ type: 'subscribe', ...change });
+  }
+
+  /** Moves a grabbed vertex at mouse rate; while the socket is still sending, only the newest target goes. */
+  grab(vertex, target) {
+    this.pendingGrab = { type: 'grab', vertex, target };
+    this.flushGrab();
+  }
+
+  /** @private */
+  flushGrab() {
+    if (this.pendingGrab && this.ws && this.ws.bufferedAmount < 1024 && this.send(this.pendingGrab)) this.pendingGrab = null;
+  }
+
+  release() {
+    this.pendingGrab = null;
+    return this.send({ type: 'release' });
+  }
+
+  /** Feeds one message as if it had come from the server (a test's way to send bad frames). */
+  inject(data) {
+    if (typeof data === 'string') this.onText(data);
+    else this.decode(data);
+  }
+
+  /** @private */
+  onText(text) {
+    let m;
+    try {
+      m = JSON.parse(text);
+    } catch {
+      this.stats.badMessages++;
+      return this.emit('problem', `a stream message is not JSON: ${String(text).slice(0, 80)}`);
+    }
+    if (m === null || typeof m !== 'object' || Array.isArray(m)) {
+      this.stats.badMessages++;
+      return this.emit('problem', 'a stream message is not a JSON object');
+    }
+    switch (m.type) {
+      case 'hello':
+        if (m.protocol !== PROTOCOL) {
+          this.emit('problem', `clothd speaks ${m.protocol}, this client ${PROTOCOL}: reload the page after an upgrade`);
+          this.ws?.close(4000, 'protocol mismatch');
+          return;
+        }
+        this.backoff = BACKOFF_MIN_MS;
+        this.hello = m;
+        this.emit('status', 'open', '');
+        return this.emit('hello', m);
+      case 'event':
+        return this.emit('event', m);
+      case 'subscribed':
+        this.subscribed = m;
+        return this.emit('message', m);
+      case 'error':
+        return this.emit('message', m);
+      default:
+        this.stats.badMessages++;
+        return this.emit('problem', `unknown stream message type ${JSON.stringify(m.type)}`);
+    }
+  }
+
+  /** @private */
+  onBinary(data) {
+    this.lastData = data;
+    this.stats.frames++;
+    this.stats.bytes += data.byteLength;
+    this.flushGrab();
+    if (!this.pull) return this.decode(data);
+    if (this.pending) this.stats.skipped++;
+    this.pending = data;
+    this.emit('frameReady');
+  }
+
+  /** With pull: decodes the newest frame not yet taken and hands it to onFrame; false when there is none. */
+  takeFrame() {
+    this.flushGrab();
+    const data = this.pending;
+    if (!data) return false;
+    this.pending = null;
+    this.decode(data);
+    return true;
+  }
+
+  /** @private The decoder for meshopt frames: the one given, else the meshoptimizer package's. */
+  loadMeshopt() {
+    this.meshoptLoad ??= (async () => {
+      const decoder = this.meshoptGiven ?? (await import('meshoptimizer')).MeshoptDecoder;
+      await decoder.ready;
+      this.meshopt = decoder;
+      const data = this.awaitingMeshopt;
+      this.awaitingMeshopt = null;
+      if (data && !this.pull) this.decode(data);
+      else if (data && !this.pending) {
+        this.pending = data;
+        this.emit('frameReady');
+      }
+    })().catch((e) => this.emit('problem', `meshopt frames need the meshoptimizer package's decoder: ${e.message}`));
+    return this.meshoptLoad;
+  }
+
+  /** @private One frame: proto/frame.mjs's decodeFrame for every encoding it has. */
+  decode(data) {
+    const bytes = view(data);
+    if (bytes.length >= 8 && (bytes[6] & 3) === 2 && !this.meshopt) {
+      this.awaitingMeshopt = data; // decoded once the decoder is there (the newest only)
+      this.loadMeshopt();
+      return;
+    }
+    const t0 = performance.now();
+    let frame;
+    try {
+      frame = decodeFrame(bytes, { meshopt: this.meshopt ?? undefined, ...this.targets });
+    } catch (e) {
+      this.stats.badFrames++;
+      return this.emit('problem', `bad frame (${bytes.length} bytes): ${e.message}`);
+    }
+    const ms = performance.now() - t0;
+    const samples = this.stats.decodeMs[frame.encoding];
+    if (samples) {
+      samples.push(ms);
+      if (samples.length > 600) samples.splice(0, samples.length - 300);
+    }
+    this.stats.decoded++;
+    this.emit('frame', frame, ms);
+  }
+}

@@ -1,0 +1,34 @@
+"""clothd: a Python client of the clothd simulation service.
+
+    import clothd
+    c = clothd.Client("http://127.0.0.1:8080")
+    c.pause()
+    c.add_rock([0, 0, 2], 0.1, density=300)
+    c.step(frames=120)
+    sag = c.cloth_state_binary().positions[:, 2].min()
+
+The HTTP API through the standard library (clothd.client), the stream through websocket-client
+where it is installed (clothd.stream), the binary frames (clothd.frames; numpy arrays where
+numpy is there, lists otherwise), and the exceptions every refusal becomes (clothd.errors).
+See clients/python/README.md.
+"""
+
+from .client import (DEFAULT_SCENE, DEFAULT_URL, SCENE_ID, Client, ClothState, Recordings, Scene,
+                     SceneRoutes)
+from .errors import (BadRequest, Busy, ClientError, ClothdError, Conflict, ConnectionFailed, Forbidden,
+                     FrameError, MethodNotAllowed, MissingDependency, NotFound, PayloadTooLarge, ProtocolError,
+                     RateLimited, ServerError, StreamRefused, Timeout, Unauthorized, Unavailable, Unprocessable,
+                     UriTooLong, error_class, error_from_answer)
+from .frames import Frame, FrameDecoder, Rock, decode_frame, meshopt_available, numpy_available
+from .stream import Stream, websocket_available
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Client", "Scene", "SceneRoutes", "Recordings", "ClothState", "Stream", "Frame", "FrameDecoder", "Rock",
+    "decode_frame", "numpy_available", "meshopt_available", "websocket_available", "error_class",
+    "error_from_answer", "DEFAULT_URL", "DEFAULT_SCENE", "SCENE_ID",
+    "ClothdError", "ClientError", "BadRequest", "Unauthorized", "Forbidden", "NotFound", "MethodNotAllowed",
+    "Conflict", "PayloadTooLarge", "UriTooLong", "Unprocessable", "RateLimited", "ServerError", "Unavailable",
+    "Busy", "Timeout", "ConnectionFailed", "ProtocolError", "FrameError", "StreamRefused", "MissingDependency",
+]

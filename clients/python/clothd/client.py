@@ -1,0 +1,422 @@
+"""clothd's HTTP API (proto/PROTOCOL.md, proto/openapi.yaml), with the standard library only.
+
+One method per route; the server's JSON answers are returned as they are (dicts and lists),
+binary ones as bytes; every refusal is raised as an exception of clothd.errors; every request
+carries an X-Request-Id; the bearer token where one is given; a timeout on every call.
+
+Scenes: the daemon of today runs one scene, ``default``, behind the routes without a prefix.
+Every per-scene method lives in SceneRoutes: the client's own are those of ``default`` (the
+unprefixed routes), and ``client.scene(id)`` gives a handle whose methods build
+``/v1/scenes/{id}/...`` paths for any other id. A server without scenes answers those 404
+(NotFound), as it answers scenes(), create_scene() and delete_scene(): the server decides, so a
+server that has scenes needs no other client.
+"""
+
+import http.client
+import itertools
+import json
+import os
+import random
+import re
+import socket
+import string
+import urllib.parse
+
+from . import frames as _frames
+from .errors import ConnectionFailed, ProtocolError, Timeout, error_from_answer
+
+DEFAULT_URL = "http://127.0.0.1:8080"
+DEFAULT_SCENE = "default"
+DEFAULT_TIMEOUT = 30.0
+#: Scene ids the server takes (checked here, before any request).
+SCENE_ID = re.compile(r"[a-z0-9][a-z0-9_-]{0,62}\Z")
+#: X-Request-Id values the server echoes.
+REQUEST_ID = re.compile(r"[A-Za-z0-9._:/+=-]{1,128}\Z")
+
+_UNSET = object()
+
+
+def _check_scene_id(scene_id):
+    if not isinstance(scene_id, str) or not SCENE_ID.match(scene_id):
+        raise ValueError("scene id %r is not one clothd takes ([a-z0-9][a-z0-9_-]{0,62})" % (scene_id,))
+
+
+def _check_request_id(request_id):
+    if not isinstance(request_id, str) or not REQUEST_ID.match(request_id):
+        raise ValueError("X-Request-Id %r is not 1-128 characters of letters, digits and -_.:/+=" % (request_id,))
+
+
+def _merge(changes, kwargs):
+    body = dict(changes or {})
+    body.update(kwargs)
+    return body
+
+
+class ClothState:
+    """The cloth state's binary form: positions and velocities, n x 3 each, in vertex order
+    (numpy float32 arrays of shape (n, 3) when numpy is there, else lists of [x, y, z])."""
+
+    def __init__(self, positions, velocities):
+        self.positions = positions
+        self.velocities = velocities
+
+    def __len__(self):
+        return len(self.positions)
+
+    def __repr__(self):
+        return "ClothState(%d vertices)" % len(self)
+
+
+class SceneRoutes:
+    """The routes of one scene. ``id`` is its id, ``prefix`` where its routes are."""
+
+    def __init__(self, client, scene_id):
+        _check_scene_id(scene_id)
+        self._client = client
+        self.id = scene_id
+        self.prefix = "/v1" if scene_id == DEFAULT_SCENE else "/v1/scenes/" + scene_id
+
+    def _call(self, method, route, body=None, **options):
+        return self._client.request(method, self.prefix + route, body, **options)
+
+    # ---- the simulation ----
+    def sim(self, hash=False):
+        """GET /sim: state, step, frame, time, energy, real-time factor. ``hash=True`` computes
+        the state hash now (it is null while running otherwise)."""
+        return self._call("GET", "/sim?hash=1" if hash else "/sim")
+
+    def pause(self):
+        """POST /sim/pause; answers as sim(), with the state hash."""
+        return self._call("POST", "/sim/pause")
+
+    def resume(self):
+        """POST /sim/resume."""
+        return self._call("POST", "/sim/resume")
+
+    def step(self, frames=None, substeps=None):
+        """POST /sim/step while paused (Conflict while running): ``frames`` or ``substeps``
+        (default one frame). Answers once they ran, or once something ended the step
+        (``interrupted``: True). No timeout unless the client has a step_timeout: a long step
+        answers when it is done (cancel_step() from another thread ends it)."""
+        if frames is not None and substeps is not None:
+            raise ValueError("step() takes frames or substeps, not both")
+        body = {"substeps": substeps} if substeps is not None else {"frames": 1 if frames is None else frames}
+        return self._call("POST", "/sim/step", body, timeout=self._client._options["step_timeout"])
+
+    def cancel_step(self):
+        """DELETE /sim/step: ends the step in progress; ``{cancelled, step, frame}``."""
+        return self._call("DELETE", "/sim/step")
+
+    def reset(self):
+        """POST /sim/reset: rebuilds the scene, no rocks, step 0 (parameters are kept)."""
+        return self._call("POST", "/sim/reset")
+
+    # ---- parameters and the scene ----
+    def params(self):
+        """GET /params: every live parameter, as one dict."""
+        return self._call("GET", "/params")
+
+    def set_params(self, changes=None, **params):
+        """PATCH /params: all of them or none (``set_params(k_bend=30, wind=[2, 0, 0])``);
+        ``{applied_step, params}``."""
+        return self._call("PATCH", "/params", _merge(changes, params))
+
+    def params_schema(self):
+        """GET /params/schema: ``{params: [{name, type, unit, default, min, max, choices, kind, help}]}``."""
+        return self._call("GET", "/params/schema")
+
+    def get_scene(self):
+        """GET /scene: the scene fields (nx, ny, size_x, size_y, height, orientation, pins, areal_density)."""
+        return self._call("GET", "/scene")
+
+    def set_scene(self, fields=None, **scene):
+        """PUT /scene: any subset of the fields; rebuilds the cloth, clears the rocks, step 0."""
+        return self._call("PUT", "/scene", _merge(fields, scene))
+
+    # ---- rocks, pins, grab ----
+    def rocks(self):
+        """GET /rocks: ``{rocks: [{id, kinematic, position, velocity, angular_velocity, orientation, radius, density, mass}]}``."""
+        return self._call("GET", "/rocks")
+
+    def add_rock(self, position, radius, **fields):
+        """POST /rocks: a rock at ``position`` (m) of ``radius`` (m); optional velocity,
+        angular_velocity, orientation, density (kg/m^3, default 300), kinematic.
+        ``{id, rock, applied_step}``."""
+        return self._call("POST", "/rocks", dict(fields, position=list(position), radius=radius))
+
+    def clear_rocks(self):
+        """DELETE /rocks: ``{applied_step, removed}``."""
+        return self._call("DELETE", "/rocks")
+
+    def rock(self, rock_id):
+        """GET /rocks/{id}."""
+        return self._call("GET", "/rocks/%s" % urllib.parse.quote(str(rock_id), safe=""))
+
+    def set_rock(self, rock_id, changes=None, **fields):
+        """PATCH /rocks/{id}: any fields of add_rock's (a teleport keeps the velocity unless given)."""
+        return self._call("PATCH", "/rocks/%s" % urllib.parse.quote(str(rock_id), safe=""), _merge(changes, fields))
+
+    def remove_rock(self, rock_id):
+        """DELETE /rocks/{id}: ``{applied_step, id}``."""
+        return self._call("DELETE", "/rocks/%s" % urllib.parse.quote(str(rock_id), safe=""))
+
+    def set_pins(self, preset=None, vertices=None, pinned=True):
+        """PUT /pins: a ``preset`` (replaces every pin), or ``vertices`` pinned (or, with
+        pinned=False, freed); ``{pinned, applied_step}``, pinned being how many are now."""
+        if (preset is None) == (vertices is None):
+            raise ValueError("set_pins() takes a preset or vertices")
+        body = {"preset": preset} if preset is not None else {"vertices": list(vertices), "pinned": pinned}
+        return self._call("PUT", "/pins", body)
+
+    def grab(self, vertex, target):
+        """PUT /grab: pulls ``vertex`` toward ``target`` [x, y, z] (the stream's grab() does it
+        without a round trip)."""
+        return self._call("PUT", "/grab", {"vertex": vertex, "target": list(target)})
+
+    def release(self):
+        """DELETE /grab."""
+        return self._call("DELETE", "/grab")
+
+    # ---- state ----
+    def cloth_state(self):
+        """GET /cloth/state as JSON: ``{step, nx, ny, positions: [[x, y, z], ...], velocities}``."""
+        return self._call("GET", "/cloth/state")
+
+    def cloth_state_binary(self, numpy=None):
+        """GET /cloth/state in its binary form (little-endian float32): a ClothState, whose
+        positions and velocities are (n, 3) numpy arrays, or lists where numpy is not there
+        (numpy=False asks for lists)."""
+        data = self._call("GET", "/cloth/state", accept="application/octet-stream", as_="bytes")
+        if len(data) % 24:
+            raise ProtocolError("the binary cloth state has %d bytes, not 24 per vertex" % len(data),
+                                method="GET", path=self.prefix + "/cloth/state")
+        n = len(data) // 24
+        return ClothState(_frames.float32_rows(data, 0, n, numpy), _frames.float32_rows(data, 12 * n, n, numpy))
+
+    def snapshot(self):
+        """GET /snapshot: the whole state as the server's versioned, checksummed binary (bytes)."""
+        return self._call("GET", "/snapshot", accept="application/octet-stream", as_="bytes")
+
+    def restore_snapshot(self, data):
+        """PUT /snapshot: restores one (bytes), or changes nothing; ``{applied_step, step, state_hash}``."""
+        return self._call("PUT", "/snapshot", bytes(data))
+
+    def journal(self):
+        """GET /journal: ``{base_step, entries: [{step, command}]}``."""
+        return self._call("GET", "/journal")
+
+    def journal_bundle(self):
+        """GET /journal as a replay bundle (bytes) for ``clothd replay``."""
+        return self._call("GET", "/journal", accept="application/octet-stream", as_="bytes")
+
+    # ---- recordings and the stream ----
+    def record(self, seconds, encoding=None):
+        """Starts a recording of this scene: POST /v1/scenes/{id}/recordings (recordings are
+        always addressed by scene). A server without recordings answers NotFound."""
+        body = {"seconds": seconds} if encoding is None else {"seconds": seconds, "encoding": encoding}
+        return self._client.request("POST", "/v1/scenes/%s/recordings" % self.id, body)
+
+    def stream(self, encoding=None, max_fps=None, scalar=None, **options):
+        """The stream of this scene, connected (clothd.stream.Stream; a context manager).
+        encoding, max_fps, scalar: the subscription; options: Stream's (reconnect, numpy,
+        timeout, on_event, on_status, on_problem)."""
+        from .stream import Stream
+        sub = {k: v for k, v in (("encoding", encoding), ("max_fps", max_fps), ("scalar", scalar)) if v is not None}
+        return Stream(self._client, scene=self.id, subscription=sub, **options)
+
+
+class Scene(SceneRoutes):
+    """A handle on one scene of the daemon (``client.scene(id)``)."""
+
+    def __repr__(self):
+        return "Scene(%r)" % self.id
+
+
+class Recordings:
+    """The daemon's recordings (a server without them answers NotFound)."""
+
+    def __init__(self, client):
+        self._client = client
+
+    def list(self):
+        """GET /v1/recordings: ``{recordings: [{id, scene, state, frames, seconds, bytes}]}``."""
+        return self._client.request("GET", "/v1/recordings")
+
+    def get(self, rid):
+        """GET /v1/recordings/{rid}: the file (bytes)."""
+        return self._client.request("GET", "/v1/recordings/%s" % urllib.parse.quote(str(rid), safe=""),
+                                    accept="application/octet-stream", as_="bytes")
+
+    def delete(self, rid):
+        """DELETE /v1/recordings/{rid}."""
+        return self._client.request("DELETE", "/v1/recordings/%s" % urllib.parse.quote(str(rid), safe=""))
+
+
+class Client(SceneRoutes):
+    """A clothd server: its daemon-wide routes, and those of the ``default`` scene.
+
+    url: the server (default http://127.0.0.1:8080). token or token_file: the control or view
+    token, sent as ``Authorization: Bearer``. timeout: seconds for each blocking socket
+    operation of a request (connect, send, each read; default 30; None waits for ever).
+    step_timeout: the same for step() (default None: a long step answers when it is done).
+    request_id_prefix: requests carry ``X-Request-Id: <prefix>-<n>`` (default ``py-<6 random
+    characters>``).
+    """
+
+    def __init__(self, url=DEFAULT_URL, *, token=None, token_file=None, timeout=DEFAULT_TIMEOUT,
+                 step_timeout=None, request_id_prefix=None):
+        super().__init__(self, DEFAULT_SCENE)
+        parts = urllib.parse.urlsplit(url)
+        if parts.scheme not in ("http", "https") or not parts.hostname:
+            raise ValueError("url %r is not http://host[:port] or https://host[:port]" % (url,))
+        self.url = url.rstrip("/")
+        self._scheme, self._host, self._port = parts.scheme, parts.hostname, parts.port
+        self._base_path = parts.path.rstrip("/")
+        if token_file is not None:
+            with open(token_file, encoding="utf-8") as f:
+                token = f.read().strip()
+        if request_id_prefix is None:
+            request_id_prefix = "py-" + "".join(random.choice(string.ascii_lowercase + string.digits) for _ in range(6))
+        _check_request_id(request_id_prefix + "-1")
+        # Shared with every client with_options() makes.
+        self._shared = {"token": token, "prefix": request_id_prefix, "seq": itertools.count(1), "last": None}
+        self._options = {"timeout": timeout, "step_timeout": step_timeout, "request_id": None}
+        #: The recordings' routes.
+        self.recordings = Recordings(self)
+
+    @classmethod
+    def from_env(cls, **options):
+        """A client for CLOTHD_URL (default http://127.0.0.1:$CLOTHD_PORT, port 8080) with the
+        token of CLOTHD_TOKEN_FILE, where set: as scripts/clothctl finds them."""
+        url = os.environ.get("CLOTHD_URL") or "http://127.0.0.1:%s" % os.environ.get("CLOTHD_PORT", "8080")
+        if os.environ.get("CLOTHD_TOKEN_FILE"):
+            options.setdefault("token_file", os.environ["CLOTHD_TOKEN_FILE"])
+        return cls(url, **options)
+
+    def __repr__(self):
+        return "Client(%r)" % self.url
+
+    @property
+    def token(self):
+        """The token requests carry, or None."""
+        return self._shared["token"]
+
+    @token.setter
+    def token(self, value):
+        self._shared["token"] = value
+
+    @property
+    def last_request_id(self):
+        """The X-Request-Id of the last request sent."""
+        return self._shared["last"]
+
+    def with_options(self, **changes):
+        """The same client with other settings: timeout, step_timeout, request_id (one
+        X-Request-Id for every request the new client makes)."""
+        unknown = set(changes) - set(self._options)
+        if unknown:
+            raise TypeError("with_options() takes timeout, step_timeout, request_id, not %s" % ", ".join(sorted(unknown)))
+        if changes.get("request_id") is not None:
+            _check_request_id(changes["request_id"])
+        c = object.__new__(Client)
+        c.__dict__.update(self.__dict__)
+        c._options = dict(self._options, **changes)
+        c._client = c
+        c.recordings = Recordings(c)
+        return c
+
+    def next_request_id(self):
+        """The X-Request-Id of the next request: events that carry it answer this client's own."""
+        return "%s-%d" % (self._shared["prefix"], next(self._shared["seq"]))
+
+    def is_own_request(self, request_id):
+        """Whether a request id (an event's ``request_id``) is one of this client's."""
+        return isinstance(request_id, str) and request_id.startswith(self._shared["prefix"] + "-")
+
+    # ---- daemon-wide routes ----
+    def health(self):
+        """GET /v1/health: ``{status, backend, device, version, stream: {port, path, protocol}}``
+        (Unavailable, with this body in ``body``, when the backend has failed)."""
+        return self.request("GET", "/v1/health")
+
+    def metrics(self):
+        """GET /metrics: the Prometheus text."""
+        return self.request("GET", "/metrics", as_="text")
+
+    def scene(self, scene_id):
+        """A handle on scene ``scene_id``; ``default`` is the client's own routes."""
+        return Scene(self, scene_id)
+
+    def scenes(self):
+        """GET /v1/scenes."""
+        return self.request("GET", "/v1/scenes")
+
+    def create_scene(self, id=None, scene=None, params=None):
+        """POST /v1/scenes ``{id?, scene?, params?}``."""
+        body = {}
+        if id is not None:
+            _check_scene_id(id)
+            body["id"] = id
+        if scene is not None:
+            body["scene"] = scene
+        if params is not None:
+            body["params"] = params
+        return self.request("POST", "/v1/scenes", body)
+
+    def delete_scene(self, scene_id):
+        """DELETE /v1/scenes/{id}."""
+        _check_scene_id(scene_id)
+        return self.request("DELETE", "/v1/scenes/" + scene_id)
+
+    # ---- one request ----
+    def request(self, method, path, body=None, *, accept=None, as_="json", timeout=_UNSET,
+                request_id=None, headers=None):
+        """One request to ``path`` (e.g. /v1/sim). body: a dict or list (sent as JSON) or bytes.
+        as_: "json" (the parsed answer, None when empty), "bytes" or "text". Raises a
+        ClothdError for every refusal, a Timeout, a ConnectionFailed, or a ProtocolError for a
+        success that is not JSON."""
+        timeout = self._options["timeout"] if timeout is _UNSET else timeout
+        request_id = request_id or self._options["request_id"] or self.next_request_id()
+        _check_request_id(request_id)
+        self._shared["last"] = request_id
+        sent = {"X-Request-Id": request_id}
+        if self.token:
+            sent["Authorization"] = "Bearer " + self.token
+        if accept:
+            sent["Accept"] = accept
+        payload = None
+        if isinstance(body, (bytes, bytearray, memoryview)):
+            payload = bytes(body)
+            sent["Content-Type"] = "application/octet-stream"
+        elif body is not None:
+            # NaN and infinities are not JSON: refused here, not sent.
+            payload = json.dumps(body, allow_nan=False).encode("utf-8")
+            sent["Content-Type"] = "application/json"
+        sent.update(headers or {})
+        conn_class = http.client.HTTPSConnection if self._scheme == "https" else http.client.HTTPConnection
+        conn = conn_class(self._host, self._port, timeout=timeout)
+        where = dict(method=method, path=path, request_id=request_id)
+        try:
+            conn.request(method, self._base_path + path, body=payload, headers=sent)
+            res = conn.getresponse()
+            data = res.read()
+        except (TimeoutError, socket.timeout) as e:  # one class from Python 3.10 on
+            raise Timeout("%s %s: no answer within %s s" % (method, path, timeout), **where) from e
+        except (OSError, http.client.HTTPException) as e:
+            raise ConnectionFailed("%s %s: cannot reach clothd at %s (%s)" % (method, path, self.url, e), **where) from e
+        finally:
+            conn.close()
+        if res.status >= 400:
+            raise error_from_answer(res.status, res.getheader("Content-Type", ""), data,
+                                    retry_after=res.getheader("Retry-After"), allow=res.getheader("Allow"), **where)
+        if as_ == "bytes":
+            return data
+        if as_ == "text":
+            return data.decode("utf-8")
+        if not data:
+            return None
+        try:
+            return json.loads(data)
+        except ValueError as e:
+            raise ProtocolError("%s %s: the answer (%d) is not JSON: %r" % (method, path, res.status, data[:80]),
+                                status=res.status, body=data, **where) from e

@@ -1,0 +1,280 @@
+"""The binary frames of clothd's stream, decoded from PROTOCOL.md's "Binary frames" table.
+
+Little-endian; a 72-byte header, then positions, the scalar (when flagged) and the rocks, each
+section starting on a 4-byte boundary::
+
+    offset size field
+         0    4 magic "CLF1"
+         4    2 header size (72)
+         6    2 flags: bits 0-1 encoding (0 f32, 1 q16, 2 meshopt), bit 2 scalar present
+         8    8 frame (u64)          16  8 step (u64)
+        24    8 sim_time (f64, s)    32  8 wall clock at publish (u64, ns since the epoch)
+        40    4 n_vertices (u32)     44  4 n_rocks (u32)
+        48   12 bbox min (3 f32)     60 12 bbox max (3 f32)
+        72      positions: f32: 3 f32 per vertex; q16: 3 u16 per vertex over the bbox;
+                meshopt: u32 byte count, then the q16 positions padded to 4 u16 per vertex and
+                compressed with meshoptimizer's vertex codec (vertex size 8)
+                scalar (flag bit 2): one u8 per vertex
+                rocks: n_rocks x {id u32, position 3 f32, radius f32, orientation 4 f32 (x, y, z, w)}
+
+Positions come as a numpy array of shape (n, 3), float32, when numpy is importable (and
+``numpy`` is not False), else as a list of [x, y, z] lists; the scalar likewise as a uint8 array
+or a list of ints.
+
+meshopt frames are decoded by meshoptimizer's own C library (``meshopt_decodeVertexBuffer``,
+Debian's libmeshoptimizer2d) through ctypes; where it is missing they raise MissingDependency.
+Set ``CLOTHD_MESHOPTIMIZER_LIB`` to the library's path where it is installed elsewhere.
+
+The encodings are dispatched in one table, ``POSITION_DECODERS`` (flags bits 0-1 to a
+function). Encoding 3 is the protocol's coming ``delta`` encoding, whose frames need the newest
+keyframe: FrameDecoder, which decodes a stream's frames in order, is where that state will live;
+until then such a frame is a FrameError that says so.
+"""
+
+import array
+import ctypes
+import ctypes.util
+import os
+import struct
+import sys
+from dataclasses import dataclass, field
+
+from .errors import FrameError, MissingDependency
+
+try:
+    import numpy as _numpy
+except ImportError:  # optional: lists instead
+    _numpy = None
+
+MAGIC = b"CLF1"
+HEADER_SIZE = 72
+ROCK_SIZE = 36
+MESHOPT_STRIDE = 8
+FLAG_SCALAR = 4
+ENCODING_MASK = 3
+#: The most vertices a frame may claim: clothd's largest cloth, 4096 x 4096.
+MAX_VERTICES = 4096 * 4096
+#: Below this extent (m) a q16 axis is flat: all 0, decoding to bbox min.
+Q16_EXTENT_MIN = 1e-9
+
+_HEADER = struct.Struct("<4sHHQQdQII3f3f")
+_ROCK = struct.Struct("<I3ff4f")
+assert _HEADER.size == HEADER_SIZE and _ROCK.size == ROCK_SIZE
+
+
+def _align4(n):
+    return (n + 3) & ~3
+
+
+@dataclass
+class Rock:
+    """A rock as a frame carries it."""
+    id: int
+    position: tuple
+    radius: float
+    orientation: tuple  # quaternion x, y, z, w
+
+
+@dataclass
+class Frame:
+    """One decoded frame. ``nbytes`` is the size of the message it came from."""
+    frame: int
+    step: int
+    sim_time: float
+    wall_ns: int
+    encoding: str
+    n_vertices: int
+    n_rocks: int
+    bbox_min: tuple
+    bbox_max: tuple
+    positions: object
+    scalar: object
+    rocks: list = field(default_factory=list)
+    nbytes: int = 0
+
+
+def numpy_available():
+    """Whether numpy is importable (frames and cloth states decode to numpy arrays then)."""
+    return _numpy is not None
+
+
+def _use_numpy(numpy):
+    """numpy: None (when importable), True (required) or False (lists)."""
+    if numpy is None:
+        return _numpy is not None
+    if numpy and _numpy is None:
+        raise MissingDependency("numpy=True, but numpy is not importable (Debian: apt install python3-numpy)")
+    return bool(numpy)
+
+
+def float32_rows(data, offset, n, numpy=None):
+    """n x 3 little-endian float32 from data[offset:]: an (n, 3) float32 array, or [x, y, z] lists."""
+    if _use_numpy(numpy):
+        return _numpy.frombuffer(data, dtype="<f4", count=3 * n, offset=offset).reshape(n, 3).astype(_numpy.float32)
+    a = array.array("f")
+    a.frombytes(bytes(data[offset:offset + 12 * n]))
+    if sys.byteorder == "big":
+        a.byteswap()
+    return [list(a[3 * v:3 * v + 3]) for v in range(n)]
+
+
+def _dequantize(q, stride, n, bmin, bmax, numpy):
+    """q16 values (stride u16 per vertex, the first 3 used) mapped back over the bbox."""
+    step = [(bmax[c] - bmin[c]) / 65535.0 if bmax[c] - bmin[c] >= Q16_EXTENT_MIN else 0.0 for c in range(3)]
+    if numpy:
+        qa = _numpy.asarray(q).reshape(n, stride)[:, :3].astype(_numpy.float64)
+        return (_numpy.asarray(bmin, dtype=_numpy.float64) + qa * _numpy.asarray(step)).astype(_numpy.float32)
+    return [[bmin[c] + q[stride * v + c] * step[c] for c in range(3)] for v in range(n)]
+
+
+def _u16s(data, offset, count, numpy):
+    if numpy:
+        return _numpy.frombuffer(data, dtype="<u2", count=count, offset=offset)
+    a = array.array("H")
+    a.frombytes(bytes(data[offset:offset + 2 * count]))
+    if sys.byteorder == "big":
+        a.byteswap()
+    return a
+
+
+def _positions_f32(data, at, n, bmin, bmax, numpy):
+    _need(data, at, 12 * n, "positions")
+    return float32_rows(data, at, n, numpy), at + 12 * n
+
+
+def _positions_q16(data, at, n, bmin, bmax, numpy):
+    _need(data, at, 6 * n, "positions")
+    return _dequantize(_u16s(data, at, 3 * n, numpy), 3, n, bmin, bmax, numpy), at + 6 * n
+
+
+def _positions_meshopt(data, at, n, bmin, bmax, numpy):
+    _need(data, at, 4, "positions")
+    (length,) = struct.unpack_from("<I", data, at)
+    _need(data, at + 4, length, "positions")
+    decoded = meshopt_decode_vertex_buffer(bytes(data[at + 4:at + 4 + length]), n, MESHOPT_STRIDE)
+    return _dequantize(_u16s(decoded, 0, 4 * n, numpy), 4, n, bmin, bmax, numpy), at + 4 + length
+
+
+#: flags bits 0-1 -> (name, decoder of the positions section).
+POSITION_DECODERS = {
+    0: ("f32", _positions_f32),
+    1: ("q16", _positions_q16),
+    2: ("meshopt", _positions_meshopt),
+}
+DELTA = 3
+
+
+def _need(data, at, count, what):
+    if at + count > len(data):
+        raise FrameError("frame of %d bytes is truncated: its %s need %d" % (len(data), what, at + count))
+
+
+def decode_frame(data, numpy=None):
+    """Decodes one binary stream message (bytes-like) into a Frame; FrameError when it is not one.
+
+    numpy: None to use numpy when it is importable, True to require it, False for lists.
+    """
+    use_np = _use_numpy(numpy)
+    data = memoryview(data).cast("B") if not isinstance(data, (bytes, bytearray)) else data
+    if len(data) < HEADER_SIZE:
+        raise FrameError("frame of %d bytes is shorter than its header" % len(data))
+    (magic, header_size, flags, frame, step, sim_time, wall_ns, n, n_rocks,
+     x0, y0, z0, x1, y1, z1) = _HEADER.unpack_from(data, 0)
+    if magic != MAGIC:
+        raise FrameError("not a clothd frame (magic %r)" % bytes(magic))
+    if header_size < HEADER_SIZE:
+        raise FrameError("frame header size %d is below %d" % (header_size, HEADER_SIZE))
+    code = flags & ENCODING_MASK
+    if code not in POSITION_DECODERS:
+        if code == DELTA:
+            raise FrameError("a delta frame (encoding 3): this client does not decode delta frames yet; "
+                             "subscribe to f32, q16 or meshopt")
+        raise FrameError("unknown encoding %d" % code)
+    if n > MAX_VERTICES:
+        raise FrameError("frame claims %d vertices, more than %d" % (n, MAX_VERTICES))
+    encoding, decode_positions = POSITION_DECODERS[code]
+    bmin, bmax = (x0, y0, z0), (x1, y1, z1)
+    positions, at = decode_positions(data, header_size, n, bmin, bmax, use_np)
+    at = _align4(at)
+    scalar = None
+    if flags & FLAG_SCALAR:
+        _need(data, at, n, "scalars")
+        scalar = (_numpy.frombuffer(data, dtype=_numpy.uint8, count=n, offset=at).copy() if use_np
+                  else list(bytes(data[at:at + n])))
+        at = _align4(at + n)
+    _need(data, at, ROCK_SIZE * n_rocks, "rocks")
+    rocks = []
+    for _ in range(n_rocks):
+        rid, px, py, pz, radius, qx, qy, qz, qw = _ROCK.unpack_from(data, at)
+        rocks.append(Rock(rid, (px, py, pz), radius, (qx, qy, qz, qw)))
+        at += ROCK_SIZE
+    if at != len(data):
+        raise FrameError("frame has %d bytes, its sections %d" % (len(data), at))
+    return Frame(frame, step, sim_time, wall_ns, encoding, n, n_rocks, bmin, bmax, positions, scalar,
+                 rocks, len(data))
+
+
+class FrameDecoder:
+    """Decodes one stream's frames in the order they came.
+
+    f32, q16 and meshopt frames stand alone; this object is where the state of the delta
+    encoding to come (the newest keyframe) will be kept, so code that decodes a stream through
+    it needs no change when delta frames arrive.
+    """
+
+    def __init__(self, numpy=None):
+        self.numpy = numpy
+
+    def decode(self, data):
+        """The Frame of one binary message (FrameError when it does not decode)."""
+        return decode_frame(data, numpy=self.numpy)
+
+
+# ---- meshoptimizer's vertex codec, from its C library ----
+
+_meshopt = None
+_meshopt_why = None
+
+
+def _load_meshopt():
+    global _meshopt, _meshopt_why
+    if _meshopt is not None or _meshopt_why is not None:
+        return _meshopt
+    given = os.environ.get("CLOTHD_MESHOPTIMIZER_LIB")
+    names = [given] if given else [n for n in (ctypes.util.find_library("meshoptimizer"), "libmeshoptimizer.so.2d",
+                                                "libmeshoptimizer.so", "libmeshoptimizer.dylib", "meshoptimizer.dll") if n]
+    tried = []
+    for name in names:
+        try:
+            lib = ctypes.CDLL(name)
+            fn = lib.meshopt_decodeVertexBuffer
+        except (OSError, AttributeError) as e:
+            tried.append("%s (%s)" % (name, e))
+            continue
+        fn.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_size_t, ctypes.c_char_p, ctypes.c_size_t]
+        fn.restype = ctypes.c_int
+        _meshopt = fn
+        return fn
+    _meshopt_why = "; ".join(tried) or "no library found"
+    return None
+
+
+def meshopt_available():
+    """Whether meshopt frames can be decoded here (meshoptimizer's C library is loadable)."""
+    return _load_meshopt() is not None
+
+
+def meshopt_decode_vertex_buffer(encoded, count, size):
+    """meshopt_decodeVertexBuffer: ``count`` vertices of ``size`` bytes from ``encoded`` (bytes)."""
+    fn = _load_meshopt()
+    if fn is None:
+        raise MissingDependency(
+            "meshopt frames need meshoptimizer's C library (libmeshoptimizer; Debian: apt install "
+            "libmeshoptimizer2d, or set CLOTHD_MESHOPTIMIZER_LIB to its path), which could not be "
+            "loaded: %s; subscribe to q16 or f32 instead" % _meshopt_why)
+    out = ctypes.create_string_buffer(count * size)
+    rc = fn(out, count, size, encoded, len(encoded))
+    if rc != 0:
+        raise FrameError("the meshopt payload of %d bytes does not decode to %d vertices (meshoptimizer error %d)"
+                         % (len(encoded), count, rc))
+    return out.raw

@@ -1,0 +1,315 @@
+"""clothd's WebSocket stream (PROTOCOL.md, "The stream"), through websocket-client (Debian's
+python3-websocket), which is optional: without it, opening a stream raises MissingDependency.
+
+A Stream finds the port (GET /v1/health), opens ``ws://host:port/stream`` with the client's
+token in the subprotocol list, reads the hello (``stream.hello``), and subscribes. Iterating it
+yields every message as it comes: dicts for text messages (events, ``subscribed``, ``error``)
+and Frame objects for binary frames; ``frames()`` yields only the frames, ``events()`` only the
+events. With ``reconnect=True`` a lost connection is opened again after 0.25 s, doubling to 8 s
+(+-25%), back to 0.25 s after each hello, and the new hello is yielded; without it a lost
+connection raises ConnectionFailed.
+
+Frames are decoded by clothd.frames.FrameDecoder. A frame that does not decode, or a text
+message that is not a JSON object of a known type, raises FrameError or ProtocolError, unless
+``on_problem`` is given: then it is reported there and the stream goes on.
+"""
+
+import json
+import random
+import time
+import urllib.parse
+
+from .errors import (ConnectionFailed, MissingDependency, NotFound, ProtocolError, StreamRefused, Timeout, Unavailable,
+                     error_class)
+from .frames import FrameDecoder
+
+try:
+    import websocket as _websocket
+except ImportError:  # optional: streams need it
+    _websocket = None
+
+PROTOCOL = "clothd.v1"
+DEFAULT_SCENE = "default"
+BACKOFF_MIN = 0.25
+BACKOFF_MAX = 8.0
+TEXT_TYPES = ("hello", "event", "subscribed", "error")
+
+
+def websocket_available():
+    """Whether websocket-client is importable (streams need it)."""
+    return _websocket is not None
+
+
+class Stream:
+    """One connection to the stream of a scene (client.stream() makes one, connected).
+
+    subscription: {encoding, max_fps, scalar} sent on every connection. reconnect: open a lost
+    connection again with backoff. numpy: as clothd.frames.decode_frame's. timeout: seconds to
+    connect and to wait for the hello (None: for ever). on_event(event), on_status(state,
+    detail) and on_problem(text): called as they happen (on_status: "open", "closed").
+    """
+
+    def __init__(self, client, scene=DEFAULT_SCENE, subscription=None, *, reconnect=False, numpy=None,
+                 timeout=30.0, on_event=None, on_status=None, on_problem=None):
+        if _websocket is None:
+            raise MissingDependency("the stream needs websocket-client (Debian: apt install python3-websocket)")
+        self.client = client
+        self.scene = scene
+        self.subscription = dict(subscription or {})
+        self.reconnect = reconnect
+        self.timeout = timeout
+        self.decoder = FrameDecoder(numpy=numpy)
+        self.on_event, self.on_status, self.on_problem = on_event, on_status, on_problem
+        self.hello = None
+        self.subscribed = None
+        self.ws = None
+        self.backoff = BACKOFF_MIN
+        #: The waits chosen before each reconnection (s), newest last.
+        self.retry_waits = []
+        self.closed = False
+        self._waiting = []  # messages read while waiting for another, yielded first
+        self.connect()
+
+    # ---- connection ----
+    def url(self):
+        """The stream's URL, from GET /v1/health (503 unhealthy still tells it)."""
+        if self.scene != DEFAULT_SCENE:
+            self.client.scene(self.scene).sim()  # NotFound where the server has no such scene
+        try:
+            stream = self.client.health()["stream"]
+        except Unavailable as e:
+            stream = (e.body or {}).get("stream") if isinstance(e.body, dict) else None
+            if not stream:
+                raise
+        if not stream:
+            raise ProtocolError("this clothd has no stream (GET /v1/health: stream is null)")
+        parts = urllib.parse.urlsplit(self.client.url)
+        host = "[%s]" % parts.hostname if ":" in parts.hostname else parts.hostname
+        scheme = "wss" if parts.scheme == "https" else "ws"
+        query = "" if self.scene == DEFAULT_SCENE else "?scene=" + urllib.parse.quote(self.scene, safe="")
+        return "%s://%s:%d%s%s" % (scheme, host, stream["port"], stream.get("path") or "/stream", query)
+
+    def connect(self):
+        """Opens the connection and reads the hello; raises what stops it."""
+        url = self.url()
+        protocols = [PROTOCOL] + (["bearer." + self.client.token] if self.client.token else [])
+        try:
+            # No Origin: websocket-client would send one naming the stream's port, which the
+            # server refuses as another origin (a browser's page must come from the HTTP port).
+            self.ws = _websocket.create_connection(url, subprotocols=protocols, timeout=self.timeout,
+                                                   suppress_origin=True, enable_multithread=True)
+        except _websocket.WebSocketBadStatusException as e:
+            # Refused before the upgrade, with an HTTP status (401 without the token, 403 ...).
+            status = getattr(e, "status_code", None)
+            cls = error_class(status) if isinstance(status, int) and status >= 400 else ConnectionFailed
+            raise cls("the stream at %s refused the connection: %s" % (url, e), status=status) from e
+        except (OSError, _websocket.WebSocketException) as e:
+            raise ConnectionFailed("cannot open the stream at %s: %s" % (url, e)) from e
+        hello = self._receive(self.timeout)
+        if not isinstance(hello, dict) or hello.get("type") != "hello":
+            self._close_socket()
+            raise ProtocolError("the stream's first message is not a hello: %r" % (hello,))
+        if hello.get("protocol") != PROTOCOL:
+            self._close_socket()
+            raise ProtocolError("clothd speaks %r, this client %s" % (hello.get("protocol"), PROTOCOL))
+        self.hello = hello
+        self.backoff = BACKOFF_MIN
+        self.ws.settimeout(None)
+        if self.subscription:
+            self.send(dict(self.subscription, type="subscribe"))
+        if self.on_status:
+            self.on_status("open", url)
+        return hello
+
+    def _close_socket(self):
+        if self.ws is not None:
+            try:
+                self.ws.close()
+            except Exception:  # noqa: BLE001 - closing a broken socket
+                pass
+        self.ws = None
+
+    def close(self):
+        """Closes the stream; iteration ends."""
+        self.closed = True
+        self._close_socket()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def next_wait(self):
+        """The wait before the next reconnection (s): the backoff +-25% (so that clients part
+        ways); the backoff doubles, up to 8 s."""
+        wait = self.backoff * (0.75 + 0.5 * random.random())
+        self.backoff = min(self.backoff * 2, BACKOFF_MAX)
+        return wait
+
+    def _reconnect(self, why):
+        """Opens the connection again with backoff, until it holds; returns the new hello."""
+        self._close_socket()
+        while not self.closed:
+            wait = self.next_wait()
+            self.retry_waits.append(wait)
+            if self.on_status:
+                self.on_status("closed", "%s; reconnecting in %.1f s" % (why, wait))
+            time.sleep(wait)
+            if self.closed:
+                break
+            try:
+                return self.connect()
+            except NotFound:
+                raise
+            except (ConnectionFailed, Unavailable, Timeout, ProtocolError) as e:
+                why = str(e)
+        return None
+
+    # ---- reading ----
+    def _receive(self, timeout=None):
+        """One message: a dict (text) or a Frame; None when the connection closed."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            try:
+                self.ws.settimeout(left)
+                opcode, data = self.ws.recv_data()
+            except _websocket.WebSocketTimeoutException as e:
+                raise Timeout("no stream message within %s s" % timeout) from e
+            except (OSError, _websocket.WebSocketConnectionClosedException) as e:
+                if self.closed:
+                    return None
+                raise ConnectionFailed("the stream closed: %s" % e) from e
+            if opcode == _websocket.ABNF.OPCODE_CLOSE:
+                if self.closed:
+                    return None
+                raise ConnectionFailed("the stream closed (the server sent a close)")
+            if opcode not in (_websocket.ABNF.OPCODE_BINARY, _websocket.ABNF.OPCODE_TEXT):
+                continue  # ping, pong: not messages
+            m = self._message(data, opcode == _websocket.ABNF.OPCODE_BINARY)
+            if m is not None:
+                return m
+
+    def _message(self, data, binary):
+        """A Frame or a dict; with on_problem, None for what does not fit the protocol (reported)."""
+        try:
+            return self.decoder.decode(data) if binary else self._text(data)
+        except ProtocolError as e:
+            if not self.on_problem:
+                raise
+            self.on_problem(str(e))  # reported; the stream goes on
+            return None
+
+    def inject(self, data):
+        """Handles one message as if the server had sent it (str: text, bytes: a frame): the
+        Frame or dict, or None when on_problem took it. A test's way to send what no server does."""
+        return self._message(data.encode("utf-8") if isinstance(data, str) else data, not isinstance(data, str))
+
+    def _text(self, data):
+        try:
+            m = json.loads(data)
+        except ValueError as e:
+            raise ProtocolError("a stream message is not JSON: %r" % bytes(data[:80])) from e
+        if not isinstance(m, dict):
+            raise ProtocolError("a stream message is not a JSON object: %r" % (m,))
+        if m.get("type") not in TEXT_TYPES:
+            raise ProtocolError("unknown stream message type %r" % (m.get("type"),))
+        if m["type"] == "subscribed":
+            self.subscribed = m
+        elif m["type"] == "event" and self.on_event:
+            self.on_event(m)
+        return m
+
+    def receive(self, timeout=None):
+        """The next message (a dict or a Frame), waiting at most ``timeout`` s (Timeout past it).
+        With reconnect, a lost connection is opened again and the new hello is returned."""
+        if self._waiting:
+            return self._waiting.pop(0)
+        while not self.closed:
+            try:
+                m = self._receive(timeout)
+            except ConnectionFailed as e:
+                if not self.reconnect or self.closed:
+                    raise
+                m = self._reconnect(str(e))
+            if m is not None:
+                return m
+        raise ConnectionFailed("the stream is closed")
+
+    def __iter__(self):
+        """Every message as it comes, until close()."""
+        while not self.closed:
+            try:
+                yield self.receive()
+            except ConnectionFailed:
+                if self.closed:
+                    return
+                raise
+
+    def frames(self):
+        """The frames as they come (the other messages are kept in hello, subscribed, on_event)."""
+        from .frames import Frame
+        for m in self:
+            if isinstance(m, Frame):
+                yield m
+
+    def events(self):
+        """The events as they come."""
+        for m in self:
+            if isinstance(m, dict) and m.get("type") == "event":
+                yield m
+
+    def wait_for(self, match, timeout=15.0):
+        """The next message for which match(message) is true, waiting at most ``timeout`` s in
+        all (Timeout past it); the messages read meanwhile are yielded afterwards, in order."""
+        deadline = time.monotonic() + timeout
+        skipped = []
+        try:
+            while True:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise Timeout("no matching stream message within %s s" % timeout)
+                m = self.receive(left)
+                if match(m):
+                    return m
+                skipped.append(m)
+        finally:
+            self._waiting[:0] = skipped
+
+    def next_frame(self, timeout=15.0):
+        """The next frame (Timeout after ``timeout`` s)."""
+        from .frames import Frame
+        return self.wait_for(lambda m: isinstance(m, Frame), timeout)
+
+    # ---- sending ----
+    def send(self, message):
+        """Sends a client message (a dict, as JSON)."""
+        if self.ws is None:
+            raise ConnectionFailed("the stream is not connected")
+        try:
+            self.ws.send(json.dumps(message, allow_nan=False))
+        except (OSError, _websocket.WebSocketException) as e:
+            raise ConnectionFailed("the stream closed: %s" % e) from e
+
+    def subscribe(self, encoding=None, max_fps=None, scalar=None, wait=True, timeout=15.0):
+        """Changes the subscription (kept across reconnections). wait: return the server's
+        ``subscribed`` answer, or raise StreamRefused with its ``error``."""
+        change = {k: v for k, v in (("encoding", encoding), ("max_fps", max_fps), ("scalar", scalar)) if v is not None}
+        self.subscription.update(change)
+        self.send(dict(change, type="subscribe"))
+        if not wait:
+            return None
+        m = self.wait_for(lambda m: isinstance(m, dict) and (
+            m.get("type") == "subscribed" or (m.get("type") == "error" and m.get("about") == "subscribe")), timeout)
+        if m["type"] == "error":
+            raise StreamRefused("the stream refused the subscription: %s" % m.get("detail"), m)
+        return m
+
+    def grab(self, vertex, target):
+        """Pulls ``vertex`` toward ``target`` [x, y, z], as PUT /v1/grab without a round trip."""
+        self.send({"type": "grab", "vertex": vertex, "target": list(target)})
+
+    def release(self):
+        """Releases the grabbed vertex, as DELETE /v1/grab."""
+        self.send({"type": "release"})

@@ -1,0 +1,25 @@
+"""clients/python/README.md's notebook runs as written (on a smaller cloth, to be quick), and
+shows what it says: the stiffer in bending, the less the centre sags under the rock."""
+
+import contextlib
+import io
+import re
+
+from conftest import PACKAGE
+
+
+def test_the_readme_notebook_runs_and_a_stiffer_cloth_sags_less(start_daemon):
+    d = start_daemon("--nx", "24", "--ny", "24")
+    blocks = re.findall(r"```python\n(.*?)```", (PACKAGE / "README.md").read_text(), re.S)
+    assert len(blocks) == 2
+    out = io.StringIO()
+    scope = {}
+    with contextlib.redirect_stdout(out):
+        for code in blocks:
+            exec(compile(code.replace("http://127.0.0.1:8080", d.url), "README.md", "exec"), scope)
+    lines = out.getvalue().splitlines()
+    sags = [float(m.group(1)) for m in (re.match(r"k_bend +\d+ N/m: centre sag (-?[\d.]+) cm", x) for x in lines) if m]
+    assert len(sags) == 5, lines
+    assert all(a > b for a, b in zip(sags, sags[1:])), sags
+    assert sags[0] > 0
+    assert re.match(r"3 rocks at heights \[", lines[-1]), lines
