@@ -177,6 +177,13 @@ static void sink_publish(void *ctx, pose *f)
 {
     stream *st = ctx;
     pthread_mutex_lock(&st->flock);
+    if (atomic_load(&st->clients) == 0) {
+        /* The last client left since begin: kept, this pose could be shown to the next one after
+         * changes it does not hold (see forget_frames). */
+        give_back(st, f);
+        pthread_mutex_unlock(&st->flock);
+        return;
+    }
     if (st->latest) give_back(st, st->latest);
     st->latest = f;
     st->seq++;
@@ -487,6 +494,22 @@ static void take_newest(stream *st)
     for (session *s = st->sessions; s; s = s->next) wire_for(st, s->encoding, s->scalar);
 }
 
+/* The last client has left: the stream forgets its frames. With nobody listening the sim thread
+ * makes none (begin answers NULL), so a pose kept from now on could miss any change that follows
+ * (a new scene, a reset, a rock while paused); the next client to join would get that stale pose
+ * before the one its join asks for. Without one, a joiner waits for the pose its join asks for. */
+static void forget_frames(stream *st)
+{
+    pthread_mutex_lock(&st->flock);
+    if (st->latest) give_back(st, st->latest);
+    if (st->current) give_back(st, st->current);
+    st->latest = st->current = NULL;
+    st->taken = st->seq;
+    pthread_mutex_unlock(&st->flock);
+    for (int e = 0; e < N_ENC; e++)
+        for (int k = 0; k < SCALAR_KINDS; k++) st->wires[e][k].len = 0, st->wires[e][k].seq = 0;
+}
+
 /* Stalled clients (their newest frame waiting too long) are closed. */
 static void sweep(stream *st)
 {
@@ -731,7 +754,7 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
                 break;
             }
         }
-        atomic_fetch_sub(&st->clients, 1);
+        if (atomic_fetch_sub(&st->clients, 1) == 1) forget_frames(st);
         free(s->hello);
         for (int k = 0; k < s->n_texts; k++) free(s->texts[k]);
         free(s->rx);
