@@ -195,7 +195,6 @@ int main(int argc, char **argv)
             p.plastic_yield = 0.5f; /* the strain pass runs; at rest nothing yields */
             p.tear_strain = 2.0f;
             p.max_substeps = 100000;
-            p.auto_drop_interval = 0;
             p.contact_model = models[mi];
             cs_sim *sim = NULL;
             char err[256];

@@ -1,6 +1,6 @@
-/* test_guard.c - the stability guard and the non-finite guard (DESIGN.md section 2, Time).
+/* test_guard.c - the stability guard and the non-finite guard (kernels/MODEL.md, Time).
  *
- * The guard's limit is recomputed here by hand from DESIGN's formula: per vertex
+ * The guard's limit is recomputed here by hand from MODEL.md's formula: per vertex
  * K = its spring stiffnesses + w k_contact, C = its spring dampings + w (c_contact + c_tangent)
  * + m drag / 2, where w counts the contacts a vertex can have (surface contact: 3, and half one
  * more with the ground; vertex contact: 1), dt_i = (sqrt(C^2 + 2 m K) - C) / K; per dynamic rock
@@ -60,7 +60,6 @@ static void small_scene(cs_scene *sc, cs_params *p)
     sc->size_x = 1.0f;
     sc->size_y = 0.9f;
     sc->height = 0.6f;
-    p->auto_drop_interval = 0;
     tk_v1_material(sc, p); /* the figures below were measured on it */
 }
 

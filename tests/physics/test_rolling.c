@@ -44,7 +44,6 @@ static roll launch(int dir, float c_rock, int integrator)
     sc.pins = CS_PINS_EDGES;
     if (c_rock >= 0) p.c_rock = c_rock;
     p.integrator = integrator;
-    p.auto_drop_interval = 0.0f;
     roll r;
     r.sim = tk_sim_serial(&sc, &p);
     r.mass = RHO * 4.0 / 3.0 * PI * R * R * R;

@@ -63,7 +63,6 @@ static void flat_cloth(int n, int vertical)
     sc.orientation = vertical ? CS_VERTICAL : CS_HORIZONTAL;
     p.gravity[2] = 0.0f;
     p.ground = 0;
-    p.auto_drop_interval = 0.0f;
     assert_int_equal(p.contact_model, CS_CONTACT_SURFACE); /* the default */
     cs_sim *sim = tk_sim_serial(&sc, &p);
     int32_t *all = malloc(sizeof(int32_t) * (size_t)(n * n));

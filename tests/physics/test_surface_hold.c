@@ -72,7 +72,6 @@ static drop_result run_drop(const drop_case *c)
     cs_params_default(&p);
     sc.nx = sc.ny = c->n;
     sc.pins = c->pins;
-    p.auto_drop_interval = 0.0f;
     assert_true(p.tear_strain == 0.0f && p.contact_model == CS_CONTACT_SURFACE);
     cs_sim *sim = tk_sim(&sc, &p);
     assert_int_equal(cs_sim_set_threads(sim, c->n >= 64 ? 2 : 1), CS_OK);

@@ -58,7 +58,6 @@ static void test_curtain_pushed_never_through(void **unused)
     sc.nx = sc.ny = 32;
     sc.orientation = CS_VERTICAL;
     sc.pins = CS_PINS_TOP_EDGE;
-    p.auto_drop_interval = 0.0f;
     p.ground = 0;
     assert_true(p.contact_model == CS_CONTACT_SURFACE && p.tear_strain == 0.0f);
     cs_sim *sim = tk_sim(&sc, &p);
@@ -107,7 +106,6 @@ static void test_no_energy_gained_without_damping(void **unused)
     cs_scene_default(&sc);
     cs_params_default(&p);
     sc.nx = sc.ny = 32;
-    p.auto_drop_interval = 0.0f;
     p.c_spring = p.drag = p.c_contact = p.c_tangent = p.mu = 0.0f;
     p.ground = 0;
     cs_sim *sim = tk_sim(&sc, &p);
@@ -151,7 +149,6 @@ static void test_overlap_released_at_the_cap(void **unused)
     cs_scene_default(&sc);
     cs_params_default(&p);
     sc.nx = sc.ny = 16;
-    p.auto_drop_interval = 0.0f;
     p.placement_overlap = 0.2f;
     p.gravity[2] = 0.0f;
     p.ground = 0;
