@@ -31,23 +31,15 @@ static float cloth_distance(const cs_sim *sim, cs_vec3 c, int32_t *near)
         }
         return best;
     }
-    for (int32_t j = 0; j + 1 < ny; j++) {
-        for (int32_t i = 0; i + 1 < nx; i++) {
-            /* the quad's two triangles are ring triangles 1 and 2 of its v00 */
-            const int32_t m = cs_ring_faces(s->L0, nx, ny, i, j) & 3;
-            const int32_t v00 = j * nx + i, q[4] = {v00, v00 + 1, v00 + nx + 1, v00 + nx};
-            for (int f = 0; f < 2; f++) {
-                if (!((m >> f) & 1)) continue;
-                const int32_t t[3] = {q[0], q[f + 1], q[f + 2]}; /* A: v00 v10 v11; B: v00 v11 v01 */
-                cs_vec3 x[3];
-                for (int k = 0; k < 3; k++) x[k] = cs_v3(s->x[t[k]], s->y[t[k]], s->z[t[k]]);
-                float w[3];
-                cs_closest_on_triangle(c, x[0], x[1], x[2], w);
-                const cs_vec3 p = cs_add(cs_add(cs_scale(x[0], w[0]), cs_scale(x[1], w[1])), cs_scale(x[2], w[2]));
-                const float d = cs_len(cs_sub(p, c));
-                if (d < best) best = d, *near = t[w[0] >= w[1] ? (w[0] >= w[2] ? 0 : 2) : (w[1] >= w[2] ? 1 : 2)];
-            }
-        }
+    int32_t t[3];
+    for (int64_t k = 0; cs_next_triangle(s->L0, nx, ny, &k, t);) {
+        cs_vec3 x[3];
+        for (int q = 0; q < 3; q++) x[q] = cs_v3(s->x[t[q]], s->y[t[q]], s->z[t[q]]);
+        float w[3];
+        cs_closest_on_triangle(c, x[0], x[1], x[2], w);
+        const cs_vec3 p = cs_add(cs_add(cs_scale(x[0], w[0]), cs_scale(x[1], w[1])), cs_scale(x[2], w[2]));
+        const float d = cs_len(cs_sub(p, c));
+        if (d < best) best = d, *near = t[w[0] >= w[1] ? (w[0] >= w[2] ? 0 : 2) : (w[1] >= w[2] ? 1 : 2)];
     }
     return best;
 }

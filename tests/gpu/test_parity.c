@@ -107,34 +107,6 @@ static float radius_of(const variant *vr, int r) { return vr->radius > 0 ? vr->r
  * each other; rock 1 kinematic and sweeping. */
 static int add_rocks(cs_sim *sim, const variant *vr, const cs_scene *sc, const cs_params *p)
 {
-    if (vr->script & S_SPOTS) {
-        /* Four quadrants of the flat cloth (odd sizes: the origin is a vertex, the grid 3 cm): the
-         * rock's centre over the centroid of a triangle A (2/3, 1/3 of a cell), the middle of a
-         * structural x edge, a vertex, the middle of a diagonal - its closest feature of the cloth
-         * a face, an edge, a vertex, an edge. Stone (2500 kg/m^3), 5 mm into the contact layer,
-         * sinking and spinning (friction); rock 1 kinematic, sliding across the cloth. */
-        const float h = 0.03f, off[4][2] = {{2 * h / 3, h / 3}, {h / 2, 0}, {0, 0}, {h / 2, h / 2}};
-        for (int r = 0; r < vr->rocks && r < 4; r++) {
-            cs_rock_def d;
-            cs_rock_def_default(&d);
-            d.radius = vr->radius;
-            d.density = 2500.0f;
-            d.position[0] = (r % 2 ? 6 * h : -6 * h) + off[r][0];
-            d.position[1] = (r / 2 ? 6 * h : -6 * h) + off[r][1];
-            d.position[2] = sc->height + d.radius + 0.5f * p->contact_offset;
-            d.velocity[2] = -0.5f;
-            d.angular_velocity[0] = 3.0f;
-            d.angular_velocity[1] = -2.0f;
-            d.angular_velocity[2] = 4.0f;
-            if (r == 1) {
-                d.kinematic = true;
-                d.velocity[0] = 0.3f;
-                d.velocity[2] = 0.0f;
-            }
-            if (cs_rock_add(sim, &d, NULL) != CS_OK) return -1;
-        }
-        return 0;
-    }
     if (vr->script & S_PAIR) {
         /* Rims 5 mm apart, centres a few mm above the cloth and off its grid lines: the vertices
          * between are inside both (radius + offset), so their forces add two rocks' in order. Not
@@ -171,6 +143,19 @@ static int add_rocks(cs_sim *sim, const variant *vr, const cs_scene *sc, const c
         d.velocity[2] = vr->rocks > 8 ? -0.5f : -2.5f;
         d.angular_velocity[0] = 4.0f;
         d.angular_velocity[2] = -3.0f;
+        if (vr->script & S_SPOTS) {
+            /* Four quadrants of the flat cloth (odd sizes: the origin is a vertex, the grid 3 cm):
+             * the centre over the centroid of a triangle A (2/3, 1/3 of a cell), the middle of a
+             * structural x edge, a vertex, the middle of a diagonal - the closest feature of the
+             * cloth a face, an edge, a vertex, an edge. Stone, 5 mm into the contact layer,
+             * sinking and spinning (friction). */
+            const float h = 0.03f, off[4][2] = {{2 * h / 3, h / 3}, {h / 2, 0}, {0, 0}, {h / 2, h / 2}};
+            d.density = 2500.0f;
+            d.position[0] = (r % 2 ? 6 * h : -6 * h) + off[r % 4][0];
+            d.position[1] = (r / 2 % 2 ? 6 * h : -6 * h) + off[r % 4][1];
+            d.velocity[2] = -0.5f;
+            d.angular_velocity[1] = -2.0f;
+        }
         if (r == 1) {
             d.kinematic = true;
             d.velocity[0] = 0.3f;

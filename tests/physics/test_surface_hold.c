@@ -26,37 +26,6 @@ typedef struct drop_case {
     double seconds; /* simulated */
 } drop_case;
 
-/* The cloth's surface under (x, y): the lowest and highest z of its triangles on that vertical
- * line; 0 when none meets it. */
-static int surface_under(const cs_sim *sim, double x, double y, double *zlo, double *zhi)
-{
-    const cs_state *s = &sim->state;
-    const int32_t nx = sim->model.phys.nx, ny = sim->model.phys.ny;
-    int found = 0;
-    for (int32_t j = 0; j + 1 < ny; j++) {
-        for (int32_t i = 0; i + 1 < nx; i++) {
-            const int32_t m = cs_ring_faces(s->L0, nx, ny, i, j) & 3;
-            const int32_t v00 = j * nx + i, q[4] = {v00, v00 + 1, v00 + nx + 1, v00 + nx};
-            for (int f = 0; f < 2; f++) {
-                if (!((m >> f) & 1)) continue;
-                const int32_t t[3] = {q[0], q[f + 1], q[f + 2]};
-                const double ax = s->x[t[0]], ay = s->y[t[0]], bx = s->x[t[1]], by = s->y[t[1]], cx = s->x[t[2]],
-                             cy = s->y[t[2]];
-                const double det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay);
-                if (fabs(det) < 1e-14) continue;
-                const double u = ((x - ax) * (cy - ay) - (cx - ax) * (y - ay)) / det;
-                const double v = ((bx - ax) * (y - ay) - (x - ax) * (by - ay)) / det;
-                if (u < 0 || v < 0 || u + v > 1) continue;
-                const double z = s->z[t[0]] + u * (s->z[t[1]] - s->z[t[0]]) + v * (s->z[t[2]] - s->z[t[0]]);
-                if (!found || z < *zlo) *zlo = z;
-                if (!found || z > *zhi) *zhi = z;
-                found = 1;
-            }
-        }
-    }
-    return found;
-}
-
 typedef struct drop_result {
     double max_depth;  /* deepest the surface came into the contact layer, m */
     double end_depth;  /* and at the last frame (at rest) */
@@ -95,7 +64,7 @@ static drop_result run_drop(const drop_case *c)
     for (int f = 1; f <= frames; f++) {
         tk_step(sim, info.substeps);
         double lo = 0, hi = 0;
-        const int has = surface_under(sim, r->x.x, r->x.y, &lo, &hi);
+        const int has = tk_surface_on_line(sim, 2, r->x.x, r->x.y, &lo, &hi);
         if (!has || !(lo < r->x.z))
             fail_msg("%d x %d, R %.2f, %.0f kg/m^3: at %.3f s the rock (z %.4f) has %s", c->n, c->n, (double)c->radius,
                      (double)c->density, f / 60.0, (double)r->x.z, has ? "the cloth only above it" : "no cloth under it");

@@ -17,37 +17,6 @@
  *    (counting the contacts' elastic energy) never rises. */
 #include "testkit.h"
 
-/* The cloth's surface on the line through (a, b) along axis `ax` (0 x, 1 y, 2 z; a, b the other
- * two coordinates in order): the lowest and highest coordinate along ax of its triangles there. */
-static int surface_on_line(const cs_sim *sim, int ax, double a, double b, double *lo, double *hi)
-{
-    const cs_state *s = &sim->state;
-    const float *P[3] = {s->x, s->y, s->z};
-    const float *A = P[ax == 0 ? 1 : 0], *B = P[ax == 2 ? 1 : 2], *D = P[ax];
-    const int32_t nx = sim->model.phys.nx, ny = sim->model.phys.ny;
-    int found = 0;
-    for (int32_t j = 0; j + 1 < ny; j++)
-        for (int32_t i = 0; i + 1 < nx; i++) {
-            const int32_t m = cs_ring_faces(s->L0, nx, ny, i, j) & 3;
-            const int32_t v00 = j * nx + i, q[4] = {v00, v00 + 1, v00 + nx + 1, v00 + nx};
-            for (int f = 0; f < 2; f++) {
-                if (!((m >> f) & 1)) continue;
-                const int32_t t[3] = {q[0], q[f + 1], q[f + 2]};
-                const double ax0 = A[t[0]], ay0 = B[t[0]], bx = A[t[1]], by = B[t[1]], cx = A[t[2]], cy = B[t[2]];
-                const double det = (bx - ax0) * (cy - ay0) - (cx - ax0) * (by - ay0);
-                if (fabs(det) < 1e-14) continue;
-                const double u = ((a - ax0) * (cy - ay0) - (cx - ax0) * (b - ay0)) / det;
-                const double v = ((bx - ax0) * (b - ay0) - (a - ax0) * (by - ay0)) / det;
-                if (u < 0 || v < 0 || u + v > 1) continue;
-                const double d = D[t[0]] + u * (D[t[1]] - D[t[0]]) + v * (D[t[2]] - D[t[0]]);
-                if (!found || d < *lo) *lo = d;
-                if (!found || d > *hi) *hi = d;
-                found = 1;
-            }
-        }
-    return found;
-}
-
 static void test_curtain_pushed_never_through(void **unused)
 {
     (void)unused;
@@ -79,7 +48,7 @@ static void test_curtain_pushed_never_through(void **unused)
     for (int f = 1; f <= 21; f++) { /* 0.35 s: 1.75 m, 1.45 m past the curtain's plane */
         tk_step(sim, info.substeps);
         double lo = 0, hi = 0;
-        if (!surface_on_line(sim, 1, r->x.x, r->x.z, &lo, &hi)) continue; /* slid off to the side */
+        if (!tk_surface_on_line(sim, 1, r->x.x, r->x.z, &lo, &hi)) continue; /* slid off to the side */
         /* The layer ahead is the one pushed (others may fold round behind the rock). */
         if (!(hi > r->x.y))
             fail_msg("at %.3f s the curtain is only behind the rock's centre (surface at y %.4f, centre at %.4f)",

@@ -138,6 +138,31 @@ static inline float *tk_rest_lengths(cs_sim *sim)
     return L;
 }
 
+/* The cloth's surface on the line through (a, b) along axis ax (0 x, 1 y, 2 z; a, b the other two
+ * coordinates in order): the lowest and highest coordinate along ax of its intact triangles
+ * there; 0 when none meets the line. */
+static inline int tk_surface_on_line(const cs_sim *sim, int ax, double a, double b, double *lo, double *hi)
+{
+    const cs_state *s = &sim->state;
+    const float *P[3] = {s->x, s->y, s->z};
+    const float *A = P[ax == 0 ? 1 : 0], *B = P[ax == 2 ? 1 : 2], *D = P[ax];
+    int found = 0;
+    int32_t t[3];
+    for (int64_t k = 0; cs_next_triangle(s->L0, sim->model.phys.nx, sim->model.phys.ny, &k, t);) {
+        const double ax0 = A[t[0]], ay0 = B[t[0]], bx = A[t[1]], by = B[t[1]], cx = A[t[2]], cy = B[t[2]];
+        const double det = (bx - ax0) * (cy - ay0) - (cx - ax0) * (by - ay0);
+        if (fabs(det) < 1e-14) continue;
+        const double u = ((a - ax0) * (cy - ay0) - (cx - ax0) * (b - ay0)) / det;
+        const double v = ((bx - ax0) * (b - ay0) - (a - ax0) * (by - ay0)) / det;
+        if (u < 0 || v < 0 || u + v > 1) continue;
+        const double d = D[t[0]] + u * (D[t[1]] - D[t[0]]) + v * (D[t[2]] - D[t[0]]);
+        if (!found || d < *lo) *lo = d;
+        if (!found || d > *hi) *hi = d;
+        found = 1;
+    }
+    return found;
+}
+
 /* Positions as a freshly allocated xyz array. */
 static inline float *tk_positions(cs_sim *sim)
 {

@@ -316,6 +316,25 @@ SIM_HD static inline int32_t cs_quad_faces(const float *L0, int32_t nx, int32_t 
     return a | b << 1;
 }
 
+/* The intact render triangles of the whole cloth, as (t[0], t[1], t[2]) vertex ids in canonical
+ * order (A: v00 v10 v11, B: v00 v11 v01), quad by quad, row by row: for (k = 0; cs_next_triangle(
+ * L0, nx, ny, &k, t);). k counts the grid's triangle slots (2 per quad). */
+SIM_HD static inline int cs_next_triangle(const float *L0, int32_t nx, int32_t ny, int64_t *k, int32_t t[3])
+{
+    const int64_t slots = 2 * (int64_t)(nx - 1) * (int64_t)(ny - 1);
+    for (; *k < slots; (*k)++) {
+        const int32_t q = (int32_t)(*k >> 1), f = (int32_t)(*k & 1), i = q % (nx - 1), j = q / (nx - 1);
+        if (!((cs_quad_faces(L0, nx, ny, i, j) >> f) & 1)) continue;
+        const int32_t v00 = j * nx + i;
+        t[0] = v00;
+        t[1] = f ? v00 + nx + 1 : v00 + 1;
+        t[2] = f ? v00 + nx : v00 + nx + 1;
+        (*k)++;
+        return 1;
+    }
+    return 0;
+}
+
 /* The intact triangles of the ring of vertex (i, j), as cs_ring.faces: 1 A(i, j), 2 B(i, j),
  * 3 A(i-1, j), 4 B(i-1, j-1), 5 A(i-1, j-1), 6 B(i, j-1). */
 SIM_HD static inline int32_t cs_ring_faces(const float *L0, int32_t nx, int32_t ny, int32_t i, int32_t j)
