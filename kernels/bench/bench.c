@@ -1,7 +1,8 @@
 /* clothd-bench - how many vertex-substeps per second a backend sustains, and what its cost model
  * says it should.
  *
- * Cases: square cloths (--sizes), each with the rock counts of --rocks resting on it; velocity
+ * Cases: square cloths (--sizes), each with the rock counts of --rocks resting on it, their
+ * contact by each model of --contact (surface, vertex; without rocks the first only); velocity
  * Verlet with every force on (springs with damping, drag, gravity, ground, plasticity and tearing
  * checks, and contact with the rocks). Each case settles briefly, then runs for --seconds of wall
  * time. Prints one line per case (JSON with --json), with the backend's cost model: the bytes each
@@ -35,11 +36,12 @@ static void usage(FILE *f)
 {
     fprintf(f,
             "usage: clothd-bench [--backend cpu|cuda|auto] [--json] [--threads N] [--seconds S]\n"
-            "                    [--sizes 64,128,256,512] [--rocks 0,16]\n"
+            "                    [--sizes 64,128,256,512] [--rocks 0,16] [--contact surface,vertex]\n"
             "                    [--integrator velocity_verlet|symplectic_euler] [--model]\n");
 }
 
-/* Rocks on a square grid over the middle of the cloth, just touching it. */
+/* Rocks on a square grid over the middle of the cloth, just touching it (light ones: the case
+ * measures contact, not a cloth sagging to the ground). */
 static int add_rocks(cs_sim *sim, const cs_scene *sc, const cs_params *p, int count)
 {
     const int cols = (int)ceil(sqrt((double)count));
@@ -119,6 +121,7 @@ static int parse_list(const char *s, int *out, int cap)
 int main(int argc, char **argv)
 {
     const char *backend = "cpu", *sizes_arg = "64,128,256,512", *integrator = "velocity_verlet", *rocks_arg = "0,16";
+    const char *contacts = "surface,vertex";
     int json = 0, threads = 0, model_only = 0;
     double seconds = 1.5;
     for (int i = 1; i < argc; i++) {
@@ -131,6 +134,7 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--seconds") == 0 && val) seconds = atof(val), i++;
         else if (strcmp(a, "--sizes") == 0 && val) sizes_arg = val, i++;
         else if (strcmp(a, "--rocks") == 0 && val) rocks_arg = val, i++;
+        else if (strcmp(a, "--contact") == 0 && val) contacts = val, i++;
         else if (strcmp(a, "--integrator") == 0 && val) integrator = val, i++;
         else if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
@@ -157,12 +161,31 @@ int main(int argc, char **argv)
             fprintf(stderr, "clothd-bench: sizes must be 2..4096\n");
             return 2;
         }
+    const cs_param_info *cm = cs_param_find("contact_model");
+    int models[4], n_models = 0;
+    char mlist[64];
+    snprintf(mlist, sizeof mlist, "%s", contacts);
+    for (char *tok = strtok(mlist, ","); tok && n_models < 4; tok = strtok(NULL, ",")) {
+        models[n_models] = cs_param_choice(cm, tok);
+        if (models[n_models] < 0) {
+            fprintf(stderr, "clothd-bench: unknown contact model '%s'\n", tok);
+            return 2;
+        }
+        n_models++;
+    }
+    if (n_models == 0) {
+        fprintf(stderr, "clothd-bench: --contact names no model\n");
+        return 2;
+    }
     if (!json && !model_only)
-        printf("%-7s %-9s %5s %14s %22s\n", "backend", "grid", "rocks", "substeps/s", "vertex-substeps/s");
+        printf("%-7s %-9s %5s %-8s %14s %22s\n", "backend", "grid", "rocks", "contact", "substeps/s",
+               "vertex-substeps/s");
 
     for (int si = 0; si < n_sizes; si++) {
         const int size = sizes[si];
-        for (int rc = 0; rc < n_counts; rc++) {
+        for (int rc = 0; rc < n_counts; rc++) for (int mi = 0; mi < n_models; mi++) {
+            /* without rocks the model does not matter: the first one only */
+            if (rock_counts[rc] == 0 && mi > 0) continue;
             cs_scene sc;
             cs_params p;
             cs_scene_default(&sc);
@@ -172,6 +195,7 @@ int main(int argc, char **argv)
             p.plastic_yield = 0.5f; /* the strain pass runs; at rest nothing yields */
             p.tear_strain = 2.0f;
             p.max_substeps = 100000;
+            p.contact_model = models[mi];
             cs_sim *sim = NULL;
             char err[256];
             /* The model needs the scene and rocks only: a CPU simulation holds them. */
@@ -193,14 +217,15 @@ int main(int argc, char **argv)
                     cs_cost_model m;
                     cs_sim_cost(sim, kinds[k], &m);
                     if (json) {
-                        printf("{\"backend\":\"%s\",\"nx\":%d,\"ny\":%d,\"rocks\":%d,\"integrator\":\"%s\","
-                               "\"substeps_per_frame\":%d",
-                               kinds[k]->name, size, size, info.n_rocks, integrator, info.substeps);
+                        printf("{\"backend\":\"%s\",\"nx\":%d,\"ny\":%d,\"rocks\":%d,\"contact_model\":\"%s\","
+                               "\"integrator\":\"%s\",\"substeps_per_frame\":%d",
+                               kinds[k]->name, size, size, info.n_rocks, cm->choices[models[mi]], integrator,
+                               info.substeps);
                         print_model(kinds[k]->name, &m, (double)size * size, 1, 0);
                         printf("}\n");
                     } else {
-                        printf("%s, %d x %d, %d rocks, %d substeps a frame:\n", kinds[k]->name, size, size,
-                               info.n_rocks, info.substeps);
+                        printf("%s, %d x %d, %d rocks (%s contact), %d substeps a frame:\n", kinds[k]->name, size,
+                               size, info.n_rocks, cm->choices[models[mi]], info.substeps);
                         print_model(kinds[k]->name, &m, (double)size * size, 0, 0);
                     }
                 }
@@ -239,10 +264,11 @@ int main(int argc, char **argv)
             cs_sim_cost(sim, self, &m);
             const double traffic = vsps * m.bytes_per_vertex_substep + sps * m.fixed_per_substep;
             if (json) {
-                printf("{\"backend\":\"%s\",\"device\":\"%s\",\"nx\":%d,\"ny\":%d,\"rocks\":%d,\"integrator\":\"%s\","
-                       "\"substeps_per_frame\":%d,\"substeps\":%lld,\"seconds\":%.3f,\"substeps_per_s\":%.1f,"
+                printf("{\"backend\":\"%s\",\"device\":\"%s\",\"nx\":%d,\"ny\":%d,\"rocks\":%d,\"contact_model\":\"%s\","
+                       "\"integrator\":\"%s\",\"substeps_per_frame\":%d,\"substeps\":%lld,\"seconds\":%.3f,\"substeps_per_s\":%.1f,"
                        "\"vertex_substeps_per_s\":%.0f,\"modelled_traffic_gb_s\":%.1f",
-                       cs_sim_backend(sim), cs_sim_device(sim), size, size, info.n_rocks, integrator, info.substeps,
+                       cs_sim_backend(sim), cs_sim_device(sim), size, size, info.n_rocks, cm->choices[models[mi]],
+                       integrator, info.substeps,
                        (long long)done, t - t0, sps, vsps, traffic / 1e9);
                 if (bs.peak_bandwidth > 0)
                     printf(",\"peak_bandwidth_gb_s\":%.1f,\"fraction_of_peak\":%.3f", bs.peak_bandwidth / 1e9,
@@ -250,7 +276,8 @@ int main(int argc, char **argv)
                 print_model(self->name, &m, (double)size * size, 1, bs.peak_bandwidth);
                 printf("}\n");
             } else {
-                printf("%-7s %4dx%-4d %5d %14.0f %22.0f\n", cs_sim_backend(sim), size, size, info.n_rocks, sps, vsps);
+                printf("%-7s %4dx%-4d %5d %-8s %14.0f %22.0f\n", cs_sim_backend(sim), size, size, info.n_rocks,
+                       cm->choices[models[mi]], sps, vsps);
             }
             fflush(stdout);
             cs_sim_destroy(sim);

@@ -22,9 +22,11 @@
  * its bounding box once; for each rock that may touch it and each of its rows, the vertices add
  * the rock's force in rock order, and the row chunk's reactions are summed with cs_tree_sum's tree
  * (shared memory, then warp shuffles) into the chunk's partial, and the chunk's bit set in the
- * rock's word for its chunk group. A vertex pass for surface contact (triangles around each
- * vertex) would go between the gather and the rock contacts, with its reactions summed per chunk
- * the same way.
+ * rock's word for its chunk group. Surface contact (contact_model surface) instead takes each
+ * candidate rock in turn: every vertex gathers its share from its 1-ring (cs_surface_gather, the
+ * ring kept in registers from rows r-1 .. r+1 of a four-row ring), then the reactions the row's
+ * vertices own go through the same tree. The tile's box then covers the row above and below and
+ * the columns beside it (a vertex's triangles reach that far).
  *
  * Rocks: a warp per rock sums its partials - only the chunks whose bits are set, in chunk order
  * within a group, then the groups in order, as cs_rock_force does - then the other rocks (tested
@@ -122,8 +124,9 @@ __device__ static inline int finite3(cs_vec3 v) { return isfinite(v.x) && isfini
 
 /* ---- shared memory of the cloth kernel (floats) ---- */
 
-#define SM_RING 0                                  /* [3 slots][6][RING_W] */
-#define SM_FROW (SM_RING + 3 * 6 * RING_W)         /* [SX, BX][3][FORCE_W]; also the tree's [6][TILE_W] */
+#define RING_SLOTS 4                               /* rows r-1 .. r+2 (surface contact reads r-1) */
+#define SM_RING 0                                  /* [RING_SLOTS][6][RING_W] */
+#define SM_FROW (SM_RING + RING_SLOTS * 6 * RING_W) /* [SX, BX][3][FORCE_W]; also the tree's [6][TILE_W] */
 #define SM_FPREV (SM_FROW + 2 * 3 * FORCE_W)       /* [row parity][D1, D2][3][FORCE_W] */
 #define SM_RED (SM_FPREV + 2 * 2 * 3 * FORCE_W)    /* [6][WARPS]: the tile's bounding box */
 #define SM_COUNT (SM_RED + 6 * WARPS)              /* [WARPS] ints: candidates per warp */
@@ -139,12 +142,12 @@ static size_t cloth_smem(int32_t rock_cap) { return sizeof(float) * (size_t)(SM_
 
 __device__ static inline cs_vec3 ring_x(const float *sm, int32_t r, int k)
 {
-    const int s = r % 3;
+    const int s = r % RING_SLOTS;
     return cs_v3(RING(sm, s, 0, k), RING(sm, s, 1, k), RING(sm, s, 2, k));
 }
 __device__ static inline cs_vec3 ring_v(const float *sm, int32_t r, int k)
 {
-    const int s = r % 3;
+    const int s = r % RING_SLOTS;
     return cs_v3(RING(sm, s, 3, k), RING(sm, s, 4, k), RING(sm, s, 5, k));
 }
 
@@ -175,7 +178,7 @@ __device__ static void put_row(const cs_phys *p, float *sm, int32_t r, int32_t c
         const int k = (int)threadIdx.x + h * TILE_W;
         const int32_t i = c0 - RING_OFF + k;
         if (k >= RING_W || i < 0 || i >= p->nx) continue;
-        for (int q = 0; q < 6; q++) RING(sm, r % 3, q, k) = f->q[h][q];
+        for (int q = 0; q < 6; q++) RING(sm, r % RING_SLOTS, q, k) = f->q[h][q];
     }
 }
 
@@ -273,15 +276,23 @@ __device__ static int cull_rocks(const cuda_scene *sc, const cuda_bufs &b, float
     static_assert(WARPS >= 6, "six warps reduce the box");
     const float big = 3.0e38f;
     float lo[3] = {big, big, big}, hi[3] = {-big, -big, -big};
-    if (i < p->nx)
-        for (int32_t r = j0; r < j1; r++) {
-            const size_t v = (size_t)r * (size_t)p->nx + (size_t)i;
+    /* Surface contact: a vertex's features reach one row and one column past it, so the box holds
+     * the rows above and below the tile and the columns beside the chunk too. */
+    const bool surface = p->contact_model == CS_CONTACT_SURFACE;
+    const int32_t r0 = surface && j0 > 0 ? j0 - 1 : j0, r1 = surface && j1 < p->ny ? j1 + 1 : j1;
+    for (int side = 0; side < (surface ? 2 : 1); side++) {
+        /* side 1: threads 0 and 1 take columns c0 - 1 and c0 + TILE_W */
+        const int32_t ic = side == 0 ? i : t == 0 ? i - 1 : t == 1 ? i - 1 + TILE_W : -1;
+        if (ic < 0 || ic >= p->nx) continue;
+        for (int32_t r = r0; r < r1; r++) {
+            const size_t v = (size_t)r * (size_t)p->nx + (size_t)ic;
             for (int c = 0; c < 3; c++) {
                 const float x = dload(&b.in[(size_t)c * (size_t)p->n + v]);
                 lo[c] = x < lo[c] ? x : lo[c];
                 hi[c] = x > hi[c] ? x : hi[c];
             }
         }
+    }
     /* The box over the block: each of six warps reduces one bound (min and max are exact, so the
      * order does not matter). The force rows are free until the row loop. */
     float *box = sm + SM_FROW;
@@ -405,6 +416,7 @@ __global__ void __launch_bounds__(TILE_W) k_cloth(const cuda_scene *__restrict__
     const int32_t j0 = (int32_t)blockIdx.y * sc->tile_rows;
     const int32_t j1 = j0 + sc->tile_rows < p->ny ? j0 + sc->tile_rows : p->ny;
     const bool live = i < nx;
+    const bool surface = ROCKS && p->contact_model == CS_CONTACT_SURFACE;
     const int kf = t + FORCE_OFF; /* this column in the force rows */
     /* Rows above row 0 have no springs: their forces read as zeros. */
     for (int k = t; k < 2 * 2 * 3 * FORCE_W; k += TILE_W) sm[SM_FPREV + k] = 0.0f;
@@ -432,11 +444,21 @@ __global__ void __launch_bounds__(TILE_W) k_cloth(const cuda_scene *__restrict__
         cs_vec3 F[CS_NTYPES];
         float len[CS_NTYPES], l0[CS_NTYPES];
         cs_vec3 xi = cs_v3(0.0f, 0.0f, 0.0f), vi = xi;
+        cs_ring g; /* surface contact: the vertex's 1-ring (cs_ring), from rows r-1 .. r+1 */
         if (r >= 0) {
             if (live) {
                 eval_owned(b, p, sm, i, r, c0, types, F, len, l0);
                 xi = ring_x(sm, r, t + RING_OFF);
                 vi = ring_v(sm, r, t + RING_OFF);
+                if (surface && own) {
+                    /* Read before the barrier below: the next row's load overwrites row r-1. */
+                    for (int q = 0; q < CS_RING; q++) {
+                        const int32_t ii = i + cs_ring_di(q), jj = r + cs_ring_dj(q);
+                        const bool in = ii >= 0 && ii < nx && jj >= 0 && jj < p->ny;
+                        g.x[q] = in ? ring_x(sm, jj, t + RING_OFF + cs_ring_di(q)) : xi;
+                    }
+                    g.faces = cs_ring_faces(b.L0, nx, p->ny, i, r);
+                }
             } else {
                 for (int q = 0; q < CS_NTYPES; q++) F[q] = cs_v3(0.0f, 0.0f, 0.0f);
             }
@@ -484,12 +506,42 @@ __global__ void __launch_bounds__(TILE_W) k_cloth(const cuda_scene *__restrict__
 #undef CUDA_BACK
             const cs_vec3 ro = f;
             const int32_t chunk = r * p->nseg + seg;
+            if (surface) {
+                /* Surface contact: rock by rock in index order (as the CPU backend adds them), each
+                 * vertex gathers its share from its ring (cs_surface_gather, with the force so far);
+                 * the reactions the row's vertices own go through the chunk tree. */
+                const float w = live ? (float)dload(&b.mask[(size_t)r * (size_t)nx + (size_t)i]) : 0.0f;
+                g.v = vi;
+                g.ro = p->friction == CS_FRICTION_RESULTANT ? ro : cs_v3(0.0f, 0.0f, 0.0f);
+                for (int c = 0; c < ncand; c++) {
+                    const int32_t rk = cand[c];
+                    cs_surface_out o;
+                    int owns = 0;
+                    if (live) {
+                        cs_surface_gather(&g, &b.rocks[rk], p, f, w, &o);
+                        if (o.touches) f = cs_add(f, o.share);
+                        owns = o.owns != 0;
+                    }
+                    if (!__syncthreads_or(owns)) continue; /* block-uniform */
+                    const cs_vec3 zero = cs_v3(0.0f, 0.0f, 0.0f), R = owns ? o.force : zero, T = owns ? o.torque : zero;
+                    const float q[6] = {R.x, R.y, R.z, T.x, T.y, T.z};
+                    float s6[6];
+                    tree_sum6(q, sm + SM_FROW, s6);
+                    if (t == 0) {
+                        float *out = b.partials + ((size_t)rk * (size_t)p->nchunks + (size_t)chunk) * 6;
+                        for (int k = 0; k < 6; k++) dstore(&out[k], s6[k]);
+                        atomicOr(&b.hits[(size_t)rk * (size_t)sc->ngroups + (size_t)(chunk / CS_CHUNK_GROUP)],
+                                 1ull << (chunk % CS_CHUNK_GROUP));
+                    }
+                }
+            }
+            const int ncand_vertex = surface ? 0 : ncand;
             /* Each vertex adds the candidates' forces in rock order and marks the ones it touches;
              * then, for each rock the row touched, the chunk's reactions go through the tree. */
             unsigned *touched = reinterpret_cast<unsigned *>(sm + SM_TOUCHED);
-            for (int c32 = 0; c32 < ncand; c32 += 32) {
+            for (int c32 = 0; c32 < ncand_vertex; c32 += 32) {
                 unsigned mine = 0;
-                for (int k = 0; k < 32 && c32 + k < ncand; k++) {
+                for (int k = 0; k < 32 && c32 + k < ncand_vertex; k++) {
                     cs_vec3 Fc, arm;
                     if (live && cs_vertex_rock_contact(xi, vi, ro, &b.rocks[cand[c32 + k]], p, &Fc, &arm)) {
                         f = cs_add(f, Fc);
@@ -498,8 +550,8 @@ __global__ void __launch_bounds__(TILE_W) k_cloth(const cuda_scene *__restrict__
                 }
                 if (mine) atomicOr(&touched[c32 / 32], mine);
             }
-            if (ncand) __syncthreads(); /* every vertex has marked what it touches */
-            for (int c32 = 0; c32 < ncand; c32 += 32)
+            if (ncand_vertex) __syncthreads(); /* every vertex has marked what it touches */
+            for (int c32 = 0; c32 < ncand_vertex; c32 += 32)
                 for (unsigned hits = touched[c32 / 32]; hits; hits &= hits - 1u) {
                     const int32_t rk = cand[c32 + __ffs((int)hits) - 1];
                     cs_vec3 Fc = cs_v3(0.0f, 0.0f, 0.0f), arm = Fc;
@@ -1427,7 +1479,7 @@ static const char *cuda_error(void *ctx) { return ((cuda_ctx *)ctx)->err; }
 
 static const cs_backend cuda_backend = {
     "cuda", cuda_available, cuda_create, cuda_destroy, cuda_upload, cuda_download, cuda_refresh, cuda_step,
-    cuda_device, cuda_error, cuda_stats, cuda_cost,
+    cuda_device, cuda_error, cuda_stats, cuda_cost, CS_CAP_SURFACE_CONTACT,
 };
 
 extern "C" const cs_backend *cs_backend_cuda(void) { return &cuda_backend; }

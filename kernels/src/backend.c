@@ -60,3 +60,13 @@ void cs_cost_add(cs_cost_model *c, const char *name, double read, double written
     c->fixed_per_substep += fixed * per_substep;
     c->launches_per_frame += per_frame;
 }
+
+int cs_backend_covers(const cs_backend *b, const cs_params *p, char *why, size_t why_len)
+{
+    if (p->contact_model == CS_CONTACT_SURFACE && !(b->caps & CS_CAP_SURFACE_CONTACT)) {
+        snprintf(why, why_len, "the %s backend does not have contact_model surface yet (use contact_model vertex, or "
+                 "the cpu backend)", b->name);
+        return 0;
+    }
+    return 1;
+}

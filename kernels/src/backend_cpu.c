@@ -33,6 +33,7 @@
 #define RING_W 4104
 #define RING_PAD 2
 #define RING_ROWS (3 * CS_NTYPES) /* x, y, z of each owned spring type */
+#define CS_MAX_SEG ((4096 + CS_CHUNK - 1) / CS_CHUNK) /* chunks in the widest row */
 
 typedef struct thread_buf {
     float ring[3][RING_ROWS * RING_W]; /* owned-spring forces of rows j, j-1, j-2 (slot j mod 3);
@@ -40,7 +41,16 @@ typedef struct thread_buf {
     float f[3][RING_W];               /* resultant on the vertices of the current row */
     float ro[3][RING_W];              /* non-contact resultant Ro (resultant friction) */
     float contrib[6][CS_CHUNK];       /* one rock's reaction from the touching vertices of a chunk */
+    float col[6][CS_CHUNK + 4];       /* surface contact: the rows j-1 .. j+1 of each column (min
+                                         x y z, max x y z; column_bounds) */
+    float rbox[6][CS_CHUNK];          /* and the box of the 3 x 3 vertices round each vertex */
+    float rows[9][CS_CHUNK + 4];      /* and rows j-1 .. j+1 themselves (near_ring) */
+    float rowbox[3][CS_MAX_SEG][6];   /* row_box: the last rows' boxes per chunk column */
+    int32_t rowbox_row[3][CS_MAX_SEG]; /* and which row each is (-1: none this pass) */
     uint8_t hit[CS_CHUNK];            /* vertices of a chunk near a rock */
+    float rk[4][CS_MAX_ROCKS];        /* the rocks' centres and reach (x, y, z, R + offset), this pass */
+    uint8_t cand[CS_CHUNK];           /* surface contact: the vertices of a chunk to gather for a rock */
+    uint8_t rhit[CS_MAX_ROCKS];       /* rocks that may reach a chunk */
     uint8_t idx[CS_CHUNK];            /* vertices of a chunk touching a rock */
     int64_t torn;
     int32_t last_row;
@@ -269,11 +279,26 @@ static void gather_row(const cs_phys *pp, int32_t v0, int32_t cnt, const float *
 /* Whether a sphere of radius r at c may touch a point of the box [lo, hi] (never a false no). */
 static int sphere_box(cs_vec3 c, float r, cs_vec3 lo, cs_vec3 hi)
 {
-    const float dx = c.x < lo.x ? lo.x - c.x : (c.x > hi.x ? c.x - hi.x : 0.0f);
-    const float dy = c.y < lo.y ? lo.y - c.y : (c.y > hi.y ? c.y - hi.y : 0.0f);
-    const float dz = c.z < lo.z ? lo.z - c.z : (c.z > hi.z ? c.z - hi.z : 0.0f);
+    const float ax = lo.x - c.x, bx = c.x - hi.x, ay = lo.y - c.y, by = c.y - hi.y, az = lo.z - c.z, bz = c.z - hi.z;
+    const float mx = ax > bx ? ax : bx, my = ay > by ? ay : by, mz = az > bz ? az : bz;
+    const float dx = mx > 0.0f ? mx : 0.0f, dy = my > 0.0f ? my : 0.0f, dz = mz > 0.0f ? mz : 0.0f;
     const float reach = r * 1.001f + 1e-6f;
     return dx * dx + dy * dy + dz * dz <= reach * reach;
+}
+
+/* hit[r] = sphere_box for each of the nr rocks in rk (SoA), vectorized. */
+static void rocks_near_box(int32_t nr, const float (*restrict rk)[CS_MAX_ROCKS], cs_vec3 lo, cs_vec3 hi,
+                           uint8_t *restrict hit)
+{
+    const float *cx = rk[0], *cy = rk[1], *cz = rk[2], *rr = rk[3];
+    for (int32_t r = 0; r < nr; r++) {
+        const float ax = lo.x - cx[r], bx = cx[r] - hi.x, ay = lo.y - cy[r], by = cy[r] - hi.y;
+        const float az = lo.z - cz[r], bz = cz[r] - hi.z;
+        const float mx = ax > bx ? ax : bx, my = ay > by ? ay : by, mz = az > bz ? az : bz;
+        const float dx = mx > 0.0f ? mx : 0.0f, dy = my > 0.0f ? my : 0.0f, dz = mz > 0.0f ? mz : 0.0f;
+        const float reach = rr[r] * 1.001f + 1e-6f;
+        hit[r] = dx * dx + dy * dy + dz * dz <= reach * reach;
+    }
 }
 
 /* Sums the written leaves (idx[0..n), distinct, each < CS_CHUNK) of contrib by exactly the tree
@@ -287,8 +312,8 @@ static void tree_sum_sparse(const float (*contrib)[CS_CHUNK], const uint8_t *idx
         for (int q = 0; q < 6; q++) out[q] = 0.0f;
         return;
     }
-    if ((1 << b) == CS_CHUNK) {
-        for (int q = 0; q < 6; q++) out[q] = contrib[q][idx[0]];
+    if (n == 1) { /* the leaf and +0 for every empty subtree on the way up: x + 0 (-0 becomes +0) */
+        for (int q = 0; q < 6; q++) out[q] = contrib[q][idx[0]] + 0.0f;
         return;
     }
     uint8_t part[CS_CHUNK];
@@ -313,56 +338,319 @@ static void near_sphere(int32_t cnt, const float *restrict X, const float *restr
     }
 }
 
+/* The 1-ring of vertex (i, j) (physics.h, cs_ring): slots off the grid repeat the vertex; its own
+ * velocity, and its non-contact resultant from tb->ro (resultant friction; zeros otherwise). */
+static void load_ring(const cs_phys *p, const cs_state *s, const thread_buf *tb, int32_t i, int32_t j, cs_ring *g)
+{
+    const int32_t nx = p->nx, ny = p->ny;
+    const int32_t v = j * nx + i;
+    const float *X = s->x, *Y = s->y, *Z = s->z, *VX = s->vx, *VY = s->vy, *VZ = s->vz;
+    for (int k = 0; k < CS_RING; k++) {
+        const int32_t ii = i + cs_ring_di(k), jj = j + cs_ring_dj(k);
+        const int32_t o = (ii >= 0 && ii < nx && jj >= 0 && jj < ny) ? jj * nx + ii : v;
+        g->x[k] = LOADX(o);
+    }
+    g->v = LOADV(v);
+    g->ro = p->friction == CS_FRICTION_RESULTANT ? cs_v3(tb->ro[0][i], tb->ro[1][i], tb->ro[2][i])
+                                                 : cs_v3(0.0f, 0.0f, 0.0f);
+    g->faces = cs_ring_faces(s->L0, nx, ny, i, j);
+}
+
+/* Minima and maxima that vectorize. A min reduction does not, without -ffast-math; with GCC's
+ * vector extensions it runs eight lanes at a time (a last block overlapping the one before it:
+ * harmless for a min). */
+#if defined(__GNUC__)
+typedef float v8f __attribute__((vector_size(32)));
+typedef int32_t v8i __attribute__((vector_size(32)));
+static inline v8f v8_load(const float *a)
+{
+    v8f x;
+    memcpy(&x, a, sizeof x);
+    return x;
+}
+static inline v8f v8_min(v8f a, v8f b)
+{
+    const v8i lt = a < b;
+    return (v8f)(((v8i)a & lt) | ((v8i)b & ~lt));
+}
+static inline v8f v8_max(v8f a, v8f b)
+{
+    const v8i gt = a > b;
+    return (v8f)(((v8i)a & gt) | ((v8i)b & ~gt));
+}
+static inline float v8_hmin(v8f m)
+{
+    float r = m[0];
+    for (int l = 1; l < 8; l++) r = m[l] < r ? m[l] : r;
+    return r;
+}
+static inline float v8_hmax(v8f m)
+{
+    float r = m[0];
+    for (int l = 1; l < 8; l++) r = m[l] > r ? m[l] : r;
+    return r;
+}
+#endif
+
+/* The min (sign 1) or the max (sign -1) of a[0 .. n), n >= 1. */
+static float extreme(const float *a, int32_t n, float sign)
+{
+#if defined(__GNUC__)
+    if (n >= 8) {
+        v8f m = v8_load(a);
+        for (int32_t k = 8; k < n; k += 8) {
+            const v8f x = v8_load(a + (k + 8 <= n ? k : n - 8));
+            m = sign > 0.0f ? v8_min(m, x) : v8_max(m, x);
+        }
+        return sign > 0.0f ? v8_hmin(m) : v8_hmax(m);
+    }
+#endif
+    float m = a[0];
+    for (int32_t k = 1; k < n; k++) m = sign > 0.0f ? (a[k] < m ? a[k] : m) : (a[k] > m ? a[k] : m);
+    return m;
+}
+
+/* mn[1 + k], mx[1 + k] = the min and max of A over rows r0 .. r1-1 (1 to 3 of them) of column
+ * c0 + k, for k in 0 .. w-1; mn[0], mx[0] and mn[w + 1], mx[w + 1] repeat the ends. Vectorized. */
+static void column_bounds(const float *restrict A, int32_t nx, int32_t r0, int32_t r1, int32_t c0, int32_t w,
+                          float *restrict mn, float *restrict mx)
+{
+    const float *a0 = A + (size_t)r0 * (size_t)nx + c0;
+    const float *a1 = r1 - r0 > 1 ? a0 + nx : a0, *a2 = r1 - r0 > 2 ? a0 + 2 * (size_t)nx : a1;
+    for (int32_t k = 0; k < w; k++) {
+        const float m01 = a1[k] < a0[k] ? a1[k] : a0[k], M01 = a1[k] > a0[k] ? a1[k] : a0[k];
+        mn[1 + k] = a2[k] < m01 ? a2[k] : m01;
+        mx[1 + k] = a2[k] > M01 ? a2[k] : M01;
+    }
+    mn[0] = mn[1], mx[0] = mx[1];
+    mn[w + 1] = mn[w], mx[w + 1] = mx[w];
+}
+
+/* The box (min x y z, max x y z) of row r over columns c0 .. c0+w-1, for chunk column g: kept per
+ * thread for the three rows last asked (the force pass resets the tags), so each row's is found
+ * once where a thread's rows run in order. */
+static const float *row_box(const cs_state *s, thread_buf *tb, int32_t nx, int32_t r, int32_t g, int32_t c0,
+                            int32_t w)
+{
+    float *b = tb->rowbox[r % 3][g];
+    if (tb->rowbox_row[r % 3][g] != r) {
+        const float *A[3] = {s->x, s->y, s->z};
+        for (int q = 0; q < 3; q++) {
+            const float *a = A[q] + (size_t)r * (size_t)nx + c0;
+            b[q] = extreme(a, w, 1.0f);
+            b[3 + q] = extreme(a, w, -1.0f);
+        }
+        tb->rowbox_row[r % 3][g] = r;
+    }
+    return b;
+}
+
+/* box[l] = the min (max) of col over the three columns around column c0 + off + l, l < cnt. */
+static void ring_bounds(const float *restrict mn, const float *restrict mx, int32_t off, int32_t cnt,
+                        float *restrict bmn, float *restrict bmx)
+{
+    for (int32_t l = 0; l < cnt; l++) {
+        const float *m = mn + off + l, *M = mx + off + l;
+        const float a = m[0] < m[1] ? m[0] : m[1], b = M[0] > M[1] ? M[0] : M[1];
+        bmn[l] = a < m[2] ? a : m[2];
+        bmx[l] = b > M[2] ? b : M[2];
+    }
+}
+
+/* hit[l] = 1 where the sphere (c, reach) may touch box l (never a false no), vectorized. */
+static void near_boxes(int32_t cnt, const float (*restrict box)[CS_CHUNK], cs_vec3 c, float reach,
+                       uint8_t *restrict hit)
+{
+    const float r = reach * 1.001f + 1e-6f, r2 = r * r;
+    const float *lx = box[0], *ly = box[1], *lz = box[2], *hx = box[3], *hy = box[4], *hz = box[5];
+    for (int32_t l = 0; l < cnt; l++) {
+        const float ax = lx[l] - c.x, bx = c.x - hx[l], ay = ly[l] - c.y, by = c.y - hy[l];
+        const float az = lz[l] - c.z, bz = c.z - hz[l];
+        const float dx = ax > bx ? ax : bx, dy = ay > by ? ay : by, dz = az > bz ? az : bz;
+        const float ex = dx > 0.0f ? dx : 0.0f, ey = dy > 0.0f ? dy : 0.0f, ez = dz > 0.0f ? dz : 0.0f;
+        hit[l] = ex * ex + ey * ey + ez * ez <= r2;
+    }
+}
+
+/* Whether the sphere (c, reach) may touch the ring of vertex l: for u the direction from c to the
+ * vertex, every point p of a ring triangle has |p - c| >= (p - c) . u, and that is smallest at a
+ * vertex of the triangle; so a ring all of whose slots have (x - c) . u beyond reach cannot be
+ * touched (never a false no). R[3 r + d][1 + l]: coordinate d of row r (0: j-1, 1: j, 2: j+1) at
+ * column i0 + l (column i0 - 1 at index 0), ends repeated. */
+static int near_ring(const float (*R)[CS_CHUNK + 4], int32_t l, cs_vec3 c, float reach)
+{
+    const float ux = R[3][1 + l] - c.x, uy = R[4][1 + l] - c.y, uz = R[5][1 + l] - c.z;
+    const float len = sqrtf(ux * ux + uy * uy + uz * uz);
+    if (!(len > 1e-6f)) return 1;
+    const float lim = reach * 1.001f + 1e-6f;
+    if (len <= lim) return 1;
+    const float nx = ux / len, ny = uy / len, nz = uz / len;
+    /* the other slots as (row, column offset): (1, +1), (2, +1), (2, 0), (1, -1), (0, -1), (0, 0) */
+    const int row[6] = {1, 2, 2, 1, 0, 0}, off[6] = {1, 1, 0, -1, -1, 0};
+    for (int k = 0; k < 6; k++) {
+        const int q = 3 * row[k], i = 1 + l + off[k];
+        if ((R[q][i] - c.x) * nx + (R[q + 1][i] - c.y) * ny + (R[q + 2][i] - c.z) * nz <= lim) return 1;
+    }
+    return 0;
+}
+
+/* Surface contacts of chunk (row j, columns i0 .. i1) with every rock: shares onto tb->f, each
+ * rock's reactions from the features this chunk's vertices own into the chunk's partials. A vertex
+ * is gathered for a rock only when the rock can reach the bounding box of the 3 x 3 vertices
+ * around it (which holds every feature of its ring) and passes near_ring, and the chunk only when
+ * the rock can reach the box of all of those. Gathering more vertices than touch changes nothing:
+ * one out of reach adds nothing and writes no lane. Returns the lowest z of that box. */
+static float surface_contacts(const cs_phys *p, const cs_state *s, thread_buf *tb, int32_t j, int32_t i0, int32_t i1,
+                              int32_t chunk, float *partials)
+{
+    const int32_t nx = p->nx, ny = p->ny, nr = s->n_rocks, cnt = i1 - i0;
+    const int32_t c0 = i0 > 0 ? i0 - 1 : 0, c1 = i1 < nx ? i1 + 1 : nx, w = c1 - c0;
+    const int32_t r0 = j > 0 ? j - 1 : 0, r1 = j + 1 < ny ? j + 2 : ny;
+    const float *A[3] = {s->x, s->y, s->z};
+    /* the box of rows r0 .. r1-1 over columns c0 .. c1-1: its rows' boxes, each found once per
+     * pass by this thread (row_box) */
+    const int32_t g = chunk - j * p->nseg;
+    float e[6];
+    memcpy(e, row_box(s, tb, nx, r0, g, c0, w), sizeof e);
+    for (int32_t r = r0 + 1; r < r1; r++) {
+        const float *b = row_box(s, tb, nx, r, g, c0, w);
+        for (int q = 0; q < 3; q++) {
+            e[q] = b[q] < e[q] ? b[q] : e[q];
+            e[3 + q] = b[3 + q] > e[3 + q] ? b[3 + q] : e[3 + q];
+        }
+    }
+    const cs_vec3 lo = cs_v3(e[0], e[1], e[2]), hi = cs_v3(e[3], e[4], e[5]);
+    int boxes = 0;
+    rocks_near_box(nr, (const float(*)[CS_MAX_ROCKS])tb->rk, lo, hi, tb->rhit);
+    for (int32_t r = 0; r < nr; r++) {
+        const cs_rock_state *rock = &s->rocks[r];
+        float *out = partials + ((size_t)chunk * nr + r) * 6;
+        const float reach = rock->radius + p->contact_offset;
+        if (!tb->rhit[r]) {
+            for (int q = 0; q < 6; q++) out[q] = 0.0f;
+            continue;
+        }
+        if (!boxes) {
+            boxes = 1;
+            for (int q = 0; q < 3; q++) column_bounds(A[q], nx, r0, r1, c0, w, tb->col[q], tb->col[3 + q]);
+            /* column c0 + k is at col index 1 + k; vertex i0 + l's left neighbour column at
+             * 1 + (i0 - c0) + l - 1 (the repeated end at the border) */
+            for (int q = 0; q < 3; q++)
+                ring_bounds(tb->col[q], tb->col[3 + q], i0 - c0, cnt, tb->rbox[q], tb->rbox[3 + q]);
+            /* rows j-1, j, j+1 (the row itself past an edge) of columns i0-1 .. i1 */
+            const int32_t rows[3] = {j > 0 ? j - 1 : j, j, j + 1 < ny ? j + 1 : j};
+            for (int r3 = 0; r3 < 3; r3++)
+                for (int q = 0; q < 3; q++) {
+                    const float *src = A[q] + (size_t)rows[r3] * (size_t)nx;
+                    float *dst = tb->rows[3 * r3 + q];
+                    memcpy(dst + 1, src + i0, sizeof(float) * (size_t)cnt);
+                    dst[0] = src[i0 > 0 ? i0 - 1 : i0];
+                    dst[cnt + 1] = src[i1 < nx ? i1 : i1 - 1];
+                }
+        }
+        near_boxes(cnt, (const float(*)[CS_CHUNK])tb->rbox, rock->x, reach, tb->hit);
+        for (int32_t l = cnt; l < ((cnt + 7) & ~7); l++) tb->hit[l] = 0;
+        /* the vertices to gather */
+        int n_cand = 0;
+        for (int32_t l = 0; l < cnt; l++) {
+            if ((l & 7) == 0) { /* eight at a time past the misses */
+                uint64_t word;
+                memcpy(&word, tb->hit + l, sizeof word);
+                if (!word) {
+                    l += 7;
+                    continue;
+                }
+            }
+            if (tb->hit[l] && near_ring((const float(*)[CS_CHUNK + 4])tb->rows, l, rock->x, reach))
+                tb->cand[n_cand++] = (uint8_t)l;
+        }
+        /* Their triangles, each found once for the vertices of this row that share it (the gather
+         * would find each for each of them; cs_surface_triangle gives every one the same bits). */
+        int n_idx = 0;
+        for (int k = 0; k < n_cand; k++) {
+            const int32_t l = tb->cand[k];
+            cs_ring g;
+            cs_surface_out o;
+            load_ring(p, s, tb, i0 + l, j, &g);
+            const cs_vec3 Fsum = cs_v3(tb->f[0][i0 + l], tb->f[1][i0 + l], tb->f[2][i0 + l]);
+            cs_surface_gather(&g, rock, p, Fsum, s->w[j * nx + i0 + l], &o);
+            if (o.touches) {
+                tb->f[0][i0 + l] += o.share.x;
+                tb->f[1][i0 + l] += o.share.y;
+                tb->f[2][i0 + l] += o.share.z;
+            }
+            if (o.owns) {
+                tb->contrib[0][l] = o.force.x;
+                tb->contrib[1][l] = o.force.y;
+                tb->contrib[2][l] = o.force.z;
+                tb->contrib[3][l] = o.torque.x;
+                tb->contrib[4][l] = o.torque.y;
+                tb->contrib[5][l] = o.torque.z;
+                tb->idx[n_idx++] = (uint8_t)l;
+            }
+        }
+        tree_sum_sparse((const float(*)[CS_CHUNK])tb->contrib, tb->idx, n_idx, 0, out);
+    }
+    return lo.z;
+}
+
 /* Contacts of chunk (row j, columns i0 .. i1) with rocks and the ground, added onto tb->f in
  * rock order then the ground; each rock's reaction summed with the chunk tree into the chunk's
- * partials (zeros for a rock that cannot touch the chunk: what the tree of +0 gives). */
+ * partials (zeros for a rock that cannot touch the chunk: what the tree of +0 gives). With
+ * resultant friction, tb->ro keeps each vertex's non-contact resultant for its contacts to read. */
 static void chunk_contacts(const cs_phys *p, const cs_state *s, thread_buf *tb, int32_t j, int32_t i0, int32_t i1,
                            int32_t chunk, float *partials)
 {
     const float *X = s->x, *Y = s->y, *Z = s->z, *VX = s->vx, *VY = s->vy, *VZ = s->vz;
     const int32_t nr = s->n_rocks, base = j * p->nx, cnt = i1 - i0;
-    cs_vec3 lo = LOADX(base + i0), hi = lo;
-    for (int32_t i = i0 + 1; i < i1; i++) {
-        const cs_vec3 x = LOADX(base + i);
-        lo = cs_v3(x.x < lo.x ? x.x : lo.x, x.y < lo.y ? x.y : lo.y, x.z < lo.z ? x.z : lo.z);
-        hi = cs_v3(x.x > hi.x ? x.x : hi.x, x.y > hi.y ? x.y : hi.y, x.z > hi.z ? x.z : hi.z);
-    }
     const int need_ro = p->friction == CS_FRICTION_RESULTANT;
-    const int ground = p->ground && lo.z < p->ground_z + p->contact_offset;
-    if (need_ro && (nr || ground)) {
-        for (int q = 0; q < 3; q++) memcpy(&tb->ro[q][i0], &tb->f[q][i0], sizeof(float) * (size_t)cnt);
-    }
 #define RO_OF(i) (need_ro ? cs_v3(tb->ro[0][i], tb->ro[1][i], tb->ro[2][i]) : cs_v3(0.0f, 0.0f, 0.0f))
-    for (int32_t r = 0; r < nr; r++) {
-        const cs_rock_state *rock = &s->rocks[r];
-        float *out = partials + ((size_t)chunk * nr + r) * 6;
-        const float reach = rock->radius + p->contact_offset;
-        if (!sphere_box(rock->x, reach, lo, hi)) {
-            for (int q = 0; q < 6; q++) out[q] = 0.0f;
-            continue;
-        }
-        near_sphere(cnt, X + base + i0, Y + base + i0, Z + base + i0, rock->x, reach * reach * 1.001f + 1e-12f,
-                    tb->hit);
-        int n_idx = 0;
-        for (int32_t l = 0; l < cnt; l++) {
-            if (!tb->hit[l]) continue;
-            const int32_t i = i0 + l;
-            cs_vec3 F, arm;
-            if (cs_vertex_rock_contact(LOADX(base + i), LOADV(base + i), RO_OF(i), rock, p, &F, &arm)) {
-                tb->f[0][i] += F.x;
-                tb->f[1][i] += F.y;
-                tb->f[2][i] += F.z;
-                const cs_vec3 R = cs_neg(F), T = cs_cross(arm, R);
-                tb->contrib[0][l] = R.x;
-                tb->contrib[1][l] = R.y;
-                tb->contrib[2][l] = R.z;
-                tb->contrib[3][l] = T.x;
-                tb->contrib[4][l] = T.y;
-                tb->contrib[5][l] = T.z;
-                tb->idx[n_idx++] = (uint8_t)l;
+    int ground;
+    if (p->contact_model == CS_CONTACT_SURFACE && nr) {
+        /* the ground test from the lowest z of the rows around (no lower than this row's) */
+        if (need_ro)
+            for (int q = 0; q < 3; q++) memcpy(&tb->ro[q][i0], &tb->f[q][i0], sizeof(float) * (size_t)cnt);
+        const float zlo = surface_contacts(p, s, tb, j, i0, i1, chunk, partials);
+        ground = p->ground && zlo < p->ground_z + p->contact_offset;
+    } else {
+        const cs_vec3 lo = cs_v3(extreme(X + base + i0, cnt, 1.0f), extreme(Y + base + i0, cnt, 1.0f),
+                                 extreme(Z + base + i0, cnt, 1.0f));
+        const cs_vec3 hi = cs_v3(extreme(X + base + i0, cnt, -1.0f), extreme(Y + base + i0, cnt, -1.0f),
+                                 extreme(Z + base + i0, cnt, -1.0f));
+        ground = p->ground && lo.z < p->ground_z + p->contact_offset;
+        if (need_ro && (nr || ground))
+            for (int q = 0; q < 3; q++) memcpy(&tb->ro[q][i0], &tb->f[q][i0], sizeof(float) * (size_t)cnt);
+        for (int32_t r = 0; r < nr; r++) {
+            const cs_rock_state *rock = &s->rocks[r];
+            float *out = partials + ((size_t)chunk * nr + r) * 6;
+            const float reach = rock->radius + p->contact_offset;
+            if (!sphere_box(rock->x, reach, lo, hi)) {
+                for (int q = 0; q < 6; q++) out[q] = 0.0f;
+                continue;
             }
+            near_sphere(cnt, X + base + i0, Y + base + i0, Z + base + i0, rock->x, reach * reach * 1.001f + 1e-12f,
+                        tb->hit);
+            int n_idx = 0;
+            for (int32_t l = 0; l < cnt; l++) {
+                if (!tb->hit[l]) continue;
+                const int32_t i = i0 + l;
+                cs_vec3 F, arm;
+                if (cs_vertex_rock_contact(LOADX(base + i), LOADV(base + i), RO_OF(i), rock, p, &F, &arm)) {
+                    tb->f[0][i] += F.x;
+                    tb->f[1][i] += F.y;
+                    tb->f[2][i] += F.z;
+                    const cs_vec3 R = cs_neg(F), T = cs_cross(arm, R);
+                    tb->contrib[0][l] = R.x;
+                    tb->contrib[1][l] = R.y;
+                    tb->contrib[2][l] = R.z;
+                    tb->contrib[3][l] = T.x;
+                    tb->contrib[4][l] = T.y;
+                    tb->contrib[5][l] = T.z;
+                    tb->idx[n_idx++] = (uint8_t)l;
+                }
+            }
+            tree_sum_sparse((const float(*)[CS_CHUNK])tb->contrib, tb->idx, n_idx, 0, out);
         }
-        tree_sum_sparse((const float(*)[CS_CHUNK])tb->contrib, tb->idx, n_idx, 0, out);
     }
     if (ground) {
         for (int32_t i = i0; i < i1; i++) {
@@ -390,9 +678,9 @@ static void accel(int32_t cnt, float inv_mass, const float *restrict W, const fl
     }
 }
 
-/* The force pass for row j: a for its vertices, strain updates of its springs, its chunks'
- * partials. Rows j-2 and j-1 must already be in the ring (this thread's previous rows). */
-static void force_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, float *partials, int strain)
+/* The non-contact forces of row j (springs, air, gravity) into tb->f, and strain updates of its
+ * springs. Rows j-2 and j-1 must already be in the ring (this thread's previous rows). */
+static void spring_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, int strain)
 {
     const int32_t nx = p->nx, v0 = j * nx;
     if (tb->last_row != j - 1) {
@@ -404,6 +692,12 @@ static void force_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, 
     tb->torn += owned_row(p, s, j, tb->ring[j % 3], strain);
     gather_row(p, v0, nx, tb->ring[j % 3], tb->ring[(j + 2) % 3], tb->ring[(j + 1) % 3], s->vx, s->vy, s->vz,
                tb->f[0], tb->f[1], tb->f[2]);
+}
+
+/* Row j's contacts onto tb->f, its chunks' partials, then a for its vertices. */
+static void contact_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, float *partials)
+{
+    const int32_t nx = p->nx, v0 = j * nx;
     for (int32_t g = 0; g < p->nseg; g++) {
         const int32_t i0 = g * CS_CHUNK, i1 = i0 + CS_CHUNK < nx ? i0 + CS_CHUNK : nx;
         chunk_contacts(p, s, tb, j, i0, i1, j * p->nseg + g, partials);
@@ -525,8 +819,17 @@ static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain)
 {
     thread_buf *tb = c->tb[thread_id()];
     tb->last_row = -3;
+    for (int k = 0; k < 3; k++)
+        for (int g = 0; g < CS_MAX_SEG; g++) tb->rowbox_row[k][g] = -1;
+    for (int32_t r = 0; r < s->n_rocks; r++) {
+        tb->rk[0][r] = s->rocks[r].x.x, tb->rk[1][r] = s->rocks[r].x.y, tb->rk[2][r] = s->rocks[r].x.z;
+        tb->rk[3][r] = s->rocks[r].radius + p->contact_offset;
+    }
 #pragma omp for schedule(dynamic, ROW_BLOCK)
-    for (int32_t j = 0; j < p->ny; j++) force_row(p, s, tb, j, c->partials, strain);
+    for (int32_t j = 0; j < p->ny; j++) {
+        spring_row(p, s, tb, j, strain);
+        contact_row(p, s, tb, j, c->partials);
+    }
 }
 
 static int64_t take_torn(cpu_ctx *c, int threads)
@@ -678,5 +981,5 @@ static void cpu_stats(void *ctx, const cs_model *m, cs_backend_stats *out)
 
 const cs_backend cs_backend_cpu = {
     "cpu", cpu_available, cpu_create, cpu_destroy, cpu_upload, cpu_download, cpu_refresh, cpu_step, cpu_device,
-    cpu_error, cpu_stats, cpu_cost,
+    cpu_error, cpu_stats, cpu_cost, CS_CAP_SURFACE_CONTACT,
 };

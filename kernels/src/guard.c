@@ -3,9 +3,25 @@
  *
  * An explicit integrator of a mass m held by stiffness K and damping C is stable for
  * dt < (sqrt(C^2 + 2 m K) - C) / K, evaluated here as 2 m / (sqrt(C^2 + 2 m K) + C) (the same
- * value without the cancellation, and finite when K = 0). For a vertex, K and C add up its
- * springs (as the grid has them; tearing only makes the true limit larger) and one contact; for
- * a dynamic rock, M with k_rock and c_rock. dt_max = stability_safety x the smallest limit. */
+ * value without the cancellation, and finite when K = 0). This is the Gershgorin bound on the
+ * highest frequency when every stiffness in K couples the vertex to another moving mass (a spring
+ * puts k on the diagonal and k off it: 2 K in all, hence the 2 m K).
+ *
+ * For a vertex, K and C add up its springs (as the grid has them; tearing only makes the true
+ * limit larger) and what a rock's contacts can add at it:
+ *   - vertex contact: one contact, k_contact and c_contact + c_tangent (the viscous friction is a
+ *     damper too while it is below the Coulomb cap);
+ *   - surface contact: a contact of weight w at the vertex adds k_contact w to its Gershgorin row
+ *     (k w w_j to the diagonal and the other vertices, summing to k w, and next to nothing to the
+ *     far heavier rock's); one rock's contacts can weigh up to 6 at a vertex (six faces around a
+ *     vertex at the bottom of a shallow dimple each claim it with a weight near 1), so K gets
+ *     6 / 2 = 3 k_contact in the form above, and C 3 (c_contact + c_tangent); the ground's own
+ *     contact adds half of one more (cs_guard_contact_weight).
+ * For a dynamic rock, M with one rock contact (k_rock M and c_rock M: rock contacts scale with the
+ * reduced mass, see physics.h, so this limit is the same for every rock), and in the surface
+ * model its cloth contacts too:
+ * at most as many as the cloth's rest triangles that fit on its surface, 4 pi (R + offset)^2 /
+ * (hx hy / 2), plus one, each k_contact. dt_max = stability_safety x the smallest limit. */
 #include <math.h>
 
 #include "sim_internal.h"
@@ -42,6 +58,16 @@ void cs_guard_scene(cs_combos *out, const cs_scene *scene)
     }
 }
 
+double cs_guard_contact_weight(const cs_params *p)
+{
+    /* Against a rock (or the ground) a contact is a spring to a far heavier body: k on the
+     * diagonal only, which the form above counts twice. Vertex model: a rock's contact and the
+     * ground's, k each, 2 k in all: 1 k_contact in K. Surface model: a rock's contacts up to 6 k,
+     * the ground's k: 3.5 k_contact (3 without the ground). */
+    if (p->contact_model == CS_CONTACT_SURFACE) return p->ground ? 3.5 : 3.0;
+    return 1.0;
+}
+
 static double limit(double m, double K, double C)
 {
     const double den = sqrt(C * C + 2 * m * K) + C;
@@ -58,17 +84,27 @@ cs_status cs_guard_eval(cs_sim *sim, const cs_combos *combos, const cs_scene *sc
                         double *dt_max)
 {
     const double m = vertex_mass(scene);
+    const double mult = cs_guard_contact_weight(p);
     double lim = INFINITY;
     for (int c = 0; c < combos->n; c++) {
         const double ns = combos->c[c][0], nsh = combos->c[c][1], nb = combos->c[c][2];
-        const double K = ns * p->k_structural + nsh * p->k_shear + nb * p->k_bend + p->k_contact;
-        const double C = (ns + nsh + nb) * p->c_spring + p->c_contact + m * p->drag / 2;
+        const double K = ns * p->k_structural + nsh * p->k_shear + nb * p->k_bend + mult * p->k_contact;
+        const double C = (ns + nsh + nb) * p->c_spring + mult * (p->c_contact + p->c_tangent) + m * p->drag / 2;
         const double l = limit(m, K, C);
         if (l < lim) lim = l;
     }
+    const double face = (double)scene->size_x / (scene->nx - 1) * scene->size_y / (scene->ny - 1) / 2;
     for (int32_t r = 0; r < n_rocks; r++) {
         if (rocks[r].kinematic) continue;
-        const double l = limit(rocks[r].mass, p->k_rock, p->c_rock);
+        const double M = rocks[r].mass;
+        double K = p->k_rock * M, C = p->c_rock * M;
+        if (p->contact_model == CS_CONTACT_SURFACE) {
+            const double reach = (double)rocks[r].radius + p->contact_offset;
+            const double contacts = floor(4 * 3.14159265358979323846 * reach * reach / face) + 3; /* cs_surface_max_touch */
+            K += contacts * p->k_contact;
+            C += contacts * (p->c_contact + p->c_tangent);
+        }
+        const double l = limit(M, K, C);
         if (l < lim) lim = l;
     }
     const double dtm = p->stability_safety * lim;
@@ -124,7 +160,10 @@ void cs_model_derive(cs_model *m, const cs_scene *scene, const cs_params *p, int
     f->c_tangent = p->c_tangent;
     f->mu = p->mu;
     f->contact_offset = p->contact_offset;
+    f->face_area = (float)((double)scene->size_x / (scene->nx - 1) * scene->size_y / (scene->ny - 1) / 2);
     f->friction = p->friction_model;
+    f->contact_model = p->contact_model;
+    f->max_sep = p->max_depenetration_speed > 0.0f ? p->max_depenetration_speed : 3.0e38f;
     f->k_rock = p->k_rock;
     f->c_rock = p->c_rock;
     f->mu_rock = p->mu_rock;

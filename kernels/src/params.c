@@ -10,11 +10,13 @@ static const char *const cs_ch_ORIENTATION[] = {CS_CHOICES_ORIENTATION, NULL};
 static const char *const cs_ch_PINS[] = {CS_CHOICES_PINS, NULL};
 static const char *const cs_ch_FRICTION[] = {CS_CHOICES_FRICTION, NULL};
 static const char *const cs_ch_INTEGRATOR[] = {CS_CHOICES_INTEGRATOR, NULL};
+static const char *const cs_ch_CONTACT[] = {CS_CHOICES_CONTACT, NULL};
 #define CS_CH_NONE NULL
 #define CS_CH_ORIENTATION cs_ch_ORIENTATION
 #define CS_CH_PINS cs_ch_PINS
 #define CS_CH_FRICTION cs_ch_FRICTION
 #define CS_CH_INTEGRATOR cs_ch_INTEGRATOR
+#define CS_CH_CONTACT cs_ch_CONTACT
 
 #define CS_VEC3_UNPACK(a, b, c) {a, b, c}
 #define CS_DEF_INT(d) {(double)(d), 0, 0}

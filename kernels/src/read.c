@@ -119,9 +119,69 @@ cs_status cs_energy_get(cs_sim *sim, cs_energy *out)
     out->kinetic = ke;
     out->spring = pe;
     out->gravity = ge;
-    out->total = ke + pe + ge;
+    out->contact = cs_contact_energy(&sim->model.phys, s);
+    out->total = ke + pe + ge + out->contact;
     cs_ok(sim);
     return CS_OK;
+}
+
+double cs_contact_energy(const cs_phys *p, const cs_state *s)
+{
+    const int32_t nx = p->nx, ny = p->ny;
+    double e = 0;
+    /* Surface contact: a vertex's ring lies within its longest render edge of it, so only
+     * vertices that near a rock are gathered. */
+    double edge = 0;
+    if (p->contact_model == CS_CONTACT_SURFACE && s->n_rocks > 0)
+        for (int32_t v = 0; v < p->n; v++)
+            for (int t = 0; t < CS_NTYPES; t++) {
+                if (t != CS_SX && t != CS_SY && t != CS_D1) continue;
+                const int32_t o = cs_spring_far_end(nx, ny, t, v);
+                if (o < 0) continue;
+                const double l = cs_len(cs_sub(cs_v3(s->x[o], s->y[o], s->z[o]), cs_v3(s->x[v], s->y[v], s->z[v])));
+                if (l > edge) edge = l;
+            }
+    for (int32_t j = 0; j < ny; j++) {
+        for (int32_t i = 0; i < nx; i++) {
+            const int32_t v = j * nx + i;
+            const cs_vec3 xi = cs_v3(s->x[v], s->y[v], s->z[v]);
+            for (int32_t r = 0; r < s->n_rocks; r++) {
+                const cs_rock_state *k = &s->rocks[r];
+                if (p->contact_model == CS_CONTACT_SURFACE) {
+                    const double near = k->radius + p->contact_offset + edge + 1e-4;
+                    if (cs_len(cs_sub(xi, k->x)) > near) continue;
+                    cs_ring g;
+                    for (int q = 0; q < CS_RING; q++) {
+                        int32_t ii = i + cs_ring_di(q), jj = j + cs_ring_dj(q);
+                        if (ii < 0 || ii >= nx || jj < 0 || jj >= ny) ii = i, jj = j;
+                        const int32_t o = jj * nx + ii;
+                        g.x[q] = cs_v3(s->x[o], s->y[o], s->z[o]);
+                    }
+                    g.v = g.ro = cs_v3(0.0f, 0.0f, 0.0f);
+                    g.faces = cs_ring_faces(s->L0, nx, ny, i, j);
+                    cs_surface_out o;
+                    cs_surface_gather(&g, k, p, cs_v3(0.0f, 0.0f, 0.0f), 0.0f, &o);
+                    e += o.energy;
+                } else {
+                    const double d = k->radius + p->contact_offset - cs_len(cs_sub(xi, k->x));
+                    if (d > 0) e += 0.5 * p->k_contact * d * d;
+                }
+            }
+            const double dg = p->ground_z + p->contact_offset - xi.z;
+            if (p->ground && dg > 0) e += 0.5 * p->k_contact * dg * dg;
+        }
+    }
+    for (int32_t a = 0; a < s->n_rocks; a++) {
+        const cs_rock_state *ra = &s->rocks[a];
+        for (int32_t b = a + 1; b < s->n_rocks; b++) {
+            const cs_rock_state *rb = &s->rocks[b];
+            const double d = ra->radius + rb->radius - cs_len(cs_sub(rb->x, ra->x));
+            if (d > 0) e += 0.5 * p->k_rock * cs_reduced_mass(ra->inv_mass, rb->inv_mass) * d * d;
+        }
+        const double dg = p->ground_z + ra->radius - ra->x.z;
+        if (p->ground && dg > 0) e += 0.5 * p->k_rock * cs_reduced_mass(ra->inv_mass, 0.0f) * dg * dg;
+    }
+    return e;
 }
 
 /* ---- FNV-1a 64 ---- */

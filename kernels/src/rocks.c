@@ -12,7 +12,59 @@ void cs_rock_def_default(cs_rock_def *def)
     memset(def, 0, sizeof *def);
     def->orientation[3] = 1.0f;
     def->radius = 0.1f;
-    def->density = 300.0f;
+    def->density = 2500.0f;
+}
+
+/* Where a rock's surface meets the cloth's at a placement: the distance from its centre to the
+ * nearest point of the cloth's surface (its intact triangles; its vertices in the vertex model),
+ * and the vertex nearest to that point. */
+static float cloth_distance(const cs_sim *sim, cs_vec3 c, int32_t *near)
+{
+    const cs_state *s = &sim->state;
+    const int32_t nx = sim->model.phys.nx, ny = sim->model.phys.ny;
+    float best = 3.0e38f;
+    *near = -1;
+    if (sim->model.params.contact_model == CS_CONTACT_VERTEX) {
+        for (int32_t v = 0; v < s->n; v++) {
+            const float d = cs_len(cs_sub(cs_v3(s->x[v], s->y[v], s->z[v]), c));
+            if (d < best) best = d, *near = v;
+        }
+        return best;
+    }
+    int32_t t[3];
+    for (int64_t k = 0; cs_next_triangle(s->L0, nx, ny, &k, t);) {
+        cs_vec3 x[3];
+        for (int q = 0; q < 3; q++) x[q] = cs_v3(s->x[t[q]], s->y[t[q]], s->z[t[q]]);
+        float w[3];
+        cs_closest_on_triangle(c, x[0], x[1], x[2], w);
+        const cs_vec3 p = cs_add(cs_add(cs_scale(x[0], w[0]), cs_scale(x[1], w[1])), cs_scale(x[2], w[2]));
+        const float d = cs_len(cs_sub(p, c));
+        if (d < best) best = d, *near = t[w[0] >= w[1] ? (w[0] >= w[2] ? 0 : 2) : (w[1] >= w[2] ? 1 : 2)];
+    }
+    return best;
+}
+
+/* Refuses a placement of rock r (index skip in the list, -1 for a new one) that overlaps another
+ * rock or holds part of the cloth's surface inside it, by more than placement_overlap. */
+static cs_status check_overlap(cs_sim *sim, const cs_rock_state *r, int32_t skip, const char *param)
+{
+    const cs_state *s = &sim->state;
+    for (int32_t k = 0; k < s->n_rocks; k++) {
+        if (k == skip) continue;
+        const cs_rock_state *o = &s->rocks[k];
+        const float gap = cs_len(cs_sub(o->x, r->x)) - (o->radius + r->radius);
+        if (gap < -sim->model.params.placement_overlap)
+            return cs_fail(sim, CS_E_OVERLAP, param, "the rock would overlap rock %u (by %.3g m): place it clear of it",
+                           (unsigned)o->id, (double)-gap);
+    }
+    int32_t near;
+    const float d = cloth_distance(sim, r->x, &near);
+    if (d < r->radius - sim->model.params.placement_overlap)
+        return cs_fail(sim, CS_E_OVERLAP, param,
+                       "the rock would hold the cloth %.3g m inside it, near vertex %d (the cloth may come at most "
+                       "contact_offset, %.3g m, into its contact layer): place it clear of the cloth",
+                       (double)(r->radius - d), (int)near, (double)sim->model.params.contact_offset);
+    return CS_OK;
 }
 
 static cs_status check_vec(cs_sim *sim, const char *name, const float *v, int n, float most)
@@ -125,6 +177,10 @@ cs_status cs_rock_add(cs_sim *sim, const cs_rock_def *def, uint32_t *id)
     memset(r, 0, sizeof *r);
     def_to_state(def, r);
     r->id = sim->state.next_rock_id;
+    if ((st = check_overlap(sim, r, -1, "position")) != CS_OK) {
+        free(rocks);
+        return st;
+    }
     if ((st = cs_sim_reguard(sim, rocks, sim->state.n_rocks + 1, "radius")) != CS_OK) {
         free(rocks);
         return st;
@@ -157,7 +213,14 @@ cs_status cs_rock_set(cs_sim *sim, uint32_t id, const cs_rock_def *def)
     int32_t cap;
     cs_rock_state *rocks = copy_rocks(sim, &cap);
     if (!rocks) return cs_fail(sim, CS_E_NOMEM, NULL, "out of memory");
+    const cs_rock_state was = rocks[r];
     def_to_state(def, &rocks[r]);
+    rocks[r].id = was.id;
+    const int moved = memcmp(&was.x, &rocks[r].x, sizeof was.x) != 0 || was.radius != rocks[r].radius;
+    if (moved && (st = check_overlap(sim, &rocks[r], r, was.radius != rocks[r].radius ? "radius" : "position")) != CS_OK) {
+        free(rocks);
+        return st;
+    }
     if ((st = cs_sim_reguard(sim, rocks, sim->state.n_rocks, "radius")) != CS_OK) {
         free(rocks);
         return st;

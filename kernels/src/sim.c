@@ -163,6 +163,17 @@ cs_status cs_sim_create(const cs_scene *scene, const cs_params *params, const ch
         free(sim);
         return st;
     }
+    char why[120];
+    if (!cs_backend_covers(sim->backend, &p, why, sizeof why)) {
+        if (backend && strcmp(backend, "auto") != 0) {
+            snprintf(err, err_len, "%s", why);
+            free(sim);
+            return CS_E_BACKEND;
+        }
+        /* auto: the CPU backend has everything */
+        sim->backend = &cs_backend_cpu;
+        snprintf(sim->backend_note, sizeof sim->backend_note, "auto: %.120s; on the cpu backend", why);
+    }
     st = sim->backend->create(&sim->ctx, err, err_len);
     if (st != CS_OK) {
         free(sim);
@@ -256,6 +267,9 @@ cs_status cs_sim_set_params(cs_sim *sim, const cs_params *params)
     if (!sim || !params) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "params is NULL") : CS_E_INVALID;
     cs_status st = check_params(sim, params);
     if (st != CS_OK) return st;
+    char why[200];
+    if (!cs_backend_covers(sim->backend, params, why, sizeof why))
+        return cs_fail(sim, CS_E_RANGE, "contact_model", "%s", why);
     int32_t substeps;
     double dt_max;
     st = cs_guard_eval(sim, &sim->combos, &sim->model.scene, params, sim->state.rocks, sim->state.n_rocks,

@@ -79,11 +79,15 @@ void cs_guard_scene(cs_combos *out, const cs_scene *scene);
 cs_status cs_guard_eval(cs_sim *sim, const cs_combos *combos, const cs_scene *scene, const cs_params *p,
                         const cs_rock_state *rocks, int32_t n_rocks, const char *param, int32_t *substeps,
                         double *dt_max);
+/* How many contacts' stiffness and damping the guard counts at one vertex (see guard.c). */
+double cs_guard_contact_weight(const cs_params *p);
 /* Fills the model (phys, dt) from scene, params and effective substeps. */
 void cs_model_derive(cs_model *m, const cs_scene *scene, const cs_params *p, int32_t substeps, double dt_max);
 
 /* backend.c */
 cs_status cs_backend_pick(const char *name, const cs_backend **out, char *note, size_t note_len);
+/* Whether backend b implements everything parameters p ask for; else 0 and the reason in why. */
+int cs_backend_covers(const cs_backend *b, const cs_params *p, char *why, size_t why_len);
 
 /* sim.c */
 /* Records a backend failure with the backend's own detail. */
@@ -96,6 +100,8 @@ cs_status cs_sim_commit(cs_sim *sim);
 cs_status cs_sim_reguard(cs_sim *sim, const cs_rock_state *rocks, int32_t n_rocks, const char *param);
 
 /* read.c */
+/* Elastic energy of every penalty contact of the state (cs_energy.contact). */
+double cs_contact_energy(const cs_phys *p, const cs_state *s);
 /* Springs of the grid whose rest length says torn: their ids (type n + v, up to cap) and count. */
 int64_t cs_torn_list(int32_t nx, int32_t ny, const float *L0, uint32_t *ids, size_t cap);
 #define CS_FNV_OFFSET 0xcbf29ce484222325ull

@@ -136,6 +136,30 @@ static const table_row table_until_daemon_settings[] = {
     {"checkpoint_interval", CS_T_INT, CS_KIND_LIVE},
 };
 
+/* The table until the contact model's rows (contact_model, max_depenetration_speed,
+ * placement_overlap) came, with k_rock and c_rock still absolute (N/m, N s/m): snapshots and
+ * state files of the build that took the daemon's settings out. Frozen: never edited. */
+static const table_row table_until_surface_contact[] = {
+    {"nx", CS_T_INT, CS_KIND_SCENE}, {"ny", CS_T_INT, CS_KIND_SCENE}, {"size_x", CS_T_FLOAT, CS_KIND_SCENE},
+    {"size_y", CS_T_FLOAT, CS_KIND_SCENE}, {"height", CS_T_FLOAT, CS_KIND_SCENE},
+    {"orientation", CS_T_ENUM, CS_KIND_SCENE}, {"pins", CS_T_ENUM, CS_KIND_SCENE},
+    {"areal_density", CS_T_FLOAT, CS_KIND_SCENE}, {"gravity", CS_T_VEC3, CS_KIND_LIVE},
+    {"wind", CS_T_VEC3, CS_KIND_LIVE}, {"k_structural", CS_T_FLOAT, CS_KIND_LIVE},
+    {"k_shear", CS_T_FLOAT, CS_KIND_LIVE}, {"k_bend", CS_T_FLOAT, CS_KIND_LIVE},
+    {"c_spring", CS_T_FLOAT, CS_KIND_LIVE}, {"drag", CS_T_FLOAT, CS_KIND_LIVE},
+    {"plastic_yield", CS_T_FLOAT, CS_KIND_LIVE}, {"tear_strain", CS_T_FLOAT, CS_KIND_LIVE},
+    {"plastic_rate", CS_T_FLOAT, CS_KIND_LIVE}, {"k_contact", CS_T_FLOAT, CS_KIND_LIVE},
+    {"c_contact", CS_T_FLOAT, CS_KIND_LIVE}, {"c_tangent", CS_T_FLOAT, CS_KIND_LIVE},
+    {"mu", CS_T_FLOAT, CS_KIND_LIVE}, {"contact_offset", CS_T_FLOAT, CS_KIND_LIVE},
+    {"friction_model", CS_T_ENUM, CS_KIND_LIVE}, {"k_rock", CS_T_FLOAT, CS_KIND_LIVE},
+    {"c_rock", CS_T_FLOAT, CS_KIND_LIVE}, {"mu_rock", CS_T_FLOAT, CS_KIND_LIVE},
+    {"ground", CS_T_BOOL, CS_KIND_LIVE}, {"ground_z", CS_T_FLOAT, CS_KIND_LIVE},
+    {"frame_rate", CS_T_FLOAT, CS_KIND_LIVE}, {"substeps", CS_T_INT, CS_KIND_LIVE},
+    {"max_substeps", CS_T_INT, CS_KIND_LIVE}, {"auto_substeps", CS_T_BOOL, CS_KIND_LIVE},
+    {"stability_safety", CS_T_FLOAT, CS_KIND_LIVE}, {"integrator", CS_T_ENUM, CS_KIND_LIVE},
+    {"grab_speed", CS_T_FLOAT, CS_KIND_LIVE},
+};
+
 /* The tables a snapshot may have been written with: [0] is the engine's table as it is. */
 static const struct {
     const table_row *rows;
@@ -143,6 +167,7 @@ static const struct {
 } past_tables[] = {
     {NULL, 0},
     {table_until_daemon_settings, sizeof table_until_daemon_settings / sizeof table_until_daemon_settings[0]},
+    {table_until_surface_contact, sizeof table_until_surface_contact / sizeof table_until_surface_contact[0]},
 };
 #define N_TABLES (sizeof past_tables / sizeof past_tables[0])
 
@@ -429,6 +454,17 @@ cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
     cs_params_default(&params);
     cs_status st = load_table(sim, &b, (size_t)table, &scene, &params);
     if (st != CS_OK) return st;
+    if (table != 0) {
+        /* Every past table predates the contact model: its state ran on contact per vertex with no
+         * separation cap, and its k_rock, c_rock were absolute (N/m, N s/m), which have no per-kg
+         * equivalent: it resumes on vertex contact, uncapped, with rock contact at the defaults. */
+        cs_params def;
+        cs_params_default(&def);
+        params.contact_model = CS_CONTACT_VERTEX;
+        params.max_depenetration_speed = 0.0f;
+        params.k_rock = def.k_rock;
+        params.c_rock = def.c_rock;
+    }
     st = cs_check_memory(sim, &scene);
     if (st != CS_OK) return st;
     /* Before allocating for the scene, make sure the buffer can hold its arrays at all. */

@@ -20,6 +20,7 @@ static const struct {
     {CS_E_VERSION, "version", "the snapshot was written by another format version"},
     {CS_E_BACKEND, "backend", "the backend is unavailable or failed"},
     {CS_E_DEVICE, "device", "the device failed and its state is lost"},
+    {CS_E_OVERLAP, "overlap", "a rock would overlap another rock or the cloth"},
 };
 
 static int find(cs_status st)

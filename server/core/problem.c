@@ -18,6 +18,7 @@ static const struct {
     {"not-found", "Not found"},
     {"method-not-allowed", "Method not allowed"},
     {"wrong-state", "Wrong state"},
+    {"overlap", "Overlap"},
     {"too-large", "Request body too large"},
     {"bad-snapshot", "Bad snapshot"},
     {"unavailable", "Service unavailable"},
@@ -70,6 +71,7 @@ int problem_from_engine(problem *pr, cs_status st, const char *error, const char
 {
     switch (st) {
     case CS_E_NOT_FOUND: return problem_set(pr, 404, "not-found", param, "%s", error);
+    case CS_E_OVERLAP: return problem_set(pr, 409, "overlap", param, "%s", error);
     case CS_E_UNSTABLE: return problem_set(pr, 422, "unstable", param, "%s", error);
     case CS_E_LIMIT: return problem_set(pr, 422, "limit", param, "%s", error);
     case CS_E_INVALID:

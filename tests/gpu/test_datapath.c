@@ -46,6 +46,8 @@ static cs_sim *make(const char *backend, int nx, int ny, int strain)
     p.plastic_yield = strain ? 0.5f : 0.0f;
     p.tear_strain = strain ? 2.0f : 0.0f;
     p.max_substeps = 100000;
+    p.contact_model = CS_CONTACT_VERTEX; /* the cost model counts the vertex model's traffic */
+    p.placement_overlap = 1.0f;          /* packed rocks on purpose */
     cs_sim *sim = NULL;
     char err[256];
     if (cs_sim_create(&sc, &p, backend, &sim, err, sizeof err) != CS_OK) {

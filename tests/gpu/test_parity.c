@@ -9,9 +9,11 @@
  * cover both integrators and friction models, plasticity and tearing, a grab (one that tears),
  * rocks dynamic and kinematic, spinning, touching each other and the ground, more than 32 and more
  * than 64 rocks, vertices touching two rocks at once, more than 64 chunks with rocks, rows of
- * several chunks, a 3 x 2 cloth; and
- * commands mid-run: releasing the grab, moving a rock, set_params, switching integrator and
- * friction model, a snapshot saved by the CPU backend and loaded into both, a scene resized.
+ * several chunks, a 3 x 2 cloth; both contact models (surface: stone rocks resting over a
+ * triangle, an edge, a vertex and a diagonal, with friction from spin and a sliding kinematic rock,
+ * two rocks sharing vertices, 40 rocks, a tearing grab); and commands mid-run: releasing the grab,
+ * moving a rock, set_params, switching integrator, friction model and contact model, a snapshot
+ * saved by the CPU backend and loaded into both, a scene resized.
  *
  * Plain C (no cmocka: a GPU machine may have no -dev packages). Exit 0 pass, 1 fail, 77 skipped (no
  * CUDA build or no device). `test_parity cuda` runs the CUDA backend - on a GPU in tests/gpu/run.sh,
@@ -46,7 +48,9 @@ enum {
     S_SWITCH = 16,   /* integrator and friction model switched, then switched back */
     S_SNAPSHOT = 32, /* the CPU sim's snapshot loaded into both */
     S_RESIZE = 64,   /* cs_sim_set_scene to another size, rocks added again */
-    S_PAIR = 128     /* two rocks side by side, sunk to the cloth: vertices between touch both */
+    S_PAIR = 128,    /* two rocks side by side, sunk to the cloth: vertices between touch both */
+    S_SPOTS = 256,   /* stone rocks resting over a triangle, a structural edge, a vertex, a diagonal */
+    S_CONTACT = 512  /* contact_model switched mid-run, then switched back */
 };
 
 typedef struct variant {
@@ -54,6 +58,7 @@ typedef struct variant {
     int nx, ny, integrator, friction, strain, rocks;
     unsigned script;
     float radius; /* rock radius (0: 0.04 m + 0.01 m per rock) */
+    int contact;  /* cs_contact_model: 0 vertex (the rows that leave it out), 1 surface */
 } variant;
 
 #define VV CS_VELOCITY_VERLET
@@ -61,21 +66,29 @@ typedef struct variant {
 #define CV CS_FRICTION_COULOMB_VISCOUS
 #define RS CS_FRICTION_RESULTANT
 static const variant variants[] = {
-    {"verlet coulomb strain rocks", 48, 40, VV, CV, 1, 5, S_GRAB | S_ROCK_SET, 0},
-    {"verlet resultant strain rocks", 48, 40, VV, RS, 1, 5, S_GRAB | S_ROCK_SET, 0},
-    {"euler coulomb strain rocks", 48, 40, SE, CV, 1, 5, S_GRAB | S_ROCK_SET, 0},
-    {"euler resultant strain rocks", 48, 40, SE, RS, 1, 5, S_GRAB | S_ROCK_SET, 0},
-    {"verlet plain", 64, 64, VV, CV, 0, 0, 0, 0},
-    {"wide rows (3 chunks a row)", 600, 6, VV, CV, 1, 3, S_GRAB, 0},
-    {"tiny 3x2", 3, 2, VV, RS, 1, 1, S_GRAB, 0},
-    {"70 chunks (two chunk groups)", 20, 70, VV, CV, 1, 6, 0, 0.05f},
-    {"40 rocks", 40, 40, VV, CV, 1, 40, 0, 0.025f},
-    {"100 rocks", 40, 40, SE, RS, 1, 100, 0, 0.02f},
-    {"grab that tears", 32, 32, VV, CV, 1, 2, S_GRAB | S_TEAR, 0},
-    {"set_params, integrator and friction switches", 40, 36, VV, CV, 1, 4, S_GRAB | S_PARAMS | S_SWITCH, 0},
-    {"snapshot loaded into both", 40, 36, SE, CV, 1, 4, S_GRAB | S_SNAPSHOT, 0},
-    {"scene resized", 36, 30, VV, RS, 1, 3, S_GRAB | S_RESIZE, 0},
-    {"vertices touching two rocks at once", 21, 21, VV, CV, 1, 2, S_PAIR, 0.05f},
+    {"verlet coulomb strain rocks", 48, 40, VV, CV, 1, 5, S_GRAB | S_ROCK_SET, 0, 0},
+    {"verlet resultant strain rocks", 48, 40, VV, RS, 1, 5, S_GRAB | S_ROCK_SET, 0, 0},
+    {"euler coulomb strain rocks", 48, 40, SE, CV, 1, 5, S_GRAB | S_ROCK_SET, 0, 0},
+    {"euler resultant strain rocks", 48, 40, SE, RS, 1, 5, S_GRAB | S_ROCK_SET, 0, 0},
+    {"verlet plain", 64, 64, VV, CV, 0, 0, 0, 0, 0},
+    {"wide rows (3 chunks a row)", 600, 6, VV, CV, 1, 3, S_GRAB, 0, 0},
+    {"tiny 3x2", 3, 2, VV, RS, 1, 1, S_GRAB, 0, 0},
+    {"70 chunks (two chunk groups)", 20, 70, VV, CV, 1, 6, 0, 0.05f, 0},
+    {"40 rocks", 40, 40, VV, CV, 1, 40, 0, 0.025f, 0},
+    {"100 rocks", 40, 40, SE, RS, 1, 100, 0, 0.02f, 0},
+    {"grab that tears", 32, 32, VV, CV, 1, 2, S_GRAB | S_TEAR, 0, 0},
+    {"set_params, integrator and friction switches", 40, 36, VV, CV, 1, 4, S_GRAB | S_PARAMS | S_SWITCH, 0, 0},
+    {"snapshot loaded into both", 40, 36, SE, CV, 1, 4, S_GRAB | S_SNAPSHOT, 0, 0},
+    {"scene resized", 36, 30, VV, RS, 1, 3, S_GRAB | S_RESIZE, 0, 0},
+    {"vertices touching two rocks at once", 21, 21, VV, CV, 1, 2, S_PAIR, 0.05f, 0},
+    /* surface contact */
+    {"surface: face, edge, vertex, diagonal", 41, 41, VV, CV, 1, 4, S_SPOTS, 0.06f, 1},
+    {"surface: the same, euler resultant", 41, 41, SE, RS, 1, 4, S_SPOTS, 0.06f, 1},
+    {"surface: strain rocks grab", 48, 40, VV, RS, 1, 5, S_GRAB | S_ROCK_SET, 0, 1},
+    {"surface: two rocks at once", 21, 21, VV, CV, 1, 2, S_PAIR, 0.05f, 1},
+    {"surface: 40 rocks", 40, 40, SE, CV, 1, 40, 0, 0.025f, 1},
+    {"surface: params, switches, contact model", 40, 36, VV, CV, 1, 4, S_GRAB | S_PARAMS | S_SWITCH | S_CONTACT, 0, 1},
+    {"surface: wide rows, tearing grab", 600, 6, VV, CV, 1, 3, S_GRAB | S_TEAR, 0, 1},
 };
 
 static void scene_of(const variant *vr, int nx, int ny, cs_scene *sc)
@@ -130,6 +143,19 @@ static int add_rocks(cs_sim *sim, const variant *vr, const cs_scene *sc, const c
         d.velocity[2] = vr->rocks > 8 ? -0.5f : -2.5f;
         d.angular_velocity[0] = 4.0f;
         d.angular_velocity[2] = -3.0f;
+        if (vr->script & S_SPOTS) {
+            /* Four quadrants of the flat cloth (odd sizes: the origin is a vertex, the grid 3 cm):
+             * the centre over the centroid of a triangle A (2/3, 1/3 of a cell), the middle of a
+             * structural x edge, a vertex, the middle of a diagonal - the closest feature of the
+             * cloth a face, an edge, a vertex, an edge. Stone, 5 mm into the contact layer,
+             * sinking and spinning (friction). */
+            const float h = 0.03f, off[4][2] = {{2 * h / 3, h / 3}, {h / 2, 0}, {0, 0}, {h / 2, h / 2}};
+            d.density = 2500.0f;
+            d.position[0] = (r % 2 ? 6 * h : -6 * h) + off[r % 4][0];
+            d.position[1] = (r / 2 % 2 ? 6 * h : -6 * h) + off[r % 4][1];
+            d.velocity[2] = -0.5f;
+            d.angular_velocity[1] = -2.0f;
+        }
         if (r == 1) {
             d.kinematic = true;
             d.velocity[0] = 0.3f;
@@ -167,6 +193,9 @@ static void params_of(const variant *vr, const cs_scene *sc, cs_params *p)
     p->ground_z = sc->height - 0.3f;
     p->wind[1] = 2.0f;
     p->max_substeps = 100000;
+    p->contact_model = vr->contact;
+    /* The scenes start with rocks sunk into the cloth and into each other: allowed here. */
+    p->placement_overlap = 1.0f;
     if (vr->script & S_TEAR) p->grab_speed = 20.0f;
 }
 
@@ -399,6 +428,12 @@ static int run(const variant *vr, const char *other, int other_threads)
             q.friction_model = q.friction_model == CV ? RS : CV;
             both(&pr, cs_sim_set_params(pr.a, &q), cs_sim_set_params(pr.b, &q), "switching integrator and friction");
         }
+        if ((k == 2 || k == 4) && (vr->script & S_CONTACT)) {
+            cs_params q;
+            cs_sim_params(pr.a, &q);
+            q.contact_model = q.contact_model == CS_CONTACT_SURFACE ? CS_CONTACT_VERTEX : CS_CONTACT_SURFACE;
+            both(&pr, cs_sim_set_params(pr.a, &q), cs_sim_set_params(pr.b, &q), "switching contact model");
+        }
         if (k == 3 && (vr->script & S_SNAPSHOT)) {
             const size_t cap = cs_snapshot_size(pr.a);
             unsigned char *buf = malloc(cap);
@@ -414,7 +449,7 @@ static int run(const variant *vr, const char *other, int other_threads)
             scene_of(vr, vr->nx + 5, vr->ny - 3, &sc);
             if (both(&pr, cs_sim_set_scene(pr.a, &sc), cs_sim_set_scene(pr.b, &sc), "set_scene") == 0) {
                 const variant grown = {vr->name, sc.nx, sc.ny, vr->integrator, vr->friction, vr->strain, vr->rocks,
-                                       vr->script, vr->radius};
+                                       vr->script, vr->radius, vr->contact};
                 both(&pr, (cs_status)add_rocks(pr.a, &grown, &sc, &p), (cs_status)add_rocks(pr.b, &grown, &sc, &p),
                      "adding rocks again");
                 both(&pr, grab(pr.a, vr, sc.nx, sc.ny), grab(pr.b, vr, sc.nx, sc.ny), "grab again");

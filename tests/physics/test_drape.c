@@ -9,7 +9,11 @@
  *   - the cloth did not slide off: its middle is still over the top;
  *   - the free parts hang: every vertex outside the sphere's footprint is below the top, and
  *     the corners below the centre.
- * Run with both friction models (coulomb_viscous, resultant) and both integrators.
+ * Run with both friction models (coulomb_viscous, resultant) and both integrators, on the seed's
+ * contact per vertex, and with surface contact (checked the same way, except that there the
+ * cloth's surface, its triangles, rests in the contact layer and the vertices a little outside
+ * it: a triangle's plane lies closer to the centre than its corners, by its sagitta). The soft v1
+ * material (1 kg/m^2, 400/80/20 N/m) is pinned: the figures below were measured on it.
  *
  * Damping: c_spring = 1 N s/m (the seed's spring damping c_d) and drag = 1/s, so that the drop's
  * energy is gone in a few seconds. At the defaults (0.01 N s/m, 0.2/s) the resultant model lets
@@ -33,17 +37,38 @@ typedef struct drape_result {
     double max_corner_z;
     double top_lo, top_hi; /* |x - c| range of the vertices over the sphere */
     double middle_rho;     /* horizontal distance of the cloth's middle from the axis */
+    double surf_lo, surf_hi; /* distance range of the surface (the quads over the sphere) */
 } drape_result;
 
 static double dist3(const float *x) { return sqrt((double)x[0] * x[0] + (double)x[1] * x[1] + (double)x[2] * x[2]); }
 static double rho2(const float *x) { return sqrt((double)x[0] * x[0] + (double)x[1] * x[1]); }
 
-static void drape(int friction, int integrator)
+/* Distance from the sphere's centre (the origin) to the nearest point of the cloth's triangles at
+ * vertex k's quad (its own two triangles). */
+static double surface_dist(const float *x, int32_t i, int32_t j)
+{
+    const int32_t v00 = j * N + i, v10 = v00 + 1, v01 = v00 + N, v11 = v01 + 1;
+    const int32_t tri[2][3] = {{v00, v10, v11}, {v00, v11, v01}};
+    double best = 1e30;
+    for (int t = 0; t < 2; t++) {
+        float w[3];
+        const cs_vec3 a = cs_v3_from(x + 3 * tri[t][0]), b = cs_v3_from(x + 3 * tri[t][1]),
+                      o = cs_v3_from(x + 3 * tri[t][2]);
+        cs_closest_on_triangle(cs_v3(0, 0, 0), a, b, o, w);
+        const cs_vec3 q = cs_add(cs_add(cs_scale(a, w[0]), cs_scale(b, w[1])), cs_scale(o, w[2]));
+        if (cs_len(q) < best) best = cs_len(q);
+    }
+    return best;
+}
+
+static void drape(int friction, int integrator, int model)
 {
     cs_scene sc;
     cs_params p;
     cs_scene_default(&sc);
     cs_params_default(&p);
+    tk_v1_material(&sc, &p);
+    p.contact_model = model;
     sc.nx = sc.ny = N;
     sc.pins = CS_PINS_NONE;
     sc.height = (float)(RADIUS + 0.05);
@@ -68,7 +93,7 @@ static void drape(int friction, int integrator)
     assert_non_null(x);
     assert_non_null(v);
 
-    drape_result r = {1e30, 1e30, 0, 0, -1e30, -1e30, 1e30, -1e30, 0};
+    drape_result r = {1e30, 1e30, 0, 0, -1e30, -1e30, 1e30, -1e30, 0, 1e30, -1e30};
     /* Sampled every CHECK_EVERY substeps (2.2 ms): a contact's give lasts about
      * pi sqrt(m / k_contact) = 16 ms (m = 0.01 kg), so a sample lands within 0.22 rad of the
      * deepest point and sees at least cos(0.22) = 97.6% of its depth. */
@@ -95,6 +120,12 @@ static void drape(int friction, int integrator)
             if (sp > r.max_top_speed) r.max_top_speed = sp;
         }
         if (rh > RADIUS + offset && xk[2] > r.max_z_outside) r.max_z_outside = xk[2];
+        const int32_t i = k % N, j = k / N;
+        if (rh < 0.5 * RADIUS && i + 1 < N && j + 1 < N) {
+            const double sd = surface_dist(x, i, j);
+            if (sd < r.surf_lo) r.surf_lo = sd;
+            if (sd > r.surf_hi) r.surf_hi = sd;
+        }
     }
     const int32_t corners[4] = {0, N - 1, N * (N - 1), N * N - 1};
     for (int c = 0; c < 4; c++)
@@ -107,12 +138,14 @@ static void drape(int friction, int integrator)
         for (int q = 0; q < 3; q++) mid[q] += 0.25f * x[3 * centre[c] + q];
     r.middle_rho = rho2(mid);
 
-    print_message("%s, %s (%d substeps/frame): |x-c| min %.5f over the run, %.5f at the end; over the sphere "
-                  "(%d vertices): |x-c| in [%.5f, %.5f], speed <= %.4f m/s; max speed %.4f m/s; middle %.4f m off "
-                  "the axis; highest vertex outside the footprint z = %.4f; corners z <= %.4f\n",
-                  friction ? "resultant" : "coulomb_viscous", integrator ? "euler" : "verlet", (int)info.substeps,
-                  r.min_dist_run, r.min_dist_end, n_top, r.top_lo, r.top_hi, r.max_top_speed, r.max_speed,
-                  r.middle_rho, r.max_z_outside, r.max_corner_z);
+    print_message("%s, %s, %s (%d substeps/frame): |x-c| min %.5f over the run, %.5f at the end; over the sphere "
+                  "(%d vertices): |x-c| in [%.5f, %.5f], surface in [%.5f, %.5f], speed <= %.4f m/s; max speed "
+                  "%.4f m/s; middle %.4f m off the axis; highest vertex outside the footprint z = %.4f; corners z "
+                  "<= %.4f\n",
+                  model ? "surface" : "vertex", friction ? "resultant" : "coulomb_viscous",
+                  integrator ? "euler" : "verlet", (int)info.substeps, r.min_dist_run, r.min_dist_end, n_top,
+                  r.top_lo, r.top_hi, r.surf_lo, r.surf_hi, r.max_top_speed, r.max_speed, r.middle_rho,
+                  r.max_z_outside, r.max_corner_z);
 
     /* The sphere stayed where it was. */
     const cs_rock k = tk_rock(sim, id);
@@ -125,10 +158,20 @@ static void drape(int friction, int integrator)
      * m/s just after the drop and a penalty contact gives way by v sqrt(m / k_contact); it must
      * stay within 1 cm (measured: 5.4 mm inside R at most, 0.4946). */
     assert_true(r.min_dist_run >= RADIUS - 0.01);
-    /* Over the sphere: resting on it, every one in the contact layer (measured |x - c| in
-     * [0.5052, 0.5069], the layer is [0.5, 0.51]) and still (measured <= 0.005 m/s). */
+    /* Over the sphere: resting on it, every one in the contact layer (vertex contact, measured
+     * |x - c| in [0.5052, 0.5069], the layer is [0.5, 0.51]) and still (measured <= 0.005 m/s).
+     * With surface contact the triangles rest on the contact sphere R + offset, where they touched
+     * it (the velocity-level contact lets nothing approach further; measured surface distances
+     * [0.5096, 0.5105]: within 1 mm of it, the highest a quad bridging two contacts); the vertices
+     * then lie a triangle's sagitta further out (measured [0.5147, 0.5170]: the stretched
+     * triangles' h^2 / (4 R) is 5 to 7 mm). */
     assert_true(n_top >= 12); /* measured 16 */
-    assert_true(r.top_lo >= RADIUS && r.top_hi <= RADIUS + offset);
+    if (model == CS_CONTACT_VERTEX) {
+        assert_true(r.top_lo >= RADIUS && r.top_hi <= RADIUS + offset);
+    } else {
+        assert_true(r.surf_lo >= RADIUS && r.surf_hi <= RADIUS + offset + 1e-3);
+        assert_true(r.top_lo > RADIUS + offset);
+    }
     assert_true(r.max_top_speed < 0.05);
     /* The whole cloth is nearly at rest (measured 0.018 to 0.031 m/s, the corners still creeping). */
     assert_true(r.max_speed < 0.1);
@@ -147,26 +190,38 @@ static void drape(int friction, int integrator)
 static void test_coulomb_viscous_verlet(void **unused)
 {
     (void)unused;
-    drape(CS_FRICTION_COULOMB_VISCOUS, CS_VELOCITY_VERLET);
+    drape(CS_FRICTION_COULOMB_VISCOUS, CS_VELOCITY_VERLET, CS_CONTACT_VERTEX);
 }
 
 static void test_coulomb_viscous_euler(void **unused)
 {
     (void)unused;
-    drape(CS_FRICTION_COULOMB_VISCOUS, CS_SYMPLECTIC_EULER);
+    drape(CS_FRICTION_COULOMB_VISCOUS, CS_SYMPLECTIC_EULER, CS_CONTACT_VERTEX);
 }
 
 static void test_resultant_verlet(void **unused)
 {
     (void)unused;
-    drape(CS_FRICTION_RESULTANT, CS_VELOCITY_VERLET);
+    drape(CS_FRICTION_RESULTANT, CS_VELOCITY_VERLET, CS_CONTACT_VERTEX);
 }
 
 /* Seed 003 as written: resultant friction with symplectic Euler. */
 static void test_resultant_euler(void **unused)
 {
     (void)unused;
-    drape(CS_FRICTION_RESULTANT, CS_SYMPLECTIC_EULER);
+    drape(CS_FRICTION_RESULTANT, CS_SYMPLECTIC_EULER, CS_CONTACT_VERTEX);
+}
+
+static void test_surface_coulomb_viscous_verlet(void **unused)
+{
+    (void)unused;
+    drape(CS_FRICTION_COULOMB_VISCOUS, CS_VELOCITY_VERLET, CS_CONTACT_SURFACE);
+}
+
+static void test_surface_resultant_euler(void **unused)
+{
+    (void)unused;
+    drape(CS_FRICTION_RESULTANT, CS_SYMPLECTIC_EULER, CS_CONTACT_SURFACE);
 }
 
 int main(void)
@@ -176,6 +231,8 @@ int main(void)
         cmocka_unit_test(test_coulomb_viscous_euler),
         cmocka_unit_test(test_resultant_verlet),
         cmocka_unit_test(test_resultant_euler),
+        cmocka_unit_test(test_surface_coulomb_viscous_verlet),
+        cmocka_unit_test(test_surface_resultant_euler),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

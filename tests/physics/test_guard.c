@@ -1,8 +1,12 @@
 /* test_guard.c - the stability guard and the non-finite guard (kernels/MODEL.md, Time).
  *
  * The guard's limit is recomputed here by hand from MODEL.md's formula: per vertex
- * K = its spring stiffnesses + k_contact, C = its spring dampings + c_contact + m drag / 2,
- * dt_i = (sqrt(C^2 + 2 m K) - C) / K; per dynamic rock the same with M, k_rock, c_rock;
+ * K = its spring stiffnesses + w k_contact, C = its spring dampings + w (c_contact + c_tangent)
+ * + m drag / 2, where w counts the contacts a vertex can have (surface contact: 3, and half one
+ * more with the ground; vertex contact: 1), dt_i = (sqrt(C^2 + 2 m K) - C) / K; per dynamic rock
+ * the same with M, k_rock M, c_rock M (rock contacts scale with the mass) and, with surface
+ * contact, k_contact and c_contact + c_tangent for each of the cloth triangles that fit on its
+ * surface (4 pi (R + offset)^2 over a triangle's rest area, plus one);
  * dt_max = stability_safety x the smallest. The interior vertex of a grid of 5 x 5 or more has
  * the most springs (4 structural, 4 shear, 4 bend), and dt_i falls as K and C grow, so it gives
  * the vertex minimum. When dt = 1/(frame_rate substeps) exceeds dt_max, substeps becomes
@@ -11,18 +15,31 @@
 
 static double limit(double m, double K, double C) { return (sqrt(C * C + 2 * m * K) - C) / K; }
 
-/* dt_max by hand for an nx x ny >= 5 x 5 scene and the given dynamic rock masses. */
-static double hand_dt_max(const cs_scene *sc, const cs_params *p, const double *rock_mass, int n_rocks)
+/* dt_max by hand for an nx x ny >= 5 x 5 scene and the given dynamic rocks (masses, radii). */
+static double hand_dt_max_r(const cs_scene *sc, const cs_params *p, const double *rock_mass, const double *rock_radius,
+                            int n_rocks)
 {
+    const int surface = p->contact_model == CS_CONTACT_SURFACE;
+    const double w = surface ? (p->ground ? 3.5 : 3.0) : 1.0;
     const double m = (double)sc->areal_density * sc->size_x * sc->size_y / ((double)sc->nx * sc->ny);
-    const double K = 4.0 * p->k_structural + 4.0 * p->k_shear + 4.0 * p->k_bend + p->k_contact;
-    const double C = 12.0 * p->c_spring + p->c_contact + m * p->drag / 2;
+    const double K = 4.0 * p->k_structural + 4.0 * p->k_shear + 4.0 * p->k_bend + w * p->k_contact;
+    const double C = 12.0 * p->c_spring + w * (p->c_contact + p->c_tangent) + m * p->drag / 2;
     double lim = limit(m, K, C);
+    const double tri = (double)sc->size_x / (sc->nx - 1) * sc->size_y / (sc->ny - 1) / 2;
     for (int r = 0; r < n_rocks; r++) {
-        const double l = limit(rock_mass[r], p->k_rock, p->c_rock);
+        const double M = rock_mass[r], reach = rock_radius[r] + p->contact_offset;
+        const double n = surface ? floor(4 * 3.14159265358979323846 * reach * reach / tri) + 3 : 0;
+        const double l = limit(M, p->k_rock * M + n * p->k_contact, p->c_rock * M + n * (p->c_contact + p->c_tangent));
         if (l < lim) lim = l;
     }
     return p->stability_safety * lim;
+}
+
+static double hand_dt_max(const cs_scene *sc, const cs_params *p, const double *rock_mass, int n_rocks)
+{
+    const double radius[1] = {0.03};
+    assert_true(n_rocks <= 1);
+    return hand_dt_max_r(sc, p, rock_mass, radius, n_rocks);
 }
 
 /* The substeps the guard must choose, checking that the ceiling is not a near tie. */
@@ -43,6 +60,7 @@ static void small_scene(cs_scene *sc, cs_params *p)
     sc->size_x = 1.0f;
     sc->size_y = 0.9f;
     sc->height = 0.6f;
+    tk_v1_material(sc, p); /* the figures below were measured on it */
 }
 
 /* A simulation on one thread: results do not depend on the thread count (test_determinism), and
@@ -101,8 +119,11 @@ static void test_dt_max_matches_formula(void **unused)
     assert_int_equal(info.substeps, hand_substeps(&p, want));
     assert_close_rel(info.dt, 1.0 / (p.frame_rate * info.substeps), 1e-12);
 
-    /* A dynamic rock of 0.0339 kg (R 0.03 m, 300 kg/m^3) on k_rock = 1e5 and c_rock = 50 limits
-     * harder than the vertices (6.0e-4 s): 0.7 x 2M/(sqrt(c^2 + 2 M k) + c) = 3.2e-4 s. */
+    /* A dynamic rock of 0.0339 kg (R 0.03 m, 300 kg/m^3) on k_rock = 1e8/s^2 (c_rock 500/s)
+     * limits harder than the vertices: 0.7 x 2/(sqrt(c^2 + 2 k) + c) = 9.9e-5 s, whatever its
+     * mass. */
+    p.k_rock = 1e8f;
+    assert_int_equal(cs_sim_set_params(sim, &p), CS_OK);
     const double M = 300.0 * 4.0 / 3.0 * 3.14159265358979323846 * 0.03 * 0.03 * 0.03;
     const uint32_t id = tk_add_rock(sim, 0.0f, 0.0f, 2.0f, 0.03f, 300.0f);
     assert_close_rel(tk_rock(sim, id).mass, M, 1e-6);
@@ -124,11 +145,11 @@ static void test_dt_max_matches_formula(void **unused)
     cs_info info2;
     cs_sim_info(sim, &info2);
     assert_true(info2.dt_max == info.dt_max);
-    /* Removing the dynamic rock gives the vertex limit and the requested substeps back. */
+    /* Removing the dynamic rock gives the vertex limit and its substeps back. */
     assert_int_equal(cs_rock_remove(sim, id), CS_OK);
     cs_sim_info(sim, &info);
     assert_close_rel(info.dt_max, hand_dt_max(&sc, &p, NULL, 0), 1e-9);
-    assert_int_equal(info.substeps, p.substeps);
+    assert_int_equal(info.substeps, hand_substeps(&p, hand_dt_max(&sc, &p, NULL, 0)));
     cs_sim_destroy(sim);
 }
 

@@ -7,15 +7,15 @@
  * (v = R w_y), at (2/5 + 1) M R v: v = 5/7 v0, whatever the friction law. Motion along +x
  * rolls with w_y = +v/R, motion along +y with w_x = -v/R (w x arm must cancel v).
  *
- * Rock-ground friction is coulomb_viscous: F_t = min(mu_rock |F_n|, c_tangent |v_t|). Two
- * regimes are checked, each against its own analytic start:
- *   - Coulomb sliding first: c_tangent = 50 N s/m, v0 = 3 m/s: c_tangent v0 = 150 N far above
- *     mu_rock M g = 6.2 N, so the rock slides with dv/dt = -mu g and dw/dt = 5 mu g/(2 R) until
- *     the slip 3.5 mu g t catches v0 at t = 2 v0/(7 mu g) = 0.175 s (the viscous branch only
- *     takes over for the last 0.12 m/s of slip, and removes it in ~7 ms).
- *   - viscous from the start (the default c_tangent 0.5): 0.5 x 3 = 1.5 N < 6.2 N, so
- *     the slip decays as exp(-3.5 c_tangent t/M) (time constant 0.72 s); after 5 s it is 1e-3
- *     of v0.
+ * Rock-ground friction is coulomb_viscous: F_t = min(mu_rock |F_n|, c_t |v_t|) with c_t = c_rock M
+ * (rock contacts scale with the rock's mass). Two regimes are checked, each against its own
+ * analytic start:
+ *   - Coulomb sliding first (the default c_rock, 500/s: c_t = 628 N s/m), v0 = 3 m/s: c_t v0 far
+ *     above mu_rock M g = 6.2 N, so the rock slides with dv/dt = -mu g and dw/dt = 5 mu g/(2 R)
+ *     until the slip 3.5 mu g t catches v0 at t = 2 v0/(7 mu g) = 0.175 s (the viscous branch only
+ *     takes over for the last 10 mm/s of slip).
+ *   - viscous from the start: c_rock = 0.4/s, c_t = 0.5 N s/m: 0.5 x 3 = 1.5 N < 6.2 N, so the
+ *     slip decays as exp(-3.5 c_t t/M) (time constant 0.72 s); after 5 s it is 1e-3 of v0.
  * The cloth hangs pinned by its edges 5 m up, far from the rock. */
 #include "testkit.h"
 
@@ -31,9 +31,9 @@ typedef struct roll {
     double mass;
 } roll;
 
-/* A rock resting on the ground (at the penetration where k_rock delta = M g, so it does not
- * bounce) launched at V0 along +x (dir 0) or +y (dir 1), no spin. */
-static roll launch(int dir, float c_tangent, int integrator)
+/* A rock resting on the ground (at the penetration where k_rock M delta = M g, so it does not
+ * bounce) launched at V0 along +x (dir 0) or +y (dir 1), no spin; c_rock < 0 keeps the default. */
+static roll launch(int dir, float c_rock, int integrator)
 {
     cs_scene sc;
     cs_params p;
@@ -42,7 +42,7 @@ static roll launch(int dir, float c_tangent, int integrator)
     sc.nx = sc.ny = 8;
     sc.height = 5.0f;
     sc.pins = CS_PINS_EDGES;
-    p.c_tangent = c_tangent;
+    if (c_rock >= 0) p.c_rock = c_rock;
     p.integrator = integrator;
     roll r;
     r.sim = tk_sim_serial(&sc, &p);
@@ -51,7 +51,7 @@ static roll launch(int dir, float c_tangent, int integrator)
     cs_rock_def_default(&d);
     d.radius = (float)R;
     d.density = (float)RHO;
-    d.position[2] = (float)(R - r.mass * G / p.k_rock);
+    d.position[2] = (float)(R - G / p.k_rock);
     d.velocity[dir] = (float)V0;
     assert_int_equal(cs_rock_add(r.sim, &d, &r.id), CS_OK);
     const cs_rock k = tk_rock(r.sim, r.id);
@@ -104,7 +104,7 @@ static void check_rolls(roll *r, int dir, double seconds, const char *what)
 
 static void coulomb_case(int dir, int integrator)
 {
-    roll r = launch(dir, 50.0f, integrator);
+    roll r = launch(dir, -1.0f, integrator);
     /* Sliding phase at t = 0.1 s (before 0.175 s): v = v0 - mu g t, R w = 5/2 mu g t. */
     const double t = 0.1, mu = 0.5;
     tk_step(r.sim, (int64_t)seconds_to_substeps(r.sim, t));
@@ -138,15 +138,15 @@ static void test_slides_then_rolls_symplectic_euler(void **unused)
     coulomb_case(0, CS_SYMPLECTIC_EULER);
 }
 
-/* Default c_tangent: viscous from the start, and for the whole run (|F_t| = c_tangent |v_t| <=
- * 1.5 N < mu_rock M g). The slip s = v - R w then obeys ds/dt = -c_tangent (1/M + R^2/I) s =
- * -3.5 c_tangent s / M, and v = v0 (5/7 + 2/7 exp(-3.5 c_tangent t / M)) exactly; checked along
- * the way, then rolling after 5 s. */
+/* c_t = c_rock M = 0.5 N s/m: viscous from the start, and for the whole run (|F_t| = c_t |v_t|
+ * <= 1.5 N < mu_rock M g). The slip s = v - R w then obeys ds/dt = -c_t (1/M + R^2/I) s =
+ * -3.5 c_t s / M, and v = v0 (5/7 + 2/7 exp(-3.5 c_t t / M)) exactly; checked along the way, then
+ * rolling after 5 s. */
 static void test_viscous_regime_rolls(void **unused)
 {
     (void)unused;
-    const double ct = 0.5;
-    roll r = launch(0, (float)ct, CS_VELOCITY_VERLET);
+    const double ct = 0.5, M = RHO * 4.0 / 3.0 * PI * R * R * R;
+    roll r = launch(0, (float)(ct / M), CS_VELOCITY_VERLET);
     const double times[] = {0.1, 0.5, 1.0, 2.0};
     double done = 0;
     for (size_t i = 0; i < sizeof times / sizeof times[0]; i++) {

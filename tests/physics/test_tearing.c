@@ -143,6 +143,7 @@ static cs_sim *spread_cloth(int integrator, float tear, float yield)
     cs_params p;
     cs_scene_default(&sc);
     cs_params_default(&p);
+    tk_v1_material(&sc, &p); /* the substep these strains were measured at */
     sc.nx = 24;
     sc.ny = 20;
     sc.size_x = 1.15f;

@@ -165,6 +165,38 @@ test('rocks: POST, GET, PATCH, DELETE', async () => {
   assert.deepEqual((await ok(d, 'GET', '/v1/rocks')).rocks, []);
 });
 
+test('rocks: a placement into another rock or into the cloth is 409 overlap and changes nothing', async () => {
+  await pause(d);
+  await ok(d, 'POST', '/v1/sim/reset'); // the cloth flat again, no rocks
+  const scene = await ok(d, 'GET', '/v1/scene');
+  const { contact_offset: offset } = await ok(d, 'GET', '/v1/params');
+  const z = scene.height; // a flat cloth at rest, in the plane z = height
+  const before = await hash(d);
+  // Its centre 2 cm above the cloth, radius 10 cm: the cloth 8 cm inside it.
+  const into = await call(d, 'POST', '/v1/rocks', { position: [0, 0, z + 0.02], radius: 0.1 });
+  assertProblem(into, 409, 'position');
+  assert.equal(into.json.type, 'urn:clothd:problem:overlap');
+  assert.match(into.json.detail, /cloth .* inside it, near vertex \d+/);
+  assert.equal(await hash(d), before);
+  // Just inside the contact layer (half of contact_offset into it) is allowed.
+  const a = await call(d, 'POST', '/v1/rocks', { position: [0, 0, z + 0.1 + offset / 2], radius: 0.1 });
+  assert.equal(a.status, 201, a.text);
+  // A second rock 15 cm from the first's centre (radii 10 + 10 cm) overlaps it, and is named.
+  const b = await call(d, 'POST', '/v1/rocks', { position: [0.15, 0, z + 0.3], radius: 0.1 });
+  assert.equal(b.status, 201, b.text);
+  const onto = await call(d, 'POST', '/v1/rocks', { position: [0, 0.15, z + 0.1 + offset / 2], radius: 0.1 });
+  assertProblem(onto, 409, 'position');
+  assert.match(onto.json.detail, new RegExp(`overlap rock ${a.json.id} `));
+  // A teleport into the first, or a radius that reaches it, is refused the same way.
+  const moved = await call(d, 'PATCH', `/v1/rocks/${b.json.id}`, { position: [0.1, 0, z + 0.2] });
+  assertProblem(moved, 409, 'position');
+  const grown = await call(d, 'PATCH', `/v1/rocks/${b.json.id}`, { radius: 0.25 });
+  assertProblem(grown, 409, 'radius');
+  assert.deepEqual((await ok(d, 'GET', `/v1/rocks/${b.json.id}`)).position, [0.15, 0, z + 0.3]);
+  assert.equal((await ok(d, 'GET', '/v1/rocks')).rocks.length, 2);
+  await ok(d, 'DELETE', '/v1/rocks');
+});
+
 test('pins and grab', async () => {
   await pause(d);
   const corners = await ok(d, 'PUT', '/v1/pins', { preset: 'corners' });

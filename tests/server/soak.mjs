@@ -282,8 +282,10 @@ export async function soak({ seconds = 20, pausedSeconds = 8, clients = 64, wrkD
   const changer = async () => {
     for (let k = 0; !stopAll; k++) {
       if (phase === 'running') {
+        // The rock above where automatic drops appear (height + 0.8 m), so it overlaps none (that
+        // would be refused, 409); the one before it is gone (DELETE, five turns later).
         const r = k % 10 === 0
-          ? await api(d, 'POST', '/v1/rocks', { position: [0.2 * Math.sin(k), 0.2 * Math.cos(k), 1.5], radius: 0.08 })
+          ? await api(d, 'POST', '/v1/rocks', { position: [0.2 * Math.sin(k), 0.2 * Math.cos(k), 2.5], radius: 0.08 })
           : k % 10 === 5 ? await api(d, 'DELETE', '/v1/rocks')
             : await api(d, 'PATCH', '/v1/params', { wind: [Math.sin(k / 7), 0, 0] });
         report.changes.sent++;

@@ -42,11 +42,42 @@ static void test_sim_reports_its_backend(void **unused)
     }
 }
 
+/* A backend without CS_CAP_SURFACE_CONTACT (the CUDA backend until surface contact is ported to
+ * it) does not cover contact_model surface; the CPU backend covers both models. */
+static void test_capabilities(void **unused)
+{
+    (void)unused;
+    cs_params p;
+    cs_params_default(&p);
+    char why[200];
+    cs_backend bare = cs_backend_cpu;
+    bare.name = "bare";
+    bare.caps = 0;
+    assert_int_equal(p.contact_model, CS_CONTACT_SURFACE);
+    assert_false(cs_backend_covers(&bare, &p, why, sizeof why));
+    assert_non_null(strstr(why, "contact_model surface"));
+    assert_true(cs_backend_covers(&cs_backend_cpu, &p, why, sizeof why));
+    p.contact_model = CS_CONTACT_VERTEX;
+    assert_true(cs_backend_covers(&bare, &p, why, sizeof why));
+    const cs_backend *cuda = cs_backend_cuda();
+    if (cuda && !(cuda->caps & CS_CAP_SURFACE_CONTACT) && cuda->available(why, sizeof why)) {
+        /* auto then runs the defaults on the CPU, and says why; cuda refuses them */
+        cs_sim *sim = NULL;
+        char err[200];
+        assert_int_equal(cs_sim_create(NULL, NULL, "auto", &sim, err, sizeof err), CS_OK);
+        assert_string_equal(cs_sim_backend(sim), "cpu");
+        assert_non_null(strstr(cs_sim_backend_note(sim), "surface"));
+        cs_sim_destroy(sim);
+        assert_int_equal(cs_sim_create(NULL, NULL, "cuda", &sim, err, sizeof err), CS_E_BACKEND);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_pick_by_name),
         cmocka_unit_test(test_sim_reports_its_backend),
+        cmocka_unit_test(test_capabilities),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

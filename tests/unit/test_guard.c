@@ -4,13 +4,15 @@
 /* The model's formula as written (kernels/MODEL.md): dt_i = (sqrt(C^2 + 2 m K) - C) / K. */
 static double design_dt(double m, double K, double C) { return (sqrt(C * C + 2 * m * K) - C) / K; }
 
+/* The vertex contact model (one contact per vertex: k_contact, c_contact + c_tangent). */
 static void small_scene(cs_scene *sc, cs_params *p, int nx, int ny)
 {
     cs_scene_default(sc);
     cs_params_default(p);
     sc->nx = nx, sc->ny = ny, sc->size_x = 1, sc->size_y = 1, sc->areal_density = 1;
     p->k_structural = 100, p->k_shear = 10, p->k_bend = 1, p->k_contact = 50;
-    p->c_spring = 0.1f, p->c_contact = 0.2f, p->drag = 2;
+    p->c_spring = 0.1f, p->c_contact = 0.2f, p->c_tangent = 0.3f, p->drag = 2;
+    p->contact_model = CS_CONTACT_VERTEX;
     p->substeps = 1, p->max_substeps = 100000;
     p->stability_safety = 0.5f;
 }
@@ -23,7 +25,7 @@ static void test_two_by_two(void **unused)
     cs_params p;
     small_scene(&sc, &p, 2, 2);
     cs_sim *sim = tk_sim(&sc, &p);
-    const double m = 0.25, K = 2 * 100 + 10 + 50, C = 3 * 0.1 + 0.2 + m * 2 / 2;
+    const double m = 0.25, K = 2 * 100 + 10 + 50, C = 3 * 0.1 + (0.2 + 0.3) + m * 2 / 2;
     cs_info info;
     cs_sim_info(sim, &info);
     tk_assert_near(info.dt_max, 0.5 * design_dt(m, K, C), 1e-9);
@@ -40,14 +42,38 @@ static void test_interior_vertex_limits(void **unused)
     cs_params p;
     small_scene(&sc, &p, 5, 5);
     cs_sim *sim = tk_sim(&sc, &p);
-    const double m = 1.0 / 25, K = 4 * 100 + 4 * 10 + 4 * 1 + 50, C = 12 * 0.1 + 0.2 + m * 2 / 2;
+    const double m = 1.0 / 25, K = 4 * 100 + 4 * 10 + 4 * 1 + 50, C = 12 * 0.1 + (0.2 + 0.3) + m * 2 / 2;
     cs_info info;
     cs_sim_info(sim, &info);
     tk_assert_near(info.dt_max, 0.5 * design_dt(m, K, C), 1e-9);
     cs_sim_destroy(sim);
 }
 
-/* A light dynamic rock on stiff rock contact sets the limit; a kinematic one never does. */
+/* Surface contact: a rock's contacts can weigh 6 at a vertex (six triangles), against a far
+ * heavier body, so the guard counts 3 k_contact and 3 (c_contact + c_tangent), and half a contact
+ * more for the ground. */
+static void test_surface_contact_counts_more(void **unused)
+{
+    (void)unused;
+    cs_scene sc;
+    cs_params p;
+    small_scene(&sc, &p, 5, 5);
+    p.contact_model = CS_CONTACT_SURFACE;
+    const double m = 1.0 / 25;
+    for (int ground = 0; ground <= 1; ground++) {
+        p.ground = ground;
+        cs_sim *sim = tk_sim(&sc, &p);
+        const double w = ground ? 3.5 : 3.0;
+        const double K = 4 * 100 + 4 * 10 + 4 * 1 + w * 50, C = 12 * 0.1 + w * (0.2 + 0.3) + m * 2 / 2;
+        cs_info info;
+        cs_sim_info(sim, &info);
+        tk_assert_near(info.dt_max, 0.5 * design_dt(m, K, C), 1e-9);
+        cs_sim_destroy(sim);
+    }
+}
+
+/* A dynamic rock on stiff rock contact sets the limit, the same whatever its mass (rock contacts
+ * scale with it: k_rock M, c_rock M); a kinematic one never does. */
 static void test_rocks_limit(void **unused)
 {
     (void)unused;
@@ -68,12 +94,22 @@ static void test_rocks_limit(void **unused)
     cs_sim_info(sim, &after);
     tk_assert_near(after.dt_max, before.dt_max, 0);
     d.kinematic = false;
+    d.position[1] = 0.5f; /* clear of the kinematic one */
     uint32_t id;
     assert_int_equal(cs_rock_add(sim, &d, &id), CS_OK);
     cs_sim_info(sim, &after);
     const double M = 100 * 4.0 / 3.0 * TK_PI * 1e-6;
-    tk_assert_near(after.dt_max, 0.5 * design_dt(M, 1e6, 10), 1e-6 * after.dt_max);
+    tk_assert_near(after.dt_max, 0.5 * design_dt(M, 1e6 * M, 10 * M), 1e-6 * after.dt_max);
     assert_true(after.substeps > before.substeps);
+    /* A rock 1000 times heavier: the same limit. */
+    d.density = 1e5f;
+    d.position[0] = 0.5f; /* clear of the other */
+    uint32_t heavy;
+    assert_int_equal(cs_rock_add(sim, &d, &heavy), CS_OK);
+    cs_info with_heavy;
+    cs_sim_info(sim, &with_heavy);
+    tk_assert_near(with_heavy.dt_max, after.dt_max, 1e-6 * after.dt_max);
+    assert_int_equal(cs_rock_remove(sim, heavy), CS_OK);
     /* Removing it gives the cloth's limit back. */
     assert_int_equal(cs_rock_remove(sim, id), CS_OK);
     cs_sim_info(sim, &after);
@@ -134,6 +170,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_two_by_two),
         cmocka_unit_test(test_interior_vertex_limits),
+        cmocka_unit_test(test_surface_contact_counts_more),
         cmocka_unit_test(test_rocks_limit),
         cmocka_unit_test(test_requested_substeps_kept_when_stable),
         cmocka_unit_test(test_refusals),

@@ -1,13 +1,15 @@
 /* test_params.c - the parameter table against the model's list (kernels/MODEL.md), and its checks. */
 #include "testkit.h"
 
-/* Every tunable of the model that belongs to the engine (time_scale, max_speed,
+/* Every tunable of the model that belongs to the engine, with the contact model's
+ * (contact_model, max_depenetration_speed, placement_overlap) (time_scale, max_speed,
  * auto_drop_interval, auto_drop_max, seed and checkpoint_interval are the daemon's: the server's
  * settings table and its test hold them). */
 static const char *const design_names[] = {
     "nx", "ny", "size_x", "size_y", "height", "orientation", "pins", "areal_density", "gravity", "wind",
     "k_structural", "k_shear", "k_bend", "c_spring", "drag", "plastic_yield", "tear_strain", "plastic_rate",
-    "k_contact", "c_contact", "c_tangent", "mu", "contact_offset", "friction_model", "k_rock", "c_rock", "mu_rock",
+    "k_contact", "c_contact", "c_tangent", "mu", "contact_offset", "friction_model", "contact_model",
+    "max_depenetration_speed", "placement_overlap", "k_rock", "c_rock", "mu_rock",
     "ground", "ground_z", "frame_rate", "substeps", "max_substeps", "auto_substeps", "stability_safety",
     "integrator", "grab_speed"};
 

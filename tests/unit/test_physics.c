@@ -11,6 +11,7 @@ static cs_phys base(void)
     p.k_rock = 1000, p.c_rock = 2, p.mu_rock = 0.4f;
     p.dt = 0.1f, p.hdt = 0.05f;
     p.plastic_f = 1;
+    p.max_sep = 3.0e38f;
     return p;
 }
 
@@ -113,25 +114,34 @@ static void test_contact_law(void **unused)
     (void)unused;
     const cs_vec3 up = cs_v3(0, 0, 1), o = cs_v3(0, 0, 0);
     /* At rest, 1 cm in, k = 100: 1 N along the normal. */
-    assert_v3(cs_contact_law(up, 0.01f, o, 100, 1, 0.5f, 1, CS_FRICTION_COULOMB_VISCOUS, o), 0, 0, 1, 1e-6);
+    assert_v3(cs_contact_law(up, 0.01f, o, 100, 1, 0.5f, 1, CS_FRICTION_COULOMB_VISCOUS, o, 1e30f), 0, 0, 1, 1e-6);
     /* Separating fast: k delta - c vn < 0, and contact never pulls. */
-    cs_vec3 F = cs_contact_law(up, 0.01f, cs_v3(0, 0, 10), 100, 1, 0.5f, 1, CS_FRICTION_COULOMB_VISCOUS, o);
+    cs_vec3 F = cs_contact_law(up, 0.01f, cs_v3(0, 0, 10), 100, 1, 0.5f, 1, CS_FRICTION_COULOMB_VISCOUS, o, 1e30f);
     assert_true(F.x == 0 && F.y == 0 && F.z == 0);
     /* Sliding at 3 m/s with fn = 10: viscous 1 x 3 = 3 N is below mu fn = 5 N... */
-    F = cs_contact_law(up, 0.1f, cs_v3(3, 0, 0), 100, 1, 0.5f, 1, CS_FRICTION_COULOMB_VISCOUS, o);
+    F = cs_contact_law(up, 0.1f, cs_v3(3, 0, 0), 100, 1, 0.5f, 1, CS_FRICTION_COULOMB_VISCOUS, o, 1e30f);
     assert_v3(F, -3, 0, 10, 1e-5);
     /* ...and capped at mu fn when c_tangent is large. */
-    F = cs_contact_law(up, 0.1f, cs_v3(0, -3, 0), 100, 1, 0.5f, 10, CS_FRICTION_COULOMB_VISCOUS, o);
+    F = cs_contact_law(up, 0.1f, cs_v3(0, -3, 0), 100, 1, 0.5f, 10, CS_FRICTION_COULOMB_VISCOUS, o, 1e30f);
     assert_v3(F, 0, 5, 10, 1e-5);
     /* Resultant (seed 003): Ro = (4, 0, -10) pressed in, mu |Ron| = 5 cancels all 4 N of Rot. */
-    F = cs_contact_law(up, 0.1f, o, 100, 0, 0.5f, 1, CS_FRICTION_RESULTANT, cs_v3(4, 0, -10));
+    F = cs_contact_law(up, 0.1f, o, 100, 0, 0.5f, 1, CS_FRICTION_RESULTANT, cs_v3(4, 0, -10), 1e30f);
     assert_v3(F, -4, 0, 10, 1e-5);
     /* Rot = 8 N is more than mu |Ron|: only 5 N cancelled. */
-    F = cs_contact_law(up, 0.1f, o, 100, 0, 0.5f, 1, CS_FRICTION_RESULTANT, cs_v3(8, 0, -10));
+    F = cs_contact_law(up, 0.1f, o, 100, 0, 0.5f, 1, CS_FRICTION_RESULTANT, cs_v3(8, 0, -10), 1e30f);
     assert_v3(F, -5, 0, 10, 1e-5);
     /* Ro pulling away from the surface: no friction. */
-    F = cs_contact_law(up, 0.1f, o, 100, 0, 0.5f, 1, CS_FRICTION_RESULTANT, cs_v3(4, 0, 10));
+    F = cs_contact_law(up, 0.1f, o, 100, 0, 0.5f, 1, CS_FRICTION_RESULTANT, cs_v3(4, 0, 10), 1e30f);
     assert_v3(F, 0, 0, 10, 1e-5);
+    /* max_depenetration_speed: separating at 2 m/s, a cap of 2 still pushes (k delta - c vn =
+     * 10 - 2), a cap just below it does not push at all, nor does friction act. */
+    F = cs_contact_law(up, 0.1f, cs_v3(1, 0, 2), 100, 1, 0.5f, 1, CS_FRICTION_COULOMB_VISCOUS, o, 2.0f);
+    assert_v3(F, -1, 0, 8, 1e-5);
+    F = cs_contact_law(up, 0.1f, cs_v3(1, 0, 2), 100, 1, 0.5f, 1, CS_FRICTION_COULOMB_VISCOUS, o, 1.999f);
+    assert_true(F.x == 0 && F.y == 0 && F.z == 0);
+    /* Approaching is never capped. */
+    F = cs_contact_law(up, 0.1f, cs_v3(0, 0, -2), 100, 1, 0.5f, 1, CS_FRICTION_COULOMB_VISCOUS, o, 0.5f);
+    assert_v3(F, 0, 0, 12, 1e-5);
 }
 
 static void test_vertex_rock_and_ground_contact(void **unused)
@@ -173,6 +183,7 @@ static void test_rock_ground_torque_sign(void **unused)
     cs_rock_state r;
     memset(&r, 0, sizeof r);
     r.radius = 0.5f;
+    r.mass = 1.0f, r.inv_mass = 1.0f; /* rock contacts scale with the reduced mass: 1 kg */
     r.x = cs_v3(0, 0, 0.49f);
     r.v = cs_v3(1, 0, 0);
     cs_vec3 F, T;

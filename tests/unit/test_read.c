@@ -136,7 +136,7 @@ static void test_energy_hand_computed(void **unused)
     assert_int_equal(cs_energy_get(sim, &e), CS_OK);
     const double s1 = 0.5, s2 = sqrt(1.25) - 1, s3 = sqrt(3.25) - sqrt(2.0);
     tk_assert_near(e.spring, 0.5 * 100 * (s1 * s1 + s2 * s2) + 0.5 * 40 * s3 * s3, 1e-4);
-    tk_assert_near(e.total, e.kinetic + e.spring + e.gravity, 1e-9);
+    tk_assert_near(e.total, e.kinetic + e.spring + e.gravity + e.contact, 1e-9);
     /* A rock at height 3 moving at 2 m/s and spinning at 3 rad/s. */
     cs_rock_def d;
     cs_rock_def_default(&d);

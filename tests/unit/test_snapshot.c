@@ -158,7 +158,7 @@ static cs_sim *busy_sim(void)
     tk_add_rock(sim, 0.1f, 0.0f, 0.8f, 0.12f, 400.0f);
     cs_rock_def d;
     cs_rock_def_default(&d);
-    d.position[0] = -0.3f, d.position[1] = 0.2f, d.position[2] = 0.45f;
+    d.position[0] = -0.3f, d.position[1] = 0.2f, d.position[2] = 0.425f; /* just clear of the cloth */
     d.velocity[0] = 0.3f;
     d.angular_velocity[2] = 1.5f;
     d.radius = 0.07f;
@@ -525,6 +525,13 @@ static void test_past_table(void **unused)
     cs_params p;
     cs_sim_params(sim, &p);
     tk_assert_near(p.k_bend, 33, 0);
+    /* It ran on contact per vertex, uncapped, with absolute rock stiffnesses: it resumes on vertex
+     * contact, uncapped, rock contact at the defaults (per kg now). */
+    cs_params def;
+    cs_params_default(&def);
+    assert_int_equal(p.contact_model, CS_CONTACT_VERTEX);
+    assert_true(p.max_depenetration_speed == 0.0f);
+    assert_true(p.k_rock == def.k_rock && p.c_rock == def.c_rock);
     double v[3];
     assert_int_equal(cs_snapshot_value(file, info.length, "time_scale", v), CS_OK);
     tk_assert_near(v[0], 2.5, 0);
@@ -540,7 +547,9 @@ static void test_past_table(void **unused)
     assert_int_equal(cs_snapshot_value(file, 100, "seed", v), CS_E_FORMAT);
     size_t now_len;
     unsigned char *now = save(sim, &now_len);
-    assert_true(now_len == info.length - 6 * 8); /* six rows of one component fewer */
+    /* six rows of one component fewer, three more (contact_model, max_depenetration_speed,
+     * placement_overlap) */
+    assert_true(now_len == info.length - 6 * 8 + 3 * 8);
     assert_int_equal(cs_snapshot_value(now, now_len, "time_scale", v), CS_E_NOT_FOUND);
     assert_int_equal(cs_snapshot_value(now, now_len, "k_bend", v), CS_OK);
     tk_assert_near(v[0], 33, 0);

@@ -72,7 +72,7 @@ test('a click on the cloth drops a rock there', opts, async () => {
   assert.equal(rocks.length, 1);
   const rock = rocks[0];
   assert.equal(rock.radius, 0.1); // the panel's default drop radius
-  assert.equal(rock.density, 300);
+  assert.equal(rock.density, 2500); // the panel's default drop density: stone
   // Dropped over the clicked point: within a rock's size of it, sideways, and above it.
   assert.ok(Math.hypot(rock.position[0] - p[0], rock.position[1] - p[1]) < 0.3, JSON.stringify(rock.position));
   assert.ok(rock.position[2] > p[2], JSON.stringify(rock.position));
@@ -172,8 +172,8 @@ test('a refused value shows the server\'s reason and the control snaps back', op
   const message = page.locator('[data-param="k_structural"] .refused');
   await message.waitFor();
   assert.match(await message.textContent(), /unstable.*max_substeps/);
-  await until('the control to snap back', async () => (await input.inputValue()) === '400');
-  assert.equal((await ok(daemon, 'GET', '/v1/params')).k_structural, 400);
+  await until('the control to snap back', async () => (await input.inputValue()) === '2000');
+  assert.equal((await ok(daemon, 'GET', '/v1/params')).k_structural, 2000);
   // Chromium logs the refused request itself as a console error: that one is expected.
   const refusedLog = page.errors.filter((e) => /status of 422/.test(e));
   assert.equal(refusedLog.length, 1, page.errors.join('\n'));

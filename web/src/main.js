@@ -58,7 +58,7 @@ const state = { framed: false, scene: null, params: {}, torn: new Set(), running
 const rockSpeed = { id: null, last: null, speed: null };
 
 const view = new View($('view'));
-const viewValues = { mode: 'surface', camera: 'orbit', encoding: 'q16', dropRadius: 0.1, dropDensity: 300, chart: true };
+const viewValues = { mode: 'surface', camera: 'orbit', encoding: 'q16', dropRadius: 0.1, dropDensity: 2500, chart: true };
 let chart = null, panel = null;
 
 function applyScene(scene, torn, rocks) {
@@ -198,11 +198,28 @@ const actions = {
 
 let rockMove = null; // {id, position, busy}: the newest position wins
 const mouse = {
-  dropRock(point, dir) {
-    const r = viewValues.dropRadius;
-    const back = r * 1.5 + 0.05; // just in front of the surface, toward the camera
-    const position = point.map((x, k) => x - dir[k] * back);
-    return api.addRock({ position, radius: r, density: viewValues.dropDensity }).catch(refused('rock'));
+  // Dropped just in front of the clicked surface, toward the camera, and further back when that
+  // would overlap the cloth or a rock: the daemon refuses such a placement (409), so the drop
+  // backs off until it is clear, and retries a few times more if the daemon still disagrees.
+  async dropRock(point, dir) {
+    const r = viewValues.dropRadius, sc = state.scene;
+    const spacing = sc ? Math.max(sc.size_x / (sc.nx - 1), sc.size_y / (sc.ny - 1)) : 0.05;
+    const margin = (state.params.contact_offset ?? 0.01) + spacing;
+    // Backing off: up over a horizontal cloth (above the pile), toward the camera in front of a
+    // hanging one.
+    const off = sc?.orientation === 'vertical' ? dir.map((d) => -d) : [0, 0, 1];
+    const start = point.map((x, k) => x - dir[k] * (r * 1.5 + 0.05));
+    let lift = 0;
+    const at = (l) => start.map((x, k) => x + off[k] * l);
+    for (let k = 0; k < 40 && view.clearance(at(lift)) < r + margin; k++) lift += r / 2;
+    for (let tries = 0; ; tries++) {
+      try {
+        return await api.addRock({ position: at(lift), radius: r, density: viewValues.dropDensity });
+      } catch (e) {
+        if (e.status !== 409 || tries >= 4) return refused('rock')(e);
+        lift += 2 * r;
+      }
+    }
   },
   selectRock(id) {
     rockSpeed.id = rockSpeed.id === id ? null : id;

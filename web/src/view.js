@@ -268,6 +268,24 @@ export class View {
     return true;
   }
 
+  /** The shortest distance from point p to the cloth's vertices and to the rocks' surfaces. */
+  clearance(p) {
+    let best = Infinity;
+    const c = this.cloth;
+    if (c?.hasFrame) {
+      const a = c.position.array;
+      for (let v = 0; v < c.n; v++) {
+        const d = Math.hypot(a[3 * v] - p[0], a[3 * v + 1] - p[1], a[3 * v + 2] - p[2]);
+        if (d < best) best = d;
+      }
+    }
+    for (const r of this.rocks.values()) {
+      const d = r.mesh.position.distanceTo({ x: p[0], y: p[1], z: p[2] }) - r.radius;
+      if (d < best) best = d;
+    }
+    return best;
+  }
+
   showRocks(rocks) {
     for (const r of this.rocks.values()) r.seen = false;
     for (const r of rocks) {

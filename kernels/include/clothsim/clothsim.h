@@ -43,7 +43,8 @@ typedef enum cs_status {
     CS_E_FORMAT = -8,    /* a snapshot is truncated, corrupted or not a snapshot */
     CS_E_VERSION = -9,   /* a snapshot written by another format version */
     CS_E_BACKEND = -10,  /* the backend is unavailable or failed */
-    CS_E_DEVICE = -11    /* sticky device error: the device state is lost */
+    CS_E_DEVICE = -11,   /* sticky device error: the device state is lost */
+    CS_E_OVERLAP = -12   /* a rock placed into another rock or into the cloth */
 } cs_status;
 
 /* Short lowercase name of a status ("ok", "invalid", "unstable", ...). */
@@ -138,15 +139,17 @@ typedef struct cs_rock {
     float mass, inertia;       /* M = rho 4/3 pi R^3, I = 2/5 M R^2 */
 } cs_rock;
 
-/* A resting rock of radius 0.1 m and density 300 kg/m^3 at the origin (light enough for the
- * default cloth to hold: contact is per vertex, so a heavy rock stretches the cloth until it slips
- * between vertices). */
+/* A resting rock of radius 0.1 m and density 2500 kg/m^3 (stone: granite is 2700) at the origin. */
 void cs_rock_def_default(cs_rock_def *def);
 /* Adds a rock; ids start at 1 and are never reused within a scene (CS_E_LIMIT past the rock
- * limit, or once CS_ROCK_ID_MAX has been given). */
+ * limit, or once CS_ROCK_ID_MAX has been given). CS_E_OVERLAP when it would overlap another rock
+ * (centres closer than the sum of the radii) or hold part of the cloth's surface inside it (closer
+ * to its centre than its radius: deeper than contact_offset into its contact layer);
+ * cs_sim_error() names what it overlaps. */
 cs_status cs_rock_add(cs_sim *sim, const cs_rock_def *def, uint32_t *id);
 cs_status cs_rock_get(cs_sim *sim, uint32_t id, cs_rock *out);
-/* Changes every field of a rock (teleport, new radius, kinematic or not). */
+/* Changes every field of a rock (teleport, new radius, kinematic or not). A new position or radius
+ * is checked for overlaps as cs_rock_add does (CS_E_OVERLAP). */
 cs_status cs_rock_set(cs_sim *sim, uint32_t id, const cs_rock_def *def);
 cs_status cs_rock_remove(cs_sim *sim, uint32_t id);
 /* Removes every rock; returns how many. */
@@ -184,7 +187,10 @@ cs_status cs_read_strain(cs_sim *sim, float *out, size_t n_floats);
 #define CS_SPRING_TYPES_PER_VERTEX 6
 
 typedef struct cs_energy {
-    double kinetic, spring, gravity, total; /* J; gravity is -sum m g . x */
+    double kinetic, spring, gravity; /* J; gravity is -sum m g . x */
+    double contact;                  /* elastic energy of every penalty contact (cloth-rock, cloth-ground,
+                                        rock-rock, rock-ground), J */
+    double total;                    /* the sum of the four */
 } cs_energy;
 cs_status cs_energy_get(cs_sim *sim, cs_energy *out);
 /* FNV-1a 64 over positions, velocities, accelerations, rest lengths and rock state. */

@@ -19,12 +19,14 @@ typedef enum cs_orientation { CS_HORIZONTAL = 0, CS_VERTICAL = 1 } cs_orientatio
 typedef enum cs_pins { CS_PINS_CORNERS = 0, CS_PINS_EDGES = 1, CS_PINS_TOP_EDGE = 2, CS_PINS_NONE = 3 } cs_pins;
 typedef enum cs_friction { CS_FRICTION_COULOMB_VISCOUS = 0, CS_FRICTION_RESULTANT = 1 } cs_friction;
 typedef enum cs_integrator { CS_VELOCITY_VERLET = 0, CS_SYMPLECTIC_EULER = 1 } cs_integrator;
+typedef enum cs_contact_model { CS_CONTACT_VERTEX = 0, CS_CONTACT_SURFACE = 1 } cs_contact_model;
 
 /* Choice lists, in enum order. */
 #define CS_CHOICES_ORIENTATION "horizontal", "vertical"
 #define CS_CHOICES_PINS "corners", "edges", "top-edge", "none"
 #define CS_CHOICES_FRICTION "coulomb_viscous", "resultant"
 #define CS_CHOICES_INTEGRATOR "velocity_verlet", "symplectic_euler"
+#define CS_CHOICES_CONTACT "vertex", "surface"
 
 /* Scene fields: changing one rebuilds the cloth.
  * X(field, TYPE, unit, default, min, max, CHOICES, help): TYPE is INT, FLOAT, BOOL, ENUM or VEC3;
@@ -37,29 +39,32 @@ typedef enum cs_integrator { CS_VELOCITY_VERLET = 0, CS_SYMPLECTIC_EULER = 1 } c
     X(height, FLOAT, "m", 1.0, -1e4, 1e4, NONE, "Height of the cloth's centre")                             \
     X(orientation, ENUM, "-", CS_HORIZONTAL, 0, 1, ORIENTATION, "horizontal: in the xy-plane; vertical: hanging in the xz-plane") \
     X(pins, ENUM, "-", CS_PINS_EDGES, 0, 3, PINS, "Pinned vertices: corners, edges (all four borders), top-edge (curtain) or none") \
-    X(areal_density, FLOAT, "kg/m^2", 1.0, 1e-4, 1e4, NONE, "Mass per unit area; every vertex gets an equal share")
+    X(areal_density, FLOAT, "kg/m^2", 0.3, 1e-4, 1e4, NONE, "Mass per unit area (a cotton fleece knit: 0.3); every vertex gets an equal share")
 
 /* Live parameters: applied at the next substep.
  * VEC3 defaults and ranges apply to each component. */
 #define CS_LIVE_FIELDS(X)                                                                                   \
     X(gravity, VEC3, "m/s^2", (0.0, 0.0, -9.81), -1e3, 1e3, NONE, "Gravitational acceleration")  \
     X(wind, VEC3, "m/s", (0.0, 0.0, 0.0), -1e3, 1e3, NONE, "Air velocity seen by the cloth's drag") \
-    X(k_structural, FLOAT, "N/m", 400.0, 0, 1e9, NONE, "Stiffness of the springs to the 4 direct neighbours") \
-    X(k_shear, FLOAT, "N/m", 80.0, 0, 1e9, NONE, "Stiffness of the diagonal springs")                      \
+    X(k_structural, FLOAT, "N/m", 2000.0, 0, 1e9, NONE, "Stiffness of the springs to the 4 direct neighbours (the sheet stretches with about k_structural + k_shear / 2 + 4 k_bend N/m)") \
+    X(k_shear, FLOAT, "N/m", 200.0, 0, 1e9, NONE, "Stiffness of the diagonal springs")                     \
     X(k_bend, FLOAT, "N/m", 20.0, 0, 1e9, NONE, "Stiffness of the springs that skip one vertex")           \
     X(c_spring, FLOAT, "N s/m", 0.01, 0, 1e6, NONE, "Damping along every spring")                          \
     X(drag, FLOAT, "1/s", 0.2, 0, 1e3, NONE, "Air drag on cloth vertices, relative to the wind")          \
     X(plastic_yield, FLOAT, "-", 0.0, 0, 100, NONE, "Strain past which a stretched spring's rest length grows; 0 = off") \
     X(tear_strain, FLOAT, "-", 0.0, 0, 100, NONE, "Strain past which a spring is removed for good; 0 = off") \
     X(plastic_rate, FLOAT, "1/s", 0.0, 0, 1e6, NONE, "Speed of plastic flow; 0 = instant (rest length jumps to the length)") \
-    X(k_contact, FLOAT, "N/m", 400.0, 0, 1e9, NONE, "Penalty stiffness of cloth-rock and cloth-ground contact") \
+    X(k_contact, FLOAT, "N/m", 500.0, 0, 1e9, NONE, "Penalty stiffness of cloth-rock and cloth-ground contact") \
     X(c_contact, FLOAT, "N s/m", 0.05, 0, 1e6, NONE, "Normal damping of cloth contact")                    \
-    X(c_tangent, FLOAT, "N s/m", 0.5, 0, 1e6, NONE, "Viscous tangential friction coefficient (coulomb_viscous)") \
+    X(c_tangent, FLOAT, "N s/m", 0.02, 0, 1e6, NONE, "Viscous tangential friction coefficient of cloth contact (coulomb_viscous)") \
     X(mu, FLOAT, "-", 0.5, 0, 100, NONE, "Coulomb friction coefficient of cloth contact")                 \
     X(contact_offset, FLOAT, "m", 0.01, 0, 10, NONE, "Cloth thickness: contact starts this far from a surface") \
     X(friction_model, ENUM, "-", CS_FRICTION_COULOMB_VISCOUS, 0, 1, FRICTION, "coulomb_viscous (seed 000) or resultant (seed 003)") \
-    X(k_rock, FLOAT, "N/m", 1e5, 0, 1e10, NONE, "Penalty stiffness of rock-rock and rock-ground contact")  \
-    X(c_rock, FLOAT, "N s/m", 50.0, 0, 1e8, NONE, "Normal damping of rock-rock and rock-ground contact")  \
+    X(contact_model, ENUM, "-", CS_CONTACT_SURFACE, 0, 1, CONTACT, "surface: rocks meet the cloth's triangles; vertex: seed 000's contact per vertex") \
+    X(max_depenetration_speed, FLOAT, "m/s", 3.0, 0, 1e4, NONE, "No contact pushes two bodies apart faster than this; 0 = no cap") \
+    X(placement_overlap, FLOAT, "m", 0.0, 0, 10, NONE, "How far a rock placement may overlap another rock or hold the cloth inside its radius; deeper is refused") \
+    X(k_rock, FLOAT, "N/(m kg)", 1e6, 0, 1e10, NONE, "Stiffness of rock-rock and rock-ground contact per kg of the pair's reduced mass") \
+    X(c_rock, FLOAT, "N s/(m kg)", 500.0, 0, 1e8, NONE, "Normal and tangential damping of rock contact per kg of reduced mass") \
     X(mu_rock, FLOAT, "-", 0.5, 0, 100, NONE, "Coulomb friction coefficient of rock contact")             \
     X(ground, BOOL, "-", 1, 0, 1, NONE, "Whether the ground plane exists")                                 \
     X(ground_z, FLOAT, "m", 0.0, -1e4, 1e4, NONE, "Height of the ground plane")                            \

@@ -128,7 +128,13 @@ typedef struct cs_backend {
     void (*stats)(void *ctx, const cs_model *m, cs_backend_stats *out);
     /* Its cost model for this model and rock count; needs no device. */
     void (*cost)(const cs_model *m, int32_t n_rocks, cs_cost_model *out);
+    /* CS_CAP_* it implements; a parameter that needs one it lacks is refused on it (and "auto"
+     * then picks the CPU backend). Last, so a table that predates a flag leaves it 0. */
+    unsigned caps;
 } cs_backend;
+
+/* contact_model surface (physics.h, "surface contact"). */
+#define CS_CAP_SURFACE_CONTACT 1u
 
 /* Adds a row to a cost model and its totals. */
 void cs_cost_add(cs_cost_model *c, const char *name, double read, double written, double fixed, double per_substep,

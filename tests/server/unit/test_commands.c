@@ -253,7 +253,7 @@ static void test_apply(void **unused)
     size_t live = 0;
     for (size_t i = 0; i < settings_count(); i++) live += settings_at(i)->kind == SET_LIVE;
     assert_int_equal(json_object_size(full), live); /* every live parameter: the command is complete */
-    assert_true(json_number_value(json_object_get(full, "k_shear")) == 80.0);
+    assert_true(json_number_value(json_object_get(full, "k_shear")) == 200.0); /* the default, unchanged */
     cs_sim *again = uk_engine(6, 5);
     loop_settings loop2 = uk_defaults().scene.loop;
     json_t *j2, *r2;
