@@ -194,7 +194,7 @@ __device__ static void eval_owned(const cuda_bufs &b, const cs_phys *p, const fl
     F[t] = cs_v3(0.0f, 0.0f, 0.0f);                                                                    \
     len[t] = 0.0f;                                                                                     \
     l0[t] = CS_TORN;                                                                                   \
-    if ((types >> (t) & 1u) && i + (di) >= 0 && i + (di) < p->nx && r + (dj) < p->ny) {                \
+    if ((types >> (t) & 1u) && cs_far_end_on_grid(p->nx, p->ny, i, r, (di), (dj))) {                       \
         l0[t] = dload(&b.L0[(size_t)(t) * (size_t)p->n + v]);                                          \
         F[t] = cs_spring_force(xi, vi, ring_x(sm, r + (dj), k + (di)), ring_v(sm, r + (dj), k + (di)), l0[t], \
                                p->k[t], p->c_spring, &len[t]);                                         \
@@ -648,7 +648,7 @@ __global__ void k_strain(const cuda_scene *__restrict__ sc, cuda_bufs b)
 #define CUDA_STRAIN(t, di, dj)                                                                         \
     l0[t] = dload(&b.L0[(size_t)(t) * n + v]);                                                         \
     nl[t] = l0[t];                                                                                     \
-    if (l0[t] > 0.0f && i + (di) >= 0 && i + (di) < nx && j + (dj) < ny) {                             \
+    if (l0[t] > 0.0f && cs_far_end_on_grid(nx, ny, i, j, (di), (dj))) {                                    \
         const size_t o = (size_t)(v + (di) + (dj) * nx);                                               \
         const cs_vec3 xo = cs_v3(dload(&b.in[o]), dload(&b.in[n + o]), dload(&b.in[2 * n + o]));       \
         nl[t] = cs_strain_update(cs_len(cs_sub(xo, xi)), l0[t], p);                                    \

@@ -210,8 +210,7 @@ static int owned_strain(const cs_phys *p, const cs_state *s, int32_t v0, int32_t
 static void owned_offsets(const cs_phys *p, int32_t i, int32_t r, int32_t off[CS_NTYPES])
 {
     for (int t = 0; t < CS_NTYPES; t++) {
-        const int32_t i2 = i + cs_type_di[t], r2 = r + cs_type_dj[t];
-        off[t] = (i2 >= 0 && i2 < p->nx && r2 < p->ny) ? cs_type_di[t] + cs_type_dj[t] * p->nx : 0;
+        off[t] = cs_far_end_on_grid(p->nx, p->ny, i, r, cs_type_di[t], cs_type_dj[t]) ? cs_type_di[t] + cs_type_dj[t] * p->nx : 0;
     }
 }
 
