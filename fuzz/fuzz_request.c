@@ -15,8 +15,10 @@
 
 #include <jansson.h>
 
-#include "commands.h"
+#include "core/json_read.h"
+#include "core/json_write.h"
 #include "fuzz_common.h"
+#include "sim/commands.h"
 
 /* The first byte: one of these characters (a readable corpus), or any other byte modulo their
  * number. */
@@ -29,6 +31,7 @@ static const char *const OPS[] = {"params", "scene", "rock_add", "rock_set", "ro
 
 static cs_sim *sim_a, *sim_b;   /* the request's, and the replay's */
 static unsigned char *pristine; /* the state of a fresh fuzz_sim() */
+static loop_settings fuzz_loop; /* the daemon-loop settings' defaults */
 static size_t pristine_len;
 
 int LLVMFuzzerInitialize(int *argc, char ***argv)
@@ -38,6 +41,9 @@ int LLVMFuzzerInitialize(int *argc, char ***argv)
     sim_a = fuzz_sim();
     sim_b = fuzz_sim();
     pristine = fuzz_state(sim_a, &pristine_len);
+    clothd_config defaults;
+    settings_default(&defaults);
+    fuzz_loop = defaults.scene.loop;
     return 0;
 }
 
@@ -61,7 +67,8 @@ static void apply(const json_t *cmd, const char *what)
     json_t *journal = NULL, *result = NULL;
     problem pr;
     memset(&pr, 0, sizeof pr);
-    if (command_apply(a, cmd, &journal, &result, &pr) != 0) {
+    loop_settings loop_a = fuzz_loop, loop_b = fuzz_loop;
+    if (command_apply(a, &loop_a, cmd, &journal, &result, &pr) != 0) {
         check_problem(&pr, what);
         if (journal || result) fuzz_fail("%s: a refusal returned a journal entry or a result", what);
         if (!fuzz_state_is(a, pristine, pristine_len)) fuzz_fail("%s: a refused command changed the simulation", what);
@@ -69,21 +76,22 @@ static void apply(const json_t *cmd, const char *what)
     }
     if (!journal) fuzz_fail("%s: an accepted command has no journal entry", what);
     if (result) {
-        char *text = json_dumps(result, PJSON_DUMP_FLAGS);
+        char *text = json_dumps(result, JSON_DUMP_FLAGS);
         if (!text) fuzz_fail("%s: the result cannot be written as JSON", what);
         free(text);
     }
     /* The journal keeps entries as text (journal_append) and replay reads them back. */
-    char *text = json_dumps(journal, PJSON_DUMP_FLAGS);
+    char *text = json_dumps(journal, JSON_DUMP_FLAGS);
     if (!text) fuzz_fail("%s: the journal entry cannot be written as JSON", what);
     json_error_t err;
     json_t *again = json_loads(text, JSON_REJECT_DUPLICATES, &err);
     if (!again) fuzz_fail("%s: the journal entry does not read back: %s", what, err.text);
     fuzz_reset(b, pristine, pristine_len);
     json_t *j2 = NULL, *r2 = NULL;
-    if (command_apply(b, again, &j2, &r2, &pr) != 0)
+    if (command_apply(b, &loop_b, again, &j2, &r2, &pr) != 0)
         fuzz_fail("%s: the journal entry %s is refused on replay: %s", what, text, pr.detail);
-    if (!fuzz_same_state(a, b)) fuzz_fail("%s: replaying the journal entry %s gives another state", what, text);
+    if (!fuzz_same_state(a, b) || memcmp(&loop_a, &loop_b, sizeof loop_a) != 0)
+        fuzz_fail("%s: replaying the journal entry %s gives another state", what, text);
     /* One substep of whatever the command set up: the same on both. */
     const cs_status sa = cs_sim_step(a, 1), sb = cs_sim_step(b, 1);
     if (sa != sb) fuzz_fail("%s: a substep after %s: %s, after its replay: %s", what, text, cs_status_name(sa), cs_status_name(sb));

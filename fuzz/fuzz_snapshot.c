@@ -19,8 +19,8 @@
  * and a trailer it writes reads back the same. */
 #include <stdint.h>
 
+#include "core/statefile.h"
 #include "fuzz_common.h"
-#include "statefile.h"
 
 /* A small rock limit (the daemon's max_rocks), so that snapshots past it are found. */
 #define FUZZ_ROCK_LIMIT 4
@@ -140,22 +140,27 @@ static void state_file(const uint8_t *data, size_t size)
 {
     statefile layout;
     char why[300] = "";
-    if (statefile_parse(data, size, &layout, why, sizeof why) != STATEFILE_OK) {
+    clothd_config defaults;
+    settings_default(&defaults);
+    loop_settings loop = defaults.scene.loop;
+    if (statefile_parse(data, size, &layout, &loop, why, sizeof why) != STATEFILE_OK) {
         if (!why[0]) fuzz_fail("a state file refused without a reason");
         return;
     }
     if (layout.snapshot_len == 0 || layout.snapshot_len > size) fuzz_fail("a snapshot of %zu bytes in %zu", layout.snapshot_len, size);
     if (layout.snapshot_len < size) load(data, layout.snapshot_len);
     size_t tlen = 0;
-    char *t = statefile_trailer(layout.paused, &tlen);
+    char *t = statefile_trailer(layout.paused, &loop, &tlen);
     if (!t) fuzz_fail("out of memory");
     unsigned char *file = malloc(layout.snapshot_len + tlen);
     if (!file) fuzz_fail("out of memory");
     memcpy(file, data, layout.snapshot_len);
     memcpy(file + layout.snapshot_len, t, tlen);
     statefile again;
-    if (statefile_parse(file, layout.snapshot_len + tlen, &again, why, sizeof why) != STATEFILE_OK ||
-        again.paused != layout.paused || again.snapshot_len != layout.snapshot_len || again.format != STATEFILE_FORMAT)
+    loop_settings back = defaults.scene.loop;
+    if (statefile_parse(file, layout.snapshot_len + tlen, &again, &back, why, sizeof why) != STATEFILE_OK ||
+        again.paused != layout.paused || again.snapshot_len != layout.snapshot_len || again.format != STATEFILE_FORMAT ||
+        memcmp(&back, &loop, sizeof loop) != 0)
         fuzz_fail("a state file written with its trailer does not read back: %s", why);
     free(file);
     free(t);

@@ -9,9 +9,9 @@
 
 #include <jansson.h>
 
-#include "commands.h"
+#include "core/stream_msg.h"
 #include "fuzz_common.h"
-#include "stream_msg.h"
+#include "sim/commands.h"
 
 static cs_sim *sim;
 static unsigned char *pristine; /* the state of a fresh fuzz_sim() */
@@ -56,11 +56,13 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         const char *op = json_string_value(json_object_get(m.cmd, "op"));
         if (!op || (strcmp(op, "grab") != 0 && strcmp(op, "release") != 0)) fuzz_fail("a command with op %s", op ? op : "(none)");
         /* What the sim thread does with it (simloop.c's CMD_APPLY), and the error sent back. */
-            fuzz_reset(sim, pristine, pristine_len);
+        fuzz_reset(sim, pristine, pristine_len);
         json_t *journal = NULL, *result = NULL;
         problem pr;
         memset(&pr, 0, sizeof pr);
-        if (command_apply(sim, m.cmd, &journal, &result, &pr) != 0)
+        loop_settings loop;
+        memset(&loop, 0, sizeof loop); /* grab and release leave them be */
+        if (command_apply(sim, &loop, m.cmd, &journal, &result, &pr) != 0)
             check_error(op, pr.status, pr.param[0] ? pr.param : NULL, pr.detail);
         else if (!journal)
             fuzz_fail("an accepted %s has no journal entry", op);

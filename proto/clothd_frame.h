@@ -1,4 +1,4 @@
-/* clothd_frame.h - the binary frame of the clothd stream (DESIGN.md section 4), little-endian.
+/* clothd_frame.h - the binary frame of the clothd stream (PROTOCOL.md, Binary frames), little-endian.
  *
  *   offset  size  field
  *        0     4  magic "CLF1"

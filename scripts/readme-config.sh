@@ -1,6 +1,6 @@
 #!/bin/sh
 # README's "Configuration" table is clothd's own output (clothd --help-markdown, from the table in
-# server/settings.h), between the BEGIN and END marker lines.
+# server/core/settings.h), between the BEGIN and END marker lines.
 #   scripts/readme-config.sh [CLOTHD]          rewrite that part of README.md
 #   scripts/readme-config.sh --check [CLOTHD]  diff it, exit 1 when it differs (ctest docs.readme_config)
 # CLOTHD defaults to build/server/clothd.

@@ -26,15 +26,16 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "access.h"
-#include "commands.h"
-#include "http.h"
-#include "log.h"
-#include "metrics.h"
-#include "settings.h"
-#include "simloop.h"
-#include "statefile.h"
-#include "stream.h"
+#include "core/access.h"
+#include "core/log.h"
+#include "core/metrics.h"
+#include "core/settings.h"
+#include "core/statefile.h"
+#include "http/http.h"
+#include "sim/commands.h"
+#include "sim/scenes.h"
+#include "sim/simloop.h"
+#include "stream/stream.h"
 #ifdef CLOTHD_TEST_HOOKS
 #include "testhooks.h"
 #endif
@@ -143,11 +144,11 @@ static int write_atomic(const char *path, const void *data, size_t len, char *wh
 
 /* Saves the engine's state, or the last checkpoint when the engine cannot be read any more (a
  * lost device), as a state file (statefile.h) with the run state. */
-static int save_state(cs_sim *sim, const unsigned char *fallback, size_t fallback_len, int paused, const char *path,
-                      char *why, size_t why_len)
+static int save_state(cs_sim *sim, const unsigned char *fallback, size_t fallback_len, int paused,
+                      const loop_settings *loop, const char *path, char *why, size_t why_len)
 {
     size_t tlen = 0, len = cs_snapshot_size(sim);
-    char *trailer = statefile_trailer(paused, &tlen);
+    char *trailer = statefile_trailer(paused, loop, &tlen);
     unsigned char *buf = trailer ? malloc(len + tlen) : NULL;
     int rc = -1;
     if (!buf) {
@@ -229,10 +230,11 @@ static int move_aside(const char *path, char *to, size_t to_len)
 }
 
 /* Resumes from the state file when there is one. Returns 0 (resumed, or nothing to resume), or
- * -1 when the start must stop (logged); *paused says whether the state was saved paused. A file
+ * -1 when the start must stop (logged); *paused says whether the state was saved paused, and the
+ * daemon-loop settings it holds are set in *loop. A file
  * that is corrupt, foreign or from another version stops it too, unless state_file_invalid is
  * fresh: then it is moved aside and the start goes on with the configured scene. */
-static int resume(cs_sim *sim, const clothd_settings *set, int *paused)
+static int resume(cs_sim *sim, const clothd_settings *set, int *paused, loop_settings *loop)
 {
     const char *path = set->state_file;
     *paused = 0;
@@ -255,7 +257,8 @@ static int resume(cs_sim *sim, const clothd_settings *set, int *paused)
         return -1;
     }
     statefile layout;
-    const statefile_error fe = statefile_parse(buf, len, &layout, why, sizeof why);
+    loop_settings saved = *loop;
+    const statefile_error fe = statefile_parse(buf, len, &layout, &saved, why, sizeof why);
     const cs_status st = fe == STATEFILE_OK ? cs_snapshot_load(sim, buf, layout.snapshot_len) : CS_E_FORMAT;
     const char *bad = fe == STATEFILE_FOREIGN  ? "is not a clothd state file"
                       : fe == STATEFILE_NEWER  ? "was written by a newer clothd"
@@ -270,9 +273,11 @@ static int resume(cs_sim *sim, const clothd_settings *set, int *paused)
         char hex[17];
         cs_hash_hex(cs_state_hash(sim), hex);
         *paused = layout.paused;
-        log_msg("resumed from %s at step %llu, state hash %s, %s as it was saved%s", path,
+        *loop = saved;
+        log_msg("resumed from %s at step %llu, state hash %s, %s as it was saved%s%s", path,
                 (unsigned long long)info.step, hex, layout.paused ? "paused" : "running",
-                layout.format < STATEFILE_FORMAT ? " (a state file of format 1, which kept no run state)" : "");
+                layout.format == 1 ? " (a state file of format 1, which kept no run state)" : "",
+                layout.format < 3 && layout.loop_given ? "; its daemon-loop settings from its snapshot" : "");
         return 0;
     }
     if (!bad) { /* the file is kept whatever state_file_invalid says */
@@ -306,19 +311,20 @@ static cs_sim *make_engine(const clothd_config *cfg)
     cs_sim *sim = NULL;
     const uint64_t limit = (uint64_t)cfg->set.max_state_mb << 20;
     uint64_t bytes;
-    if (simloop_scene_cost(&cfg->scene, cfg->set.max_rocks, NULL, &bytes) != CS_OK || bytes > limit) {
-        log_msg("cannot start the simulation: a %d x %d cloth needs more than max_state_mb (%d MiB)", (int)cfg->scene.nx,
-                (int)cfg->scene.ny, (int)cfg->set.max_state_mb);
+    void *sink = (void *)&stream_sink_ops; /* what the stream holds is part of a scene's cost */
+    if (scene_cost(&cfg->scene.fields, cfg->set.max_rocks, sink, &bytes) != CS_OK || bytes > limit) {
+        log_msg("cannot start the simulation: a %d x %d cloth needs more than max_state_mb (%d MiB)", (int)cfg->scene.fields.nx,
+                (int)cfg->scene.fields.ny, (int)cfg->set.max_state_mb);
         return NULL;
     }
-    const cs_status st = cs_sim_create(&cfg->scene, &cfg->params, backend_names[cfg->set.backend], &sim, err, sizeof err);
+    const cs_status st = cs_sim_create(&cfg->scene.fields, &cfg->scene.params, backend_names[cfg->set.backend], &sim, err, sizeof err);
     if (st != CS_OK) {
         log_msg("cannot start the simulation: %s", err);
         return NULL;
     }
     cs_sim_set_threads(sim, cfg->set.threads);
     cs_sim_set_rock_limit(sim, cfg->set.max_rocks);
-    cs_sim_set_memory_limit(sim, limit, simloop_scene_cost, NULL);
+    cs_sim_set_memory_limit(sim, limit, scene_cost, sink);
     return sim;
 }
 
@@ -353,6 +359,7 @@ static int replay(const char *file, const clothd_config *cfg)
         cs_info info;
         size_t k;
         json_t *e;
+        loop_settings loop = cfg->scene.loop; /* a params command sets them too; they change no state */
         rc = 0;
         json_array_foreach(json_object_get(j, "entries"), k, e)
         {
@@ -361,7 +368,7 @@ static int replay(const char *file, const clothd_config *cfg)
             json_t *journal = NULL, *result = NULL;
             problem pr;
             if (step < (long long)info.step || cs_sim_step(sim, step - (long long)info.step) != CS_OK ||
-                command_apply(sim, json_object_get(e, "command"), &journal, &result, &pr) != 0) {
+                command_apply(sim, &loop, json_object_get(e, "command"), &journal, &result, &pr) != 0) {
                 fprintf(stderr, "clothd replay: entry %zu (step %lld) could not be replayed: %s\n", k, step,
                         pr.detail[0] ? pr.detail : cs_sim_error(sim));
                 rc = 1;
@@ -392,20 +399,46 @@ static int replay(const char *file, const clothd_config *cfg)
 
 /* ---- serve ---- */
 
-/* Saves the state file (when one is set) once the sim thread has stopped: 0, or -1 (logged; the
- * previous file is left as it was). */
-static int save_on_exit(simloop *sl, const char *path)
+/* Saves a scene's state file (when one is set) once the sim thread has stopped: 0, or -1 (logged;
+ * the previous file is left as it was). */
+static int save_on_exit(scene *sc, const char *path)
 {
     if (!path[0]) return 0;
     size_t cl = 0;
-    const unsigned char *cp = simloop_checkpoint(sl, &cl);
+    const unsigned char *cp = scene_last_checkpoint(sc, &cl);
     char why[1400];
-    if (save_state(simloop_engine(sl), cp, cl, simloop_paused(sl), path, why, sizeof why) != 0) {
+    if (save_state(scene_engine(sc), cp, cl, scene_paused_for_save(sc), scene_loop(sc), path, why, sizeof why) != 0) {
         log_msg("could not save the state to %s: %s; the previous state file, if any, is unchanged", path, why);
         return -1;
     }
-    log_msg("state saved to %s (%s)", path, simloop_paused(sl) ? "paused" : "running");
+    log_msg("state saved to %s (%s)", path, scene_paused_for_save(sc) ? "paused" : "running");
     return 0;
+}
+
+/* The daemon's table with its one scene, "default": the engine (taken), resumed from the state
+ * file when there is one. NULL when the start must stop (logged). */
+static scenes *default_table(cs_sim *sim, clothd_config *cfg)
+{
+    int was_paused = 0;
+    if (resume(sim, &cfg->set, &was_paused, &cfg->scene.loop) != 0) {
+        cs_sim_destroy(sim);
+        return NULL;
+    }
+    cfg->set.paused |= was_paused; /* --paused pauses a state saved running too */
+    scenes *table = scenes_new(1);
+    scene *sc = table ? scene_new(SCENE_DEFAULT, sim, &cfg->scene.loop, cfg->set.paused, &cfg->set) : NULL;
+    if (!table) cs_sim_destroy(sim);
+    if (!sc || scenes_add(table, sc) != 0) {
+        log_msg("out of memory");
+        scene_release(sc);
+        scenes_free(table);
+        return NULL;
+    }
+#ifdef CLOTHD_TEST_HOOKS
+    scene_set_frame_hook(sc, testhooks_before_frame);
+#endif
+    scene_release(sc); /* the table's from now on */
+    return table;
 }
 
 static int serve_with(clothd_config *cfg, const access_policy *acc)
@@ -424,48 +457,31 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     cs_sim *sim = make_engine(cfg);
     if (!sim) return EXIT_START;
     if (strcmp(cs_sim_backend(sim), "cuda") == 0 && !cfg->scene_size_given) {
-        cs_scene sc = cfg->scene;
+        cs_scene sc = cfg->scene.fields;
         sc.nx = sc.ny = 256; /* a GPU takes a finer cloth in real time */
-        if (cs_sim_set_scene(sim, &sc) == CS_OK) cfg->scene = sc;
+        if (cs_sim_set_scene(sim, &sc) == CS_OK) cfg->scene.fields = sc;
     }
     log_msg("backend: %s on %s (%s)", cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim));
-    int was_paused = 0;
-    if (resume(sim, &cfg->set, &was_paused) != 0) {
-        cs_sim_destroy(sim);
-        return EXIT_START;
-    }
-    cfg->set.paused |= was_paused; /* --paused pauses a state saved running too */
+    const http_info about = {cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim), CLOTHD_VERSION, NULL, 0, acc};
+    scenes *table = default_table(sim, cfg);
+    if (!table) return EXIT_START;
+    scene *sc = scenes_get(table, SCENE_DEFAULT);
     metrics *m = metrics_new();
-    simloop *sl = m ? simloop_new(sim, cfg, m) : NULL;
-    if (!sl) {
-        log_msg("out of memory");
-        cs_sim_destroy(sim);
-        metrics_free(m);
-        return EXIT_START;
-    }
-    stream *st = stream_start(&cfg->set, sl, acc, err, sizeof err);
-    if (!st) {
-        log_msg("%s", err);
-        simloop_free(sl);
-        metrics_free(m);
-        return EXIT_START;
-    }
-    simloop_attach_stream(sl, st);
-    const http_info info = {cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim), CLOTHD_VERSION, st,
-                            stream_port(st), acc};
-    http_server *http = http_start(&cfg->set, sl, m, &info, err, sizeof err);
-    if (!http) {
-        log_msg("%s", err);
-        stream_stop(st);
-        simloop_free(sl);
-        metrics_free(m);
-        return EXIT_START;
-    }
-    if (simloop_start(sl) != 0) {
-        log_msg("cannot start the sim thread");
+    simloop *sl = m ? simloop_new(table, m) : NULL;
+    stream *st = sl ? stream_start(&cfg->set, table, acc, err, sizeof err) : NULL;
+    http_info info = about;
+    info.stream = st;
+    info.stream_port = st ? stream_port(st) : 0;
+    if (st) scene_set_sink(sc, stream_sink(st));
+    http_server *http = st ? http_start(&cfg->set, table, m, &info, err, sizeof err) : NULL;
+    const int started = http && simloop_start(sl) == 0;
+    if (!started) {
+        log_msg("%s", !m || !sl ? "out of memory" : !st || !http ? err : "cannot start the sim thread");
         http_stop(http);
         stream_stop(st);
         simloop_free(sl);
+        scene_release(sc);
+        scenes_free(table);
         metrics_free(m);
         return EXIT_START;
     }
@@ -487,7 +503,7 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
          * they were - so that a supervisor and an operator see why the daemon goes. */
         log_msg("backend failed: saving the state and exiting for a restart");
         simloop_stop(sl);
-        rc = save_on_exit(sl, cfg->set.state_file) == 0 ? EXIT_BACKEND : EXIT_SAVE;
+        rc = save_on_exit(sc, cfg->set.state_file) == 0 ? EXIT_BACKEND : EXIT_SAVE;
         http_quiesce(http);
         http_stop(http);
         stream_stop(st);
@@ -497,9 +513,11 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
         simloop_stop(sl);
         http_stop(http);
         stream_stop(st);
-        rc = save_on_exit(sl, cfg->set.state_file) == 0 ? 0 : EXIT_SAVE;
+        rc = save_on_exit(sc, cfg->set.state_file) == 0 ? 0 : EXIT_SAVE;
     }
     simloop_free(sl);
+    scene_release(sc);
+    scenes_free(table);
     metrics_free(m);
     return rc;
 }
@@ -543,7 +561,7 @@ int main(int argc, char **argv, char **envp)
         return 0;
     }
     if (strcmp(sub, "routes") == 0) {
-        http_print_routes(stdout);
+        command_print_routes(stdout);
         return 0;
     }
     const char *file = NULL;
@@ -560,7 +578,12 @@ int main(int argc, char **argv, char **envp)
     clothd_config cfg;
     settings_default(&cfg);
     char why[600];
-    if (settings_load(&cfg, argc - first, argv + first, envp, why, sizeof why) != 0) {
+#ifdef CLOTHD_TEST_HOOKS
+    const char *skip = "TEST_"; /* the test daemon's hooks (testhooks.h) */
+#else
+    const char *skip = NULL;
+#endif
+    if (settings_load(&cfg, argc - first, argv + first, envp, skip, why, sizeof why) != 0) {
         fprintf(stderr, "clothd: %s\n", why);
         return EXIT_USAGE;
     }

@@ -3,8 +3,8 @@
 #include <stdlib.h>
 #include <time.h>
 
+#include "core/log.h"
 #include "cs_testhooks.h"
-#include "log.h"
 #include "testhooks.h"
 
 static long long nan_frame = -1, fail_frame = -1, save_pause_ms = -1;

@@ -172,7 +172,6 @@ int main(int argc, char **argv)
             p.plastic_yield = 0.5f; /* the strain pass runs; at rest nothing yields */
             p.tear_strain = 2.0f;
             p.max_substeps = 100000;
-            p.auto_drop_interval = 0;
             cs_sim *sim = NULL;
             char err[256];
             /* The model needs the scene and rocks only: a CPU simulation holds them. */

@@ -1,4 +1,4 @@
-/* guard.c - the stability guard (DESIGN.md section 2, Time) and the model derived from the
+/* guard.c - the stability guard (kernels/MODEL.md, Time) and the model derived from the
  * parameters.
  *
  * An explicit integrator of a mass m held by stiffness K and damping C is stable for

@@ -67,6 +67,29 @@ int64_t cs_read_torn(cs_sim *sim, uint32_t *ids, size_t cap)
     return cs_torn_list(sim->model.scene.nx, sim->model.scene.ny, sim->state.L0, ids, cap);
 }
 
+cs_status cs_read_strain(cs_sim *sim, float *out, size_t n_floats)
+{
+    if (!sim) return CS_E_INVALID;
+    const int32_t nx = sim->model.scene.nx, ny = sim->model.scene.ny, n = sim->state.n;
+    if (!out || n_floats < (size_t)n) return cs_fail(sim, CS_E_INVALID, NULL, "strain buffer must hold %d floats", (int)n);
+    const cs_status st = cs_sim_sync(sim, CS_SYNC_ALL);
+    if (st != CS_OK) return st;
+    const cs_state *s = &sim->state;
+    memset(out, 0, sizeof(float) * (size_t)n);
+    for (int t = CS_SX; t <= CS_SY; t++) {
+        for (int32_t v = 0; v < n; v++) {
+            const float L0 = s->L0[(size_t)t * n + v];
+            const int32_t o = cs_spring_far_end(nx, ny, t, v);
+            if (o < 0 || !(L0 > 0.0f)) continue; /* off the grid, or torn */
+            const float e = (cs_len(cs_v3(s->x[o] - s->x[v], s->y[o] - s->y[v], s->z[o] - s->z[v])) - L0) / L0;
+            if (e > out[v]) out[v] = e;
+            if (e > out[o]) out[o] = e;
+        }
+    }
+    cs_ok(sim);
+    return CS_OK;
+}
+
 cs_status cs_energy_get(cs_sim *sim, cs_energy *out)
 {
     if (!sim || !out) return sim ? cs_fail(sim, CS_E_INVALID, NULL, "out is NULL") : CS_E_INVALID;

@@ -105,8 +105,8 @@ const int cs_type_dj[CS_NTYPES] = {CS_SPRING_TYPES(CS_TYPE_DJ)};
 
 int32_t cs_spring_far_end(int32_t nx, int32_t ny, int t, int32_t v)
 {
-    const int32_t i2 = v % nx + cs_type_di[t], j2 = v / nx + cs_type_dj[t];
-    return i2 >= 0 && i2 < nx && j2 >= 0 && j2 < ny ? j2 * nx + i2 : -1;
+    const int32_t i = v % nx, j = v / nx;
+    return cs_far_end_on_grid(nx, ny, i, j, cs_type_di[t], cs_type_dj[t]) ? (j + cs_type_dj[t]) * nx + i + cs_type_di[t] : -1;
 }
 
 int cs_spring_exists(int32_t nx, int32_t ny, int t, int32_t v) { return cs_spring_far_end(nx, ny, t, v) >= 0; }

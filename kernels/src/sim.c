@@ -3,7 +3,7 @@
  * Every command follows one pattern: validate everything, compute the new model or state aside,
  * and only then adopt it, so a refused command changes nothing. After a command changes the host
  * state it is handed to the backend and the accelerations are recomputed from the current
- * positions and velocities (DESIGN: a_n is refreshed whenever the state changes from outside). */
+ * positions and velocities (kernels/MODEL.md: a_n is refreshed whenever the state changes from outside). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>

@@ -7,6 +7,8 @@
 #include "clothsim/clothsim.h"
 #include "clothsim/physics.h"
 
+_Static_assert(CS_SPRING_TYPES_PER_VERTEX == CS_NTYPES, "clothsim.h's count of spring types is physics.h's");
+
 /* The distinct (structural, shear, bend) spring counts that vertices of a grid have. */
 typedef struct cs_combos {
     int n;

@@ -2,12 +2,15 @@
  *
  * Layout, all little-endian:
  *   header (32 bytes): "CSNP", u32 version, u64 layout id (a hash of the parameter table's names,
- *   types and kinds, so a build with other parameters refuses the buffer), u64 payload bytes,
- *   u64 FNV-1a 64 of the payload;
+ *   types and kinds, so a build with other parameters knows the buffer is not its own), u64
+ *   payload bytes, u64 FNV-1a 64 of the payload;
  *   payload: every table row (scene then live) as f64 per component; u64 step; f64 time;
  *   i32 grab vertex, 3 f32 grab target; u32 rocks, u32 next rock id; x, y, z, vx, vy, vz, ax, ay,
  *   az (n f32 each); rest lengths (6 n f32); pins (n u8, zero-padded to 4 bytes); per rock: u32 id,
  *   u32 kinematic, 21 f32 (x, v, w, a, alpha, q, radius, density).
+ * A snapshot is written with the table as it is. One written with an earlier table that this file
+ * keeps (past_tables) loads too: its rows are matched by name, those the table has lost are
+ * skipped (cs_snapshot_value still reads them) and those it has gained keep their defaults.
  * Everything derived (masses, the mask, the guard's substeps, torn count) is recomputed on load,
  * and nothing is adopted until the whole buffer has been checked: against the format, and against
  * what the commands and steps that make a state allow (clothsim.h, cs_snapshot_load). */
@@ -99,25 +102,88 @@ static void get_floats(rbuf *b, float *f, size_t n)
     for (size_t i = 0; i < n; i++) f[i] = get_f32(b);
 }
 
-static uint64_t layout_id(void)
+/* A row of a parameter table as a snapshot's layout sees it. */
+typedef struct table_row {
+    const char *name;
+    cs_param_type type;
+    cs_param_kind kind;
+} table_row;
+
+/* The table until the daemon's own settings (time_scale, max_speed, auto_drop_interval,
+ * auto_drop_max, seed, checkpoint_interval) left it for the daemon: snapshots and state files
+ * of clothd 0.1.0 as first released. Frozen: never edited. */
+static const table_row table_until_daemon_settings[] = {
+    {"nx", CS_T_INT, CS_KIND_SCENE}, {"ny", CS_T_INT, CS_KIND_SCENE}, {"size_x", CS_T_FLOAT, CS_KIND_SCENE},
+    {"size_y", CS_T_FLOAT, CS_KIND_SCENE}, {"height", CS_T_FLOAT, CS_KIND_SCENE},
+    {"orientation", CS_T_ENUM, CS_KIND_SCENE}, {"pins", CS_T_ENUM, CS_KIND_SCENE},
+    {"areal_density", CS_T_FLOAT, CS_KIND_SCENE}, {"gravity", CS_T_VEC3, CS_KIND_LIVE},
+    {"wind", CS_T_VEC3, CS_KIND_LIVE}, {"k_structural", CS_T_FLOAT, CS_KIND_LIVE},
+    {"k_shear", CS_T_FLOAT, CS_KIND_LIVE}, {"k_bend", CS_T_FLOAT, CS_KIND_LIVE},
+    {"c_spring", CS_T_FLOAT, CS_KIND_LIVE}, {"drag", CS_T_FLOAT, CS_KIND_LIVE},
+    {"plastic_yield", CS_T_FLOAT, CS_KIND_LIVE}, {"tear_strain", CS_T_FLOAT, CS_KIND_LIVE},
+    {"plastic_rate", CS_T_FLOAT, CS_KIND_LIVE}, {"k_contact", CS_T_FLOAT, CS_KIND_LIVE},
+    {"c_contact", CS_T_FLOAT, CS_KIND_LIVE}, {"c_tangent", CS_T_FLOAT, CS_KIND_LIVE},
+    {"mu", CS_T_FLOAT, CS_KIND_LIVE}, {"contact_offset", CS_T_FLOAT, CS_KIND_LIVE},
+    {"friction_model", CS_T_ENUM, CS_KIND_LIVE}, {"k_rock", CS_T_FLOAT, CS_KIND_LIVE},
+    {"c_rock", CS_T_FLOAT, CS_KIND_LIVE}, {"mu_rock", CS_T_FLOAT, CS_KIND_LIVE},
+    {"ground", CS_T_BOOL, CS_KIND_LIVE}, {"ground_z", CS_T_FLOAT, CS_KIND_LIVE},
+    {"frame_rate", CS_T_FLOAT, CS_KIND_LIVE}, {"substeps", CS_T_INT, CS_KIND_LIVE},
+    {"max_substeps", CS_T_INT, CS_KIND_LIVE}, {"auto_substeps", CS_T_BOOL, CS_KIND_LIVE},
+    {"stability_safety", CS_T_FLOAT, CS_KIND_LIVE}, {"integrator", CS_T_ENUM, CS_KIND_LIVE},
+    {"time_scale", CS_T_FLOAT, CS_KIND_LIVE}, {"max_speed", CS_T_BOOL, CS_KIND_LIVE},
+    {"grab_speed", CS_T_FLOAT, CS_KIND_LIVE}, {"auto_drop_interval", CS_T_FLOAT, CS_KIND_LIVE},
+    {"auto_drop_max", CS_T_INT, CS_KIND_LIVE}, {"seed", CS_T_INT, CS_KIND_LIVE},
+    {"checkpoint_interval", CS_T_INT, CS_KIND_LIVE},
+};
+
+/* The tables a snapshot may have been written with: [0] is the engine's table as it is. */
+static const struct {
+    const table_row *rows;
+    size_t n;
+} past_tables[] = {
+    {NULL, 0},
+    {table_until_daemon_settings, sizeof table_until_daemon_settings / sizeof table_until_daemon_settings[0]},
+};
+#define N_TABLES (sizeof past_tables / sizeof past_tables[0])
+
+static size_t table_len(size_t t) { return t == 0 ? cs_param_count() : past_tables[t].n; }
+
+static table_row table_at(size_t t, size_t i)
+{
+    if (t != 0) return past_tables[t].rows[i];
+    const cs_param_info *p = cs_param_at(i);
+    return (table_row){p->name, p->type, p->kind};
+}
+
+static uint64_t table_id(size_t t)
 {
     uint64_t h = CS_FNV_OFFSET;
-    for (size_t i = 0; i < cs_param_count(); i++) {
-        const cs_param_info *p = cs_param_at(i);
-        const unsigned char tk[2] = {(unsigned char)p->type, (unsigned char)p->kind};
-        h = cs_fnv1a(h, p->name, strlen(p->name) + 1);
+    for (size_t i = 0; i < table_len(t); i++) {
+        const table_row r = table_at(t, i);
+        const unsigned char tk[2] = {(unsigned char)r.type, (unsigned char)r.kind};
+        h = cs_fnv1a(h, r.name, strlen(r.name) + 1);
         h = cs_fnv1a(h, tk, 2);
     }
     return h;
 }
 
-static int components(const cs_param_info *p) { return p->type == CS_T_VEC3 ? 3 : 1; }
+static uint64_t layout_id(void) { return table_id(0); }
+
+/* The table a layout id names, or -1 when none this build knows. */
+static int table_of(uint64_t layout)
+{
+    for (size_t t = 0; t < N_TABLES; t++)
+        if (table_id(t) == layout) return (int)t;
+    return -1;
+}
+
+static int row_components(cs_param_type type) { return type == CS_T_VEC3 ? 3 : 1; }
 
 /* Payload bytes for n vertices and r rocks; 0 when it would not fit 64 bits. */
 static uint64_t payload_bytes(uint64_t n, uint64_t r)
 {
     uint64_t table = 0, arrays, pins, rocks, total;
-    for (size_t i = 0; i < cs_param_count(); i++) table += 8u * (uint64_t)components(cs_param_at(i));
+    for (size_t i = 0; i < cs_param_count(); i++) table += 8u * (uint64_t)row_components(cs_param_at(i)->type);
     if (!cs_mul_ok(n, 4 * (9 + CS_NTYPES), &arrays) || !cs_add_ok(n, 3, &pins) ||
         !cs_mul_ok(r, 8 + 4 * ROCK_FLOATS, &rocks) || !cs_add_ok(table + 8 + 8 + 4 + 12 + 4 + 4, arrays, &total) ||
         !cs_add_ok(total, pins / 4 * 4, &total) || !cs_add_ok(total, rocks, &total))
@@ -179,7 +245,7 @@ cs_status cs_snapshot_save(cs_sim *sim, void *buf, size_t cap, size_t *len)
     for (size_t i = 0; i < cs_param_count(); i++) {
         const cs_param_info *p = cs_param_at(i);
         const void *base = CS_PARAM_BASE(p, &sim->model.scene, &sim->model.params);
-        for (int c = 0; c < components(p); c++) put_f64(&b, cs_param_get(p, base, c));
+        for (int c = 0; c < row_components(p->type); c++) put_f64(&b, cs_param_get(p, base, c));
     }
     put_u64(&b, s->step);
     put_f64(&b, s->time);
@@ -216,15 +282,18 @@ cs_status cs_snapshot_save(cs_sim *sim, void *buf, size_t cap, size_t *len)
     return CS_OK;
 }
 
-/* Reads the table rows into scene and params; CS_OK or the refusal. */
-static cs_status load_table(cs_sim *sim, rbuf *b, cs_scene *scene, cs_params *params)
+/* Reads the rows of table t into scene and params: by name, a row of the engine's table with its
+ * type and kind; any other is skipped. CS_OK or the refusal. */
+static cs_status load_table(cs_sim *sim, rbuf *b, size_t t, cs_scene *scene, cs_params *params)
 {
     char why[200];
-    for (size_t i = 0; i < cs_param_count(); i++) {
-        const cs_param_info *p = cs_param_at(i);
+    for (size_t i = 0; i < table_len(t); i++) {
+        const table_row r = table_at(t, i);
         double v[3] = {0, 0, 0};
-        for (int c = 0; c < components(p); c++) v[c] = get_f64(b);
+        for (int c = 0; c < row_components(r.type); c++) v[c] = get_f64(b);
         if (b->bad) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot is truncated");
+        const cs_param_info *p = t == 0 ? cs_param_at(i) : cs_param_find(r.name);
+        if (!p || p->type != r.type || p->kind != r.kind) continue;
         if (cs_param_set(p, CS_PARAM_BASE(p, scene, params), v, why, sizeof why) != 0)
             return cs_fail(sim, CS_E_FORMAT, p->name, "snapshot holds a bad parameter: %s", why);
     }
@@ -324,6 +393,19 @@ size_t cs_snapshot_length(const void *buf, size_t len)
     return plen <= len - SNAP_HEADER ? SNAP_HEADER + (size_t)plen : 0;
 }
 
+cs_status cs_snapshot_peek(const void *buf, size_t len, cs_snapshot_info *out)
+{
+    if (!out) return CS_E_INVALID;
+    memset(out, 0, sizeof *out);
+    if (!buf || len < 4 || memcmp(buf, SNAP_MAGIC, 4) != 0) return CS_E_FORMAT;
+    rbuf h = {buf, len < SNAP_HEADER ? len : SNAP_HEADER, 4, 0};
+    out->version = get_u32(&h);
+    const uint64_t layout = get_u64(&h);
+    out->length = cs_snapshot_length(buf, len);
+    out->readable = !h.bad && out->version == SNAP_VERSION && table_of(layout) >= 0;
+    return CS_OK;
+}
+
 cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
 {
     if (!sim) return CS_E_INVALID;
@@ -335,8 +417,8 @@ cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
     const uint64_t layout = get_u64(&h), plen = get_u64(&h), sum = get_u64(&h);
     if (version != SNAP_VERSION)
         return cs_fail(sim, CS_E_VERSION, NULL, "snapshot format version %u, this build reads %u", version, SNAP_VERSION);
-    if (layout != layout_id())
-        return cs_fail(sim, CS_E_VERSION, NULL, "snapshot was written with another parameter table");
+    const int table = table_of(layout);
+    if (table < 0) return cs_fail(sim, CS_E_VERSION, NULL, "snapshot was written with another parameter table");
     if (plen != len - SNAP_HEADER) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot length does not match its header (truncated?)");
     rbuf b = {(const unsigned char *)buf + SNAP_HEADER, (size_t)plen, 0, 0};
     if (cs_fnv1a(CS_FNV_OFFSET, b.p, b.len) != sum) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot checksum does not match (corrupted)");
@@ -345,7 +427,7 @@ cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
     cs_params params;
     cs_scene_default(&scene);
     cs_params_default(&params);
-    cs_status st = load_table(sim, &b, &scene, &params);
+    cs_status st = load_table(sim, &b, (size_t)table, &scene, &params);
     if (st != CS_OK) return st;
     st = cs_check_memory(sim, &scene);
     if (st != CS_OK) return st;
@@ -379,4 +461,27 @@ cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
     sim->host_stale = 0;
     cs_ok(sim);
     return CS_OK;
+}
+
+cs_status cs_snapshot_value(const void *buf, size_t len, const char *name, double out[3])
+{
+    if (!buf || !name || !out) return CS_E_INVALID;
+    const size_t snap = cs_snapshot_length(buf, len);
+    if (snap == 0) return CS_E_FORMAT;
+    rbuf h = {buf, SNAP_HEADER, 4, 0};
+    const uint32_t version = get_u32(&h);
+    const int table = table_of(get_u64(&h));
+    if (version != SNAP_VERSION || table < 0) return CS_E_VERSION;
+    rbuf b = {(const unsigned char *)buf + SNAP_HEADER, snap - SNAP_HEADER, 0, 0};
+    for (size_t i = 0; i < table_len((size_t)table); i++) {
+        const table_row r = table_at((size_t)table, i);
+        const int n = row_components(r.type), match = strcmp(r.name, name) == 0;
+        for (int c = 0; c < n; c++) {
+            const double v = get_f64(&b);
+            if (match) out[c] = v;
+        }
+        if (b.bad) return CS_E_FORMAT;
+        if (match) return CS_OK;
+    }
+    return CS_E_NOT_FOUND;
 }

@@ -45,7 +45,6 @@ static cs_sim *make(const char *backend, int nx, int ny, int strain)
     sc.size_y = 0.03f * (float)(ny - 1);
     p.plastic_yield = strain ? 0.5f : 0.0f;
     p.tear_strain = strain ? 2.0f : 0.0f;
-    p.auto_drop_interval = 0;
     p.max_substeps = 100000;
     cs_sim *sim = NULL;
     char err[256];

@@ -52,7 +52,6 @@ static void drape(int friction, int integrator)
     p.integrator = integrator;
     p.c_spring = 1.0f;
     p.drag = 1.0f;
-    p.auto_drop_interval = 0.0f;
     const double offset = p.contact_offset;
     cs_sim *sim = tk_sim_serial(&sc, &p);
     cs_rock_def d;

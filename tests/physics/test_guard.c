@@ -1,6 +1,6 @@
-/* test_guard.c - the stability guard and the non-finite guard (DESIGN.md section 2, Time).
+/* test_guard.c - the stability guard and the non-finite guard (kernels/MODEL.md, Time).
  *
- * The guard's limit is recomputed here by hand from DESIGN's formula: per vertex
+ * The guard's limit is recomputed here by hand from MODEL.md's formula: per vertex
  * K = its spring stiffnesses + k_contact, C = its spring dampings + c_contact + m drag / 2,
  * dt_i = (sqrt(C^2 + 2 m K) - C) / K; per dynamic rock the same with M, k_rock, c_rock;
  * dt_max = stability_safety x the smallest. The interior vertex of a grid of 5 x 5 or more has
@@ -43,7 +43,6 @@ static void small_scene(cs_scene *sc, cs_params *p)
     sc->size_x = 1.0f;
     sc->size_y = 0.9f;
     sc->height = 0.6f;
-    p->auto_drop_interval = 0;
 }
 
 /* A simulation on one thread: results do not depend on the thread count (test_determinism), and

@@ -1,4 +1,4 @@
-/* test_plasticity.c - plastic flow (DESIGN.md section 2, Cloth): past plastic_yield a stretched
+/* test_plasticity.c - plastic flow (kernels/MODEL.md, Cloth): past plastic_yield a stretched
  * spring's rest length grows, L0 <- L0 + f (|d| - L0) with f = 1 when plastic_rate is 0, else
  * f = min(1, plastic_rate dt); tension only.
  *

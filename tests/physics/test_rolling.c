@@ -44,7 +44,6 @@ static roll launch(int dir, float c_tangent, int integrator)
     sc.pins = CS_PINS_EDGES;
     p.c_tangent = c_tangent;
     p.integrator = integrator;
-    p.auto_drop_interval = 0.0f;
     roll r;
     r.sim = tk_sim_serial(&sc, &p);
     r.mass = RHO * 4.0 / 3.0 * PI * R * R * R;

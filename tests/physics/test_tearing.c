@@ -1,4 +1,4 @@
-/* test_tearing.c - tearing (DESIGN.md section 2, Cloth): after each substep, from the new
+/* test_tearing.c - tearing (kernels/MODEL.md, Cloth): after each substep, from the new
  * positions, a spring whose strain (|d| - L0)/L0 exceeds tear_strain is removed for good
  * (rest length CS_TORN); else past plastic_yield its rest length flows.
  *

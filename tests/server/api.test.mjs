@@ -1,4 +1,4 @@
-// api.test.mjs - every route of DESIGN.md section 3 against the real clothd, with the response
+// api.test.mjs - every route of PROTOCOL.md against the real clothd, with the response
 // shapes pinned: the exact keys, their types, and values that follow from the requests.
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';

@@ -1,4 +1,4 @@
-// errors.test.mjs - bad input gets the status DESIGN.md gives, an RFC 9457 problem naming the
+// errors.test.mjs - bad input gets the status PROTOCOL.md gives, an RFC 9457 problem naming the
 // offending parameter, and changes nothing: the state hash of the paused daemon is the same after.
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';

@@ -287,7 +287,8 @@ test('a corrupt, foreign or other-version state file is refused with a reason, u
   const { state, bytes } = await goodStateFile();
   const cases = [
     ['corrupt (one bit flipped)', (b) => { b[b.length >> 1] ^= 0x10; return b; }, /it is damaged \(snapshot checksum does not match/],
-    ['truncated', (b) => b.subarray(0, b.length - 100), /it is damaged \(snapshot length does not match/],
+    // Cut past the trailer (a few hundred bytes at most), into the snapshot.
+    ['truncated', (b) => b.subarray(0, b.length - 400), /it is damaged \(snapshot length does not match/],
     ['foreign', () => Buffer.from('{"hello": "this is not a state file"}\n'), /it is not a clothd state file/],
     ['empty', () => Buffer.alloc(0), /it is not a clothd state file/],
     ['another version', (b) => { b.writeUInt32LE(99, 4); return b; }, /it was written by another version of clothd \(snapshot format version 99/],

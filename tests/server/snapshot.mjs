@@ -1,10 +1,10 @@
 // snapshot.mjs - reading and editing snapshots (GET /v1/snapshot) in the tests, from the format
 // as kernels/src/snapshot.c documents it: a 32-byte header ("CSNP", u32 version, u64 layout id,
-// u64 payload bytes, u64 FNV-1a 64 of the payload), then the parameter table's rows (f64 per
-// component, in GET /v1/params/schema's order), u64 step, f64 time, i32 grab, 3 f32 target, u32
+// u64 payload bytes, u64 FNV-1a 64 of the payload), then the engine's parameter table's rows (f64
+// per component), u64 step, f64 time, i32 grab, 3 f32 target, u32
 // rocks, u32 next rock id, ... An edit keeps the checksum right (this file's own FNV-1a), so only
 // the daemon's checks of the content can refuse it.
-import { ok } from './harness.mjs';
+import { call, ok } from './harness.mjs';
 
 const HEADER = 32;
 
@@ -15,11 +15,16 @@ export function fnv1a64(bytes) {
   return h;
 }
 
-// The offsets of the clock and rock counters, from the daemon's parameter table.
+// The offsets of the clock and rock counters. The engine's parameter table comes first in the
+// payload: its size is what a snapshot of the daemon's current state has beyond the parts whose
+// sizes the format gives (clock and counters 40 bytes, 15 f32 arrays of n, n pins padded to 4
+// bytes, 92 bytes a rock). The daemon's own live settings are not in it.
 export async function layout(d, headers) {
-  const { params } = await ok(d, 'GET', '/v1/params/schema', undefined, headers);
-  let table = 0;
-  for (const p of params) if (p.kind === 'scene' || p.kind === 'live') table += 8 * (p.type === 'vec3' ? 3 : 1);
+  const { nx, ny } = await ok(d, 'GET', '/v1/scene', undefined, headers);
+  const { rocks } = await ok(d, 'GET', '/v1/rocks', undefined, headers);
+  const snap = await call(d, 'GET', '/v1/snapshot', undefined, headers);
+  const n = nx * ny;
+  const table = Number(snap.buf.readBigUInt64LE(16)) - 40 - 60 * n - Math.ceil(n / 4) * 4 - 92 * rocks.length;
   const clock = HEADER + table;
   return { step: clock, time: clock + 8, grab: clock + 16, rocks: clock + 32, nextId: clock + 36 };
 }

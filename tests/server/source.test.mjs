@@ -14,19 +14,20 @@ import { readdirSync, readFileSync } from 'node:fs';
 import { join } from 'node:path';
 
 const server = join(process.env.CLOTHD_SOURCE, 'server');
-const sources = readdirSync(server).filter((f) => /\.[ch]$/.test(f))
+// Every source file of server/ and its rooms (core/, sim/, http/, stream/), named by its path there.
+const sources = readdirSync(server, { recursive: true }).filter((f) => /\.[ch]$/.test(f))
   .map((f) => ({ f, text: readFileSync(join(server, f), 'utf8') }));
 
 test('no callback handles LWS_CALLBACK_HTTP_CONFIRM_UPGRADE (CVE-2025-11677)', () => {
   assert.ok(sources.length > 5);
   for (const { f, text } of sources)
     assert.doesNotMatch(text, /case\s+LWS_CALLBACK_HTTP_CONFIRM_UPGRADE|==\s*LWS_CALLBACK_HTTP_CONFIRM_UPGRADE/, f);
-  const stream = sources.find((s) => s.f === 'stream.c').text;
+  const stream = sources.find((s) => s.f === 'stream/stream.c').text;
   assert.match(stream, /case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION:/, 'the upgrade checks are where this test says');
 });
 
 test('the HTTP server does not use libmicrohttpd\'s epoll mode (0.9.75 can abort when quiesced)', () => {
-  const http = sources.find((s) => s.f === 'http.c').text;
+  const http = sources.find((s) => s.f === 'http/http.c').text;
   assert.match(http, /MHD_quiesce_daemon/, 'the shutdown quiesces, as this test says');
   assert.match(http, /MHD_USE_POLL\b/);
   assert.doesNotMatch(http.replace(/\/\*[\s\S]*?\*\//g, ''), /MHD_USE_EPOLL|MHD_USE_AUTO/);

@@ -216,6 +216,29 @@ test('a frame follows each change, and only a change: reads and joining clients 
   b.ws.close();
 });
 
+test('a client joining a paused daemon after a change nobody watched gets the changed cloth first', async (t) => {
+  const d = await daemon(['--paused', '--nx', '12', '--ny', '10']);
+  t.after(() => stop(d));
+  const a = await connect(d);
+  assert.equal((await next(a, 'frame')).nVertices, 120);
+  await ok(d, 'POST', '/v1/sim/step', { frames: 3 });
+  assert.equal((await next(a, 'frame', (g) => g.frame === 3)).nVertices, 120);
+  a.ws.close();
+  const clients = async () => metric((await call(d, 'GET', '/metrics')).text, 'clothd_stream_clients');
+  await until('no stream client', async () => (await clients()) === 0);
+  // With nobody listening the sim thread makes no frames: the new scene (16 x 10, step 0) has
+  // none until a client asks. The joiner's first frame must be that one, never the 12 x 10 cloth
+  // at frame 3 the stream kept from before.
+  await ok(d, 'PUT', '/v1/scene', { nx: 16, ny: 10 });
+  const b = await connect(d);
+  const hello = await next(b, 'text');
+  assert.equal(hello.scene.nx, 16);
+  const first = await next(b, 'frame');
+  assert.deepEqual([b.frames[0].nVertices, b.frames[0].step, b.frames[0].frame], [160, 0, 0]);
+  assert.equal(first, b.frames[0]);
+  b.ws.close();
+});
+
 // A 128 x 128 f32 frame is 197 kB: 120 frames queued for a client would be 24 MB, over the bound.
 const STALL_FRAMES = 120, STALL_BOUND_KIB = 16 * 1024;
 

@@ -1,7 +1,7 @@
 /* test_guard.c - the stability guard's formula on hand-computed cases, and its decisions. */
 #include "testkit.h"
 
-/* DESIGN's formula as written: dt_i = (sqrt(C^2 + 2 m K) - C) / K. */
+/* The model's formula as written (kernels/MODEL.md): dt_i = (sqrt(C^2 + 2 m K) - C) / K. */
 static double design_dt(double m, double K, double C) { return (sqrt(C * C + 2 * m * K) - C) / K; }
 
 static void small_scene(cs_scene *sc, cs_params *p, int nx, int ny)

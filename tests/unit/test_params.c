@@ -1,14 +1,15 @@
-/* test_params.c - the parameter table against DESIGN.md's list, and its checks. */
+/* test_params.c - the parameter table against the model's list (kernels/MODEL.md), and its checks. */
 #include "testkit.h"
 
-/* Every tunable of DESIGN.md section 2's table that belongs to the engine. */
+/* Every tunable of the model that belongs to the engine (time_scale, max_speed,
+ * auto_drop_interval, auto_drop_max, seed and checkpoint_interval are the daemon's: the server's
+ * settings table and its test hold them). */
 static const char *const design_names[] = {
     "nx", "ny", "size_x", "size_y", "height", "orientation", "pins", "areal_density", "gravity", "wind",
     "k_structural", "k_shear", "k_bend", "c_spring", "drag", "plastic_yield", "tear_strain", "plastic_rate",
     "k_contact", "c_contact", "c_tangent", "mu", "contact_offset", "friction_model", "k_rock", "c_rock", "mu_rock",
     "ground", "ground_z", "frame_rate", "substeps", "max_substeps", "auto_substeps", "stability_safety",
-    "integrator", "time_scale", "max_speed", "grab_speed", "auto_drop_interval", "auto_drop_max", "seed",
-    "checkpoint_interval"};
+    "integrator", "grab_speed"};
 
 static void test_table_has_every_design_parameter_once(void **unused)
 {
@@ -60,7 +61,7 @@ static void test_scene_rows_are_scene_kind(void **unused)
     assert_string_equal(cs_param_type_name(CS_T_VEC3), "vec3");
 }
 
-/* DESIGN's choices and the defaults it names. */
+/* The model's choices and the defaults it names. */
 static void test_choices_and_named_defaults(void **unused)
 {
     (void)unused;

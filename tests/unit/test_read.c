@@ -77,6 +77,39 @@ static void test_torn_list(void **unused)
     cs_sim_destroy(sim);
 }
 
+/* Strain on a 3 x 2 grid of 1 m spacing: vertex 1 moved 0.5 m along +x stretches (0,0)-(1,0) to
+ * 1.5 m (strain 0.5) and compresses (1,0)-(2,0) to 0.5 m; (1,0)-(1,1) becomes sqrt(1.25). Each
+ * vertex gets the largest stretch of the structural springs it ends; a torn one counts for none. */
+static void test_strain_hand_computed(void **unused)
+{
+    (void)unused;
+    cs_scene sc;
+    cs_params p;
+    tk_quiet(&sc, &p);
+    sc.nx = 3, sc.ny = 2, sc.size_x = 2, sc.size_y = 1;
+    cs_sim *sim = tk_sim(&sc, &p);
+    float e[6], small[5];
+    assert_int_equal(cs_read_strain(sim, e, 6), CS_OK);
+    for (int v = 0; v < 6; v++) tk_assert_near(e[v], 0, 0); /* at rest */
+    assert_int_equal(cs_read_strain(sim, small, 5), CS_E_INVALID);
+    const float x1[3] = {0.5f, -0.5f, 1.0f}; /* vertex 1 sits at (0, -0.5, 1): +0.5 in x */
+    tk_set_vertex(sim, 1, x1, NULL);
+    assert_int_equal(cs_read_strain(sim, e, 6), CS_OK);
+    const double up = sqrt(1.25) - 1;
+    tk_assert_near(e[0], 0.5, 1e-6); /* (0,0)-(1,0) at 1.5 m; (0,0)-(0,1) unchanged */
+    tk_assert_near(e[1], 0.5, 1e-6); /* the largest of 0.5, -0.5 and sqrt(1.25) - 1 */
+    tk_assert_near(e[2], 0, 0);      /* (1,0)-(2,0) compressed: no stretch */
+    tk_assert_near(e[3], 0, 1e-6);
+    tk_assert_near(e[4], up, 1e-6);  /* (1,0)-(1,1) */
+    tk_assert_near(e[5], 0, 1e-6);
+    /* The stretched spring torn: vertex 0 is left with none stretched, vertex 1 with its upper one. */
+    sim->state.L0[CS_SX * 6 + 0] = CS_TORN;
+    assert_int_equal(cs_read_strain(sim, e, 6), CS_OK);
+    tk_assert_near(e[0], 0, 1e-6);
+    tk_assert_near(e[1], up, 1e-6);
+    cs_sim_destroy(sim);
+}
+
 /* A 2 x 2 cloth, 1 m square, 1 kg/m^2 (m = 1/4), at height 2 under g = -10 z. */
 static void test_energy_hand_computed(void **unused)
 {
@@ -124,6 +157,7 @@ int main(void)
         cmocka_unit_test(test_hash_sees_every_part_of_the_state),
         cmocka_unit_test(test_read_arrays_and_buffer_checks),
         cmocka_unit_test(test_torn_list),
+        cmocka_unit_test(test_strain_hand_computed),
         cmocka_unit_test(test_energy_hand_computed),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -1,5 +1,5 @@
 /* clothsim/clothsim.h - libclothsim, the physics core of clothd: a mass-spring cloth and rigid
- * spherical rocks with penalty contact (DESIGN.md section 2).
+ * spherical rocks with penalty contact (kernels/MODEL.md).
  *
  * One cs_sim owns a scene, its parameters and its state, and steps them on a backend (CPU or
  * CUDA). Every call validates its input; a refused call returns a cs_status other than CS_OK,
@@ -171,11 +171,17 @@ int32_t cs_grabbed(const cs_sim *sim, float target[3]);
 /* xyz must hold 3 n floats: interleaved x, y, z in vertex order. */
 cs_status cs_read_positions(cs_sim *sim, float *xyz, size_t n_floats);
 cs_status cs_read_velocities(cs_sim *sim, float *xyz, size_t n_floats);
-/* 6 n floats, type-major (CS_SX, CS_SY, CS_D1, CS_D2, CS_BX, CS_BY of physics.h), each indexed by
- * the spring's lower-index end; CS_TORN (-1) where torn or absent at a border. */
+/* 6 n floats, type-major (structural along x and along y, the two shear diagonals, bend along x
+ * and along y), each indexed by the spring's lower-index end; -1 where torn or absent at a border. */
 cs_status cs_read_rest_lengths(cs_sim *sim, float *out, size_t n_floats);
 /* Ids (type n + v) of torn springs, up to cap of them; returns how many are torn in all. */
 int64_t cs_read_torn(cs_sim *sim, uint32_t *ids, size_t cap);
+/* n floats: each vertex's largest stretch (|d| - L0) / L0 among the intact structural springs it
+ * ends (the two it owns and the two its left and lower neighbours own), 0 when none is stretched. */
+cs_status cs_read_strain(cs_sim *sim, float *out, size_t n_floats);
+/* Spring types a vertex owns: cs_read_rest_lengths gives this many floats per vertex, and a cloth
+ * of n vertices has fewer than this many times n springs. */
+#define CS_SPRING_TYPES_PER_VERTEX 6
 
 typedef struct cs_energy {
     double kinetic, spring, gravity, total; /* J; gravity is -sum m g . x */
@@ -203,6 +209,20 @@ cs_status cs_snapshot_save(cs_sim *sim, void *buf, size_t cap, size_t *len);
  * data: a journal, a state file's trailer); 0 when buf does not start with a snapshot's header or
  * is shorter than the header says. */
 size_t cs_snapshot_length(const void *buf, size_t len);
+/* What a snapshot's header says, read without loading it. */
+typedef struct cs_snapshot_info {
+    size_t length;    /* bytes of the snapshot (cs_snapshot_length); 0 when buf is shorter than that */
+    uint32_t version; /* format version (0 when buf is shorter than the version field) */
+    bool readable;    /* written in a format and with a parameter table this build loads */
+} cs_snapshot_info;
+/* CS_OK with *out when buf starts with a snapshot's magic (however short or damaged the rest);
+ * CS_E_FORMAT when it does not: it is no snapshot at all. */
+cs_status cs_snapshot_peek(const void *buf, size_t len, cs_snapshot_info *out);
+/* A parameter's value (out[0..3): 3 components for a vector, else 1) as the snapshot buf starts
+ * with holds it, by name - also one of a row the table has since lost, which a snapshot written
+ * before still carries (clothd's daemon-loop settings, once engine parameters). CS_E_NOT_FOUND
+ * when the snapshot has no such row; CS_E_FORMAT or CS_E_VERSION when it is none this build reads. */
+cs_status cs_snapshot_value(const void *buf, size_t len, const char *name, double out[3]);
 /* Restores a snapshot, or changes nothing (CS_E_FORMAT, CS_E_VERSION, ...). What a command would
  * refuse a snapshot is refused too: parameters out of range or unstable (CS_E_UNSTABLE), more
  * rocks than the rock limit or a scene past the memory limit (CS_E_LIMIT), and states no command

@@ -1,6 +1,6 @@
 /* clothsim/params.h - the scene and the live parameters, and the one table that describes them.
  *
- * Every tunable of DESIGN.md section 2 is declared once, in the X-macro lists below: its C field,
+ * Every tunable of the engine (kernels/MODEL.md) is declared once, in the X-macro lists below: its C field,
  * type, unit, default, range, choices, kind and help text. The structs, the default values, the
  * validation and the table that the daemon, its config file and the viewer's panel read are all
  * generated from these lists, so adding a parameter is one line. */
@@ -69,13 +69,7 @@ typedef enum cs_integrator { CS_VELOCITY_VERLET = 0, CS_SYMPLECTIC_EULER = 1 } c
     X(auto_substeps, BOOL, "-", 1, 0, 1, NONE, "Raise substeps when a change needs it (else refuse the change)") \
     X(stability_safety, FLOAT, "-", 0.7, 0.01, 1, NONE, "Fraction of the stable time step the guard allows") \
     X(integrator, ENUM, "-", CS_VELOCITY_VERLET, 0, 1, INTEGRATOR, "velocity_verlet (seed 000) or symplectic_euler (seed 003)") \
-    X(time_scale, FLOAT, "-", 1.0, 0.001, 1000, NONE, "Simulated seconds per wall-clock second")            \
-    X(max_speed, BOOL, "-", 0, 0, 1, NONE, "Run as fast as the backend can, ignoring time_scale")          \
     X(grab_speed, FLOAT, "m/s", 5.0, 0.001, 1000, NONE, "Fastest a grabbed vertex moves toward its target") \
-    X(auto_drop_interval, FLOAT, "s", 3.0, 0, 3600, NONE, "Simulated seconds between automatic rock drops; 0 = off") \
-    X(auto_drop_max, INT, "-", 8, 0, 1024, NONE, "Automatic rocks kept; past this the oldest is removed")  \
-    X(seed, INT, "-", 1, 0, 2147483647, NONE, "Seed of the automatic drops' random positions")            \
-    X(checkpoint_interval, INT, "frames", 60, 1, 1000000, NONE, "Frames between in-memory checkpoints used to roll back")
 
 #define CS_FIELD_DECL_INT(name) int32_t name;
 #define CS_FIELD_DECL_FLOAT(name) float name;

@@ -1,0 +1,181 @@
+/* metrics.c - Prometheus counters, a substep-time histogram and HTTP requests by route. */
+#include <pthread.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "core/metrics.h"
+
+/* Upper bounds (seconds) of the substep-time histogram's buckets. */
+static const double bounds[] = {1e-6, 2.5e-6, 5e-6, 1e-5, 2.5e-5, 5e-5, 1e-4, 2.5e-4, 5e-4, 1e-3, 2.5e-3, 1e-2};
+#define NB (sizeof bounds / sizeof bounds[0])
+
+typedef struct http_count {
+    char route[48];
+    char method[8];
+    int status;
+    uint64_t count;
+} http_count;
+
+struct metrics {
+    pthread_mutex_t lock;
+    uint64_t steps, frames;
+    uint64_t bucket[NB + 1]; /* the last is +Inf */
+    double seconds;
+    http_count *http;
+    size_t n_http, cap_http;
+};
+
+metrics *metrics_new(void)
+{
+    metrics *m = calloc(1, sizeof *m);
+    if (m) pthread_mutex_init(&m->lock, NULL);
+    return m;
+}
+
+void metrics_free(metrics *m)
+{
+    if (!m) return;
+    pthread_mutex_destroy(&m->lock);
+    free(m->http);
+    free(m);
+}
+
+void metrics_frame(metrics *m, int32_t substeps, double seconds)
+{
+    if (substeps <= 0) return;
+    const double each = seconds / substeps;
+    size_t b = 0;
+    while (b < NB && each > bounds[b]) b++;
+    pthread_mutex_lock(&m->lock);
+    m->steps += (uint64_t)substeps;
+    m->frames++;
+    m->bucket[b] += (uint64_t)substeps;
+    m->seconds += seconds;
+    pthread_mutex_unlock(&m->lock);
+}
+
+/* Label values come from closed sets, so no client can grow the number of series: the methods
+ * HTTP defines (anything else is "other"); routes are the route table's patterns, "static" and
+ * "unknown" (the caller's); statuses are the server's own. */
+static const char *const methods[] = {"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS", "CONNECT", "TRACE"};
+
+const char *metrics_method_label(const char *method)
+{
+    for (size_t k = 0; k < sizeof methods / sizeof methods[0]; k++)
+        if (strcmp(method, methods[k]) == 0) return methods[k];
+    return "other";
+}
+
+void metrics_http(metrics *m, const char *route, const char *method, int status)
+{
+    method = metrics_method_label(method);
+    if (status < 100 || status > 599) status = 0;
+    pthread_mutex_lock(&m->lock);
+    for (size_t i = 0; i < m->n_http; i++) {
+        http_count *h = &m->http[i];
+        if (h->status == status && strcmp(h->route, route) == 0 && strcmp(h->method, method) == 0) {
+            h->count++;
+            pthread_mutex_unlock(&m->lock);
+            return;
+        }
+    }
+    if (m->n_http == m->cap_http) {
+        const size_t cap = m->cap_http ? 2 * m->cap_http : 32;
+        http_count *g = realloc(m->http, sizeof *g * cap);
+        if (!g) {
+            pthread_mutex_unlock(&m->lock);
+            return;
+        }
+        m->http = g;
+        m->cap_http = cap;
+    }
+    http_count *h = &m->http[m->n_http++];
+    snprintf(h->route, sizeof h->route, "%s", route);
+    snprintf(h->method, sizeof h->method, "%s", method);
+    h->status = status;
+    h->count = 1;
+    pthread_mutex_unlock(&m->lock);
+}
+
+typedef struct sbuf {
+    char *p;
+    size_t len, cap;
+} sbuf;
+
+static void put(sbuf *b, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void put(sbuf *b, const char *fmt, ...)
+{
+    for (;;) {
+        va_list ap;
+        va_start(ap, fmt);
+        const int n = vsnprintf(b->p ? b->p + b->len : NULL, b->p ? b->cap - b->len : 0, fmt, ap);
+        va_end(ap);
+        if (n < 0) return;
+        if (b->p && b->len + (size_t)n < b->cap) {
+            b->len += (size_t)n;
+            return;
+        }
+        const size_t cap = (b->cap ? 2 * b->cap : 4096) + (size_t)n;
+        char *g = realloc(b->p, cap);
+        if (!g) return;
+        b->p = g;
+        b->cap = cap;
+    }
+}
+
+/* A label value as the text format wants it: backslash, double quote and line feed escaped. */
+static void put_label(sbuf *b, const char *v)
+{
+    for (; *v; v++) {
+        if (*v == '\\') put(b, "\\\\");
+        else if (*v == '"') put(b, "\\\"");
+        else if (*v == '\n') put(b, "\\n");
+        else put(b, "%c", *v);
+    }
+}
+
+char *metrics_render(metrics *m, const metrics_gauges *g, const char *extra, size_t *len)
+{
+    sbuf b = {NULL, 0, 0};
+    pthread_mutex_lock(&m->lock);
+    put(&b, "# HELP clothd_steps_total Substeps simulated.\n# TYPE clothd_steps_total counter\nclothd_steps_total %llu\n",
+        (unsigned long long)m->steps);
+    put(&b, "# HELP clothd_frames_total Frames simulated.\n# TYPE clothd_frames_total counter\nclothd_frames_total %llu\n",
+        (unsigned long long)m->frames);
+    put(&b, "# HELP clothd_substep_seconds Compute time per substep.\n# TYPE clothd_substep_seconds histogram\n");
+    uint64_t cum = 0;
+    for (size_t k = 0; k < NB; k++) {
+        cum += m->bucket[k];
+        put(&b, "clothd_substep_seconds_bucket{le=\"%g\"} %llu\n", bounds[k], (unsigned long long)cum);
+    }
+    cum += m->bucket[NB];
+    put(&b, "clothd_substep_seconds_bucket{le=\"+Inf\"} %llu\n", (unsigned long long)cum);
+    put(&b, "clothd_substep_seconds_sum %.9g\nclothd_substep_seconds_count %llu\n", m->seconds, (unsigned long long)cum);
+    put(&b, "# HELP clothd_http_requests_total HTTP requests answered, by route pattern, method and status.\n"
+            "# TYPE clothd_http_requests_total counter\n");
+    for (size_t i = 0; i < m->n_http; i++) {
+        put(&b, "clothd_http_requests_total{route=\"");
+        put_label(&b, m->http[i].route);
+        put(&b, "\",method=\"");
+        put_label(&b, m->http[i].method);
+        put(&b, "\",status=\"%d\"} %llu\n", m->http[i].status, (unsigned long long)m->http[i].count);
+    }
+    pthread_mutex_unlock(&m->lock);
+    put(&b, "# HELP clothd_realtime_factor Simulated seconds per wall-clock second.\n"
+            "# TYPE clothd_realtime_factor gauge\nclothd_realtime_factor %.6g\n", g->realtime_factor);
+    put(&b, "# HELP clothd_rocks Rocks in the simulation.\n# TYPE clothd_rocks gauge\nclothd_rocks %lld\n",
+        (long long)g->rocks);
+    put(&b, "# HELP clothd_vertices Cloth vertices.\n# TYPE clothd_vertices gauge\nclothd_vertices %lld\n",
+        (long long)g->vertices);
+    put(&b, "# HELP clothd_torn_springs Springs torn.\n# TYPE clothd_torn_springs gauge\nclothd_torn_springs %lld\n",
+        (long long)g->torn);
+    put(&b, "# HELP clothd_paused 1 while the simulation is paused.\n# TYPE clothd_paused gauge\nclothd_paused %d\n",
+        g->paused);
+    put(&b, "# HELP clothd_healthy 0 once the backend has failed.\n# TYPE clothd_healthy gauge\nclothd_healthy %d\n",
+        g->healthy);
+    if (extra) put(&b, "%s", extra);
+    *len = b.len;
+    return b.p;
+}

@@ -1,0 +1,944 @@
+/* stream.c - the WebSocket stream (see stream.h).
+ *
+ * Threads: the sim thread calls the sink's begin/publish/discard and event; libwebsockets runs
+ * in its own service thread, which alone touches the sessions and the encoded frames. Handing a
+ * frame over is a pointer swap under a mutex among three buffers (one the sim thread fills, the
+ * newest, one the service thread encodes), then lws_cancel_service, whose
+ * LWS_CALLBACK_EVENT_WAIT_CANCELLED wakes every client with lws_callback_on_writable_all_protocol;
+ * each client is written to in LWS_CALLBACK_SERVER_WRITEABLE, one message per callback.
+ *
+ * Memory per client is bounded: it holds no frame of its own (the encoded frame is shared and
+ * replaced by the next one), lws keeps at most the unsent rest of one message, and pending text is
+ * limited (errors and acks to 8; events are read from a shared ring, and a client that falls further behind
+ * than the ring is disconnected). A client whose newest frame has been waiting longer than
+ * stream_stall_timeout is disconnected. The ring keeps at most EVENT_RING events and
+ * stream_events_mb of their text (the oldest go first; the newest always stays).
+ *
+ * What clients make the sim thread do is bounded too: a grab or release is in flight at most
+ * once per client (the newest waiting one replaces the others), and a request for a publication
+ * (a client joins, or subscribes to a scalar the newest frame lacks) at most once for them all.
+ *
+ * LWS_CALLBACK_HTTP_CONFIRM_UPGRADE is deliberately not handled (CVE-2025-11677 in 4.1.6):
+ * connections are checked in LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION instead. */
+#include <libwebsockets.h>
+#include <math.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <time.h>
+
+#include <jansson.h>
+
+#include "clothd_frame.h"
+#include "core/access.h"
+#include "core/clock.h"
+#include "core/json_write.h"
+#include "core/log.h"
+#include "core/problem.h"
+#include "core/rock_json.h"
+#include "core/stream_msg.h"
+#include "core/wire.h"
+#include "sim/commands.h"
+#include "stream/stream.h"
+
+#define PROTOCOL_NAME STREAM_PROTOCOL
+#define EVENT_RING 1024
+#define MAX_TEXTS 8 /* queued text messages (errors, acks) per client */
+#define N_ENC STREAM_ENCODINGS
+
+/* Why a connection was refused before the upgrade: the `reason` of clothd_stream_refused_total. */
+enum { REFUSED_PATH, REFUSED_VERSION, REFUSED_HOST, REFUSED_ORIGIN, REFUSED_TOKEN, REFUSED_CLIENTS, N_REFUSED };
+static const char *const refused_names[N_REFUSED] = {"path", "version", "host", "origin", "token", "clients"};
+
+typedef struct wire {
+    unsigned char *buf; /* LWS_PRE bytes of headroom, then the frame */
+    size_t len, cap;
+    uint64_t seq;       /* of the raw frame it encodes */
+} wire;
+
+typedef struct session session;
+struct session {
+    struct lws *wsi;
+    uint64_t id;
+    scene *sc;            /* the scene it streams: a held handle */
+    session *next;
+    int encoding, scalar, max_fps;
+    uint64_t last_frame; /* seq of the last frame sent */
+    double last_send, behind_since;
+    uint64_t next_event;
+    char *hello;
+    char *texts[MAX_TEXTS];
+    int n_texts;
+    char *rx;
+    size_t rx_len;
+    int rx_bad; /* 1 too large, 2 binary */
+    int grab_in_flight;
+    json_t *grab_pending; /* the newest grab or release asked while one was in flight */
+    int dead;
+    access_level access;  /* from the token it connected with */
+    int established;      /* counted in clients (a refused connection is closed too, never counted) */
+};
+
+/* A grab or release on its way to the sim thread; the answer comes back through `done`. */
+typedef struct grab_req {
+    scene_cmd cmd;
+    json_t *body;
+    scene *sc;           /* held while it is on its way */
+    uint64_t client;
+    struct grab_req *next;
+} grab_req;
+
+struct stream {
+    struct lws_context *ctx;
+    const struct lws_protocols *protocol;
+    scenes *table;
+    pthread_t thread;
+    atomic_int stop;
+    int port;
+    int max_clients, max_message;
+    double stall_timeout;
+    const access_policy *acc;
+    atomic_int http_port;
+
+    /* frame handover */
+    pthread_mutex_t flock;
+    pose *latest, *spare[2];
+    uint64_t seq, taken;
+
+    /* events */
+    pthread_mutex_t elock;
+    char *ring[EVENT_RING];
+    size_t ring_len[EVENT_RING];
+    uint64_t event_seq;   /* of the next event; event k is ring[k % EVENT_RING] */
+    uint64_t event_first; /* of the oldest event still in the ring */
+    size_t ring_bytes, ring_cap;
+
+    /* answers to grabs */
+    pthread_mutex_t glock;
+    grab_req *answered;
+
+    atomic_int clients;
+    atomic_uint scalars_wanted;
+    atomic_int publish_asked; /* a "publish" command is on its way to the sim thread */
+    atomic_int publish_again; /* and someone asked again meanwhile (it may come too late for them) */
+
+    /* the service thread's own */
+    session *sessions;
+    uint64_t next_id;
+    wire wires[N_ENC][SCALAR_KINDS];
+    pose *current;     /* the newest frame taken over, kept to encode for a new subscription */
+    uint64_t current_seq;
+
+    /* metrics */
+    atomic_ullong encoded[N_ENC], sent[N_ENC], skipped[N_ENC], bytes_sent, stalled, refused[N_REFUSED];
+};
+
+
+
+/* ---- from the sim thread ---- */
+
+static pose *sink_begin(void *ctx, unsigned *scalars)
+{
+    stream *st = ctx;
+    if (atomic_load(&st->clients) == 0) return NULL;
+    pthread_mutex_lock(&st->flock);
+    pose *f = NULL;
+    for (int k = 0; k < 2 && !f; k++) {
+        if (st->spare[k]) {
+            f = st->spare[k];
+            st->spare[k] = NULL;
+        }
+    }
+    pthread_mutex_unlock(&st->flock);
+    if (!f) f = calloc(1, sizeof *f);
+    *scalars = atomic_load(&st->scalars_wanted);
+    return f;
+}
+
+static void give_back(stream *st, pose *f)
+{
+    /* Caller holds flock. */
+    for (int k = 0; k < 2; k++) {
+        if (!st->spare[k]) {
+            st->spare[k] = f;
+            return;
+        }
+    }
+    pose_free(f);
+    free(f);
+}
+
+static void sink_publish(void *ctx, pose *f)
+{
+    stream *st = ctx;
+    pthread_mutex_lock(&st->flock);
+    if (atomic_load(&st->clients) == 0) {
+        /* The last client left since begin: kept, this pose could be shown to the next one after
+         * changes it does not hold (see forget_frames). */
+        give_back(st, f);
+        pthread_mutex_unlock(&st->flock);
+        return;
+    }
+    if (st->latest) give_back(st, st->latest);
+    st->latest = f;
+    st->seq++;
+    pthread_mutex_unlock(&st->flock);
+    lws_cancel_service(st->ctx);
+}
+
+static void sink_discard(void *ctx, pose *f)
+{
+    stream *st = ctx;
+    pthread_mutex_lock(&st->flock);
+    give_back(st, f);
+    pthread_mutex_unlock(&st->flock);
+}
+
+static void sink_event(void *ctx, const char *json)
+{
+    stream *st = ctx;
+    const size_t len = strlen(json);
+    char *copy = strdup(json);
+    if (!copy) return;
+    pthread_mutex_lock(&st->elock);
+    /* Room for it: the oldest events go, within both caps (the newest is kept whatever its size). */
+    while (st->event_first < st->event_seq &&
+           (st->event_seq - st->event_first >= EVENT_RING || st->ring_bytes + len > st->ring_cap)) {
+        const size_t k = st->event_first++ % EVENT_RING;
+        st->ring_bytes -= st->ring_len[k];
+        free(st->ring[k]);
+        st->ring[k] = NULL;
+    }
+    const size_t k = st->event_seq++ % EVENT_RING;
+    st->ring[k] = copy;
+    st->ring_len[k] = len;
+    st->ring_bytes += len;
+    pthread_mutex_unlock(&st->elock);
+    lws_cancel_service(st->ctx);
+}
+
+/* ---- messages to one client ---- */
+
+static int send_text(struct lws *wsi, const char *text, stream *st)
+{
+    const size_t len = strlen(text);
+    unsigned char *buf = malloc(LWS_PRE + len);
+    if (!buf) return -1;
+    memcpy(buf + LWS_PRE, text, len);
+    const int n = lws_write(wsi, buf + LWS_PRE, len, LWS_WRITE_TEXT);
+    free(buf);
+    if (n < (int)len) return -1;
+    atomic_fetch_add(&st->bytes_sent, len);
+    return 0;
+}
+
+/* Queues an error for the client; a client that lets 8 pile up is closed. */
+static void client_error(stream *st, session *s, const char *about, int status, const char *param, const char *fmt, ...)
+    __attribute__((format(printf, 6, 7)));
+static void client_error(stream *st, session *s, const char *about, int status, const char *param, const char *fmt, ...)
+{
+    (void)st;
+    char detail[256];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(detail, sizeof detail, fmt, ap);
+    va_end(ap);
+    char *text = stream_msg_error(about, status, param, detail);
+    if (!text) return; /* out of memory: no message rather than a NULL in the queue */
+    if (s->n_texts == MAX_TEXTS) {
+        free(text);
+        s->dead = 1;
+        lws_set_timeout(s->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
+        return;
+    }
+    s->texts[s->n_texts++] = text;
+    lws_callback_on_writable(s->wsi);
+}
+
+static char *hello_text(scene *sc)
+{
+    size_t len;
+    char *scene = scene_doc_copy(sc, DOC_FIELDS, &len), *params = scene_doc_copy(sc, DOC_PARAMS, &len);
+    char *sim = scene_doc_copy(sc, DOC_SIM, &len), *torn = scene_doc_copy(sc, DOC_TORN, &len);
+    cs_rock *rocks;
+    const int n = scene_rocks(sc, &rocks);
+    json_t *list = rocks_to_json(rocks, n);
+    free(rocks);
+    json_t *sj = sim ? json_loads(sim, 0, NULL) : NULL;
+    json_t *o = json_pack("{s:s, s:s, s:o, s:o, s:o, s:o, s:o, s:o, s:o}", "type", "hello", "protocol", PROTOCOL_NAME,
+                          "scene", scene ? json_loads(scene, 0, NULL) : json_null(), "params",
+                          params ? json_loads(params, 0, NULL) : json_null(), "rocks", list, "torn",
+                          torn ? json_loads(torn, 0, NULL) : json_array(), "state",
+                          json_incref(json_object_get(sj, "state")), "step", json_incref(json_object_get(sj, "step")),
+                          "subscription", json_pack("{s:s, s:i, s:s}", "encoding", "f32", "max_fps", 60, "scalar", "none"));
+    json_decref(sj);
+    free(scene);
+    free(params);
+    free(sim);
+    free(torn);
+    char *text = json_dumps(o, JSON_DUMP_FLAGS);
+    json_decref(o);
+    return text;
+}
+
+/* ---- grabs, through the sim thread ---- */
+
+static void submit_grab(stream *st, session *s, json_t *body);
+
+static void answered_cb(scene_cmd *cmd, void *arg)
+{
+    stream *st = arg;
+    grab_req *g = (grab_req *)cmd; /* cmd is the first member */
+    pthread_mutex_lock(&st->glock);
+    g->next = st->answered;
+    st->answered = g;
+    pthread_mutex_unlock(&st->glock);
+    lws_cancel_service(st->ctx);
+}
+
+static void submit_grab(stream *st, session *s, json_t *body)
+{
+    if (s->access < ACCESS_CONTROL) {
+        const char *op = json_string_value(json_object_get(body, "op"));
+        client_error(st, s, op, 403, NULL, "%s needs the control token (this connection has the view token)", op);
+        json_decref(body);
+        return;
+    }
+    if (s->grab_in_flight) {
+        json_decref(s->grab_pending);
+        s->grab_pending = body;
+        return;
+    }
+    grab_req *g = calloc(1, sizeof *g);
+    if (!g) {
+        json_decref(body);
+        return;
+    }
+    g->body = body;
+    g->client = s->id;
+    g->cmd.def = command_find(json_string_value(json_object_get(body, "op")));
+    g->cmd.body = body;
+    g->cmd.done = answered_cb;
+    g->cmd.done_arg = st;
+    snprintf(g->cmd.request_id, sizeof g->cmd.request_id, "stream-%llu", (unsigned long long)s->id);
+    s->grab_in_flight = 1;
+    g->sc = scene_hold(s->sc);
+    scene_submit(g->sc, &g->cmd);
+}
+
+static void request_frame(stream *st, scene *sc);
+
+/* A publication asked for, with the scene it was asked of. */
+typedef struct publish_req {
+    scene_cmd cmd;
+    scene *sc; /* held while it is on its way */
+} publish_req;
+
+static void published_cb(scene_cmd *cmd, void *arg)
+{
+    stream *st = arg;
+    publish_req *p = (publish_req *)cmd; /* cmd is the first member */
+    scene *sc = p->sc;
+    free(p);
+    atomic_store(&st->publish_asked, 0);
+    if (atomic_exchange(&st->publish_again, 0)) request_frame(st, sc);
+    scene_release(sc);
+}
+
+/* Asks the sim thread to publish a scene now (a paused scene publishes only after commands).
+ * One request at a time: asks that come while one is on its way make one more after it, however
+ * many they are. */
+static void request_frame(stream *st, scene *sc)
+{
+    if (atomic_exchange(&st->publish_asked, 1)) {
+        atomic_store(&st->publish_again, 1);
+        return;
+    }
+    publish_req *p = calloc(1, sizeof *p);
+    if (!p) {
+        atomic_store(&st->publish_asked, 0);
+        return;
+    }
+    p->sc = scene_hold(sc);
+    p->cmd.def = command_find("publish");
+    p->cmd.done = published_cb;
+    p->cmd.done_arg = st;
+    scene_submit(p->sc, &p->cmd);
+}
+
+static session *find(stream *st, uint64_t id)
+{
+    for (session *s = st->sessions; s; s = s->next)
+        if (s->id == id) return s;
+    return NULL;
+}
+
+static void take_answers(stream *st)
+{
+    pthread_mutex_lock(&st->glock);
+    grab_req *list = st->answered;
+    st->answered = NULL;
+    pthread_mutex_unlock(&st->glock);
+    while (list) {
+        grab_req *g = list;
+        list = g->next;
+        session *s = find(st, g->client);
+        if (s) {
+            s->grab_in_flight = 0;
+            if (g->cmd.failed)
+                client_error(st, s, json_string_value(json_object_get(g->body, "op")), g->cmd.pr.status,
+                             g->cmd.pr.param[0] ? g->cmd.pr.param : NULL, "%s", g->cmd.pr.detail);
+            if (s->grab_pending) {
+                json_t *next = s->grab_pending;
+                s->grab_pending = NULL;
+                submit_grab(st, s, next);
+            }
+        }
+        json_decref(g->body);
+        json_decref(g->cmd.result);
+        free(g->cmd.blob);
+        scene_release(g->sc);
+        free(g);
+    }
+}
+
+/* ---- client messages ---- */
+
+static void handle_subscribe(stream *st, session *s, const stream_msg *m)
+{
+    const int enc = m->encoding >= 0 ? m->encoding : s->encoding, sc = m->scalar >= 0 ? m->scalar : s->scalar;
+    const int fps = m->max_fps >= 0 ? m->max_fps : s->max_fps;
+    s->encoding = enc;
+    s->scalar = sc;
+    s->max_fps = fps;
+    unsigned want = 0;
+    for (session *o = st->sessions; o; o = o->next)
+        if (o->scalar) want |= 1u << o->scalar;
+    atomic_store(&st->scalars_wanted, want);
+    s->last_frame = 0; /* the next frame in the new encoding at once */
+    if (sc != SCALAR_NONE && (!st->current || !st->current->has[sc])) request_frame(st, s->sc); /* poses lack it */
+    json_t *ack = json_pack("{s:s, s:s, s:i, s:s}", "type", "subscribed", "encoding", stream_encoding_names[enc],
+                            "max_fps", fps, "scalar", stream_scalar_names[sc]);
+    char *text = json_dumps(ack, JSON_DUMP_FLAGS);
+    json_decref(ack);
+    if (text && s->n_texts < MAX_TEXTS) s->texts[s->n_texts++] = text; /* the same queue, in order */
+    else free(text);
+    lws_callback_on_writable(s->wsi);
+}
+
+static void handle_message(stream *st, session *s)
+{
+    if (s->rx_bad) {
+        client_error(st, s, "message", s->rx_bad == 1 ? 413 : 400, NULL,
+                     s->rx_bad == 1 ? "a message may hold at most %d bytes" : "binary messages are not understood (%d)",
+                     st->max_message);
+        return;
+    }
+    stream_msg m;
+    switch (stream_msg_parse(s->rx, s->rx_len, &m)) {
+    case STREAM_MSG_REFUSED:
+        client_error(st, s, m.about, m.pr.status, m.has_param ? m.pr.param : NULL, "%s", m.pr.detail);
+        break;
+    case STREAM_MSG_SUBSCRIBE: handle_subscribe(st, s, &m); break;
+    case STREAM_MSG_COMMAND:
+        submit_grab(st, s, m.cmd);
+        m.cmd = NULL; /* submit_grab owns it */
+        break;
+    }
+    stream_msg_free(&m);
+}
+
+/* ---- frames ---- */
+
+/* Makes sure the wire frame of (encoding, scalar) holds the current frame: encoded once per
+ * frame, whoever asks first. */
+static const wire *wire_for(stream *st, int e, int k)
+{
+    wire *w = &st->wires[e][k];
+    pose *f = st->current;
+    if (!f || w->seq == st->current_seq || f->n == 0) return w;
+    const size_t need = LWS_PRE + wire_bound(f, e, k);
+    if (need > w->cap) {
+        unsigned char *b = realloc(w->buf, need);
+        if (!b) return w;
+        w->buf = b;
+        w->cap = need;
+    }
+    w->len = wire_encode(f, e, k, w->buf + LWS_PRE);
+    w->seq = st->current_seq;
+    atomic_fetch_add(&st->encoded[e], 1);
+    return w;
+}
+
+/* Takes over the newest raw frame the sim thread published, and encodes it for every encoding
+ * and scalar some client uses. */
+static void take_newest(stream *st)
+{
+    pthread_mutex_lock(&st->flock);
+    pose *f = NULL;
+    if (st->latest && st->seq != st->taken) {
+        f = st->latest;
+        st->latest = NULL;
+        st->taken = st->seq;
+        if (st->current) give_back(st, st->current);
+        st->current = f;
+        st->current_seq = st->seq;
+    }
+    pthread_mutex_unlock(&st->flock);
+    if (!f) return;
+    for (session *s = st->sessions; s; s = s->next) wire_for(st, s->encoding, s->scalar);
+}
+
+/* The last client has left: the stream forgets its frames. With nobody listening the sim thread
+ * makes none (begin answers NULL), so a pose kept from now on could miss any change that follows
+ * (a new scene, a reset, a rock while paused); the next client to join would get that stale pose
+ * before the one its join asks for. Without one, a joiner waits for the pose its join asks for. */
+static void forget_frames(stream *st)
+{
+    pthread_mutex_lock(&st->flock);
+    if (st->latest) give_back(st, st->latest);
+    if (st->current) give_back(st, st->current);
+    st->latest = st->current = NULL;
+    st->taken = st->seq;
+    pthread_mutex_unlock(&st->flock);
+    for (int e = 0; e < N_ENC; e++)
+        for (int k = 0; k < SCALAR_KINDS; k++) st->wires[e][k].len = 0, st->wires[e][k].seq = 0;
+}
+
+/* Stalled clients (their newest frame waiting too long) are closed. */
+static void sweep(stream *st)
+{
+    const double t = clock_mono();
+    for (session *s = st->sessions; s; s = s->next) {
+        const wire *w = &st->wires[s->encoding][s->scalar];
+        if (s->dead || w->seq <= s->last_frame) {
+            s->behind_since = 0;
+            continue;
+        }
+        if (s->behind_since == 0) s->behind_since = t;
+        else if (t - s->behind_since > st->stall_timeout) {
+            log_msg("stream: client %llu stalled for %.0f s: disconnected", (unsigned long long)s->id, st->stall_timeout);
+            atomic_fetch_add(&st->stalled, 1);
+            s->dead = 1;
+            lws_set_timeout(s->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
+        }
+    }
+}
+
+/* One message to a client that can take it: hello, errors and acks, events, then the newest
+ * frame (when its rate allows). */
+static int writeable(stream *st, session *s)
+{
+    if (s->dead) return -1;
+    if (lws_send_pipe_choked(s->wsi)) {
+        lws_callback_on_writable(s->wsi);
+        return 0;
+    }
+    if (s->hello) {
+        const int rc = send_text(s->wsi, s->hello, st);
+        free(s->hello);
+        s->hello = NULL;
+        lws_callback_on_writable(s->wsi);
+        return rc;
+    }
+    if (s->n_texts) {
+        const int rc = send_text(s->wsi, s->texts[0], st);
+        free(s->texts[0]);
+        memmove(s->texts, s->texts + 1, sizeof s->texts[0] * (size_t)(--s->n_texts));
+        lws_callback_on_writable(s->wsi);
+        return rc;
+    }
+    pthread_mutex_lock(&st->elock);
+    char *event = NULL;
+    if (s->next_event < st->event_seq) {
+        if (s->next_event < st->event_first) {
+            const unsigned long long behind = (unsigned long long)(st->event_seq - s->next_event);
+            pthread_mutex_unlock(&st->elock);
+            log_msg("stream: client %llu fell %llu events behind, past what the event ring keeps: disconnected",
+                    (unsigned long long)s->id, behind);
+            atomic_fetch_add(&st->stalled, 1);
+            return -1;
+        }
+        event = strdup(st->ring[s->next_event % EVENT_RING]);
+        s->next_event++;
+    }
+    pthread_mutex_unlock(&st->elock);
+    if (event) {
+        const int rc = send_text(s->wsi, event, st);
+        free(event);
+        lws_callback_on_writable(s->wsi);
+        return rc;
+    }
+    const wire *w = wire_for(st, s->encoding, s->scalar);
+    if (w->seq > s->last_frame && w->len) {
+        const double t = clock_mono(), wait = 1.0 / s->max_fps - (t - s->last_send);
+        if (wait > 0.0005) {
+            lws_set_timer_usecs(s->wsi, (lws_usec_t)(wait * 1e6));
+            return 0;
+        }
+        const int n = lws_write(s->wsi, w->buf + LWS_PRE, w->len, LWS_WRITE_BINARY);
+        if (n < (int)w->len) return -1;
+        if (s->last_frame && w->seq > s->last_frame + 1) atomic_fetch_add(&st->skipped[s->encoding], w->seq - s->last_frame - 1);
+        atomic_fetch_add(&st->sent[s->encoding], 1);
+        atomic_fetch_add(&st->bytes_sent, w->len);
+        s->last_frame = w->seq;
+        s->last_send = t;
+        s->behind_since = 0;
+    }
+    return 0;
+}
+
+/* ---- libwebsockets ---- */
+
+static int path_ok(struct lws *wsi)
+{
+    char uri[128];
+    if (lws_hdr_copy(wsi, uri, sizeof uri, WSI_TOKEN_GET_URI) <= 0) return 0;
+    return strcmp(uri, STREAM_PATH) == 0;
+}
+
+/* A header's value; NULL when the request has none. *too_long is set when it has one that does
+ * not fit buf (it is then neither absent nor readable: the caller refuses it). */
+static const char *header_of(struct lws *wsi, enum lws_token_indexes h, char *buf, int len, int *too_long)
+{
+    const int n = lws_hdr_total_length(wsi, h);
+    if (n <= 0) return NULL;
+    if (n >= len || lws_hdr_copy(wsi, buf, len, h) <= 0) {
+        *too_long = 1;
+        return NULL;
+    }
+    return buf;
+}
+
+/* The token a client offers: `?token=` in the URL, or a `bearer.<token>` entry of the
+ * subprotocol list (`Sec-WebSocket-Protocol: clothd.v1, bearer.<token>`: what a browser, which
+ * cannot set Authorization on a WebSocket, can send). */
+static const char *offered_token(struct lws *wsi, char *buf, int len)
+{
+    const char *q = lws_get_urlarg_by_name(wsi, "token=", buf, len);
+    if (q) return q;
+    char list[1200];
+    int too_long = 0;
+    if (!header_of(wsi, WSI_TOKEN_PROTOCOL, list, sizeof list, &too_long)) return NULL;
+    for (char *save = NULL, *t = strtok_r(list, ", ", &save); t; t = strtok_r(NULL, ", ", &save)) {
+        if (strncmp(t, "bearer.", 7) == 0 && strlen(t + 7) < (size_t)len) {
+            memcpy(buf, t + 7, strlen(t + 7) + 1);
+            return buf;
+        }
+    }
+    return NULL;
+}
+
+/* Answers a refused upgrade request with its HTTP status and a problem+json body, written to the
+ * socket before libwebsockets closes it, so a client can tell 401 from 404 from 503 (the answer
+ * is a few hundred bytes: the socket's empty send buffer takes it whole). */
+static void refuse(stream *st, struct lws *wsi, int why, int status, const char *slug, const char *extra,
+                   const char *fmt, ...) __attribute__((format(printf, 7, 8)));
+static void refuse(stream *st, struct lws *wsi, int why, int status, const char *slug, const char *extra,
+                   const char *fmt, ...)
+{
+    atomic_fetch_add(&st->refused[why], 1);
+    problem pr;
+    pr.status = status;
+    pr.slug = slug;
+    pr.param[0] = '\0';
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(pr.detail, sizeof pr.detail, fmt, ap);
+    va_end(ap);
+    char *body = problem_body(&pr);
+    const char *phrase = status == 401 ? "Unauthorized" : status == 403 ? "Forbidden" : status == 404 ? "Not Found"
+                       : status == 426 ? "Upgrade Required" : status == 503 ? "Service Unavailable" : "Bad Request";
+    char *msg = NULL;
+    const int n = asprintf(&msg,
+                           "HTTP/1.1 %d %s\r\nContent-Type: application/problem+json\r\nContent-Length: %zu\r\n"
+                           "Cache-Control: no-store\r\nConnection: close\r\n%s\r\n%s",
+                           status, phrase, body ? strlen(body) : 0, extra ? extra : "", body ? body : "");
+    free(body);
+    if (n > 0) {
+        const int fd = lws_get_socket_fd(wsi);
+        if (fd >= 0 && send(fd, msg, (size_t)n, MSG_NOSIGNAL | MSG_DONTWAIT) != n)
+            log_msg("stream: could not send a refusal (%d) whole", status);
+    }
+    free(msg);
+}
+
+/* Before the upgrade completes: the path, the version (RFC 6455's 13 only), Host and the page's
+ * Origin, the token, the client limit. A refused request gets its status and a problem+json
+ * body, then libwebsockets closes the connection. (A subprotocol list without clothd.v1 is
+ * refused by libwebsockets itself, before this, by closing the connection.) */
+static int admit(stream *st, struct lws *wsi, session *s)
+{
+    if (!path_ok(wsi)) {
+        refuse(st, wsi, REFUSED_PATH, 404, "not-found", NULL, "the stream is at %s", STREAM_PATH);
+        return 0;
+    }
+    char version[16], origin[300], host[300], token[600];
+    int too_long = 0;
+    const char *v = header_of(wsi, WSI_TOKEN_VERSION, version, sizeof version, &too_long);
+    if (!v || strcmp(v, "13") != 0) {
+        refuse(st, wsi, REFUSED_VERSION, 426, "upgrade-required", "Sec-WebSocket-Version: 13\r\n",
+               "this server speaks WebSocket version 13 (RFC 6455) only");
+        return 0;
+    }
+    const char *h = header_of(wsi, WSI_TOKEN_HOST, host, sizeof host, &too_long);
+    if (too_long || !access_host_ok(st->acc, h)) {
+        refuse(st, wsi, REFUSED_HOST, 403, "host-not-allowed", NULL,
+               "Host '%.100s' is not a name of this server: use its address, localhost, or add the name to allowed_hosts",
+               h ? h : "(too long)");
+        return 0;
+    }
+    const char *o = header_of(wsi, WSI_TOKEN_ORIGIN, origin, sizeof origin, &too_long);
+    if (too_long || !access_origin_ok(st->acc, o, h, atomic_load(&st->http_port))) {
+        log_msg("stream: refused a connection from origin %.200s (host %.200s): not this viewer's and not in "
+                "allowed_origins", o ? o : too_long ? "(too long)" : "(none)", h ? h : "(none)");
+        refuse(st, wsi, REFUSED_ORIGIN, 403, "cross-site", NULL,
+               "a page of origin %.100s may not open the stream: only the viewer's own page, or an origin of "
+               "allowed_origins", o ? o : "(too long)");
+        return 0;
+    }
+    s->access = access_token(st->acc, offered_token(wsi, token, sizeof token));
+    if (s->access == ACCESS_NONE) {
+        refuse(st, wsi, REFUSED_TOKEN, 401, "unauthorized", "WWW-Authenticate: Bearer realm=\"clothd\"\r\n",
+               "this stream needs the control or view token: a 'bearer.<token>' subprotocol or ?token=<token>");
+        return 0;
+    }
+    if (atomic_load(&st->clients) >= st->max_clients) {
+        refuse(st, wsi, REFUSED_CLIENTS, 503, "too-many-clients", NULL,
+               "the stream has stream_max_clients (%d) clients already", st->max_clients);
+        return 0;
+    }
+    return 1;
+}
+
+static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in, size_t len)
+{
+    stream *st = lws_context_user(lws_get_context(wsi));
+    session *s = user;
+    switch (reason) {
+    case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION:
+        return admit(st, wsi, s) ? 0 : -1;
+    case LWS_CALLBACK_ESTABLISHED: {
+        const access_level granted = s->access; /* set by admit() in this same allocation */
+        memset(s, 0, sizeof *s);
+        s->access = granted;
+        s->sc = scenes_get(st->table, SCENE_DEFAULT);
+        if (!s->sc) return -1; /* no scene to stream (never so today: "default" is never deleted) */
+        s->established = 1;
+        s->wsi = wsi;
+        s->id = ++st->next_id;
+        s->max_fps = 60;
+        s->encoding = CLF_F32;
+        s->scalar = SCALAR_NONE;
+        pthread_mutex_lock(&st->elock);
+        s->next_event = st->event_seq; /* events from here on; hello shows the state before */
+        pthread_mutex_unlock(&st->elock);
+        s->hello = hello_text(s->sc);
+        s->next = st->sessions;
+        st->sessions = s;
+        if (atomic_fetch_add(&st->clients, 1) == 0 || !st->current) request_frame(st, s->sc);
+        lws_callback_on_writable(wsi);
+        return 0;
+    }
+    case LWS_CALLBACK_CLOSED:
+        /* libwebsockets closes the connections admit() refused here too: they were never counted. */
+        if (!s || !s->established) return 0;
+        for (session **p = &st->sessions; *p; p = &(*p)->next) {
+            if (*p == s) {
+                *p = s->next;
+                break;
+            }
+        }
+        if (atomic_fetch_sub(&st->clients, 1) == 1) forget_frames(st);
+        free(s->hello);
+        for (int k = 0; k < s->n_texts; k++) free(s->texts[k]);
+        free(s->rx);
+        json_decref(s->grab_pending);
+        scene_release(s->sc);
+        s->rx = NULL;
+        s->sc = NULL;
+        return 0;
+    case LWS_CALLBACK_RECEIVE: {
+        if (lws_is_first_fragment(wsi) && s->rx_len == 0) s->rx_bad = lws_frame_is_binary(wsi) ? 2 : 0;
+        if (!s->rx_bad && s->rx_len + len > (size_t)st->max_message) {
+            s->rx_bad = 1;
+        } else if (!s->rx_bad) {
+            char *b = realloc(s->rx, s->rx_len + len + 1);
+            if (!b) return -1;
+            s->rx = b;
+            memcpy(s->rx + s->rx_len, in, len);
+            s->rx_len += len;
+        }
+        if (lws_is_final_fragment(wsi) && lws_remaining_packet_payload(wsi) == 0) {
+            handle_message(st, s);
+            s->rx_len = 0;
+            s->rx_bad = 0;
+        }
+        return 0;
+    }
+    case LWS_CALLBACK_SERVER_WRITEABLE: return writeable(st, s);
+    case LWS_CALLBACK_TIMER: lws_callback_on_writable(wsi); return 0;
+    case LWS_CALLBACK_EVENT_WAIT_CANCELLED:
+        take_answers(st);
+        take_newest(st);
+        sweep(st);
+        lws_callback_on_writable_all_protocol(lws_get_context(wsi), st->protocol);
+        return 0;
+    default: return lws_callback_http_dummy(wsi, reason, user, in, len);
+    }
+}
+
+static struct lws_protocols protocols[] = {
+    {PROTOCOL_NAME, callback, sizeof(session), 4096, 0, NULL, 0},
+    {NULL, NULL, 0, 0, 0, NULL, 0},
+};
+
+static void lws_log(int level, const char *line)
+{
+    char text[512];
+    snprintf(text, sizeof text, "%s", line);
+    const size_t n = strlen(text);
+    if (n && text[n - 1] == '\n') text[n - 1] = '\0';
+    log_msg("stream: %s%s", level == LLL_ERR ? "error: " : "", text);
+}
+
+static void *service(void *arg)
+{
+    stream *st = arg;
+    sigset_t all;
+    sigfillset(&all);
+    pthread_sigmask(SIG_BLOCK, &all, NULL);
+    while (!atomic_load(&st->stop))
+        if (lws_service(st->ctx, 0) < 0) break;
+    return NULL;
+}
+
+/* Ping after 10 s without traffic, hang up after 30 s without an answer. */
+static const lws_retry_bo_t keepalive = {.secs_since_valid_ping = 10, .secs_since_valid_hangup = 30};
+
+stream *stream_start(const clothd_settings *set, scenes *table, const access_policy *acc, char *err, size_t err_len)
+{
+    stream *st = calloc(1, sizeof *st);
+    if (!st) {
+        snprintf(err, err_len, "out of memory");
+        return NULL;
+    }
+    st->table = table;
+    st->acc = acc;
+    st->protocol = &protocols[0];
+    st->max_clients = set->stream_max_clients;
+    st->max_message = set->stream_max_message;
+    st->stall_timeout = set->stream_stall_timeout;
+    st->ring_cap = (size_t)set->stream_events_mb << 20;
+    pthread_mutex_init(&st->flock, NULL);
+    pthread_mutex_init(&st->elock, NULL);
+    pthread_mutex_init(&st->glock, NULL);
+    lws_set_log_level(LLL_ERR | LLL_WARN, lws_log);
+    struct lws_context_creation_info info;
+    memset(&info, 0, sizeof info);
+    info.port = set->stream_port ? set->stream_port : CONTEXT_PORT_NO_LISTEN_SERVER;
+    info.iface = set->listen;
+    info.protocols = protocols;
+    info.user = st;
+    info.retry_and_idle_policy = &keepalive;
+    info.options = LWS_SERVER_OPTION_VALIDATE_UTF8;
+    if (!strchr(set->listen, ':')) info.options |= LWS_SERVER_OPTION_DISABLE_IPV6;
+    if (set->stream_port == 0) info.port = 0;
+    st->ctx = lws_create_context(&info);
+    if (!st->ctx) {
+        snprintf(err, err_len, "could not listen for the stream on %s port %d", set->listen, (int)set->stream_port);
+        free(st);
+        return NULL;
+    }
+    struct lws_vhost *vh = lws_get_vhost_by_name(st->ctx, "default");
+    st->port = vh ? lws_get_vhost_listen_port(vh) : set->stream_port;
+    if (pthread_create(&st->thread, NULL, service, st) != 0) {
+        lws_context_destroy(st->ctx);
+        snprintf(err, err_len, "could not start the stream thread");
+        free(st);
+        return NULL;
+    }
+    return st;
+}
+
+int stream_port(stream *st) { return st->port; }
+
+void stream_set_http_port(stream *st, int port) { atomic_store(&st->http_port, port); }
+
+void stream_stop(stream *st)
+{
+    if (!st) return;
+    atomic_store(&st->stop, 1);
+    lws_cancel_service(st->ctx);
+    pthread_join(st->thread, NULL);
+    lws_context_destroy(st->ctx);
+    take_answers(st);
+    for (int e = 0; e < N_ENC; e++)
+        for (int k = 0; k < SCALAR_KINDS; k++) free(st->wires[e][k].buf);
+    pose *frames[4] = {st->latest, st->spare[0], st->spare[1], st->current};
+    for (int k = 0; k < 4; k++) {
+        if (frames[k]) {
+            pose_free(frames[k]);
+            free(frames[k]);
+        }
+    }
+    for (int k = 0; k < EVENT_RING; k++) free(st->ring[k]);
+    pthread_mutex_destroy(&st->flock);
+    pthread_mutex_destroy(&st->elock);
+    pthread_mutex_destroy(&st->glock);
+    free(st);
+}
+
+/* Bytes the stream may hold for a scene of n vertices and `rocks` rocks: its poses (the one the
+ * sim thread fills, the newest, the one being sent, a spare) and one wire message for each
+ * encoding and scalar. */
+static uint64_t sink_bytes(int32_t n, int32_t rocks)
+{
+    pose f = {.n = n, .n_rocks = rocks, .has = {0, 1, 1}};
+    const uint64_t raw = sizeof(float) * 3 * (uint64_t)n + (SCALAR_KINDS - 1) * (uint64_t)n + sizeof(pose_rock) * (uint64_t)rocks;
+    uint64_t wires = 0;
+    for (int e = 0; e < N_ENC; e++)
+        for (int k = 0; k < SCALAR_KINDS; k++) wires += LWS_PRE + wire_bound(&f, e, k);
+    return 4 * (sizeof f + raw) + wires;
+}
+
+char *stream_metrics(stream *st)
+{
+    char *out = NULL;
+    size_t len = 0;
+    FILE *f = open_memstream(&out, &len);
+    if (!f) return NULL;
+    fprintf(f, "# HELP clothd_stream_clients WebSocket clients connected.\n# TYPE clothd_stream_clients gauge\n"
+               "clothd_stream_clients %d\n", atomic_load(&st->clients));
+    const char *what[3] = {"encoded", "sent", "skipped"};
+    atomic_ullong *arrays[3] = {st->encoded, st->sent, st->skipped};
+    for (int a = 0; a < 3; a++) {
+        fprintf(f, "# HELP clothd_stream_frames_%s_total Frames %s, by encoding.\n# TYPE clothd_stream_frames_%s_total counter\n",
+                what[a], what[a], what[a]);
+        for (int e = 0; e < N_ENC; e++)
+            fprintf(f, "clothd_stream_frames_%s_total{encoding=\"%s\"} %llu\n", what[a], stream_encoding_names[e],
+                    (unsigned long long)atomic_load(&arrays[a][e]));
+    }
+    fprintf(f, "# HELP clothd_stream_bytes_sent_total Bytes written to stream clients.\n"
+               "# TYPE clothd_stream_bytes_sent_total counter\nclothd_stream_bytes_sent_total %llu\n",
+            (unsigned long long)atomic_load(&st->bytes_sent));
+    fprintf(f, "# HELP clothd_stream_disconnected_total Clients disconnected for stalling.\n"
+               "# TYPE clothd_stream_disconnected_total counter\nclothd_stream_disconnected_total %llu\n",
+            (unsigned long long)atomic_load(&st->stalled));
+    fprintf(f, "# HELP clothd_stream_refused_total Connections refused before the upgrade, by reason: path, version, "
+               "host, origin, token, clients (stream_max_clients).\n# TYPE clothd_stream_refused_total counter\n");
+    for (int k = 0; k < N_REFUSED; k++)
+        fprintf(f, "clothd_stream_refused_total{reason=\"%s\"} %llu\n", refused_names[k],
+                (unsigned long long)atomic_load(&st->refused[k]));
+    fclose(f);
+    return out;
+}
+
+const frame_sink_ops stream_sink_ops = {sink_begin, sink_publish, sink_discard, sink_event, sink_bytes};
+
+frame_sink stream_sink(stream *st) { return (frame_sink){&stream_sink_ops, st}; }

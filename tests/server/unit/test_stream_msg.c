@@ -1,0 +1,98 @@
+/* test_stream_msg.c - a stream client's text messages (core/stream_msg.c), as PROTOCOL.md gives
+ * them: subscribe, grab, release, and what is refused with which status and param. */
+#include "core/stream_msg.h"
+#include "unitkit.h"
+
+static stream_msg_kind parse(const char *text, stream_msg *m) { return stream_msg_parse(text, strlen(text), m); }
+
+static void test_subscribe(void **unused)
+{
+    (void)unused;
+    stream_msg m;
+    assert_int_equal(parse("{\"type\":\"subscribe\",\"encoding\":\"meshopt\",\"max_fps\":30,\"scalar\":\"strain\"}", &m),
+                     STREAM_MSG_SUBSCRIBE);
+    assert_int_equal(m.encoding, 2);
+    assert_int_equal(m.max_fps, 30);
+    assert_int_equal(m.scalar, SCALAR_STRAIN);
+    stream_msg_free(&m);
+    /* What is not given stays as it is: -1. */
+    assert_int_equal(parse("{\"type\":\"subscribe\",\"encoding\":\"q16\"}", &m), STREAM_MSG_SUBSCRIBE);
+    assert_int_equal(m.encoding, 1);
+    assert_int_equal(m.max_fps, -1);
+    assert_int_equal(m.scalar, -1);
+    stream_msg_free(&m);
+}
+
+static void expect_refused(const char *text, int status, const char *about, const char *param)
+{
+    stream_msg m;
+    assert_int_equal(parse(text, &m), STREAM_MSG_REFUSED);
+    assert_int_equal(m.pr.status, status);
+    assert_string_equal(m.about, about);
+    if (param) {
+        assert_true(m.has_param);
+        assert_string_equal(m.pr.param, param);
+    } else {
+        assert_false(m.has_param);
+    }
+    stream_msg_free(&m);
+}
+
+static void test_refusals(void **unused)
+{
+    (void)unused;
+    expect_refused("not json", 400, "message", NULL);
+    expect_refused("[1, 2]", 400, "message", NULL);
+    expect_refused("{\"type\": 3}", 400, "message", "type");
+    expect_refused("{\"type\": \"dance\"}", 400, "dance", "type");
+    expect_refused("{\"type\":\"subscribe\",\"encoding\":\"png\"}", 422, "subscribe", "encoding");
+    expect_refused("{\"type\":\"subscribe\",\"max_fps\":0}", 422, "subscribe", "max_fps");
+    expect_refused("{\"type\":\"subscribe\",\"max_fps\":241}", 422, "subscribe", "max_fps");
+    expect_refused("{\"type\":\"subscribe\",\"max_fps\":\"fast\"}", 400, "subscribe", "max_fps");
+    expect_refused("{\"type\":\"subscribe\",\"scalar\":\"heat\"}", 422, "subscribe", "scalar");
+    expect_refused("{\"type\":\"subscribe\",\"colour\":1}", 400, "subscribe", "colour");
+    expect_refused("{\"type\":\"grab\",\"target\":[0,0,1]}", 400, "grab", "vertex");
+    expect_refused("{\"type\":\"grab\",\"vertex\":3,\"target\":[0,0]}", 400, "grab", "target");
+    expect_refused("{\"type\":\"release\",\"vertex\":3}", 400, "release", "vertex");
+    expect_refused("{\"type\":\"subscribe\",\"type\":\"grab\"}", 400, "message", NULL); /* a key twice */
+}
+
+/* grab and release become the commands the HTTP API makes of PUT and DELETE /v1/grab. */
+static void test_commands(void **unused)
+{
+    (void)unused;
+    stream_msg m;
+    assert_int_equal(parse("{\"type\":\"grab\",\"vertex\":12,\"target\":[0.5,0,1.25]}", &m), STREAM_MSG_COMMAND);
+    char *text = uk_dump(m.cmd);
+    uk_assert_json(text, "{\"op\":\"grab\",\"vertex\":12,\"target\":[0.5,0,1.25]}");
+    free(text);
+    stream_msg_free(&m);
+    assert_int_equal(parse("{\"type\":\"release\"}", &m), STREAM_MSG_COMMAND);
+    text = uk_dump(m.cmd);
+    uk_assert_json(text, "{\"op\":\"release\"}");
+    free(text);
+    stream_msg_free(&m);
+}
+
+static void test_error_text(void **unused)
+{
+    (void)unused;
+    char *e = stream_msg_error("grab", 403, NULL, "needs the control token");
+    uk_assert_json(e, "{\"type\":\"error\",\"status\":403,\"detail\":\"needs the control token\",\"about\":\"grab\"}");
+    free(e);
+    /* Bytes that are not UTF-8 (a cut client text) are dropped, not the message. */
+    e = stream_msg_error("dance\xc3", 400, "type", "unknown message type 'dance\xc3'");
+    uk_assert_json(e, "{\"type\":\"error\",\"status\":400,\"detail\":\"unknown message type 'dance'\",\"about\":\"dance\",\"param\":\"type\"}");
+    free(e);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_subscribe),
+        cmocka_unit_test(test_refusals),
+        cmocka_unit_test(test_commands),
+        cmocka_unit_test(test_error_text),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
