@@ -37,6 +37,7 @@
 #include "clothd_frame.h"
 #include "core/access.h"
 #include "core/clock.h"
+#include "core/delta.h"
 #include "core/json_write.h"
 #include "core/log.h"
 #include "core/problem.h"
@@ -50,6 +51,9 @@
 #define EVENT_RING 1024
 #define MAX_TEXTS 8 /* queued text messages (errors, acks) per client */
 #define N_ENC STREAM_ENCODINGS
+/* Different quanta the delta clients may use at once: one encoder (and one encoding of each
+ * frame) per quantum. */
+#define DELTA_CHANNELS 4
 
 /* Why a connection was refused before the upgrade: the `reason` of clothd_stream_refused_total. */
 enum { REFUSED_PATH, REFUSED_VERSION, REFUSED_HOST, REFUSED_ORIGIN, REFUSED_TOKEN, REFUSED_CLIENTS, N_REFUSED };
@@ -59,7 +63,22 @@ typedef struct wire {
     unsigned char *buf; /* LWS_PRE bytes of headroom, then the frame */
     size_t len, cap;
     uint64_t seq;       /* of the raw frame it encodes */
+    uint32_t key_id;    /* delta: the keyframe it refers to (its own when it is one) */
 } wire;
+
+/* The delta clients of one quantum: the encoder, the current frame's positions section (made
+ * once per frame), its messages per scalar, and the newest keyframe's message (without a
+ * scalar), which a client that lacks it gets before the next frame. */
+typedef struct delta_chan {
+    float quantum; /* 0: free */
+    int users;
+    delta_enc enc;
+    unsigned char *section;
+    size_t section_len, section_cap;
+    uint64_t seq; /* of the pose the section encodes */
+    wire wires[SCALAR_KINDS];
+    wire key;
+} delta_chan;
 
 typedef struct session session;
 struct session {
@@ -68,6 +87,9 @@ struct session {
     scene *sc;            /* the scene it streams: a held handle */
     session *next;
     int encoding, scalar, max_fps;
+    float quantum;       /* delta's grid */
+    int chan;            /* delta: its channel (st->chans), else -1 */
+    uint32_t key_have;   /* delta: the id of the last keyframe it was sent (0: none) */
     uint64_t last_frame; /* seq of the last frame sent */
     double last_send, behind_since;
     uint64_t next_event;
@@ -131,6 +153,8 @@ struct stream {
     session *sessions;
     uint64_t next_id;
     wire wires[N_ENC][SCALAR_KINDS];
+    delta_chan chans[DELTA_CHANNELS];
+    float default_quantum;
     pose *current;     /* the newest frame taken over, kept to encode for a new subscription */
     uint64_t current_seq;
 
@@ -260,7 +284,7 @@ static void client_error(stream *st, session *s, const char *about, int status, 
     lws_callback_on_writable(s->wsi);
 }
 
-static char *hello_text(scene *sc)
+static char *hello_text(scene *sc, float quantum)
 {
     size_t len;
     char *scene = scene_doc_copy(sc, DOC_FIELDS, &len), *params = scene_doc_copy(sc, DOC_PARAMS, &len);
@@ -275,7 +299,8 @@ static char *hello_text(scene *sc)
                           params ? json_loads(params, 0, NULL) : json_null(), "rocks", list, "torn",
                           torn ? json_loads(torn, 0, NULL) : json_array(), "state",
                           json_incref(json_object_get(sj, "state")), "step", json_incref(json_object_get(sj, "step")),
-                          "subscription", json_pack("{s:s, s:i, s:s}", "encoding", "f32", "max_fps", 60, "scalar", "none"));
+                          "subscription", json_pack("{s:s, s:i, s:s, s:o}", "encoding", "f32", "max_fps", 60, "scalar", "none",
+                                                    "quantum", json_float(quantum)));
     json_decref(sj);
     free(scene);
     free(params);
@@ -409,10 +434,55 @@ static void take_answers(stream *st)
 
 /* ---- client messages ---- */
 
+/* A session leaves its delta channel; the last to leave frees it. */
+static void leave_chan(stream *st, session *s)
+{
+    if (s->chan < 0) return;
+    delta_chan *ch = &st->chans[s->chan];
+    s->chan = -1;
+    if (--ch->users > 0) return;
+    delta_free(&ch->enc);
+    free(ch->section);
+    for (int k = 0; k < SCALAR_KINDS; k++) free(ch->wires[k].buf);
+    free(ch->key.buf);
+    memset(ch, 0, sizeof *ch);
+}
+
+/* The channel of quantum q: the one in use, else a free one (initialised); -1 when all are taken
+ * by other quanta (or out of memory). */
+static int find_chan(stream *st, float q)
+{
+    int free_one = -1;
+    for (int c = 0; c < DELTA_CHANNELS; c++) {
+        if (st->chans[c].users > 0 && st->chans[c].quantum == q) return c;
+        if (st->chans[c].users == 0 && free_one < 0) free_one = c;
+    }
+    if (free_one < 0 || delta_init(&st->chans[free_one].enc, (double)q) != 0) return -1;
+    st->chans[free_one].quantum = q;
+    return free_one;
+}
+
 static void handle_subscribe(stream *st, session *s, const stream_msg *m)
 {
     const int enc = m->encoding >= 0 ? m->encoding : s->encoding, sc = m->scalar >= 0 ? m->scalar : s->scalar;
     const int fps = m->max_fps >= 0 ? m->max_fps : s->max_fps;
+    const float q = m->quantum >= 0 ? (float)m->quantum : s->quantum;
+    if (enc == CLF_DELTA && (s->chan < 0 || st->chans[s->chan].quantum != q)) {
+        const int c = find_chan(st, q);
+        if (c < 0) {
+            client_error(st, s, "subscribe", 422, "quantum",
+                         "at most %d different quanta are in use at once, by all clients together; subscribe with "
+                         "one of theirs (or without one, for the default %g)", DELTA_CHANNELS, (double)st->default_quantum);
+            return; /* the subscription stays as it was */
+        }
+        st->chans[c].users++;
+        leave_chan(st, s);
+        s->chan = c;
+    } else if (enc != CLF_DELTA) {
+        leave_chan(st, s);
+    }
+    s->quantum = q;
+    s->key_have = 0; /* a delta subscriber gets the keyframe first */
     s->encoding = enc;
     s->scalar = sc;
     s->max_fps = fps;
@@ -422,8 +492,8 @@ static void handle_subscribe(stream *st, session *s, const stream_msg *m)
     atomic_store(&st->scalars_wanted, want);
     s->last_frame = 0; /* the next frame in the new encoding at once */
     if (sc != SCALAR_NONE && (!st->current || !st->current->has[sc])) request_frame(st, s->sc); /* poses lack it */
-    json_t *ack = json_pack("{s:s, s:s, s:i, s:s}", "type", "subscribed", "encoding", stream_encoding_names[enc],
-                            "max_fps", fps, "scalar", stream_scalar_names[sc]);
+    json_t *ack = json_pack("{s:s, s:s, s:i, s:s, s:o}", "type", "subscribed", "encoding", stream_encoding_names[enc],
+                            "max_fps", fps, "scalar", stream_scalar_names[sc], "quantum", json_float(q));
     char *text = json_dumps(ack, JSON_DUMP_FLAGS);
     json_decref(ack);
     if (text && s->n_texts < MAX_TEXTS) s->texts[s->n_texts++] = text; /* the same queue, in order */
@@ -445,6 +515,13 @@ static void handle_message(stream *st, session *s)
         client_error(st, s, m.about, m.pr.status, m.has_param ? m.pr.param : NULL, "%s", m.pr.detail);
         break;
     case STREAM_MSG_SUBSCRIBE: handle_subscribe(st, s, &m); break;
+    case STREAM_MSG_KEYFRAME:
+        if (s->chan < 0) {
+            client_error(st, s, "keyframe", 422, NULL, "keyframes are for delta clients: subscribe with \"encoding\": \"delta\" first");
+            break;
+        }
+        delta_want_key(&st->chans[s->chan].enc); /* the encoder keeps them at most 4 a second */
+        break;
     case STREAM_MSG_COMMAND:
         submit_grab(st, s, m.cmd);
         m.cmd = NULL; /* submit_grab owns it */
@@ -475,6 +552,66 @@ static const wire *wire_for(stream *st, int e, int k)
     return w;
 }
 
+/* Fits a wire's buffer to need bytes (and LWS_PRE); 0 or -1. */
+static int wire_room(wire *w, size_t need)
+{
+    need += LWS_PRE;
+    if (need <= w->cap) return 0;
+    unsigned char *b = realloc(w->buf, need);
+    if (!b) return -1;
+    w->buf = b;
+    w->cap = need;
+    return 0;
+}
+
+/* The delta channel's message of scalar k for the current pose: its positions section encoded
+ * once per pose (a keyframe or a delta, as the encoder decides), then wrapped per scalar. */
+static const wire *delta_wire(stream *st, delta_chan *ch, int k)
+{
+    wire *w = &ch->wires[k];
+    pose *f = st->current;
+    if (!f || w->seq == st->current_seq || f->n == 0) return w;
+    if (ch->seq != st->current_seq) {
+        int key = 0;
+        const size_t cap = delta_bound(f->n);
+        if (cap > ch->section_cap) {
+            unsigned char *b = realloc(ch->section, cap);
+            if (!b) return w;
+            ch->section = b;
+            ch->section_cap = cap;
+        }
+        const size_t len = delta_encode(&ch->enc, f->xyz, f->n, f->nx > 0 ? f->nx : f->n, f->frame, f->wall_ns, ch->section, &key);
+        if (!len) return w;
+        ch->section_len = len;
+        ch->seq = st->current_seq;
+        atomic_fetch_add(&st->encoded[CLF_DELTA], 1);
+        if (key && wire_room(&ch->key, wire_bound(f, CLF_DELTA, SCALAR_NONE)) == 0) {
+            ch->key.len = wire_encode_delta(f, SCALAR_NONE, ch->section, len, ch->key.buf + LWS_PRE);
+            ch->key.seq = st->current_seq;
+            ch->key.key_id = ch->enc.key_id;
+        }
+    }
+    if (wire_room(w, wire_bound(f, CLF_DELTA, k)) != 0) return w;
+    w->len = wire_encode_delta(f, k, ch->section, ch->section_len, w->buf + LWS_PRE);
+    w->seq = st->current_seq;
+    w->key_id = ch->enc.key_id;
+    return w;
+}
+
+/* The message a session is due (encoded when it is not yet). */
+static const wire *wire_of(stream *st, session *s)
+{
+    if (s->encoding == CLF_DELTA && s->chan >= 0) return delta_wire(st, &st->chans[s->chan], s->scalar);
+    return wire_for(st, s->encoding, s->scalar);
+}
+
+/* ... without encoding it. */
+static const wire *wire_now(stream *st, const session *s)
+{
+    if (s->encoding == CLF_DELTA && s->chan >= 0) return &st->chans[s->chan].wires[s->scalar];
+    return &st->wires[s->encoding][s->scalar];
+}
+
 /* Takes over the newest raw frame the sim thread published, and encodes it for every encoding
  * and scalar some client uses. */
 static void take_newest(stream *st)
@@ -491,7 +628,7 @@ static void take_newest(stream *st)
     }
     pthread_mutex_unlock(&st->flock);
     if (!f) return;
-    for (session *s = st->sessions; s; s = s->next) wire_for(st, s->encoding, s->scalar);
+    for (session *s = st->sessions; s; s = s->next) wire_of(st, s);
 }
 
 /* The last client has left: the stream forgets its frames. With nobody listening the sim thread
@@ -508,6 +645,12 @@ static void forget_frames(stream *st)
     pthread_mutex_unlock(&st->flock);
     for (int e = 0; e < N_ENC; e++)
         for (int k = 0; k < SCALAR_KINDS; k++) st->wires[e][k].len = 0, st->wires[e][k].seq = 0;
+    for (int c = 0; c < DELTA_CHANNELS; c++) {
+        delta_chan *ch = &st->chans[c];
+        ch->seq = ch->key.seq = 0;
+        ch->key.len = 0;
+        for (int k = 0; k < SCALAR_KINDS; k++) ch->wires[k].len = 0, ch->wires[k].seq = 0;
+    }
 }
 
 /* Stalled clients (their newest frame waiting too long) are closed. */
@@ -515,7 +658,7 @@ static void sweep(stream *st)
 {
     const double t = clock_mono();
     for (session *s = st->sessions; s; s = s->next) {
-        const wire *w = &st->wires[s->encoding][s->scalar];
+        const wire *w = wire_now(st, s);
         if (s->dead || w->seq <= s->last_frame) {
             s->behind_since = 0;
             continue;
@@ -574,12 +717,24 @@ static int writeable(stream *st, session *s)
         lws_callback_on_writable(s->wsi);
         return rc;
     }
-    const wire *w = wire_for(st, s->encoding, s->scalar);
+    const wire *w = wire_of(st, s);
     if (w->seq > s->last_frame && w->len) {
         const double t = clock_mono(), wait = 1.0 / s->max_fps - (t - s->last_send);
         if (wait > 0.0005) {
             lws_set_timer_usecs(s->wsi, (lws_usec_t)(wait * 1e6));
             return 0;
+        }
+        if (s->chan >= 0 && s->encoding == CLF_DELTA && w->key_id != s->key_have) {
+            /* It lacks the keyframe this frame refers to: that first (unless this is it). */
+            const wire *key = &st->chans[s->chan].key;
+            if (key->len && key->key_id == w->key_id && key->seq != w->seq) {
+                const int n = lws_write(s->wsi, key->buf + LWS_PRE, key->len, LWS_WRITE_BINARY);
+                if (n < (int)key->len) return -1;
+                atomic_fetch_add(&st->bytes_sent, key->len);
+                s->key_have = key->key_id;
+                lws_callback_on_writable(s->wsi);
+                return 0;
+            }
         }
         const int n = lws_write(s->wsi, w->buf + LWS_PRE, w->len, LWS_WRITE_BINARY);
         if (n < (int)w->len) return -1;
@@ -587,6 +742,7 @@ static int writeable(stream *st, session *s)
         atomic_fetch_add(&st->sent[s->encoding], 1);
         atomic_fetch_add(&st->bytes_sent, w->len);
         s->last_frame = w->seq;
+        s->key_have = w->key_id;
         s->last_send = t;
         s->behind_since = 0;
     }
@@ -735,10 +891,12 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         s->max_fps = 60;
         s->encoding = CLF_F32;
         s->scalar = SCALAR_NONE;
+        s->quantum = st->default_quantum;
+        s->chan = -1;
         pthread_mutex_lock(&st->elock);
         s->next_event = st->event_seq; /* events from here on; hello shows the state before */
         pthread_mutex_unlock(&st->elock);
-        s->hello = hello_text(s->sc);
+        s->hello = hello_text(s->sc, st->default_quantum);
         s->next = st->sessions;
         st->sessions = s;
         if (atomic_fetch_add(&st->clients, 1) == 0 || !st->current) request_frame(st, s->sc);
@@ -754,6 +912,7 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
                 break;
             }
         }
+        leave_chan(st, s);
         if (atomic_fetch_sub(&st->clients, 1) == 1) forget_frames(st);
         free(s->hello);
         for (int k = 0; k < s->n_texts; k++) free(s->texts[k]);
@@ -834,6 +993,7 @@ stream *stream_start(const clothd_settings *set, scenes *table, const access_pol
     st->max_clients = set->stream_max_clients;
     st->max_message = set->stream_max_message;
     st->stall_timeout = set->stream_stall_timeout;
+    st->default_quantum = set->stream_delta_quantum;
     st->ring_cap = (size_t)set->stream_events_mb << 20;
     pthread_mutex_init(&st->flock, NULL);
     pthread_mutex_init(&st->elock, NULL);
@@ -880,6 +1040,11 @@ void stream_stop(stream *st)
     take_answers(st);
     for (int e = 0; e < N_ENC; e++)
         for (int k = 0; k < SCALAR_KINDS; k++) free(st->wires[e][k].buf);
+    for (int c = 0; c < DELTA_CHANNELS; c++) {
+        st->chans[c].users = 1;
+        session none = {.chan = c};
+        leave_chan(st, &none);
+    }
     pose *frames[4] = {st->latest, st->spare[0], st->spare[1], st->current};
     for (int k = 0; k < 4; k++) {
         if (frames[k]) {
@@ -895,16 +1060,19 @@ void stream_stop(stream *st)
 }
 
 /* Bytes the stream may hold for a scene of n vertices and `rocks` rocks: its poses (the one the
- * sim thread fills, the newest, the one being sent, a spare) and one wire message for each
- * encoding and scalar. */
+ * sim thread fills, the newest, the one being sent, a spare), one wire message for each
+ * encoding and scalar, and each delta channel's encoder (36 bytes a vertex), positions section,
+ * messages and keyframe. */
 static uint64_t sink_bytes(int32_t n, int32_t rocks)
 {
     pose f = {.n = n, .n_rocks = rocks, .has = {0, 1, 1}};
     const uint64_t raw = sizeof(float) * 3 * (uint64_t)n + (SCALAR_KINDS - 1) * (uint64_t)n + sizeof(pose_rock) * (uint64_t)rocks;
     uint64_t wires = 0;
     for (int e = 0; e < N_ENC; e++)
-        for (int k = 0; k < SCALAR_KINDS; k++) wires += LWS_PRE + wire_bound(&f, e, k);
-    return 4 * (sizeof f + raw) + wires;
+        for (int k = 0; k < SCALAR_KINDS && e != CLF_DELTA; k++) wires += LWS_PRE + wire_bound(&f, e, k);
+    uint64_t chan = 36 * (uint64_t)n + delta_bound(n) + LWS_PRE + wire_bound(&f, CLF_DELTA, SCALAR_NONE);
+    for (int k = 0; k < SCALAR_KINDS; k++) chan += LWS_PRE + wire_bound(&f, CLF_DELTA, k);
+    return 4 * (sizeof f + raw) + wires + DELTA_CHANNELS * chan;
 }
 
 char *stream_metrics(stream *st)

@@ -8,8 +8,11 @@ import { MeshoptDecoder } from 'meshoptimizer';
 import { start, stop, call, ok, pause, hash, until, rssKiB, metric } from './harness.mjs';
 import { connect, next, daemon } from './wsclient.mjs';
 
-const { decodeFrame, HEADER_SIZE } = await import(join(process.env.CLOTHD_SOURCE, 'proto', 'frame.mjs'));
+const { HEADER_SIZE } = await import(join(process.env.CLOTHD_SOURCE, 'proto', 'frame.mjs'));
 await MeshoptDecoder.ready;
+
+// Half the float32 ulp of x: what rounding a decoded value to float32 may add.
+const halfUlp = (x) => (x === 0 ? 2 ** -150 : 2 ** (Math.floor(Math.log2(Math.abs(x))) - 24));
 
 // The suite also runs against clothd built with ASan/UBSan (scripts/test.sh), several times slower.
 const SANITIZED = process.env.CLOTHD_SANITIZED === '1';
@@ -29,7 +32,7 @@ test('a late joiner gets hello, then frames that match the scene', async () => {
   assert.equal(hello.params.tear_strain, 0.05);
   assert.ok(hello.rocks.length >= 2);
   assert.ok(hello.torn.length > 0 && hello.torn.every(Number.isInteger));
-  assert.deepEqual(hello.subscription, { encoding: 'f32', max_fps: 60, scalar: 'none' });
+  assert.deepEqual(hello.subscription, { encoding: 'f32', max_fps: 60, scalar: 'none', quantum: 0.0001 });
   const f = await next(c, 'frame');
   assert.equal(c.texts[0].type, 'hello'); // hello came first
   assert.equal(f.encoding, 'f32');
@@ -67,9 +70,10 @@ test('all three encodings decode to the cloth state, within the quantization bou
     assert.equal(f.step, state.step);
     const bound = f.bboxMax.map((hi, k) => (hi - f.bboxMin[k]) / 65535); // one quantization step
     for (let i = 0; i < want.length; i++) {
-      const err = Math.abs(f.positions[i] - want[i]);
+      const err = Math.abs(f.positions[i] - Math.fround(want[i]));
+      // Half a step exactly, and the float32 rounding of the decoded value (half its ulp).
       if (encoding === 'f32') assert.equal(f.positions[i], Math.fround(want[i]));
-      else assert.ok(err <= bound[i % 3] * 0.5 + 1e-6, `${encoding} ${i}: ${err} > ${bound[i % 3] / 2}`);
+      else assert.ok(err <= bound[i % 3] * 0.5 + halfUlp(f.positions[i]), `${encoding} ${i}: ${err} > ${bound[i % 3] / 2}`);
     }
     sizes[encoding] = f.bytes;
   }
@@ -300,4 +304,147 @@ test('a client that reads nothing for stream_stall_timeout is cut off, the other
   const n = fast.frames.length;
   await until('the other client still gets frames', async () => fast.frames.length > n + 2);
   fast.ws.close();
+});
+
+// ---- delta frames ----
+
+// Delta frames against the f32 frames of the same steps, on a cloth that rocks keep hitting: every
+// coordinate within quantum/2 (plus float32's rounding of the result), keyframes once a second, and
+// a client that takes 5 frames a second - so skips most keyframes - still decodes every frame.
+test('delta: every coordinate within quantum/2 of the f32 frame of the same step; a skipping client decodes', async () => {
+  const d = await daemon(['--nx', '24', '--ny', '16', '--auto-drop-interval', '0.3']);
+  const f32 = await connect(d), delta = await connect(d), slow = await connect(d);
+  f32.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'f32', max_fps: 240 }));
+  delta.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', max_fps: 240 }));
+  slow.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', max_fps: 5, quantum: 0.0001 }));
+  const ack = await next(delta, 'text', (m) => m.type === 'subscribed');
+  assert.deepEqual(ack, { type: 'subscribed', encoding: 'delta', max_fps: 60 * 4, scalar: 'none', quantum: 0.0001 });
+  await next(delta, 'frame', (f) => f.encoding === 'delta' && f.simTime > 3.5, 30000);
+  const deltas = delta.frames.filter((f) => f.encoding === 'delta');
+  const byStep = new Map(f32.frames.filter((f) => f.encoding === 'f32').map((f) => [`${f.step}:${f.wallNs}`, f]));
+  let compared = 0, worst = 0;
+  const q = Math.fround(0.0001);
+  for (const g of [...deltas, ...slow.frames.filter((f) => f.encoding === 'delta')]) {
+    const f = byStep.get(`${g.step}:${g.wallNs}`);
+    if (!f) continue;
+    assert.equal(g.delta.quantum, q); // the float32 quantum, exactly
+    for (let k = 0; k < f.positions.length; k++) {
+      const err = Math.abs(g.positions[k] - f.positions[k]);
+      worst = Math.max(worst, err / (q / 2));
+      assert.ok(err <= q / 2 + halfUlp(g.positions[k]), `frame ${g.frame} [${k}]: ${g.positions[k]} vs ${f.positions[k]}`);
+    }
+    compared++;
+  }
+  assert.ok(compared >= 60, `${compared} frames compared`);
+  assert.ok(worst > 0.5, `the cloth is quantized (worst error ${worst} half-quanta)`);
+  assert.ok(deltas.some((g) => !g.delta.keyframe && g.delta.keyFrame < g.frame - 10), 'deltas well after their keyframe');
+  // The cloth moves: the rocks fell into it.
+  const first = deltas[0].positions, last = deltas.at(-1).positions;
+  assert.ok(first.some((x, k) => Math.abs(x - last[k]) > 0.01), 'a moving cloth');
+  // Keyframes: the first frame, then the first frame a second or more after the last one.
+  const keys = deltas.filter((g) => g.delta.keyframe);
+  assert.equal(keys[0], deltas[0]);
+  assert.ok(keys.length >= 3, `${keys.length} keyframes`);
+  for (let i = 1; i < deltas.length; i++) {
+    const since = Number(deltas[i].wallNs - keys.filter((k) => k.wallNs < deltas[i].wallNs).at(-1).wallNs) / 1e9;
+    if (deltas[i].delta.keyframe) assert.ok(since >= 1, `a keyframe ${since} s after the last`);
+    else assert.ok(since < 1, `a delta ${since} s after its keyframe`);
+  }
+  // Every delta refers to the newest keyframe.
+  for (const g of deltas) assert.equal(g.delta.keyId, keys.filter((k) => k.wallNs <= g.wallNs).at(-1).delta.keyId);
+  // The slow client got keyframes it would have skipped, and decoded everything.
+  assert.deepEqual(slow.badFrames, []);
+  assert.deepEqual(delta.badFrames, []);
+  const slowDeltas = slow.frames.filter((f) => f.encoding === 'delta' && !f.delta.keyframe);
+  assert.ok(slowDeltas.length >= 8, `${slowDeltas.length} deltas at 5 fps`);
+  assert.ok(slowDeltas.some((g) => g.delta.keyFrame !== slowDeltas[0].delta.keyFrame), 'across keyframes');
+  // Each frame is encoded once for both delta clients (one quantum): no more delta encodings than
+  // f32 ones (f32 has one client), and far fewer than one per client.
+  const m = (await call(d, 'GET', '/metrics')).text;
+  const encDelta = metric(m, 'clothd_stream_frames_encoded_total', 'encoding="delta"');
+  const encF32 = metric(m, 'clothd_stream_frames_encoded_total', 'encoding="f32"');
+  assert.ok(encDelta > 100 && encDelta <= encF32 + 2, `delta ${encDelta}, f32 ${encF32}`);
+  for (const c of [f32, delta, slow]) c.ws.close();
+  await stop(d);
+});
+
+test('delta: keyframes asked for a thousand times a second come at most four a second', async () => {
+  const d = await daemon(['--nx', '16', '--ny', '16', '--auto-drop-interval', '0']);
+  const c = await connect(d);
+  c.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', max_fps: 240 }));
+  await next(c, 'frame', (f) => f.encoding === 'delta');
+  const from = c.frames.length;
+  const t0 = Date.now();
+  while (Date.now() - t0 < 2000) {
+    for (let k = 0; k < 10; k++) c.ws.send('{"type": "keyframe"}');
+    await new Promise((r) => setTimeout(r, 10));
+  }
+  await next(c, 'frame', (f) => f.encoding === 'delta', 15000, c.frames.length);
+  const got = c.frames.slice(from).filter((f) => f.encoding === 'delta');
+  const keys = got.filter((f) => f.delta.keyframe);
+  const span = Number(got.at(-1).wallNs - got[0].wallNs) / 1e9;
+  assert.ok(keys.length >= 4, `${keys.length} keyframes in ${span} s: the asks are answered`);
+  assert.ok(keys.length <= 4 * span + 2, `${keys.length} keyframes in ${span} s`);
+  for (let i = 1; i < keys.length; i++) assert.ok(keys[i].wallNs - keys[i - 1].wallNs >= 250000000n);
+  assert.deepEqual(c.texts.filter((m) => m.type === 'error'), []);
+  assert.deepEqual(c.badFrames, []);
+  c.ws.close();
+  await stop(d);
+});
+
+test('delta: bad subscriptions and keyframe asks get an error and change nothing', async () => {
+  const d = await daemon(['--nx', '10', '--ny', '10', '--paused', '--stream-delta-quantum', '0.001']);
+  const c = await connect(d);
+  const hello = await next(c, 'text', (m) => m.type === 'hello');
+  assert.equal(hello.subscription.quantum, 0.001); // the startup setting
+  await next(c, 'frame');
+  const answer = async (message) => {
+    const from = c.texts.length;
+    c.ws.send(typeof message === 'string' ? message : JSON.stringify(message));
+    return next(c, 'text', (m) => m.type === 'error' || m.type === 'subscribed', 15000, from);
+  };
+  const ke = await answer({ type: 'keyframe' });
+  assert.deepEqual([ke.status, ke.about], [422, 'keyframe']);
+  assert.equal((await answer({ type: 'subscribe', encoding: 'delta' })).quantum, 0.001);
+  const h0 = await hash(d);
+  for (const [message, status, param] of [
+    [{ type: 'subscribe', encoding: 'delta', quantum: 0 }, 422, 'quantum'],
+    [{ type: 'subscribe', encoding: 'delta', quantum: 0.02 }, 422, 'quantum'],
+    [{ type: 'subscribe', quantum: 1e-7 }, 422, 'quantum'],
+    [{ type: 'subscribe', quantum: -1 }, 422, 'quantum'],
+    [{ type: 'subscribe', quantum: '0.001' }, 400, 'quantum'],
+    ['{"type": "subscribe", "quantum": NaN}', 400, undefined],
+    [{ type: 'subscribe', encoding: 'zstd' }, 422, 'encoding'],
+    [{ type: 'keyframe', now: true }, 400, 'now'],
+  ]) {
+    const e = await answer(message);
+    assert.equal(e.type, 'error', JSON.stringify(message));
+    assert.equal(e.status, status, `${JSON.stringify(message)}: ${JSON.stringify(e)}`);
+    assert.equal(e.param, param);
+  }
+  // Four quanta at once (this client's 0.001 and three others'); a fifth is refused.
+  const others = [];
+  for (const quantum of [0.0002, 0.0003, 0.0004]) {
+    const o = await connect(d);
+    o.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', quantum }));
+    await next(o, 'frame', (f) => f.encoding === 'delta');
+    others.push(o);
+  }
+  const e5 = await answer({ type: 'subscribe', quantum: 0.0005 });
+  assert.deepEqual([e5.status, e5.param], [422, 'quantum']);
+  assert.match(e5.detail, /at most 4 different quanta/);
+  // The subscription is as it was: the next frame is delta on the 0.001 grid.
+  const from = c.frames.length;
+  await ok(d, 'POST', '/v1/rocks', { position: [0, 0, 2], radius: 0.1 });
+  const f = await next(c, 'frame', () => true, 15000, from);
+  assert.equal(f.encoding, 'delta');
+  assert.equal(f.delta.quantum, Math.fround(0.001));
+  assert.equal(f.nRocks, 1);
+  assert.deepEqual(c.badFrames, []);
+  // One of the others leaves: its quantum is free for another.
+  others[0].ws.close();
+  await until('a free channel', async () => (await answer({ type: 'subscribe', quantum: 0.0005 })).type === 'subscribed');
+  assert.notEqual(h0, null);
+  for (const o of [c, ...others]) o.ws.close();
+  await stop(d);
 });

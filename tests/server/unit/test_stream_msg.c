@@ -20,6 +20,17 @@ static void test_subscribe(void **unused)
     assert_int_equal(m.encoding, 1);
     assert_int_equal(m.max_fps, -1);
     assert_int_equal(m.scalar, -1);
+    assert_true(m.quantum == -1);
+    stream_msg_free(&m);
+    /* delta, with its grid; and a keyframe ask. */
+    assert_int_equal(parse("{\"type\":\"subscribe\",\"encoding\":\"delta\",\"quantum\":0.0005}", &m), STREAM_MSG_SUBSCRIBE);
+    assert_int_equal(m.encoding, 3);
+    assert_true(m.quantum == 0.0005);
+    stream_msg_free(&m);
+    assert_int_equal(parse("{\"type\":\"subscribe\",\"quantum\":1e-6}", &m), STREAM_MSG_SUBSCRIBE);
+    assert_true(m.quantum == 1e-6 && m.encoding == -1);
+    stream_msg_free(&m);
+    assert_int_equal(parse("{\"type\":\"keyframe\"}", &m), STREAM_MSG_KEYFRAME);
     stream_msg_free(&m);
 }
 
@@ -41,6 +52,13 @@ static void expect_refused(const char *text, int status, const char *about, cons
 static void test_refusals(void **unused)
 {
     (void)unused;
+    expect_refused("{\"type\":\"subscribe\",\"quantum\":0.0101}", 422, "subscribe", "quantum");
+    expect_refused("{\"type\":\"subscribe\",\"quantum\":9e-7}", 422, "subscribe", "quantum");
+    expect_refused("{\"type\":\"subscribe\",\"quantum\":0}", 422, "subscribe", "quantum");
+    expect_refused("{\"type\":\"subscribe\",\"quantum\":\"1e-4\"}", 400, "subscribe", "quantum");
+    expect_refused("{\"type\":\"subscribe\",\"quantum\":NaN}", 400, "message", NULL);
+    expect_refused("{\"type\":\"subscribe\",\"quantum\":1e999}", 400, "message", NULL);
+    expect_refused("{\"type\":\"keyframe\",\"now\":1}", 400, "keyframe", "now");
     expect_refused("not json", 400, "message", NULL);
     expect_refused("[1, 2]", 400, "message", NULL);
     expect_refused("{\"type\": 3}", 400, "message", "type");
