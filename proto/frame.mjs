@@ -163,26 +163,43 @@ function decodeDelta(bytes, dv, at, n, positions, options, state) {
   const raw = options.zstd.decode(bytes.subarray(at + DELTA_HEAD, at + DELTA_HEAD + length), 12 * n);
   if (raw.length !== 12 * n) throw new Error(`delta values of ${raw.length} bytes, not ${12 * n}`);
   const g = kind === 0 ? new Int32Array(3 * n) : null;
-  const a = state.scratch && state.scratch.length >= 3 * n ? state.scratch : (state.scratch = new Int32Array(3 * n));
+  // Per axis, into a plane of n values (contiguous), row by row: the first row sums its left
+  // neighbours, every later row starts from the value below and adds left + below - below-left.
+  const a = state.scratch && state.scratch.length >= n ? state.scratch : (state.scratch = new Int32Array(n));
+  const w = Math.min(row, n);
   for (let c = 0; c < 3; c++) {
     const p0 = 4 * c * n, p1 = p0 + n, p2 = p1 + n, p3 = p2 + n;
-    for (let v = 0, i = 0; v < n; v++, i = i + 1 === row ? 0 : i + 1) {
-      const z = raw[p0 + v] | (raw[p1 + v] << 8) | (raw[p2 + v] << 16) | (raw[p3 + v] << 24);
-      const r = (z >>> 1) ^ -(z & 1);
-      const k = 3 * v + c;
-      const up = v >= row;
-      const pred = i && up ? (a[k - 3] + a[k - 3 * row] - a[k - 3 - 3 * row]) | 0 : i ? a[k - 3] : up ? a[k - 3 * row] : 0;
-      a[k] = (r + pred) | 0;
+    for (let j0 = 0; j0 < n; j0 += w) {
+      const end = Math.min(j0 + w, n);
+      let left = 0, v = j0;
+      if (j0 === 0) {
+        for (; v < end; v++) {
+          const z = raw[p0 + v] | (raw[p1 + v] << 8) | (raw[p2 + v] << 16) | (raw[p3 + v] << 24);
+          left = (left + ((z >>> 1) ^ -(z & 1))) | 0;
+          a[v] = left;
+        }
+      } else {
+        let diag = 0; // a[v - w - 1], 0 at the first column
+        for (; v < end; v++) {
+          const z = raw[p0 + v] | (raw[p1 + v] << 8) | (raw[p2 + v] << 16) | (raw[p3 + v] << 24);
+          const below = a[v - w];
+          left = (((z >>> 1) ^ -(z & 1)) + left + below - diag) | 0;
+          diag = below;
+          a[v] = left;
+        }
+      }
     }
-  }
-  if (kind === 0) {
-    for (let k = 0; k < 3 * n; k++) {
-      g[k] = (a[k] + origin[k % 3]) | 0;
-      positions[k] = g[k] * quantum;
+    if (kind === 0) {
+      const o = origin[c];
+      for (let v = 0, k = c; v < n; v++, k += 3) {
+        const gk = (a[v] + o) | 0;
+        g[k] = gk;
+        positions[k] = gk * quantum;
+      }
+    } else {
+      const kg = key.g;
+      for (let v = 0, k = c; v < n; v++, k += 3) positions[k] = ((kg[k] + a[v]) | 0) * quantum;
     }
-  } else {
-    const kg = key.g;
-    for (let k = 0; k < 3 * n; k++) positions[k] = ((kg[k] + a[k]) | 0) * quantum;
   }
   return {
     length: (length + 3) & ~3, keyframe: kind === 0, keyId, keyFrame, quantum,

@@ -3,33 +3,13 @@
 // factor; bytes per frame per encoding (and on the default 64 x 64 scene); the latency from
 // POST /v1/rocks to the first frame that holds the rock. A benchmark, not a test.
 //   node scripts/bench-stream.mjs [seconds per case, default 5]
-import { spawn } from 'node:child_process';
-import { dirname, join } from 'node:path';
-import { fileURLToPath } from 'node:url';
 import WebSocket from 'ws';
+import { daemon } from './bench-daemon.mjs';
 import { MeshoptDecoder } from 'meshoptimizer';
 import { decodeFrame } from '../proto/frame.mjs';
 
-const root = join(dirname(fileURLToPath(import.meta.url)), '..');
 const secs = Number(process.argv[2] ?? 5);
 await MeshoptDecoder.ready;
-
-async function daemon(flags) {
-  const proc = spawn(join(root, 'build/server/clothd'),
-    ['--port', '0', '--stream-port', '0', '--backend', 'cpu', '--web-root', '/nonexistent', ...flags],
-    { stdio: ['ignore', 'ignore', 'pipe'] });
-  let log = '';
-  const url = await new Promise((resolve, reject) => {
-    proc.stderr.on('data', (c) => {
-      log += c;
-      const m = /listening on (http:\/\/[0-9.]+:\d+)/.exec(log);
-      if (m) resolve(m[1]);
-    });
-    proc.on('exit', () => reject(new Error(log)));
-  });
-  const health = await (await fetch(`${url}/v1/health`)).json();
-  return { proc, url, ws: `ws://127.0.0.1:${health.stream.port}/stream` };
-}
 
 const sim = async (d) => (await fetch(`${d.url}/v1/sim`)).json();
 

@@ -160,6 +160,7 @@ struct stream {
 
     /* metrics */
     atomic_ullong encoded[N_ENC], sent[N_ENC], skipped[N_ENC], bytes_sent, stalled, refused[N_REFUSED];
+    atomic_ullong encode_ns[N_ENC]; /* time spent encoding (delta: each pose's positions section and its messages) */
 };
 
 
@@ -546,9 +547,11 @@ static const wire *wire_for(stream *st, int e, int k)
         w->buf = b;
         w->cap = need;
     }
+    const double t0 = clock_mono();
     w->len = wire_encode(f, e, k, w->buf + LWS_PRE);
     w->seq = st->current_seq;
     atomic_fetch_add(&st->encoded[e], 1);
+    atomic_fetch_add(&st->encode_ns[e], (unsigned long long)((clock_mono() - t0) * 1e9));
     return w;
 }
 
@@ -571,6 +574,7 @@ static const wire *delta_wire(stream *st, delta_chan *ch, int k)
     wire *w = &ch->wires[k];
     pose *f = st->current;
     if (!f || w->seq == st->current_seq || f->n == 0) return w;
+    const double t0 = clock_mono();
     if (ch->seq != st->current_seq) {
         int key = 0;
         const size_t cap = delta_bound(f->n);
@@ -595,6 +599,7 @@ static const wire *delta_wire(stream *st, delta_chan *ch, int k)
     w->len = wire_encode_delta(f, k, ch->section, ch->section_len, w->buf + LWS_PRE);
     w->seq = st->current_seq;
     w->key_id = ch->enc.key_id;
+    atomic_fetch_add(&st->encode_ns[CLF_DELTA], (unsigned long long)((clock_mono() - t0) * 1e9));
     return w;
 }
 
@@ -1092,6 +1097,11 @@ char *stream_metrics(stream *st)
             fprintf(f, "clothd_stream_frames_%s_total{encoding=\"%s\"} %llu\n", what[a], stream_encoding_names[e],
                     (unsigned long long)atomic_load(&arrays[a][e]));
     }
+    fprintf(f, "# HELP clothd_stream_encode_seconds_total Time spent encoding frames, by encoding.\n"
+               "# TYPE clothd_stream_encode_seconds_total counter\n");
+    for (int e = 0; e < N_ENC; e++)
+        fprintf(f, "clothd_stream_encode_seconds_total{encoding=\"%s\"} %.6f\n", stream_encoding_names[e],
+                (double)atomic_load(&st->encode_ns[e]) * 1e-9);
     fprintf(f, "# HELP clothd_stream_bytes_sent_total Bytes written to stream clients.\n"
                "# TYPE clothd_stream_bytes_sent_total counter\nclothd_stream_bytes_sent_total %llu\n",
             (unsigned long long)atomic_load(&st->bytes_sent));

@@ -334,48 +334,62 @@ class FrameDecoder:
         return decode_frame(data, numpy=self.numpy, _state=self)
 
 
-# ---- meshoptimizer's vertex codec, from its C library ----
+# ---- C libraries through ctypes: meshoptimizer's vertex codec, zstd ----
 
-_meshopt = None
-_meshopt_why = None
+class _CLibrary:
+    """A C library loaded at first use: the first of its names (or the path in the environment
+    variable ``env``) that loads and has every function, each set to (restype, argtypes). ``get()``
+    gives the functions in that order, or None with the reason in ``why``."""
+
+    def __init__(self, env, names, functions):
+        self.env, self.names, self.functions = env, names, functions
+        self.fns, self.why = None, None
+
+    def get(self):
+        if self.fns is not None or self.why is not None:
+            return self.fns
+        given = os.environ.get(self.env)
+        names = [given] if given else [n for n in (ctypes.util.find_library(self.names[0]),) + self.names[1:] if n]
+        tried = []
+        for name in names:
+            try:
+                lib = ctypes.CDLL(name)
+                fns = [getattr(lib, f) for f in self.functions]
+            except (OSError, AttributeError) as e:
+                tried.append("%s (%s)" % (name, e))
+                continue
+            for fn, (restype, argtypes) in zip(fns, self.functions.values()):
+                fn.restype, fn.argtypes = restype, argtypes
+            self.fns = fns
+            return fns
+        self.why = "; ".join(tried) or "no library found"
+        return None
 
 
-def _load_meshopt():
-    global _meshopt, _meshopt_why
-    if _meshopt is not None or _meshopt_why is not None:
-        return _meshopt
-    given = os.environ.get("CLOTHD_MESHOPTIMIZER_LIB")
-    names = [given] if given else [n for n in (ctypes.util.find_library("meshoptimizer"), "libmeshoptimizer.so.2d",
-                                                "libmeshoptimizer.so", "libmeshoptimizer.dylib", "meshoptimizer.dll") if n]
-    tried = []
-    for name in names:
-        try:
-            lib = ctypes.CDLL(name)
-            fn = lib.meshopt_decodeVertexBuffer
-        except (OSError, AttributeError) as e:
-            tried.append("%s (%s)" % (name, e))
-            continue
-        fn.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_size_t, ctypes.c_char_p, ctypes.c_size_t]
-        fn.restype = ctypes.c_int
-        _meshopt = fn
-        return fn
-    _meshopt_why = "; ".join(tried) or "no library found"
-    return None
+_meshopt = _CLibrary("CLOTHD_MESHOPTIMIZER_LIB", ("meshoptimizer", "libmeshoptimizer.so.2d", "libmeshoptimizer.so",
+                                                  "libmeshoptimizer.dylib", "meshoptimizer.dll"),
+                     {"meshopt_decodeVertexBuffer": (ctypes.c_int, [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_size_t,
+                                                                     ctypes.c_char_p, ctypes.c_size_t])})
+_zstd = _CLibrary("CLOTHD_ZSTD_LIB", ("zstd", "libzstd.so.1", "libzstd.dylib", "zstd.dll"),
+                  {"ZSTD_decompress": (ctypes.c_size_t, [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_char_p, ctypes.c_size_t]),
+                   "ZSTD_isError": (ctypes.c_uint, [ctypes.c_size_t]),
+                   "ZSTD_getFrameContentSize": (ctypes.c_ulonglong, [ctypes.c_char_p, ctypes.c_size_t])})
 
 
 def meshopt_available():
     """Whether meshopt frames can be decoded here (meshoptimizer's C library is loadable)."""
-    return _load_meshopt() is not None
+    return _meshopt.get() is not None
 
 
 def meshopt_decode_vertex_buffer(encoded, count, size):
     """meshopt_decodeVertexBuffer: ``count`` vertices of ``size`` bytes from ``encoded`` (bytes)."""
-    fn = _load_meshopt()
-    if fn is None:
+    fns = _meshopt.get()
+    if fns is None:
         raise MissingDependency(
             "meshopt frames need meshoptimizer's C library (libmeshoptimizer; Debian: apt install "
             "libmeshoptimizer2d, or set CLOTHD_MESHOPTIMIZER_LIB to its path), which could not be "
-            "loaded: %s; subscribe to q16 or f32 instead" % _meshopt_why)
+            "loaded: %s; subscribe to q16 or f32 instead" % _meshopt.why)
+    (fn,) = fns
     out = ctypes.create_string_buffer(count * size)
     rc = fn(out, count, size, encoded, len(encoded))
     if rc != 0:
@@ -384,52 +398,19 @@ def meshopt_decode_vertex_buffer(encoded, count, size):
     return out.raw
 
 
-# ---- zstd, from its C library ----
-
-_zstd = None
-_zstd_why = None
-
-
-def _load_zstd():
-    global _zstd, _zstd_why
-    if _zstd is not None or _zstd_why is not None:
-        return _zstd
-    given = os.environ.get("CLOTHD_ZSTD_LIB")
-    names = [given] if given else [n for n in (ctypes.util.find_library("zstd"), "libzstd.so.1", "libzstd.dylib",
-                                                "zstd.dll") if n]
-    tried = []
-    for name in names:
-        try:
-            lib = ctypes.CDLL(name)
-            fn, is_error, content_size = lib.ZSTD_decompress, lib.ZSTD_isError, lib.ZSTD_getFrameContentSize
-        except (OSError, AttributeError) as e:
-            tried.append("%s (%s)" % (name, e))
-            continue
-        fn.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_char_p, ctypes.c_size_t]
-        fn.restype = ctypes.c_size_t
-        is_error.argtypes = [ctypes.c_size_t]
-        is_error.restype = ctypes.c_uint
-        content_size.argtypes = [ctypes.c_char_p, ctypes.c_size_t]
-        content_size.restype = ctypes.c_ulonglong
-        _zstd = (fn, is_error, content_size)
-        return _zstd
-    _zstd_why = "; ".join(tried) or "no library found"
-    return None
-
-
 def zstd_available():
     """Whether delta frames can be decoded here (zstd's C library is loadable)."""
-    return _load_zstd() is not None
+    return _zstd.get() is not None
 
 
 def zstd_decompress(compressed, size):
     """ZSTD_decompress: exactly ``size`` bytes from the zstd frame ``compressed`` (FrameError otherwise)."""
-    lib = _load_zstd()
+    lib = _zstd.get()
     if lib is None:
         raise MissingDependency(
             "delta frames need zstd's C library (libzstd; Debian: apt install libzstd1, or set "
             "CLOTHD_ZSTD_LIB to its path), which could not be loaded: %s; subscribe to q16 or f32 "
-            "instead" % _zstd_why)
+            "instead" % _zstd.why)
     fn, is_error, content_size = lib
     if content_size(compressed, len(compressed)) != size:  # before allocating what a frame claims
         raise FrameError("the delta payload of %d bytes does not hold %d bytes" % (len(compressed), size))
