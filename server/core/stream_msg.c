@@ -26,7 +26,7 @@ static int name_index(const json_t *v, const char *const *names, int n)
 
 static stream_msg_kind subscribe(stream_msg *m, const json_t *o)
 {
-    static const char *const fields[] = {"type", "encoding", "max_fps", "scalar", "quantum", NULL};
+    static const char *const fields[] = {"type", "encoding", "max_fps", "scalar", "quantum", "max_kbps", NULL};
     if (only_fields(o, fields, &m->pr) != 0) return refuse(m, "subscribe", 1);
     const json_t *e = json_object_get(o, "encoding"), *f = json_object_get(o, "max_fps"), *c = json_object_get(o, "scalar");
     if (e && (m->encoding = name_index(e, stream_encoding_names, STREAM_ENCODINGS)) < 0) {
@@ -53,6 +53,13 @@ static stream_msg_kind subscribe(stream_msg *m, const json_t *o)
         return refuse(m, "subscribe", 1);
     }
     if (q) m->quantum = json_number_value(q);
+    const json_t *k = json_object_get(o, "max_kbps");
+    if (k && json_is_null(k)) m->max_kbps = 0; /* no limit */
+    else if (k) {
+        long long v;
+        if (int_from_json(k, 1, STREAM_MAX_KBPS, "max_kbps", &v, &m->pr) != 0) return refuse(m, "subscribe", 1);
+        m->max_kbps = v;
+    }
     return m->kind = STREAM_MSG_SUBSCRIBE;
 }
 
@@ -76,6 +83,7 @@ stream_msg_kind stream_msg_parse(const char *text, size_t len, stream_msg *m)
     memset(m, 0, sizeof *m);
     m->encoding = m->max_fps = m->scalar = -1;
     m->quantum = -1;
+    m->max_kbps = -1;
     json_error_t err;
     m->root = json_loadb(text ? text : "", text ? len : 0, JSON_REJECT_DUPLICATES, &err);
     if (!m->root || !json_is_object(m->root)) {

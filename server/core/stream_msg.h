@@ -16,13 +16,15 @@
 #define STREAM_PROTOCOL "clothd.v1"
 
 #define STREAM_ENCODINGS 4
+/* The largest max_kbps a client may ask for (10 Gbit/s). */
+#define STREAM_MAX_KBPS 10000000
 /* Names in the order of proto/clothd_frame.h's encodings and of pose.h's scalars. */
 extern const char *const stream_encoding_names[STREAM_ENCODINGS];
 extern const char *const stream_scalar_names[SCALAR_KINDS];
 
 typedef enum stream_msg_kind {
     STREAM_MSG_REFUSED,   /* an error goes back to the client: about, pr, has_param */
-    STREAM_MSG_SUBSCRIBE, /* encoding, max_fps, scalar, quantum */
+    STREAM_MSG_SUBSCRIBE, /* encoding, max_fps, scalar, quantum, max_kbps */
     STREAM_MSG_COMMAND,   /* cmd: a grab or release for the sim thread */
     STREAM_MSG_KEYFRAME   /* a delta client asks for a keyframe */
 } stream_msg_kind;
@@ -32,6 +34,7 @@ typedef struct stream_msg {
     /* STREAM_MSG_SUBSCRIBE: the values given, -1 for the ones not given (they stay as they are) */
     int encoding, max_fps, scalar;
     double quantum; /* delta's grid (m), within DELTA_QUANTUM_MIN..MAX; -1 when not given */
+    long long max_kbps; /* 1..STREAM_MAX_KBPS; 0 for null (no limit); -1 when not given */
     /* STREAM_MSG_COMMAND: {"op": "grab", "vertex", "target"} or {"op": "release"} (owned) */
     json_t *cmd;
     /* STREAM_MSG_REFUSED: what the message was about ("message", "subscribe", "grab", "release",

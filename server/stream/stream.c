@@ -87,6 +87,8 @@ struct session {
     scene *sc;            /* the scene it streams: a held handle */
     session *next;
     int encoding, scalar, max_fps;
+    long long max_kbps;  /* 0: no limit */
+    double next_send;    /* with max_kbps: no frame before this (clock_mono) */
     float quantum;       /* delta's grid */
     int chan;            /* delta: its channel (st->chans), else -1 */
     uint32_t key_have;   /* delta: the id of the last keyframe it was sent (0: none) */
@@ -300,8 +302,8 @@ static char *hello_text(scene *sc, float quantum)
                           params ? json_loads(params, 0, NULL) : json_null(), "rocks", list, "torn",
                           torn ? json_loads(torn, 0, NULL) : json_array(), "state",
                           json_incref(json_object_get(sj, "state")), "step", json_incref(json_object_get(sj, "step")),
-                          "subscription", json_pack("{s:s, s:i, s:s, s:o}", "encoding", "f32", "max_fps", 60, "scalar", "none",
-                                                    "quantum", json_float(quantum)));
+                          "subscription", json_pack("{s:s, s:i, s:s, s:o, s:n}", "encoding", "f32", "max_fps", 60, "scalar", "none",
+                                                    "quantum", json_float(quantum), "max_kbps"));
     json_decref(sj);
     free(scene);
     free(params);
@@ -467,6 +469,7 @@ static void handle_subscribe(stream *st, session *s, const stream_msg *m)
 {
     const int enc = m->encoding >= 0 ? m->encoding : s->encoding, sc = m->scalar >= 0 ? m->scalar : s->scalar;
     const int fps = m->max_fps >= 0 ? m->max_fps : s->max_fps;
+    const long long kbps = m->max_kbps >= 0 ? m->max_kbps : s->max_kbps;
     const float q = m->quantum >= 0 ? (float)m->quantum : s->quantum;
     if (enc == CLF_DELTA && (s->chan < 0 || st->chans[s->chan].quantum != q)) {
         const int c = find_chan(st, q);
@@ -487,14 +490,17 @@ static void handle_subscribe(stream *st, session *s, const stream_msg *m)
     s->encoding = enc;
     s->scalar = sc;
     s->max_fps = fps;
+    s->max_kbps = kbps;
+    s->next_send = 0;
     unsigned want = 0;
     for (session *o = st->sessions; o; o = o->next)
         if (o->scalar) want |= 1u << o->scalar;
     atomic_store(&st->scalars_wanted, want);
     s->last_frame = 0; /* the next frame in the new encoding at once */
     if (sc != SCALAR_NONE && (!st->current || !st->current->has[sc])) request_frame(st, s->sc); /* poses lack it */
-    json_t *ack = json_pack("{s:s, s:s, s:i, s:s, s:o}", "type", "subscribed", "encoding", stream_encoding_names[enc],
-                            "max_fps", fps, "scalar", stream_scalar_names[sc], "quantum", json_float(q));
+    json_t *ack = json_pack("{s:s, s:s, s:i, s:s, s:o, s:o}", "type", "subscribed", "encoding", stream_encoding_names[enc],
+                            "max_fps", fps, "scalar", stream_scalar_names[sc], "quantum", json_float(q), "max_kbps",
+                            kbps ? json_integer(kbps) : json_null());
     char *text = json_dumps(ack, JSON_DUMP_FLAGS);
     json_decref(ack);
     if (text && s->n_texts < MAX_TEXTS) s->texts[s->n_texts++] = text; /* the same queue, in order */
@@ -664,7 +670,7 @@ static void sweep(stream *st)
     const double t = clock_mono();
     for (session *s = st->sessions; s; s = s->next) {
         const wire *w = wire_now(st, s);
-        if (s->dead || w->seq <= s->last_frame) {
+        if (s->dead || w->seq <= s->last_frame || t < s->next_send) { /* up to date, or waiting on its own budget */
             s->behind_since = 0;
             continue;
         }
@@ -676,6 +682,14 @@ static void sweep(stream *st)
             lws_set_timeout(s->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
         }
     }
+}
+
+/* A client with max_kbps that was sent len bytes at t gets its next frame once its budget has
+ * paid for them: a slow link gets fewer whole frames, never a queue. */
+static void spend(session *s, size_t len, double t)
+{
+    if (!s->max_kbps) return;
+    s->next_send = (s->next_send > t ? s->next_send : t) + (double)len * 8.0 / ((double)s->max_kbps * 1000.0);
 }
 
 /* One message to a client that can take it: hello, errors and acks, events, then the newest
@@ -724,7 +738,9 @@ static int writeable(stream *st, session *s)
     }
     const wire *w = wire_of(st, s);
     if (w->seq > s->last_frame && w->len) {
-        const double t = clock_mono(), wait = 1.0 / s->max_fps - (t - s->last_send);
+        const double t = clock_mono();
+        double wait = 1.0 / s->max_fps - (t - s->last_send);
+        if (s->max_kbps && s->next_send - t > wait) wait = s->next_send - t; /* its byte budget */
         if (wait > 0.0005) {
             lws_set_timer_usecs(s->wsi, (lws_usec_t)(wait * 1e6));
             return 0;
@@ -736,6 +752,7 @@ static int writeable(stream *st, session *s)
                 const int n = lws_write(s->wsi, key->buf + LWS_PRE, key->len, LWS_WRITE_BINARY);
                 if (n < (int)key->len) return -1;
                 atomic_fetch_add(&st->bytes_sent, key->len);
+                spend(s, key->len, t);
                 s->key_have = key->key_id;
                 lws_callback_on_writable(s->wsi);
                 return 0;
@@ -747,6 +764,7 @@ static int writeable(stream *st, session *s)
         atomic_fetch_add(&st->sent[s->encoding], 1);
         atomic_fetch_add(&st->bytes_sent, w->len);
         s->last_frame = w->seq;
+        spend(s, w->len, t);
         s->key_have = w->key_id;
         s->last_send = t;
         s->behind_since = 0;

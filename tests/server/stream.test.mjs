@@ -32,7 +32,7 @@ test('a late joiner gets hello, then frames that match the scene', async () => {
   assert.equal(hello.params.tear_strain, 0.05);
   assert.ok(hello.rocks.length >= 2);
   assert.ok(hello.torn.length > 0 && hello.torn.every(Number.isInteger));
-  assert.deepEqual(hello.subscription, { encoding: 'f32', max_fps: 60, scalar: 'none', quantum: 0.0001 });
+  assert.deepEqual(hello.subscription, { encoding: 'f32', max_fps: 60, scalar: 'none', quantum: 0.0001, max_kbps: null });
   const f = await next(c, 'frame');
   assert.equal(c.texts[0].type, 'hello'); // hello came first
   assert.equal(f.encoding, 'f32');
@@ -318,7 +318,7 @@ test('delta: every coordinate within quantum/2 of the f32 frame of the same step
   delta.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', max_fps: 240 }));
   slow.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', max_fps: 5, quantum: 0.0001 }));
   const ack = await next(delta, 'text', (m) => m.type === 'subscribed');
-  assert.deepEqual(ack, { type: 'subscribed', encoding: 'delta', max_fps: 60 * 4, scalar: 'none', quantum: 0.0001 });
+  assert.deepEqual(ack, { type: 'subscribed', encoding: 'delta', max_fps: 60 * 4, scalar: 'none', quantum: 0.0001, max_kbps: null });
   await next(delta, 'frame', (f) => f.encoding === 'delta' && f.simTime > 3.5, 30000);
   const deltas = delta.frames.filter((f) => f.encoding === 'delta');
   const byStep = new Map(f32.frames.filter((f) => f.encoding === 'f32').map((f) => [`${f.step}:${f.wallNs}`, f]));
@@ -446,5 +446,43 @@ test('delta: bad subscriptions and keyframe asks get an error and change nothing
   await until('a free channel', async () => (await answer({ type: 'subscribe', quantum: 0.0005 })).type === 'subscribed');
   assert.notEqual(h0, null);
   for (const o of [c, ...others]) o.ws.close();
+  await stop(d);
+});
+
+// max_kbps: a client on a slow link gets fewer frames, each whole, at the rate it asked for; one
+// without it gets them all. 24 x 16 f32 frames are 4,752 bytes (+36 a rock), 60 a second: 285 kB/s.
+test('max_kbps: fewer whole frames within the byte budget, not a growing delay', async () => {
+  const d = await daemon(['--nx', '24', '--ny', '16', '--auto-drop-interval', '0']);
+  const slow = await connect(d), fast = await connect(d);
+  slow.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'f32', max_kbps: 400 })); // 50 kB/s
+  const ack = await next(slow, 'text', (m) => m.type === 'subscribed');
+  assert.equal(ack.max_kbps, 400);
+  await next(slow, 'frame', (f) => f.encoding === 'f32');
+  await new Promise((r) => setTimeout(r, 500));
+  const s0 = slow.frames.length, f0 = fast.frames.length, t0 = Date.now();
+  await new Promise((r) => setTimeout(r, 3000));
+  const dt = (Date.now() - t0) / 1000;
+  const got = slow.frames.slice(s0), bytes = got.reduce((a, f) => a + f.bytes, 0);
+  assert.ok(bytes / dt <= 50000 * 1.05 + 4800 / dt, `${(bytes / dt).toFixed(0)} bytes/s for a budget of 50000`);
+  assert.ok(got.length / dt >= 6, `${(got.length / dt).toFixed(1)} frames/s within the budget (about 10)`);
+  assert.ok((fast.frames.length - f0) / dt > 2 * (got.length / dt), 'the client without a budget gets more');
+  // The newest frame, not a queue: the last frame the slow client got is at most a budget's
+  // spacing (0.1 s) plus scheduling behind the newest the sim made.
+  const newest = (await ok(d, 'GET', '/v1/sim')).sim_time;
+  assert.ok(newest - got.at(-1).simTime < 0.5, `${newest - got.at(-1).simTime} s behind`);
+  // Lifted with null.
+  slow.ws.send(JSON.stringify({ type: 'subscribe', max_kbps: null }));
+  assert.equal((await next(slow, 'text', (m) => m.type === 'subscribed' && m.max_kbps === null)).max_kbps, null);
+  // Bad budgets: an error, the subscription as it was.
+  for (const [max_kbps, status] of [[0, 422], [-5, 422], [1.5, 422], [1e12, 422], ['fast', 400]]) {
+    const from = slow.texts.length;
+    slow.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'q16', max_kbps }));
+    const e = await next(slow, 'text', (m) => m.type === 'error', 15000, from);
+    assert.deepEqual([e.status, e.param], [status, 'max_kbps'], JSON.stringify(e));
+  }
+  const from = slow.frames.length;
+  await next(slow, 'frame', () => true, 15000, from);
+  assert.equal(slow.frames.at(-1).encoding, 'f32'); // not q16: nothing changed
+  for (const c of [slow, fast]) c.ws.close();
   await stop(d);
 });

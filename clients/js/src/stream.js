@@ -68,7 +68,7 @@ async function webSocketClass() {
 /**
  * @typedef {object} StreamOptions
  * @property {{encoding?: 'f32'|'q16'|'meshopt'|'delta', max_fps?: number, scalar?: 'none'|'speed'|'strain',
- *   quantum?: number}} [subscription]
+ *   quantum?: number, max_kbps?: number|null}} [subscription]
  *   sent on every (re)connect; the server's default (f32, 60 fps, no scalar) otherwise
  * @property {boolean} [pull] hold frames undecoded until takeFrame()
  * @property {{decodeVertexBuffer: Function, ready: Promise<void>}} [meshopt] the meshoptimizer

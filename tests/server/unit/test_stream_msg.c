@@ -30,6 +30,12 @@ static void test_subscribe(void **unused)
     assert_int_equal(parse("{\"type\":\"subscribe\",\"quantum\":1e-6}", &m), STREAM_MSG_SUBSCRIBE);
     assert_true(m.quantum == 1e-6 && m.encoding == -1);
     stream_msg_free(&m);
+    assert_int_equal(parse("{\"type\":\"subscribe\",\"max_kbps\":800}", &m), STREAM_MSG_SUBSCRIBE);
+    assert_true(m.max_kbps == 800 && m.quantum == -1);
+    stream_msg_free(&m);
+    assert_int_equal(parse("{\"type\":\"subscribe\",\"max_kbps\":null}", &m), STREAM_MSG_SUBSCRIBE);
+    assert_true(m.max_kbps == 0);
+    stream_msg_free(&m);
     assert_int_equal(parse("{\"type\":\"keyframe\"}", &m), STREAM_MSG_KEYFRAME);
     stream_msg_free(&m);
 }
@@ -59,6 +65,9 @@ static void test_refusals(void **unused)
     expect_refused("{\"type\":\"subscribe\",\"quantum\":NaN}", 400, "message", NULL);
     expect_refused("{\"type\":\"subscribe\",\"quantum\":1e999}", 400, "message", NULL);
     expect_refused("{\"type\":\"keyframe\",\"now\":1}", 400, "keyframe", "now");
+    expect_refused("{\"type\":\"subscribe\",\"max_kbps\":0}", 422, "subscribe", "max_kbps");
+    expect_refused("{\"type\":\"subscribe\",\"max_kbps\":10000001}", 422, "subscribe", "max_kbps");
+    expect_refused("{\"type\":\"subscribe\",\"max_kbps\":\"x\"}", 400, "subscribe", "max_kbps");
     expect_refused("not json", 400, "message", NULL);
     expect_refused("[1, 2]", 400, "message", NULL);
     expect_refused("{\"type\": 3}", 400, "message", "type");
