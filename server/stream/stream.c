@@ -80,6 +80,15 @@ typedef struct delta_chan {
     wire key;
 } delta_chan;
 
+/* What /metrics shows of one connected client: a slot per client (stream_max_clients of them),
+ * written by the service thread, read by the metrics' thread. */
+typedef struct client_slot {
+    atomic_ullong id; /* 0: free */
+    atomic_ullong frames, bytes;
+    atomic_uint fps_milli; /* frames a second over the last second or so, x 1000 */
+    atomic_int encoding;
+} client_slot;
+
 typedef struct session session;
 struct session {
     struct lws *wsi;
@@ -106,6 +115,9 @@ struct session {
     int dead;
     access_level access;  /* from the token it connected with */
     int established;      /* counted in clients (a refused connection is closed too, never counted) */
+    client_slot *slot;    /* its /metrics slot (NULL when none was free) */
+    uint64_t fps_frames;  /* frames sent when fps_at was taken */
+    double fps_at;
 };
 
 /* A grab or release on its way to the sim thread; the answer comes back through `done`. */
@@ -162,7 +174,8 @@ struct stream {
 
     /* metrics */
     atomic_ullong encoded[N_ENC], sent[N_ENC], skipped[N_ENC], bytes_sent, stalled, refused[N_REFUSED];
-    atomic_ullong encode_ns[N_ENC]; /* time spent encoding (delta: each pose's positions section and its messages) */
+    atomic_ullong encode_ns[N_ENC];
+    client_slot *slots; /* max_clients */ /* time spent encoding (delta: each pose's positions section and its messages) */
 };
 
 
@@ -669,6 +682,13 @@ static void sweep(stream *st)
 {
     const double t = clock_mono();
     for (session *s = st->sessions; s; s = s->next) {
+        if (s->slot && t - s->fps_at >= 1.0) { /* the achieved frame rate, about once a second */
+            const uint64_t frames = atomic_load(&s->slot->frames);
+            atomic_store(&s->slot->fps_milli, (unsigned)((double)(frames - s->fps_frames) / (t - s->fps_at) * 1000.0));
+            atomic_store(&s->slot->encoding, s->encoding);
+            s->fps_frames = frames;
+            s->fps_at = t;
+        }
         const wire *w = wire_now(st, s);
         if (s->dead || w->seq <= s->last_frame || t < s->next_send) { /* up to date, or waiting on its own budget */
             s->behind_since = 0;
@@ -752,6 +772,7 @@ static int writeable(stream *st, session *s)
                 const int n = lws_write(s->wsi, key->buf + LWS_PRE, key->len, LWS_WRITE_BINARY);
                 if (n < (int)key->len) return -1;
                 atomic_fetch_add(&st->bytes_sent, key->len);
+                if (s->slot) atomic_fetch_add(&s->slot->bytes, key->len);
                 spend(s, key->len, t);
                 s->key_have = key->key_id;
                 lws_callback_on_writable(s->wsi);
@@ -762,6 +783,10 @@ static int writeable(stream *st, session *s)
         if (n < (int)w->len) return -1;
         if (s->last_frame && w->seq > s->last_frame + 1) atomic_fetch_add(&st->skipped[s->encoding], w->seq - s->last_frame - 1);
         atomic_fetch_add(&st->sent[s->encoding], 1);
+        if (s->slot) {
+            atomic_fetch_add(&s->slot->frames, 1);
+            atomic_fetch_add(&s->slot->bytes, w->len);
+        }
         atomic_fetch_add(&st->bytes_sent, w->len);
         s->last_frame = w->seq;
         spend(s, w->len, t);
@@ -916,6 +941,17 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         s->scalar = SCALAR_NONE;
         s->quantum = st->default_quantum;
         s->chan = -1;
+        s->fps_at = clock_mono();
+        for (int k = 0; k < st->max_clients && !s->slot; k++) {
+            if (atomic_load(&st->slots[k].id) == 0) {
+                s->slot = &st->slots[k];
+                atomic_store(&s->slot->frames, 0);
+                atomic_store(&s->slot->bytes, 0);
+                atomic_store(&s->slot->fps_milli, 0);
+                atomic_store(&s->slot->encoding, CLF_F32);
+                atomic_store(&s->slot->id, s->id);
+            }
+        }
         pthread_mutex_lock(&st->elock);
         s->next_event = st->event_seq; /* events from here on; hello shows the state before */
         pthread_mutex_unlock(&st->elock);
@@ -936,6 +972,8 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
             }
         }
         leave_chan(st, s);
+        if (s->slot) atomic_store(&s->slot->id, 0);
+        s->slot = NULL;
         if (atomic_fetch_sub(&st->clients, 1) == 1) forget_frames(st);
         free(s->hello);
         for (int k = 0; k < s->n_texts; k++) free(s->texts[k]);
@@ -1014,6 +1052,12 @@ stream *stream_start(const clothd_settings *set, scenes *table, const access_pol
     st->acc = acc;
     st->protocol = &protocols[0];
     st->max_clients = set->stream_max_clients;
+    st->slots = calloc((size_t)st->max_clients, sizeof *st->slots);
+    if (!st->slots) {
+        snprintf(err, err_len, "out of memory");
+        free(st);
+        return NULL;
+    }
     st->max_message = set->stream_max_message;
     st->stall_timeout = set->stream_stall_timeout;
     st->default_quantum = set->stream_delta_quantum;
@@ -1035,6 +1079,7 @@ stream *stream_start(const clothd_settings *set, scenes *table, const access_pol
     st->ctx = lws_create_context(&info);
     if (!st->ctx) {
         snprintf(err, err_len, "could not listen for the stream on %s port %d", set->listen, (int)set->stream_port);
+        free(st->slots);
         free(st);
         return NULL;
     }
@@ -1043,6 +1088,7 @@ stream *stream_start(const clothd_settings *set, scenes *table, const access_pol
     if (pthread_create(&st->thread, NULL, service, st) != 0) {
         lws_context_destroy(st->ctx);
         snprintf(err, err_len, "could not start the stream thread");
+        free(st->slots);
         free(st);
         return NULL;
     }
@@ -1079,6 +1125,7 @@ void stream_stop(stream *st)
     pthread_mutex_destroy(&st->flock);
     pthread_mutex_destroy(&st->elock);
     pthread_mutex_destroy(&st->glock);
+    free(st->slots);
     free(st);
 }
 
@@ -1120,6 +1167,27 @@ char *stream_metrics(stream *st)
     for (int e = 0; e < N_ENC; e++)
         fprintf(f, "clothd_stream_encode_seconds_total{encoding=\"%s\"} %.6f\n", stream_encoding_names[e],
                 (double)atomic_load(&st->encode_ns[e]) * 1e-9);
+    fprintf(f, "# HELP clothd_stream_client_frames_total Frames sent to each connected client (client: its id; at most "
+               "stream_max_clients series).\n# TYPE clothd_stream_client_frames_total counter\n");
+    for (int k = 0; k < st->max_clients; k++) {
+        const unsigned long long id = atomic_load(&st->slots[k].id);
+        if (id) fprintf(f, "clothd_stream_client_frames_total{client=\"%llu\"} %llu\n", id, (unsigned long long)atomic_load(&st->slots[k].frames));
+    }
+    fprintf(f, "# HELP clothd_stream_client_bytes_total Bytes sent to each connected client.\n"
+               "# TYPE clothd_stream_client_bytes_total counter\n");
+    for (int k = 0; k < st->max_clients; k++) {
+        const unsigned long long id = atomic_load(&st->slots[k].id);
+        if (id) fprintf(f, "clothd_stream_client_bytes_total{client=\"%llu\"} %llu\n", id, (unsigned long long)atomic_load(&st->slots[k].bytes));
+    }
+    fprintf(f, "# HELP clothd_stream_client_fps Frames a second each connected client got over about the last second, "
+               "with its encoding.\n# TYPE clothd_stream_client_fps gauge\n");
+    for (int k = 0; k < st->max_clients; k++) {
+        const unsigned long long id = atomic_load(&st->slots[k].id);
+        const int e = atomic_load(&st->slots[k].encoding);
+        if (id)
+            fprintf(f, "clothd_stream_client_fps{client=\"%llu\",encoding=\"%s\"} %.3f\n", id,
+                    stream_encoding_names[e >= 0 && e < N_ENC ? e : 0], atomic_load(&st->slots[k].fps_milli) / 1000.0);
+    }
     fprintf(f, "# HELP clothd_stream_bytes_sent_total Bytes written to stream clients.\n"
                "# TYPE clothd_stream_bytes_sent_total counter\nclothd_stream_bytes_sent_total %llu\n",
             (unsigned long long)atomic_load(&st->bytes_sent));

@@ -451,7 +451,7 @@ test('delta: bad subscriptions and keyframe asks get an error and change nothing
 
 // max_kbps: a client on a slow link gets fewer frames, each whole, at the rate it asked for; one
 // without it gets them all. 24 x 16 f32 frames are 4,752 bytes (+36 a rock), 60 a second: 285 kB/s.
-test('max_kbps: fewer whole frames within the byte budget, not a growing delay', async () => {
+test('max_kbps: fewer whole frames within the byte budget, not a growing delay; each client in /metrics', async () => {
   const d = await daemon(['--nx', '24', '--ny', '16', '--auto-drop-interval', '0']);
   const slow = await connect(d), fast = await connect(d);
   slow.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'f32', max_kbps: 400 })); // 50 kB/s
@@ -470,6 +470,17 @@ test('max_kbps: fewer whole frames within the byte budget, not a growing delay',
   // spacing (0.1 s) plus scheduling behind the newest the sim made.
   const newest = (await ok(d, 'GET', '/v1/sim')).sim_time;
   assert.ok(newest - got.at(-1).simTime < 0.5, `${newest - got.at(-1).simTime} s behind`);
+  // /metrics has each client's frames, bytes and achieved frame rate: the slow one's within its
+  // budget, the fast one's near 60 (one series per connected client, by id).
+  const m = (await call(d, 'GET', '/metrics')).text;
+  const fps = [...m.matchAll(/^clothd_stream_client_fps\{client="(\d+)",encoding="f32"\} ([\d.]+)$/gm)].map((x) => Number(x[2]));
+  assert.equal(fps.length, 2, m);
+  const [lo, hi] = fps.sort((a, b) => a - b);
+  assert.ok(lo >= 5 && lo <= 13, `slow client at ${lo} fps`);
+  assert.ok(hi > 2 * lo, `fast client at ${hi} fps`);
+  const bytesOf = [...m.matchAll(/^clothd_stream_client_bytes_total\{client="\d+"\} (\d+)$/gm)].map((x) => Number(x[1]));
+  assert.equal(bytesOf.length, 2);
+  assert.equal(metric(m, 'clothd_stream_client_frames_total') > 0, true);
   // Lifted with null.
   slow.ws.send(JSON.stringify({ type: 'subscribe', max_kbps: null }));
   assert.equal((await next(slow, 'text', (m) => m.type === 'subscribed' && m.max_kbps === null)).max_kbps, null);
@@ -484,5 +495,7 @@ test('max_kbps: fewer whole frames within the byte budget, not a growing delay',
   await next(slow, 'frame', () => true, 15000, from);
   assert.equal(slow.frames.at(-1).encoding, 'f32'); // not q16: nothing changed
   for (const c of [slow, fast]) c.ws.close();
+  await until('the clients\' series gone', async () =>
+    !/clothd_stream_client_fps\{/.test((await call(d, 'GET', '/metrics')).text));
   await stop(d);
 });
