@@ -485,7 +485,11 @@ static void handle_subscribe(stream *st, session *s, const stream_msg *m)
     const long long kbps = m->max_kbps >= 0 ? m->max_kbps : s->max_kbps;
     const float q = m->quantum >= 0 ? (float)m->quantum : s->quantum;
     if (enc == CLF_DELTA && (s->chan < 0 || st->chans[s->chan].quantum != q)) {
-        const int c = find_chan(st, q);
+        int c = find_chan(st, q);
+        if (c < 0 && s->chan >= 0 && st->chans[s->chan].users == 1) {
+            leave_chan(st, s); /* its own channel alone: it takes the new quantum */
+            c = find_chan(st, q);
+        }
         if (c < 0) {
             client_error(st, s, "subscribe", 422, "quantum",
                          "at most %d different quanta are in use at once, by all clients together; subscribe with "

@@ -430,9 +430,16 @@ test('delta: bad subscriptions and keyframe asks get an error and change nothing
     await next(o, 'frame', (f) => f.encoding === 'delta');
     others.push(o);
   }
-  const e5 = await answer({ type: 'subscribe', quantum: 0.0005 });
+  const x = await connect(d); // an f32 client: a fifth quantum is refused
+  await next(x, 'text', (m) => m.type === 'hello');
+  x.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', quantum: 0.0005 }));
+  const e5 = await next(x, 'text', (m) => m.type === 'error');
   assert.deepEqual([e5.status, e5.param], [422, 'quantum']);
   assert.match(e5.detail, /at most 4 different quanta/);
+  x.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', quantum: 0.0003 })); // one in use is not
+  assert.equal((await next(x, 'frame', (f) => f.encoding === 'delta')).delta.quantum, Math.fround(0.0003));
+  x.ws.send(JSON.stringify({ type: 'subscribe', quantum: 0.0005 })); // nor one it alone does not hold
+  assert.equal((await next(x, 'text', (m) => m.type === 'error' && m.param === 'quantum', 15000, x.texts.length - 1)).status, 422);
   // The subscription is as it was: the next frame is delta on the 0.001 grid.
   const from = c.frames.length;
   await ok(d, 'POST', '/v1/rocks', { position: [0, 0, 2], radius: 0.1 });
@@ -441,11 +448,23 @@ test('delta: bad subscriptions and keyframe asks get an error and change nothing
   assert.equal(f.delta.quantum, Math.fround(0.001));
   assert.equal(f.nRocks, 1);
   assert.deepEqual(c.badFrames, []);
+  assert.notEqual(await hash(d), h0); // the rock; from here on nothing changes the simulation
+  const h1 = await hash(d);
+  // A client alone on its quantum may take another (its channel goes with it).
+  const regrid = await answer({ type: 'subscribe', quantum: 0.0005 });
+  assert.deepEqual([regrid.type, regrid.quantum], ['subscribed', 0.0005]);
+  const g = await next(c, 'frame', (f) => f.encoding === 'delta' && f.delta.quantum === Math.fround(0.0005), 15000, from);
+  assert.equal(g.delta.keyframe, true); // a new grid starts with a keyframe
   // One of the others leaves: its quantum is free for another.
   others[0].ws.close();
-  await until('a free channel', async () => (await answer({ type: 'subscribe', quantum: 0.0005 })).type === 'subscribed');
-  assert.notEqual(h0, null);
-  for (const o of [c, ...others]) o.ws.close();
+  await until('a free channel', async () => {
+    const from = x.texts.length;
+    x.ws.send(JSON.stringify({ type: 'subscribe', quantum: 0.001 }));
+    return (await next(x, 'text', (m) => m.type === 'error' || m.type === 'subscribed', 15000, from)).type === 'subscribed';
+  });
+  assert.equal(await hash(d), h1); // none of the subscriptions changed the simulation
+  assert.deepEqual([...c.badFrames, ...x.badFrames], []);
+  for (const o of [c, x, ...others]) o.ws.close();
   await stop(d);
 });
 
