@@ -4,11 +4,12 @@
  *
  * Besides what ASan and UBSan catch, it checks what stream_msg.h promises: a refusal says what
  * about, with a status and an error message that can be sent (valid JSON); a subscribe holds
- * only known encodings, scalars and rates; a command is a grab or a release. */
+ * only known encodings, scalars, rates, quanta and budgets; a command is a grab or a release. */
 #include <stdint.h>
 
 #include <jansson.h>
 
+#include "core/delta.h"
 #include "core/stream_msg.h"
 #include "fuzz_common.h"
 #include "sim/commands.h"
@@ -51,7 +52,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         if (m.encoding < -1 || m.encoding >= STREAM_ENCODINGS || m.scalar < -1 || m.scalar >= SCALAR_KINDS ||
             m.max_fps == 0 || m.max_fps < -1 || m.max_fps > 240)
             fuzz_fail("subscribe to encoding %d, scalar %d, max_fps %d", m.encoding, m.scalar, m.max_fps);
+        if (m.quantum != -1 && !delta_quantum_ok(m.quantum)) fuzz_fail("subscribe with quantum %g", m.quantum);
+        if (m.max_kbps < -1 || m.max_kbps > STREAM_MAX_KBPS) fuzz_fail("subscribe with max_kbps %lld", m.max_kbps);
         break;
+    case STREAM_MSG_KEYFRAME: break;
     case STREAM_MSG_COMMAND: {
         const char *op = json_string_value(json_object_get(m.cmd, "op"));
         if (!op || (strcmp(op, "grab") != 0 && strcmp(op, "release") != 0)) fuzz_fail("a command with op %s", op ? op : "(none)");

@@ -3,7 +3,7 @@
  *   offset  size  field
  *        0     4  magic "CLF1"
  *        4     2  header size (72)
- *        6     2  flags: bits 0-1 encoding (0 f32, 1 q16, 2 meshopt), bit 2 scalar present
+ *        6     2  flags: bits 0-1 encoding (0 f32, 1 q16, 2 meshopt, 3 delta), bit 2 scalar present
  *        8     8  frame (u64)
  *       16     8  step (u64)
  *       24     8  sim_time (f64, s)
@@ -19,6 +19,25 @@
  *                   meshopt: u32 byte count, then the q16 positions padded to 4 u16 per vertex
  *                            (x, y, z, 0: an 8-byte stride) compressed with meshoptimizer's
  *                            vertex codec (meshopt_encodeVertexBuffer, vertex size 8)
+ *                   delta:   a 44-byte head, then the compressed values (offsets from the
+ *                            section's start):
+ *                             0  4  kind (u32): 0 keyframe, 1 delta
+ *                             4  4  keyframe id (u32): the keyframe's sequence number, from 1;
+ *                                   a keyframe carries its own, a delta its keyframe's
+ *                             8  8  keyframe frame (u64): the `frame` of that keyframe
+ *                            16  8  quantum (f64, m): the grid's spacing
+ *                            24 12  grid origin (3 i32): the keyframe's per-axis minimum of g
+ *                            36  4  row (u32): vertices per grid row (the cloth's nx)
+ *                            40  4  byte count (u32) of the zstd frame that follows
+ *                            44     a zstd frame of 12 n bytes (below)
+ *                            g = round(x / quantum) clamped to int32 (round half away from 0);
+ *                            a = g - origin (keyframe) or g - g of the keyframe (delta);
+ *                            r = a - (a[i-1,j] + a[i,j-1] - a[i-1,j-1]), a neighbour missing
+ *                            on the first row or column counts as 0 (i = v mod row, j = v div
+ *                            row), all mod 2^32; z = zigzag(r) = (r << 1) ^ (r >> 31) as u32;
+ *                            byte b (0 low .. 3) of z of axis c of vertex v is byte
+ *                            (4 c + b) n + v. x decodes as (origin + a) quantum (keyframe) or
+ *                            (g of the keyframe + a) quantum (delta), within quantum/2.
  *                 scalar (when flagged): n_vertices u8, 0 = slow or unstrained .. 255
  *                 rocks: n_rocks x 36 bytes {id u32, position 3 f32, radius f32,
  *                        orientation 4 f32 (quaternion x, y, z, w)}
@@ -41,13 +60,24 @@
 #define CLF_OFF_BBOX_MIN 48
 #define CLF_OFF_BBOX_MAX 60
 
-enum clf_encoding { CLF_F32 = 0, CLF_Q16 = 1, CLF_MESHOPT = 2 };
+enum clf_encoding { CLF_F32 = 0, CLF_Q16 = 1, CLF_MESHOPT = 2, CLF_DELTA = 3 };
 #define CLF_FLAG_ENCODING_MASK 0x3u
 #define CLF_FLAG_SCALAR 0x4u
 
 #define CLF_ROCK_SIZE 36
 #define CLF_MESHOPT_STRIDE 8 /* bytes per vertex given to the meshopt codec */
 #define CLF_Q16_EXTENT_MIN 1e-9f
+
+/* The delta positions section: offsets from its start. */
+enum clf_delta_kind { CLF_DELTA_KEY = 0, CLF_DELTA_DELTA = 1 };
+#define CLF_DELTA_OFF_KIND 0
+#define CLF_DELTA_OFF_KEY_ID 4
+#define CLF_DELTA_OFF_KEY_FRAME 8
+#define CLF_DELTA_OFF_QUANTUM 16
+#define CLF_DELTA_OFF_ORIGIN 24
+#define CLF_DELTA_OFF_ROW 36
+#define CLF_DELTA_OFF_LENGTH 40
+#define CLF_DELTA_HEAD 44
 
 /* Section sizes rounded up to 4 bytes. */
 #define CLF_ALIGN4(n) (((n) + 3u) & ~(size_t)3u)

@@ -3,18 +3,24 @@
 // the npm package `meshoptimizer`, passed in (`import { MeshoptDecoder } from 'meshoptimizer';
 // await MeshoptDecoder.ready; decodeFrame(data, { meshopt: MeshoptDecoder })`).
 //
+// delta frames (encoding 3) refer to the newest keyframe, so they need a decoder that keeps it:
+// `createDecoder({ zstd, meshopt })` returns `{ decode(data) }`, which decodes every encoding; zstd
+// is the decoder of the npm package `zstddec` (`const zstd = new ZSTDDecoder(); await zstd.init()`).
+//
 // A viewer decoding 60 frames a second passes its own arrays (options.positions, .scalar,
 // .scratch), which are used when large enough: nothing is allocated per frame then but the
 // result object.
 
 export const MAGIC = 'CLF1';
 export const HEADER_SIZE = 72;
-export const ENCODINGS = ['f32', 'q16', 'meshopt'];
+export const ENCODINGS = ['f32', 'q16', 'meshopt', 'delta'];
 export const ROCK_SIZE = 36;
 export const MESHOPT_STRIDE = 8;
 export const FLAG_SCALAR = 4;
 /** The most vertices a frame may claim: clothd's largest cloth, 4096 x 4096. */
 export const MAX_VERTICES = 4096 * 4096;
+/** The delta positions section's head: kind, keyframe id and frame, quantum, origin, row, length. */
+export const DELTA_HEAD = 44;
 
 const align4 = (n) => (n + 3) & ~3;
 
@@ -28,6 +34,29 @@ const align4 = (n) => (n + 3) & ~3;
  *   rocks: {id: number, position: number[], radius: number, orientation: number[]}[]}}
  */
 export function decodeFrame(data, options = {}) {
+  return decode(data, options, null);
+}
+
+/**
+ * A decoder that keeps the newest keyframe of a delta stream, for every encoding.
+ * @param {{zstd?: {decode: Function}, meshopt?: {decodeVertexBuffer: Function},
+ *   positions?: Float32Array, scalar?: Uint8Array, scratch?: Uint8Array}} [options] zstd: the
+ *   decoder of delta frames (zstddec's ZSTDDecoder, initialised); the rest as decodeFrame's
+ * @returns {{decode: (data: ArrayBuffer|ArrayBufferView) => object, keyframe: () => object|null}}
+ *   decode gives decodeFrame's result; for a delta frame also `delta: {keyframe: boolean, keyId,
+ *   keyFrame, quantum}`. A delta whose keyframe this decoder has not seen throws (and changes
+ *   nothing): the server sends every client the keyframe first; `{"type": "keyframe"}` asks for
+ *   a new one.
+ */
+export function createDecoder(options = {}) {
+  const state = { key: null };
+  return {
+    decode: (data) => decode(data, options, state),
+    keyframe: () => (state.key ? { id: state.key.id, frame: state.key.frame, quantum: state.key.quantum, nVertices: state.key.n } : null),
+  };
+}
+
+function decode(data, options, state) {
   const bytes = data instanceof ArrayBuffer ? new Uint8Array(data)
     : new Uint8Array(data.buffer, data.byteOffset, data.byteLength);
   const dv = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
@@ -48,8 +77,9 @@ export function decodeFrame(data, options = {}) {
     if (at + count > bytes.length) throw new Error(`frame of ${bytes.length} bytes is truncated: its ${what} need ${at + count}`);
   };
   if (n > MAX_VERTICES) throw new Error(`frame claims ${n} vertices, more than ${MAX_VERTICES}`);
-  need(encoding === 'f32' ? 12 * n : encoding === 'q16' ? 6 * n : 4, 'positions');
+  need(encoding === 'f32' ? 12 * n : encoding === 'q16' ? 6 * n : encoding === 'meshopt' ? 4 : DELTA_HEAD, 'positions');
   const positions = reuse(options.positions, 3 * n, Float32Array);
+  let delta = null;
 
   // q16: bbox min .. max mapped to 0 .. 65535 per axis; a flat axis is all 0.
   const ext = [0, 1, 2].map((c) => bboxMax[c] - bboxMin[c]);
@@ -66,6 +96,10 @@ export function decodeFrame(data, options = {}) {
     for (let v = 0; v < n; v++)
       for (let c = 0; c < 3; c++) positions[3 * v + c] = bboxMin[c] + dv.getUint16(at + 6 * v + 2 * c, true) * step[c];
     at += 6 * n;
+  } else if (encoding === 'delta') {
+    if (!state) throw new Error('a delta frame needs the decoder of createDecoder(), which keeps its keyframe');
+    delta = decodeDelta(bytes, dv, at, n, positions, options, state);
+    at += DELTA_HEAD + delta.length;
   } else {
     if (!options.meshopt) throw new Error('a meshopt frame needs options.meshopt (MeshoptDecoder of the meshoptimizer package)');
     const len = dv.getUint32(at, true);
@@ -93,11 +127,82 @@ export function decodeFrame(data, options = {}) {
     rocks.push({ id: dv.getUint32(at, true), position: [f(1), f(2), f(3)], radius: f(4), orientation: [f(5), f(6), f(7), f(8)] });
   }
   if (at !== bytes.length) throw new Error(`frame has ${bytes.length} bytes, its sections ${at}`);
-  return {
+  const out = {
     frame: Number(dv.getBigUint64(8, true)),
     step: Number(dv.getBigUint64(16, true)),
     simTime: dv.getFloat64(24, true),
     wallNs: dv.getBigUint64(32, true),
     encoding, nVertices: n, nRocks, bboxMin, bboxMax, positions, scalar, rocks, bytes: bytes.length,
+  };
+  if (delta) {
+    if (delta.newKey) state.key = delta.newKey; // only a frame that decoded whole replaces the keyframe
+    out.delta = { keyframe: delta.keyframe, keyId: delta.keyId, keyFrame: delta.keyFrame, quantum: delta.quantum };
+  }
+  return out;
+}
+
+// The delta positions section at `at` (layout in clothd_frame.h): the zstd frame holds the byte
+// planes of the zigzagged residuals of the parallelogram prediction of a = g - origin (keyframe)
+// or g - g of the keyframe (delta); all integer arithmetic is mod 2^32 (| 0).
+function decodeDelta(bytes, dv, at, n, positions, options, state) {
+  const kind = dv.getUint32(at, true);
+  const keyId = dv.getUint32(at + 4, true);
+  const keyFrame = Number(dv.getBigUint64(at + 8, true));
+  const quantum = dv.getFloat64(at + 16, true);
+  const origin = [0, 1, 2].map((c) => dv.getInt32(at + 24 + 4 * c, true));
+  const row = dv.getUint32(at + 36, true);
+  const length = dv.getUint32(at + 40, true);
+  if (kind > 1) throw new Error(`unknown delta kind ${kind}`);
+  if (!(quantum > 0 && quantum < Infinity)) throw new Error(`delta quantum ${quantum} is not a positive number`);
+  if (row < 1) throw new Error('delta row of 0 vertices');
+  if (at + DELTA_HEAD + length > bytes.length) throw new Error(`frame of ${bytes.length} bytes is truncated: its positions need ${at + DELTA_HEAD + length}`);
+  const key = state.key;
+  if (kind === 1 && !(key && key.id === keyId && key.n === n && key.quantum === quantum))
+    throw new Error(`delta of keyframe ${keyId} (frame ${keyFrame}), and this decoder holds ${key ? `keyframe ${key.id}` : 'no keyframe'}`);
+  if (!options.zstd) throw new Error('a delta frame needs options.zstd (ZSTDDecoder of the zstddec package, initialised)');
+  const raw = options.zstd.decode(bytes.subarray(at + DELTA_HEAD, at + DELTA_HEAD + length), 12 * n);
+  if (raw.length !== 12 * n) throw new Error(`delta values of ${raw.length} bytes, not ${12 * n}`);
+  const g = kind === 0 ? new Int32Array(3 * n) : null;
+  // Per axis, into a plane of n values (contiguous), row by row: the first row sums its left
+  // neighbours, every later row starts from the value below and adds left + below - below-left.
+  const a = state.scratch && state.scratch.length >= n ? state.scratch : (state.scratch = new Int32Array(n));
+  const w = Math.min(row, n);
+  for (let c = 0; c < 3; c++) {
+    const p0 = 4 * c * n, p1 = p0 + n, p2 = p1 + n, p3 = p2 + n;
+    for (let j0 = 0; j0 < n; j0 += w) {
+      const end = Math.min(j0 + w, n);
+      let left = 0, v = j0;
+      if (j0 === 0) {
+        for (; v < end; v++) {
+          const z = raw[p0 + v] | (raw[p1 + v] << 8) | (raw[p2 + v] << 16) | (raw[p3 + v] << 24);
+          left = (left + ((z >>> 1) ^ -(z & 1))) | 0;
+          a[v] = left;
+        }
+      } else {
+        let diag = 0; // a[v - w - 1], 0 at the first column
+        for (; v < end; v++) {
+          const z = raw[p0 + v] | (raw[p1 + v] << 8) | (raw[p2 + v] << 16) | (raw[p3 + v] << 24);
+          const below = a[v - w];
+          left = (((z >>> 1) ^ -(z & 1)) + left + below - diag) | 0;
+          diag = below;
+          a[v] = left;
+        }
+      }
+    }
+    if (kind === 0) {
+      const o = origin[c];
+      for (let v = 0, k = c; v < n; v++, k += 3) {
+        const gk = (a[v] + o) | 0;
+        g[k] = gk;
+        positions[k] = gk * quantum;
+      }
+    } else {
+      const kg = key.g;
+      for (let v = 0, k = c; v < n; v++, k += 3) positions[k] = ((kg[k] + a[v]) | 0) * quantum;
+    }
+  }
+  return {
+    length: (length + 3) & ~3, keyframe: kind === 0, keyId, keyFrame, quantum,
+    newKey: kind === 0 ? { id: keyId, frame: keyFrame, n, quantum, g } : null,
   };
 }

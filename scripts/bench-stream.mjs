@@ -3,46 +3,32 @@
 // factor; bytes per frame per encoding (and on the default 64 x 64 scene); the latency from
 // POST /v1/rocks to the first frame that holds the rock. A benchmark, not a test.
 //   node scripts/bench-stream.mjs [seconds per case, default 5]
-import { spawn } from 'node:child_process';
-import { dirname, join } from 'node:path';
-import { fileURLToPath } from 'node:url';
+//   BENCH_CASES=delta:128,q16:64 node scripts/bench-stream.mjs   only these fan-out cases
+// (encoding:clients) at 128 x 128; a frame counts once per client (a delta keyframe sent again
+// before a delta, to a client that skipped it, is not a frame of its own).
 import WebSocket from 'ws';
+import { daemon } from './bench-daemon.mjs';
 import { MeshoptDecoder } from 'meshoptimizer';
 import { decodeFrame } from '../proto/frame.mjs';
 
-const root = join(dirname(fileURLToPath(import.meta.url)), '..');
 const secs = Number(process.argv[2] ?? 5);
 await MeshoptDecoder.ready;
-
-async function daemon(flags) {
-  const proc = spawn(join(root, 'build/server/clothd'),
-    ['--port', '0', '--stream-port', '0', '--backend', 'cpu', '--web-root', '/nonexistent', ...flags],
-    { stdio: ['ignore', 'ignore', 'pipe'] });
-  let log = '';
-  const url = await new Promise((resolve, reject) => {
-    proc.stderr.on('data', (c) => {
-      log += c;
-      const m = /listening on (http:\/\/[0-9.]+:\d+)/.exec(log);
-      if (m) resolve(m[1]);
-    });
-    proc.on('exit', () => reject(new Error(log)));
-  });
-  const health = await (await fetch(`${url}/v1/health`)).json();
-  return { proc, url, ws: `ws://127.0.0.1:${health.stream.port}/stream` };
-}
 
 const sim = async (d) => (await fetch(`${d.url}/v1/sim`)).json();
 
 function client(d, encoding) {
   return new Promise((resolve) => {
     const ws = new WebSocket(d.ws, 'clothd.v1');
-    const c = { ws, frames: 0, bytes: 0, last: null, onFrame: null };
+    const c = { ws, frames: 0, bytes: 0, last: null, onFrame: null }; // last: the newest wall clock seen
     ws.on('open', () => {
       ws.send(JSON.stringify({ type: 'subscribe', encoding, max_fps: 240 }));
       resolve(c);
     });
     ws.on('message', (data, binary) => {
       if (!binary) return;
+      const wall = data.readBigUInt64LE(32);
+      if (c.last !== null && wall <= c.last) return; // a keyframe sent again
+      c.last = wall;
       c.frames++;
       c.bytes = data.length;
       if (c.onFrame) c.onFrame(data);
@@ -97,17 +83,26 @@ async function latency(d, encoding) {
   };
 }
 
-const big = await daemon(['--nx', '128', '--ny', '128', '--auto-drop-interval', '1']);
+const big = await daemon(['--nx', '128', '--ny', '128', '--auto-drop-interval', '1', '--stream-max-clients', '256']);
+if (process.env.BENCH_CASES) {
+  await sleep(2000);
+  for (const c of process.env.BENCH_CASES.split(',')) {
+    const [encoding, n] = c.split(':');
+    console.log(JSON.stringify(await fpsCase(big, encoding, Number(n))));
+  }
+  big.proc.kill('SIGTERM');
+  process.exit(0);
+}
 await sleep(2000);
 console.log(`clothd 128x128 on the CPU backend, ${(await sim(big)).substeps} substeps per frame`);
-for (const encoding of ['f32', 'q16', 'meshopt'])
+for (const encoding of ['f32', 'q16', 'meshopt', 'delta'])
   for (const n of [1, 8, 32]) console.log(JSON.stringify(await fpsCase(big, encoding, n)));
 for (const encoding of ['f32', 'meshopt']) console.log(JSON.stringify({ latency: await latency(big, encoding) }));
 big.proc.kill('SIGTERM');
 
 const def = await daemon([]);
 await sleep(4000); // a rock or two in the net
-for (const encoding of ['f32', 'q16', 'meshopt']) {
+for (const encoding of ['f32', 'q16', 'meshopt', 'delta']) {
   const c = await client(def, encoding);
   await sleep(1500);
   const n = (await sim(def)).n_vertices, rocks = (await sim(def)).n_rocks;

@@ -6,6 +6,7 @@ CLOTHD_APT_BUILD=(
   gcc make cmake pkg-config   # the build
   libmicrohttpd-dev libjansson-dev   # clothd's HTTP server and JSON
   libwebsockets-dev libmeshoptimizer-dev   # clothd's stream
+  libzstd-dev                 # the stream's delta encoding
   nodejs                      # npm, for the viewer's packages (web/package-lock.json)
 )
 CLOTHD_APT_TEST=(

@@ -16,10 +16,12 @@ set(vendor
   "uplot/dist/uPlot.esm.js" "uPlot.esm.js"
   "uplot/dist/uPlot.min.css" "uPlot.min.css"
   "meshoptimizer/meshopt_decoder.mjs" "meshopt_decoder.mjs"
+  "zstddec/dist/zstddec.mjs" "zstddec.mjs"
   "three/LICENSE" "LICENSE.three"
   "lil-gui/LICENSE.md" "LICENSE.lil-gui"
   "uplot/LICENSE" "LICENSE.uplot"
-  "meshoptimizer/LICENSE.md" "LICENSE.meshoptimizer")
+  "meshoptimizer/LICENSE.md" "LICENSE.meshoptimizer"
+  "zstddec/LICENSE" "LICENSE.zstddec")
 
 foreach(v SRC PROTO OUT)
   if(NOT DEFINED ${v})

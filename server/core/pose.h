@@ -23,6 +23,7 @@ typedef struct pose {
     uint64_t frame, step, wall_ns;  /* the frame count and step it was taken at; the wall clock then */
     double sim_time;
     int32_t n, n_rocks;
+    int32_t nx;                     /* vertices per grid row (the cloth's nx) */
     size_t cap_n, cap_rocks;
     float *xyz;                     /* 3 n */
     float bbox[6];                  /* min x, y, z, max x, y, z */

@@ -23,6 +23,7 @@ static const char *const ch_STATE_FILE_INVALID[] = {CLOTHD_CHOICES_STATE_FILE_IN
      offsetof(clothd_settings, name)},
 #define STARTUP_ROW_STR(name, unit, def, lo, hi, ch, help) STARTUP_ROW_OF(name, SET_STR, unit, 0, def, lo, hi, ch, help)
 #define STARTUP_ROW_INT(name, unit, def, lo, hi, ch, help) STARTUP_ROW_OF(name, SET_INT, unit, def, NULL, lo, hi, ch, help)
+#define STARTUP_ROW_FLOAT(name, unit, def, lo, hi, ch, help) STARTUP_ROW_OF(name, SET_FLOAT, unit, def, NULL, lo, hi, ch, help)
 #define STARTUP_ROW_BOOL(name, unit, def, lo, hi, ch, help) STARTUP_ROW_OF(name, SET_BOOL, unit, def, NULL, lo, hi, ch, help)
 #define STARTUP_ROW_ENUM(name, unit, def, lo, hi, ch, help) STARTUP_ROW_OF(name, SET_ENUM, unit, def, NULL, lo, hi, ch, help)
 #define STARTUP_ROW(name, type, unit, def, lo, hi, ch, help) STARTUP_ROW_##type(name, unit, def, lo, hi, ch, help)
@@ -461,6 +462,7 @@ void settings_markdown(FILE *out)
             choice_list(s, ", ", list, sizeof list);
             fprintf(out, "%s | %s | ", s->choices[(int)s->def[0]], list);
             break;
+        case SET_FLOAT: fprintf(out, "%g | %g .. %g %s | ", s->def[0], s->min, s->max, s->unit); break;
         default: fprintf(out, "%.0f | %.0f .. %.0f | ", s->def[0], s->min, s->max); break;
         }
         md_text(out, s->help);

@@ -30,7 +30,8 @@ enum { BACKEND_AUTO, BACKEND_CUDA, BACKEND_CPU };
 enum { STATE_INVALID_REFUSE, STATE_INVALID_FRESH };
 
 /* X(name, TYPE, unit, default, min, max, CHOICES, help), as clothsim/params.h: TYPE is STR (a
- * string default), INT, BOOL or ENUM (an index default; CHOICES names a CLOTHD_CHOICES_* list). */
+ * string default), INT, FLOAT, BOOL or ENUM (an index default; CHOICES names a CLOTHD_CHOICES_*
+ * list). */
 #define CLOTHD_SETTINGS(X)                                                                             \
     X(config, STR, "-", "", 0, 0, NONE, "Config file of 'name = value' lines (CLI and environment only)") \
     X(listen, STR, "-", "127.0.0.1", 0, 0, NONE, "Address the HTTP API listens on")                    \
@@ -62,6 +63,7 @@ enum { STATE_INVALID_REFUSE, STATE_INVALID_FRESH };
     X(stream_max_clients, INT, "-", 64, 1, 10000, NONE, "Most WebSocket clients at once")              \
     X(stream_max_message, INT, "-", 4096, 64, 1048576, NONE, "Largest message a stream client may send, in bytes") \
     X(stream_stall_timeout, INT, "-", 30, 1, 3600, NONE, "Seconds a stream client may leave a new frame unread before it is disconnected") \
+    X(stream_delta_quantum, FLOAT, "m", 0.0001, 1e-6, 0.01, NONE, "Grid spacing of the stream's delta frames for clients that do not subscribe with their own quantum") \
     X(journal_max, INT, "-", 100000, 10, 10000000, NONE, "Journal entries kept before it restarts from a new base snapshot") \
     X(journal_max_mb, INT, "-", 64, 1, 65536, NONE, "MiB of journal entries kept before it restarts from a new base snapshot") \
     X(stream_events_mb, INT, "-", 16, 1, 65536, NONE, "MiB of recent events kept for stream clients to read; one that falls further behind is disconnected") \
@@ -83,6 +85,7 @@ enum { STATE_INVALID_REFUSE, STATE_INVALID_FRESH };
 
 #define CLOTHD_FIELD_DECL_STR(name) char name[SETTING_TEXT_MAX];
 #define CLOTHD_FIELD_DECL_INT CS_FIELD_DECL_INT
+#define CLOTHD_FIELD_DECL_FLOAT CS_FIELD_DECL_FLOAT
 #define CLOTHD_FIELD_DECL_BOOL CS_FIELD_DECL_BOOL
 #define CLOTHD_FIELD_DECL_ENUM CS_FIELD_DECL_ENUM
 #define CLOTHD_FIELD_DECL(name, type, unit, def, lo, hi, choices, help) CLOTHD_FIELD_DECL_##type(name)

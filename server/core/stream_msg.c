@@ -1,11 +1,12 @@
 /* stream_msg.c - a stream client's text message, parsed and checked (see stream_msg.h). */
 #include <string.h>
 
+#include "core/delta.h"
 #include "core/json_read.h"
 #include "core/json_write.h"
 #include "core/stream_msg.h"
 
-const char *const stream_encoding_names[STREAM_ENCODINGS] = {"f32", "q16", "meshopt"};
+const char *const stream_encoding_names[STREAM_ENCODINGS] = {"f32", "q16", "meshopt", "delta"};
 const char *const stream_scalar_names[SCALAR_KINDS] = {"none", "speed", "strain"};
 
 static stream_msg_kind refuse(stream_msg *m, const char *about, int has_param)
@@ -25,11 +26,11 @@ static int name_index(const json_t *v, const char *const *names, int n)
 
 static stream_msg_kind subscribe(stream_msg *m, const json_t *o)
 {
-    static const char *const fields[] = {"type", "encoding", "max_fps", "scalar", NULL};
+    static const char *const fields[] = {"type", "encoding", "max_fps", "scalar", "quantum", "max_kbps", NULL};
     if (only_fields(o, fields, &m->pr) != 0) return refuse(m, "subscribe", 1);
     const json_t *e = json_object_get(o, "encoding"), *f = json_object_get(o, "max_fps"), *c = json_object_get(o, "scalar");
     if (e && (m->encoding = name_index(e, stream_encoding_names, STREAM_ENCODINGS)) < 0) {
-        problem_set(&m->pr, 422, "out-of-range", "encoding", "encoding must be f32, q16 or meshopt");
+        problem_set(&m->pr, 422, "out-of-range", "encoding", "encoding must be f32, q16, meshopt or delta");
         return refuse(m, "subscribe", 1);
     }
     if (f) {
@@ -40,6 +41,24 @@ static stream_msg_kind subscribe(stream_msg *m, const json_t *o)
     if (c && (m->scalar = name_index(c, stream_scalar_names, SCALAR_KINDS)) < 0) {
         problem_set(&m->pr, 422, "out-of-range", "scalar", "scalar must be none, speed or strain");
         return refuse(m, "subscribe", 1);
+    }
+    const json_t *q = json_object_get(o, "quantum");
+    if (q && !json_is_number(q)) {
+        problem_set(&m->pr, 400, "wrong-type", "quantum", "quantum must be a number (got %s)", json_type_word(q));
+        return refuse(m, "subscribe", 1);
+    }
+    if (q && !delta_quantum_ok(json_number_value(q))) {
+        problem_set(&m->pr, 422, "out-of-range", "quantum", "quantum must be between %g and %g m (got %g)",
+                    DELTA_QUANTUM_MIN, DELTA_QUANTUM_MAX, json_number_value(q));
+        return refuse(m, "subscribe", 1);
+    }
+    if (q) m->quantum = json_number_value(q);
+    const json_t *k = json_object_get(o, "max_kbps");
+    if (k && json_is_null(k)) m->max_kbps = 0; /* no limit */
+    else if (k) {
+        long long v;
+        if (int_from_json(k, 1, STREAM_MAX_KBPS, "max_kbps", &v, &m->pr) != 0) return refuse(m, "subscribe", 1);
+        m->max_kbps = v;
     }
     return m->kind = STREAM_MSG_SUBSCRIBE;
 }
@@ -63,6 +82,8 @@ stream_msg_kind stream_msg_parse(const char *text, size_t len, stream_msg *m)
 {
     memset(m, 0, sizeof *m);
     m->encoding = m->max_fps = m->scalar = -1;
+    m->quantum = -1;
+    m->max_kbps = -1;
     json_error_t err;
     m->root = json_loadb(text ? text : "", text ? len : 0, JSON_REJECT_DUPLICATES, &err);
     if (!m->root || !json_is_object(m->root)) {
@@ -77,6 +98,11 @@ stream_msg_kind stream_msg_parse(const char *text, size_t len, stream_msg *m)
     }
     if (strcmp(type, "subscribe") == 0) return subscribe(m, m->root);
     if (strcmp(type, "grab") == 0) return grab(m, m->root);
+    if (strcmp(type, "keyframe") == 0) {
+        static const char *const fields[] = {"type", NULL};
+        if (only_fields(m->root, fields, &m->pr) != 0) return refuse(m, "keyframe", 1);
+        return m->kind = STREAM_MSG_KEYFRAME;
+    }
     if (strcmp(type, "release") == 0) {
         static const char *const fields[] = {"type", NULL};
         if (only_fields(m->root, fields, &m->pr) != 0) return refuse(m, "release", 1);

@@ -1,5 +1,5 @@
 /* stream_msg.h - a stream client's text message, parsed and checked (PROTOCOL.md, Client messages):
- * subscribe, grab and release. Pure: no session and no socket; stream.c acts on the result, so
+ * subscribe, keyframe, grab and release. Pure: no session and no socket; stream.c acts on the result, so
  * the parser can be tested and fuzzed on its own. */
 #ifndef CLOTHD_STREAM_MSG_H
 #define CLOTHD_STREAM_MSG_H
@@ -15,21 +15,26 @@
 #define STREAM_PATH "/stream"
 #define STREAM_PROTOCOL "clothd.v1"
 
-#define STREAM_ENCODINGS 3
+#define STREAM_ENCODINGS 4
+/* The largest max_kbps a client may ask for (10 Gbit/s). */
+#define STREAM_MAX_KBPS 10000000
 /* Names in the order of proto/clothd_frame.h's encodings and of pose.h's scalars. */
 extern const char *const stream_encoding_names[STREAM_ENCODINGS];
 extern const char *const stream_scalar_names[SCALAR_KINDS];
 
 typedef enum stream_msg_kind {
     STREAM_MSG_REFUSED,   /* an error goes back to the client: about, pr, has_param */
-    STREAM_MSG_SUBSCRIBE, /* encoding, max_fps, scalar */
-    STREAM_MSG_COMMAND    /* cmd: a grab or release for the sim thread */
+    STREAM_MSG_SUBSCRIBE, /* encoding, max_fps, scalar, quantum, max_kbps */
+    STREAM_MSG_COMMAND,   /* cmd: a grab or release for the sim thread */
+    STREAM_MSG_KEYFRAME   /* a delta client asks for a keyframe */
 } stream_msg_kind;
 
 typedef struct stream_msg {
     stream_msg_kind kind;
     /* STREAM_MSG_SUBSCRIBE: the values given, -1 for the ones not given (they stay as they are) */
     int encoding, max_fps, scalar;
+    double quantum; /* delta's grid (m), within DELTA_QUANTUM_MIN..MAX; -1 when not given */
+    long long max_kbps; /* 1..STREAM_MAX_KBPS; 0 for null (no limit); -1 when not given */
     /* STREAM_MSG_COMMAND: {"op": "grab", "vertex", "target"} or {"op": "release"} (owned) */
     json_t *cmd;
     /* STREAM_MSG_REFUSED: what the message was about ("message", "subscribe", "grab", "release",

@@ -4,6 +4,7 @@
 #include <string.h>
 
 #include "clothd_frame.h"
+#include "core/delta.h"
 #include "core/wire.h"
 
 static void put_u16(unsigned char *p, uint16_t v)
@@ -41,20 +42,37 @@ size_t wire_bound(const pose *f, int encoding, int scalar)
     switch (encoding) {
     case CLF_Q16: pos = CLF_ALIGN4(6 * n); break;
     case CLF_MESHOPT: pos = 4 + CLF_ALIGN4(meshopt_encodeVertexBufferBound(n, CLF_MESHOPT_STRIDE)); break;
+    case CLF_DELTA: pos = delta_bound(f->n); break;
     default: pos = 12 * n; break;
     }
     return CLF_HEADER_SIZE + pos + (wants_scalar(f, scalar) ? CLF_ALIGN4(n) : 0) + (size_t)f->n_rocks * CLF_ROCK_SIZE;
 }
 
-/* q16 of one coordinate: bbox min..max to 0..65535, rounded; a flat axis is 0. */
-static uint16_t quantize(float x, float lo, float scale)
+/* q16 of one coordinate: bbox min..max to 0..65535, rounded; a flat axis is 0. In double, so
+ * that the rounding is to the nearest step (float arithmetic here put some values 1% of a
+ * half-step beyond it). */
+static uint16_t quantize(float x, float lo, double scale)
 {
-    float q = (x - lo) * scale + 0.5f;
-    q = q < 0.0f ? 0.0f : (q > 65535.0f ? 65535.0f : q);
+    double q = ((double)x - lo) * scale + 0.5;
+    q = q < 0.0 ? 0.0 : (q > 65535.0 ? 65535.0 : q);
     return (uint16_t)q;
 }
 
+static size_t encode(const pose *f, int encoding, int scalar, const unsigned char *section, size_t section_len,
+                     unsigned char *out);
+
 size_t wire_encode(const pose *f, int encoding, int scalar, unsigned char *out)
+{
+    return encoding == CLF_DELTA ? 0 : encode(f, encoding, scalar, NULL, 0, out);
+}
+
+size_t wire_encode_delta(const pose *f, int scalar, const unsigned char *section, size_t len, unsigned char *out)
+{
+    return encode(f, CLF_DELTA, scalar, section, len, out);
+}
+
+static size_t encode(const pose *f, int encoding, int scalar, const unsigned char *section, size_t section_len,
+                     unsigned char *out)
 {
     const size_t n = (size_t)f->n;
     const int with_scalar = wants_scalar(f, scalar);
@@ -69,10 +87,10 @@ size_t wire_encode(const pose *f, int encoding, int scalar, unsigned char *out)
     put_u32(out + CLF_OFF_N_ROCKS, (uint32_t)f->n_rocks);
     for (int c = 0; c < 6; c++) put_f32(out + CLF_OFF_BBOX_MIN + 4 * c, f->bbox[c]);
     size_t at = CLF_HEADER_SIZE;
-    float scale[3];
+    double scale[3];
     for (int c = 0; c < 3; c++) {
-        const float ext = f->bbox[3 + c] - f->bbox[c];
-        scale[c] = ext >= CLF_Q16_EXTENT_MIN ? 65535.0f / ext : 0.0f;
+        const double ext = (double)f->bbox[3 + c] - f->bbox[c];
+        scale[c] = ext >= CLF_Q16_EXTENT_MIN ? 65535.0 / ext : 0.0;
     }
     if (encoding == CLF_F32) {
         for (size_t k = 0; k < 3 * n; k++) put_f32(out + at + 4 * k, f->xyz[k]);
@@ -81,6 +99,9 @@ size_t wire_encode(const pose *f, int encoding, int scalar, unsigned char *out)
         for (size_t v = 0; v < n; v++)
             for (int c = 0; c < 3; c++) put_u16(out + at + 6 * v + 2 * c, quantize(f->xyz[3 * v + c], f->bbox[c], scale[c]));
         at += 6 * n;
+    } else if (encoding == CLF_DELTA) {
+        memcpy(out + at, section, section_len); /* 4-byte aligned already */
+        at += section_len;
     } else {
         uint16_t *q = malloc(n * CLF_MESHOPT_STRIDE + 1);
         size_t len = 0;

@@ -350,6 +350,9 @@ static void publish_pose(scene *sc, const cs_info *info, const cs_rock *rocks, i
     f->step = info->step;
     f->sim_time = info->time;
     f->n = info->n_vertices;
+    cs_scene shape;
+    cs_sim_scene(sc->engine, &shape);
+    f->nx = shape.nx;
     f->n_rocks = n_rocks;
     for (int r = 0; r < n_rocks; r++) {
         pose_rock *k = &f->rocks[r];

@@ -37,6 +37,7 @@
 #include "clothd_frame.h"
 #include "core/access.h"
 #include "core/clock.h"
+#include "core/delta.h"
 #include "core/json_write.h"
 #include "core/log.h"
 #include "core/problem.h"
@@ -50,6 +51,9 @@
 #define EVENT_RING 1024
 #define MAX_TEXTS 8 /* queued text messages (errors, acks) per client */
 #define N_ENC STREAM_ENCODINGS
+/* Different quanta the delta clients may use at once: one encoder (and one encoding of each
+ * frame) per quantum. */
+#define DELTA_CHANNELS 4
 
 /* Why a connection was refused before the upgrade: the `reason` of clothd_stream_refused_total. */
 enum { REFUSED_PATH, REFUSED_VERSION, REFUSED_HOST, REFUSED_ORIGIN, REFUSED_TOKEN, REFUSED_CLIENTS, N_REFUSED };
@@ -59,7 +63,31 @@ typedef struct wire {
     unsigned char *buf; /* LWS_PRE bytes of headroom, then the frame */
     size_t len, cap;
     uint64_t seq;       /* of the raw frame it encodes */
+    uint32_t key_id;    /* delta: the keyframe it refers to (its own when it is one) */
 } wire;
+
+/* The delta clients of one quantum: the encoder, the current frame's positions section (made
+ * once per frame), its messages per scalar, and the newest keyframe's message (without a
+ * scalar), which a client that lacks it gets before the next frame. */
+typedef struct delta_chan {
+    float quantum; /* 0: free */
+    int users;
+    delta_enc enc;
+    unsigned char *section;
+    size_t section_len, section_cap;
+    uint64_t seq; /* of the pose the section encodes */
+    wire wires[SCALAR_KINDS];
+    wire key;
+} delta_chan;
+
+/* What /metrics shows of one connected client: a slot per client (stream_max_clients of them),
+ * written by the service thread, read by the metrics' thread. */
+typedef struct client_slot {
+    atomic_ullong id; /* 0: free */
+    atomic_ullong frames, bytes;
+    atomic_uint fps_milli; /* frames a second over the last second or so, x 1000 */
+    atomic_int encoding;
+} client_slot;
 
 typedef struct session session;
 struct session {
@@ -68,6 +96,11 @@ struct session {
     scene *sc;            /* the scene it streams: a held handle */
     session *next;
     int encoding, scalar, max_fps;
+    long long max_kbps;  /* 0: no limit */
+    double next_send;    /* with max_kbps: no frame before this (clock_mono) */
+    float quantum;       /* delta's grid */
+    int chan;            /* delta: its channel (st->chans), else -1 */
+    uint32_t key_have;   /* delta: the id of the last keyframe it was sent (0: none) */
     uint64_t last_frame; /* seq of the last frame sent */
     double last_send, behind_since;
     uint64_t next_event;
@@ -82,6 +115,9 @@ struct session {
     int dead;
     access_level access;  /* from the token it connected with */
     int established;      /* counted in clients (a refused connection is closed too, never counted) */
+    client_slot *slot;    /* its /metrics slot (NULL when none was free) */
+    uint64_t fps_frames;  /* frames sent when fps_at was taken */
+    double fps_at;
 };
 
 /* A grab or release on its way to the sim thread; the answer comes back through `done`. */
@@ -131,11 +167,15 @@ struct stream {
     session *sessions;
     uint64_t next_id;
     wire wires[N_ENC][SCALAR_KINDS];
+    delta_chan chans[DELTA_CHANNELS];
+    float default_quantum;
     pose *current;     /* the newest frame taken over, kept to encode for a new subscription */
     uint64_t current_seq;
 
     /* metrics */
     atomic_ullong encoded[N_ENC], sent[N_ENC], skipped[N_ENC], bytes_sent, stalled, refused[N_REFUSED];
+    atomic_ullong encode_ns[N_ENC];
+    client_slot *slots; /* max_clients */ /* time spent encoding (delta: each pose's positions section and its messages) */
 };
 
 
@@ -260,7 +300,7 @@ static void client_error(stream *st, session *s, const char *about, int status, 
     lws_callback_on_writable(s->wsi);
 }
 
-static char *hello_text(scene *sc)
+static char *hello_text(scene *sc, float quantum)
 {
     size_t len;
     char *scene = scene_doc_copy(sc, DOC_FIELDS, &len), *params = scene_doc_copy(sc, DOC_PARAMS, &len);
@@ -275,7 +315,8 @@ static char *hello_text(scene *sc)
                           params ? json_loads(params, 0, NULL) : json_null(), "rocks", list, "torn",
                           torn ? json_loads(torn, 0, NULL) : json_array(), "state",
                           json_incref(json_object_get(sj, "state")), "step", json_incref(json_object_get(sj, "step")),
-                          "subscription", json_pack("{s:s, s:i, s:s}", "encoding", "f32", "max_fps", 60, "scalar", "none"));
+                          "subscription", json_pack("{s:s, s:i, s:s, s:o, s:n}", "encoding", "f32", "max_fps", 60, "scalar", "none",
+                                                    "quantum", json_float(quantum), "max_kbps"));
     json_decref(sj);
     free(scene);
     free(params);
@@ -409,21 +450,74 @@ static void take_answers(stream *st)
 
 /* ---- client messages ---- */
 
+/* A session leaves its delta channel; the last to leave frees it. */
+static void leave_chan(stream *st, session *s)
+{
+    if (s->chan < 0) return;
+    delta_chan *ch = &st->chans[s->chan];
+    s->chan = -1;
+    if (--ch->users > 0) return;
+    delta_free(&ch->enc);
+    free(ch->section);
+    for (int k = 0; k < SCALAR_KINDS; k++) free(ch->wires[k].buf);
+    free(ch->key.buf);
+    memset(ch, 0, sizeof *ch);
+}
+
+/* The channel of quantum q: the one in use, else a free one (initialised); -1 when all are taken
+ * by other quanta (or out of memory). */
+static int find_chan(stream *st, float q)
+{
+    int free_one = -1;
+    for (int c = 0; c < DELTA_CHANNELS; c++) {
+        if (st->chans[c].users > 0 && st->chans[c].quantum == q) return c;
+        if (st->chans[c].users == 0 && free_one < 0) free_one = c;
+    }
+    if (free_one < 0 || delta_init(&st->chans[free_one].enc, (double)q) != 0) return -1;
+    st->chans[free_one].quantum = q;
+    return free_one;
+}
+
 static void handle_subscribe(stream *st, session *s, const stream_msg *m)
 {
     const int enc = m->encoding >= 0 ? m->encoding : s->encoding, sc = m->scalar >= 0 ? m->scalar : s->scalar;
     const int fps = m->max_fps >= 0 ? m->max_fps : s->max_fps;
+    const long long kbps = m->max_kbps >= 0 ? m->max_kbps : s->max_kbps;
+    const float q = m->quantum >= 0 ? (float)m->quantum : s->quantum;
+    if (enc == CLF_DELTA && (s->chan < 0 || st->chans[s->chan].quantum != q)) {
+        int c = find_chan(st, q);
+        if (c < 0 && s->chan >= 0 && st->chans[s->chan].users == 1) {
+            leave_chan(st, s); /* its own channel alone: it takes the new quantum */
+            c = find_chan(st, q);
+        }
+        if (c < 0) {
+            client_error(st, s, "subscribe", 422, "quantum",
+                         "at most %d different quanta are in use at once, by all clients together; subscribe with "
+                         "one of theirs (or without one, for the default %g)", DELTA_CHANNELS, (double)st->default_quantum);
+            return; /* the subscription stays as it was */
+        }
+        st->chans[c].users++;
+        leave_chan(st, s);
+        s->chan = c;
+    } else if (enc != CLF_DELTA) {
+        leave_chan(st, s);
+    }
+    s->quantum = q;
+    s->key_have = 0; /* a delta subscriber gets the keyframe first */
     s->encoding = enc;
     s->scalar = sc;
     s->max_fps = fps;
+    s->max_kbps = kbps;
+    s->next_send = 0;
     unsigned want = 0;
     for (session *o = st->sessions; o; o = o->next)
         if (o->scalar) want |= 1u << o->scalar;
     atomic_store(&st->scalars_wanted, want);
     s->last_frame = 0; /* the next frame in the new encoding at once */
     if (sc != SCALAR_NONE && (!st->current || !st->current->has[sc])) request_frame(st, s->sc); /* poses lack it */
-    json_t *ack = json_pack("{s:s, s:s, s:i, s:s}", "type", "subscribed", "encoding", stream_encoding_names[enc],
-                            "max_fps", fps, "scalar", stream_scalar_names[sc]);
+    json_t *ack = json_pack("{s:s, s:s, s:i, s:s, s:o, s:o}", "type", "subscribed", "encoding", stream_encoding_names[enc],
+                            "max_fps", fps, "scalar", stream_scalar_names[sc], "quantum", json_float(q), "max_kbps",
+                            kbps ? json_integer(kbps) : json_null());
     char *text = json_dumps(ack, JSON_DUMP_FLAGS);
     json_decref(ack);
     if (text && s->n_texts < MAX_TEXTS) s->texts[s->n_texts++] = text; /* the same queue, in order */
@@ -445,6 +539,13 @@ static void handle_message(stream *st, session *s)
         client_error(st, s, m.about, m.pr.status, m.has_param ? m.pr.param : NULL, "%s", m.pr.detail);
         break;
     case STREAM_MSG_SUBSCRIBE: handle_subscribe(st, s, &m); break;
+    case STREAM_MSG_KEYFRAME:
+        if (s->chan < 0) {
+            client_error(st, s, "keyframe", 422, NULL, "keyframes are for delta clients: subscribe with \"encoding\": \"delta\" first");
+            break;
+        }
+        delta_want_key(&st->chans[s->chan].enc); /* the encoder keeps them at most 4 a second */
+        break;
     case STREAM_MSG_COMMAND:
         submit_grab(st, s, m.cmd);
         m.cmd = NULL; /* submit_grab owns it */
@@ -469,10 +570,74 @@ static const wire *wire_for(stream *st, int e, int k)
         w->buf = b;
         w->cap = need;
     }
+    const double t0 = clock_mono();
     w->len = wire_encode(f, e, k, w->buf + LWS_PRE);
     w->seq = st->current_seq;
     atomic_fetch_add(&st->encoded[e], 1);
+    atomic_fetch_add(&st->encode_ns[e], (unsigned long long)((clock_mono() - t0) * 1e9));
     return w;
+}
+
+/* Fits a wire's buffer to need bytes (and LWS_PRE); 0 or -1. */
+static int wire_room(wire *w, size_t need)
+{
+    need += LWS_PRE;
+    if (need <= w->cap) return 0;
+    unsigned char *b = realloc(w->buf, need);
+    if (!b) return -1;
+    w->buf = b;
+    w->cap = need;
+    return 0;
+}
+
+/* The delta channel's message of scalar k for the current pose: its positions section encoded
+ * once per pose (a keyframe or a delta, as the encoder decides), then wrapped per scalar. */
+static const wire *delta_wire(stream *st, delta_chan *ch, int k)
+{
+    wire *w = &ch->wires[k];
+    pose *f = st->current;
+    if (!f || w->seq == st->current_seq || f->n == 0) return w;
+    const double t0 = clock_mono();
+    if (ch->seq != st->current_seq) {
+        int key = 0;
+        const size_t cap = delta_bound(f->n);
+        if (cap > ch->section_cap) {
+            unsigned char *b = realloc(ch->section, cap);
+            if (!b) return w;
+            ch->section = b;
+            ch->section_cap = cap;
+        }
+        const size_t len = delta_encode(&ch->enc, f->xyz, f->n, f->nx > 0 ? f->nx : f->n, f->frame, f->wall_ns, ch->section, &key);
+        if (!len) return w;
+        ch->section_len = len;
+        ch->seq = st->current_seq;
+        atomic_fetch_add(&st->encoded[CLF_DELTA], 1);
+        if (key && wire_room(&ch->key, wire_bound(f, CLF_DELTA, SCALAR_NONE)) == 0) {
+            ch->key.len = wire_encode_delta(f, SCALAR_NONE, ch->section, len, ch->key.buf + LWS_PRE);
+            ch->key.seq = st->current_seq;
+            ch->key.key_id = ch->enc.key_id;
+        }
+    }
+    if (wire_room(w, wire_bound(f, CLF_DELTA, k)) != 0) return w;
+    w->len = wire_encode_delta(f, k, ch->section, ch->section_len, w->buf + LWS_PRE);
+    w->seq = st->current_seq;
+    w->key_id = ch->enc.key_id;
+    atomic_fetch_add(&st->encode_ns[CLF_DELTA], (unsigned long long)((clock_mono() - t0) * 1e9));
+    return w;
+}
+
+/* The message a session is due (encoded when it is not yet). */
+static const wire *wire_of(stream *st, session *s)
+{
+    if (s->encoding == CLF_DELTA && s->chan >= 0) return delta_wire(st, &st->chans[s->chan], s->scalar);
+    return wire_for(st, s->encoding, s->scalar);
+}
+
+/* ... without encoding it. */
+static const wire *wire_now(stream *st, const session *s)
+{
+    if (s->encoding == CLF_DELTA && s->chan >= 0) return &st->chans[s->chan].wires[s->scalar];
+    return &st->wires[s->encoding][s->scalar];
 }
 
 /* Takes over the newest raw frame the sim thread published, and encodes it for every encoding
@@ -491,7 +656,7 @@ static void take_newest(stream *st)
     }
     pthread_mutex_unlock(&st->flock);
     if (!f) return;
-    for (session *s = st->sessions; s; s = s->next) wire_for(st, s->encoding, s->scalar);
+    for (session *s = st->sessions; s; s = s->next) wire_of(st, s);
 }
 
 /* The last client has left: the stream forgets its frames. With nobody listening the sim thread
@@ -508,6 +673,12 @@ static void forget_frames(stream *st)
     pthread_mutex_unlock(&st->flock);
     for (int e = 0; e < N_ENC; e++)
         for (int k = 0; k < SCALAR_KINDS; k++) st->wires[e][k].len = 0, st->wires[e][k].seq = 0;
+    for (int c = 0; c < DELTA_CHANNELS; c++) {
+        delta_chan *ch = &st->chans[c];
+        ch->seq = ch->key.seq = 0;
+        ch->key.len = 0;
+        for (int k = 0; k < SCALAR_KINDS; k++) ch->wires[k].len = 0, ch->wires[k].seq = 0;
+    }
 }
 
 /* Stalled clients (their newest frame waiting too long) are closed. */
@@ -515,8 +686,15 @@ static void sweep(stream *st)
 {
     const double t = clock_mono();
     for (session *s = st->sessions; s; s = s->next) {
-        const wire *w = &st->wires[s->encoding][s->scalar];
-        if (s->dead || w->seq <= s->last_frame) {
+        if (s->slot && t - s->fps_at >= 1.0) { /* the achieved frame rate, about once a second */
+            const uint64_t frames = atomic_load(&s->slot->frames);
+            atomic_store(&s->slot->fps_milli, (unsigned)((double)(frames - s->fps_frames) / (t - s->fps_at) * 1000.0));
+            atomic_store(&s->slot->encoding, s->encoding);
+            s->fps_frames = frames;
+            s->fps_at = t;
+        }
+        const wire *w = wire_now(st, s);
+        if (s->dead || w->seq <= s->last_frame || t < s->next_send) { /* up to date, or waiting on its own budget */
             s->behind_since = 0;
             continue;
         }
@@ -528,6 +706,14 @@ static void sweep(stream *st)
             lws_set_timeout(s->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
         }
     }
+}
+
+/* A client with max_kbps that was sent len bytes at t gets its next frame once its budget has
+ * paid for them: a slow link gets fewer whole frames, never a queue. */
+static void spend(session *s, size_t len, double t)
+{
+    if (!s->max_kbps) return;
+    s->next_send = (s->next_send > t ? s->next_send : t) + (double)len * 8.0 / ((double)s->max_kbps * 1000.0);
 }
 
 /* One message to a client that can take it: hello, errors and acks, events, then the newest
@@ -574,19 +760,41 @@ static int writeable(stream *st, session *s)
         lws_callback_on_writable(s->wsi);
         return rc;
     }
-    const wire *w = wire_for(st, s->encoding, s->scalar);
+    const wire *w = wire_of(st, s);
     if (w->seq > s->last_frame && w->len) {
-        const double t = clock_mono(), wait = 1.0 / s->max_fps - (t - s->last_send);
+        const double t = clock_mono();
+        double wait = 1.0 / s->max_fps - (t - s->last_send);
+        if (s->max_kbps && s->next_send - t > wait) wait = s->next_send - t; /* its byte budget */
         if (wait > 0.0005) {
             lws_set_timer_usecs(s->wsi, (lws_usec_t)(wait * 1e6));
             return 0;
+        }
+        if (s->chan >= 0 && s->encoding == CLF_DELTA && w->key_id != s->key_have) {
+            /* It lacks the keyframe this frame refers to: that first (unless this is it). */
+            const wire *key = &st->chans[s->chan].key;
+            if (key->len && key->key_id == w->key_id && key->seq != w->seq) {
+                const int n = lws_write(s->wsi, key->buf + LWS_PRE, key->len, LWS_WRITE_BINARY);
+                if (n < (int)key->len) return -1;
+                atomic_fetch_add(&st->bytes_sent, key->len);
+                if (s->slot) atomic_fetch_add(&s->slot->bytes, key->len);
+                spend(s, key->len, t);
+                s->key_have = key->key_id;
+                lws_callback_on_writable(s->wsi);
+                return 0;
+            }
         }
         const int n = lws_write(s->wsi, w->buf + LWS_PRE, w->len, LWS_WRITE_BINARY);
         if (n < (int)w->len) return -1;
         if (s->last_frame && w->seq > s->last_frame + 1) atomic_fetch_add(&st->skipped[s->encoding], w->seq - s->last_frame - 1);
         atomic_fetch_add(&st->sent[s->encoding], 1);
+        if (s->slot) {
+            atomic_fetch_add(&s->slot->frames, 1);
+            atomic_fetch_add(&s->slot->bytes, w->len);
+        }
         atomic_fetch_add(&st->bytes_sent, w->len);
         s->last_frame = w->seq;
+        spend(s, w->len, t);
+        s->key_have = w->key_id;
         s->last_send = t;
         s->behind_since = 0;
     }
@@ -735,10 +943,23 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         s->max_fps = 60;
         s->encoding = CLF_F32;
         s->scalar = SCALAR_NONE;
+        s->quantum = st->default_quantum;
+        s->chan = -1;
+        s->fps_at = clock_mono();
+        for (int k = 0; k < st->max_clients && !s->slot; k++) {
+            if (atomic_load(&st->slots[k].id) == 0) {
+                s->slot = &st->slots[k];
+                atomic_store(&s->slot->frames, 0);
+                atomic_store(&s->slot->bytes, 0);
+                atomic_store(&s->slot->fps_milli, 0);
+                atomic_store(&s->slot->encoding, CLF_F32);
+                atomic_store(&s->slot->id, s->id);
+            }
+        }
         pthread_mutex_lock(&st->elock);
         s->next_event = st->event_seq; /* events from here on; hello shows the state before */
         pthread_mutex_unlock(&st->elock);
-        s->hello = hello_text(s->sc);
+        s->hello = hello_text(s->sc, st->default_quantum);
         s->next = st->sessions;
         st->sessions = s;
         if (atomic_fetch_add(&st->clients, 1) == 0 || !st->current) request_frame(st, s->sc);
@@ -754,6 +975,9 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
                 break;
             }
         }
+        leave_chan(st, s);
+        if (s->slot) atomic_store(&s->slot->id, 0);
+        s->slot = NULL;
         if (atomic_fetch_sub(&st->clients, 1) == 1) forget_frames(st);
         free(s->hello);
         for (int k = 0; k < s->n_texts; k++) free(s->texts[k]);
@@ -832,8 +1056,15 @@ stream *stream_start(const clothd_settings *set, scenes *table, const access_pol
     st->acc = acc;
     st->protocol = &protocols[0];
     st->max_clients = set->stream_max_clients;
+    st->slots = calloc((size_t)st->max_clients, sizeof *st->slots);
+    if (!st->slots) {
+        snprintf(err, err_len, "out of memory");
+        free(st);
+        return NULL;
+    }
     st->max_message = set->stream_max_message;
     st->stall_timeout = set->stream_stall_timeout;
+    st->default_quantum = set->stream_delta_quantum;
     st->ring_cap = (size_t)set->stream_events_mb << 20;
     pthread_mutex_init(&st->flock, NULL);
     pthread_mutex_init(&st->elock, NULL);
@@ -852,6 +1083,7 @@ stream *stream_start(const clothd_settings *set, scenes *table, const access_pol
     st->ctx = lws_create_context(&info);
     if (!st->ctx) {
         snprintf(err, err_len, "could not listen for the stream on %s port %d", set->listen, (int)set->stream_port);
+        free(st->slots);
         free(st);
         return NULL;
     }
@@ -860,6 +1092,7 @@ stream *stream_start(const clothd_settings *set, scenes *table, const access_pol
     if (pthread_create(&st->thread, NULL, service, st) != 0) {
         lws_context_destroy(st->ctx);
         snprintf(err, err_len, "could not start the stream thread");
+        free(st->slots);
         free(st);
         return NULL;
     }
@@ -880,6 +1113,11 @@ void stream_stop(stream *st)
     take_answers(st);
     for (int e = 0; e < N_ENC; e++)
         for (int k = 0; k < SCALAR_KINDS; k++) free(st->wires[e][k].buf);
+    for (int c = 0; c < DELTA_CHANNELS; c++) {
+        st->chans[c].users = 1;
+        session none = {.chan = c};
+        leave_chan(st, &none);
+    }
     pose *frames[4] = {st->latest, st->spare[0], st->spare[1], st->current};
     for (int k = 0; k < 4; k++) {
         if (frames[k]) {
@@ -891,20 +1129,24 @@ void stream_stop(stream *st)
     pthread_mutex_destroy(&st->flock);
     pthread_mutex_destroy(&st->elock);
     pthread_mutex_destroy(&st->glock);
+    free(st->slots);
     free(st);
 }
 
 /* Bytes the stream may hold for a scene of n vertices and `rocks` rocks: its poses (the one the
- * sim thread fills, the newest, the one being sent, a spare) and one wire message for each
- * encoding and scalar. */
+ * sim thread fills, the newest, the one being sent, a spare), one wire message for each
+ * encoding and scalar, and each delta channel's encoder (36 bytes a vertex), positions section,
+ * messages and keyframe. */
 static uint64_t sink_bytes(int32_t n, int32_t rocks)
 {
     pose f = {.n = n, .n_rocks = rocks, .has = {0, 1, 1}};
     const uint64_t raw = sizeof(float) * 3 * (uint64_t)n + (SCALAR_KINDS - 1) * (uint64_t)n + sizeof(pose_rock) * (uint64_t)rocks;
     uint64_t wires = 0;
     for (int e = 0; e < N_ENC; e++)
-        for (int k = 0; k < SCALAR_KINDS; k++) wires += LWS_PRE + wire_bound(&f, e, k);
-    return 4 * (sizeof f + raw) + wires;
+        for (int k = 0; k < SCALAR_KINDS && e != CLF_DELTA; k++) wires += LWS_PRE + wire_bound(&f, e, k);
+    uint64_t chan = 36 * (uint64_t)n + delta_bound(n) + LWS_PRE + wire_bound(&f, CLF_DELTA, SCALAR_NONE);
+    for (int k = 0; k < SCALAR_KINDS; k++) chan += LWS_PRE + wire_bound(&f, CLF_DELTA, k);
+    return 4 * (sizeof f + raw) + wires + DELTA_CHANNELS * chan;
 }
 
 char *stream_metrics(stream *st)
@@ -923,6 +1165,32 @@ char *stream_metrics(stream *st)
         for (int e = 0; e < N_ENC; e++)
             fprintf(f, "clothd_stream_frames_%s_total{encoding=\"%s\"} %llu\n", what[a], stream_encoding_names[e],
                     (unsigned long long)atomic_load(&arrays[a][e]));
+    }
+    fprintf(f, "# HELP clothd_stream_encode_seconds_total Time spent encoding frames, by encoding.\n"
+               "# TYPE clothd_stream_encode_seconds_total counter\n");
+    for (int e = 0; e < N_ENC; e++)
+        fprintf(f, "clothd_stream_encode_seconds_total{encoding=\"%s\"} %.6f\n", stream_encoding_names[e],
+                (double)atomic_load(&st->encode_ns[e]) * 1e-9);
+    fprintf(f, "# HELP clothd_stream_client_frames_total Frames sent to each connected client (client: its id; at most "
+               "stream_max_clients series).\n# TYPE clothd_stream_client_frames_total counter\n");
+    for (int k = 0; k < st->max_clients; k++) {
+        const unsigned long long id = atomic_load(&st->slots[k].id);
+        if (id) fprintf(f, "clothd_stream_client_frames_total{client=\"%llu\"} %llu\n", id, (unsigned long long)atomic_load(&st->slots[k].frames));
+    }
+    fprintf(f, "# HELP clothd_stream_client_bytes_total Bytes sent to each connected client.\n"
+               "# TYPE clothd_stream_client_bytes_total counter\n");
+    for (int k = 0; k < st->max_clients; k++) {
+        const unsigned long long id = atomic_load(&st->slots[k].id);
+        if (id) fprintf(f, "clothd_stream_client_bytes_total{client=\"%llu\"} %llu\n", id, (unsigned long long)atomic_load(&st->slots[k].bytes));
+    }
+    fprintf(f, "# HELP clothd_stream_client_fps Frames a second each connected client got over about the last second, "
+               "with its encoding.\n# TYPE clothd_stream_client_fps gauge\n");
+    for (int k = 0; k < st->max_clients; k++) {
+        const unsigned long long id = atomic_load(&st->slots[k].id);
+        const int e = atomic_load(&st->slots[k].encoding);
+        if (id)
+            fprintf(f, "clothd_stream_client_fps{client=\"%llu\",encoding=\"%s\"} %.3f\n", id,
+                    stream_encoding_names[e >= 0 && e < N_ENC ? e : 0], atomic_load(&st->slots[k].fps_milli) / 1000.0);
     }
     fprintf(f, "# HELP clothd_stream_bytes_sent_total Bytes written to stream clients.\n"
                "# TYPE clothd_stream_bytes_sent_total counter\nclothd_stream_bytes_sent_total %llu\n",

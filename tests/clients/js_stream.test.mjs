@@ -43,8 +43,10 @@ test('frames of f32, q16 and meshopt hold the positions of GET /v1/cloth/state',
       const err = worst(f.positions, positions);
       if (encoding === 'f32') assert.deepEqual(err, [0, 0, 0]);
       else {
-        // Half a step of 65535 over the bbox, and float32's rounding of the result.
-        const half = [0, 1, 2].map((c) => (f.bboxMax[c] - f.bboxMin[c]) / 65535 / 2 + 1e-6);
+        // Half a step of 65535 over the bbox, and float32's rounding of the result (half an ulp
+        // of the largest coordinate).
+        const ulp = Math.max(...positions.map(Math.abs)) * 2 ** -24;
+        const half = [0, 1, 2].map((c) => (f.bboxMax[c] - f.bboxMin[c]) / 65535 / 2 + ulp);
         for (let c = 0; c < 3; c++) assert.ok(err[c] <= half[c], `${encoding} axis ${c}: ${err[c]} > ${half[c]}`);
         assert.ok(err.some((e) => e > 0), `${encoding} is quantized, not exact`);
       }

@@ -8,8 +8,11 @@ import { MeshoptDecoder } from 'meshoptimizer';
 import { start, stop, call, ok, pause, hash, until, rssKiB, metric } from './harness.mjs';
 import { connect, next, daemon } from './wsclient.mjs';
 
-const { decodeFrame, HEADER_SIZE } = await import(join(process.env.CLOTHD_SOURCE, 'proto', 'frame.mjs'));
+const { HEADER_SIZE } = await import(join(process.env.CLOTHD_SOURCE, 'proto', 'frame.mjs'));
 await MeshoptDecoder.ready;
+
+// Half the float32 ulp of x: what rounding a decoded value to float32 may add.
+const halfUlp = (x) => (x === 0 ? 2 ** -150 : 2 ** (Math.floor(Math.log2(Math.abs(x))) - 24));
 
 // The suite also runs against clothd built with ASan/UBSan (scripts/test.sh), several times slower.
 const SANITIZED = process.env.CLOTHD_SANITIZED === '1';
@@ -29,7 +32,7 @@ test('a late joiner gets hello, then frames that match the scene', async () => {
   assert.equal(hello.params.tear_strain, 0.05);
   assert.ok(hello.rocks.length >= 2);
   assert.ok(hello.torn.length > 0 && hello.torn.every(Number.isInteger));
-  assert.deepEqual(hello.subscription, { encoding: 'f32', max_fps: 60, scalar: 'none' });
+  assert.deepEqual(hello.subscription, { encoding: 'f32', max_fps: 60, scalar: 'none', quantum: 0.0001, max_kbps: null });
   const f = await next(c, 'frame');
   assert.equal(c.texts[0].type, 'hello'); // hello came first
   assert.equal(f.encoding, 'f32');
@@ -67,9 +70,10 @@ test('all three encodings decode to the cloth state, within the quantization bou
     assert.equal(f.step, state.step);
     const bound = f.bboxMax.map((hi, k) => (hi - f.bboxMin[k]) / 65535); // one quantization step
     for (let i = 0; i < want.length; i++) {
-      const err = Math.abs(f.positions[i] - want[i]);
+      const err = Math.abs(f.positions[i] - Math.fround(want[i]));
+      // Half a step exactly, and the float32 rounding of the decoded value (half its ulp).
       if (encoding === 'f32') assert.equal(f.positions[i], Math.fround(want[i]));
-      else assert.ok(err <= bound[i % 3] * 0.5 + 1e-6, `${encoding} ${i}: ${err} > ${bound[i % 3] / 2}`);
+      else assert.ok(err <= bound[i % 3] * 0.5 + halfUlp(f.positions[i]), `${encoding} ${i}: ${err} > ${bound[i % 3] / 2}`);
     }
     sizes[encoding] = f.bytes;
   }
@@ -304,4 +308,217 @@ test('a client that reads nothing for stream_stall_timeout is cut off, the other
   const n = fast.frames.length;
   await until('the other client still gets frames', async () => fast.frames.length > n + 2);
   fast.ws.close();
+});
+
+// ---- delta frames ----
+
+// Delta frames against the f32 frames of the same steps, on a cloth that rocks keep hitting: every
+// coordinate within quantum/2 (plus float32's rounding of the result), keyframes once a second, and
+// a client that takes 5 frames a second - so skips most keyframes - still decodes every frame.
+test('delta: every coordinate within quantum/2 of the f32 frame of the same step; a skipping client decodes', async () => {
+  const d = await daemon(['--nx', '24', '--ny', '16', '--auto-drop-interval', '0.3']);
+  const f32 = await connect(d), delta = await connect(d), slow = await connect(d);
+  f32.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'f32', max_fps: 240 }));
+  delta.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', max_fps: 240 }));
+  slow.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', max_fps: 5, quantum: 0.0001 }));
+  const ack = await next(delta, 'text', (m) => m.type === 'subscribed');
+  assert.deepEqual(ack, { type: 'subscribed', encoding: 'delta', max_fps: 60 * 4, scalar: 'none', quantum: 0.0001, max_kbps: null });
+  await next(delta, 'frame', (f) => f.encoding === 'delta' && f.simTime > 3.5, 30000);
+  const deltas = delta.frames.filter((f) => f.encoding === 'delta');
+  const byStep = new Map(f32.frames.filter((f) => f.encoding === 'f32').map((f) => [`${f.step}:${f.wallNs}`, f]));
+  let compared = 0, worst = 0;
+  const q = Math.fround(0.0001);
+  for (const g of [...deltas, ...slow.frames.filter((f) => f.encoding === 'delta')]) {
+    const f = byStep.get(`${g.step}:${g.wallNs}`);
+    if (!f) continue;
+    assert.equal(g.delta.quantum, q); // the float32 quantum, exactly
+    for (let k = 0; k < f.positions.length; k++) {
+      const err = Math.abs(g.positions[k] - f.positions[k]);
+      worst = Math.max(worst, err / (q / 2));
+      assert.ok(err <= q / 2 + halfUlp(g.positions[k]), `frame ${g.frame} [${k}]: ${g.positions[k]} vs ${f.positions[k]}`);
+    }
+    compared++;
+  }
+  assert.ok(compared >= 60, `${compared} frames compared`);
+  assert.ok(worst > 0.5, `the cloth is quantized (worst error ${worst} half-quanta)`);
+  assert.ok(deltas.some((g) => !g.delta.keyframe && g.delta.keyFrame < g.frame - 10), 'deltas well after their keyframe');
+  // The cloth moves: the rocks fell into it.
+  const first = deltas[0].positions, last = deltas.at(-1).positions;
+  assert.ok(first.some((x, k) => Math.abs(x - last[k]) > 0.01), 'a moving cloth');
+  // Keyframes: the first frame, then the first frame a second or more after the last one.
+  const keys = deltas.filter((g) => g.delta.keyframe);
+  assert.equal(keys[0], deltas[0]);
+  assert.ok(keys.length >= 3, `${keys.length} keyframes`);
+  for (let i = 1; i < deltas.length; i++) {
+    const since = Number(deltas[i].wallNs - keys.filter((k) => k.wallNs < deltas[i].wallNs).at(-1).wallNs) / 1e9;
+    if (deltas[i].delta.keyframe) assert.ok(since >= 1, `a keyframe ${since} s after the last`);
+    else assert.ok(since < 1, `a delta ${since} s after its keyframe`);
+  }
+  // Every delta refers to the newest keyframe.
+  for (const g of deltas) assert.equal(g.delta.keyId, keys.filter((k) => k.wallNs <= g.wallNs).at(-1).delta.keyId);
+  // The slow client got keyframes it would have skipped, and decoded everything.
+  assert.deepEqual(slow.badFrames, []);
+  assert.deepEqual(delta.badFrames, []);
+  const slowDeltas = slow.frames.filter((f) => f.encoding === 'delta' && !f.delta.keyframe);
+  assert.ok(slowDeltas.length >= 8, `${slowDeltas.length} deltas at 5 fps`);
+  assert.ok(slowDeltas.some((g) => g.delta.keyFrame !== slowDeltas[0].delta.keyFrame), 'across keyframes');
+  // Each frame is encoded once for both delta clients (one quantum): no more delta encodings than
+  // f32 ones (f32 has one client), and far fewer than one per client.
+  const m = (await call(d, 'GET', '/metrics')).text;
+  const encDelta = metric(m, 'clothd_stream_frames_encoded_total', 'encoding="delta"');
+  const encF32 = metric(m, 'clothd_stream_frames_encoded_total', 'encoding="f32"');
+  assert.ok(encDelta > 100 && encDelta <= encF32 + 2, `delta ${encDelta}, f32 ${encF32}`);
+  for (const c of [f32, delta, slow]) c.ws.close();
+  await stop(d);
+});
+
+test('delta: keyframes asked for a thousand times a second come at most four a second', async () => {
+  const d = await daemon(['--nx', '16', '--ny', '16', '--auto-drop-interval', '0']);
+  const c = await connect(d);
+  c.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', max_fps: 240 }));
+  await next(c, 'frame', (f) => f.encoding === 'delta');
+  const from = c.frames.length;
+  const t0 = Date.now();
+  while (Date.now() - t0 < 2000) {
+    for (let k = 0; k < 10; k++) c.ws.send('{"type": "keyframe"}');
+    await new Promise((r) => setTimeout(r, 10));
+  }
+  await next(c, 'frame', (f) => f.encoding === 'delta', 15000, c.frames.length);
+  const got = c.frames.slice(from).filter((f) => f.encoding === 'delta');
+  const keys = got.filter((f) => f.delta.keyframe);
+  const span = Number(got.at(-1).wallNs - got[0].wallNs) / 1e9;
+  assert.ok(keys.length >= 4, `${keys.length} keyframes in ${span} s: the asks are answered`);
+  assert.ok(keys.length <= 4 * span + 2, `${keys.length} keyframes in ${span} s`);
+  for (let i = 1; i < keys.length; i++) assert.ok(keys[i].wallNs - keys[i - 1].wallNs >= 250000000n);
+  assert.deepEqual(c.texts.filter((m) => m.type === 'error'), []);
+  assert.deepEqual(c.badFrames, []);
+  c.ws.close();
+  await stop(d);
+});
+
+test('delta: bad subscriptions and keyframe asks get an error and change nothing', async () => {
+  const d = await daemon(['--nx', '10', '--ny', '10', '--paused', '--stream-delta-quantum', '0.001']);
+  const c = await connect(d);
+  const hello = await next(c, 'text', (m) => m.type === 'hello');
+  assert.equal(hello.subscription.quantum, 0.001); // the startup setting
+  await next(c, 'frame');
+  const answer = async (message) => {
+    const from = c.texts.length;
+    c.ws.send(typeof message === 'string' ? message : JSON.stringify(message));
+    return next(c, 'text', (m) => m.type === 'error' || m.type === 'subscribed', 15000, from);
+  };
+  const ke = await answer({ type: 'keyframe' });
+  assert.deepEqual([ke.status, ke.about], [422, 'keyframe']);
+  assert.equal((await answer({ type: 'subscribe', encoding: 'delta' })).quantum, 0.001);
+  const h0 = await hash(d);
+  for (const [message, status, param] of [
+    [{ type: 'subscribe', encoding: 'delta', quantum: 0 }, 422, 'quantum'],
+    [{ type: 'subscribe', encoding: 'delta', quantum: 0.02 }, 422, 'quantum'],
+    [{ type: 'subscribe', quantum: 1e-7 }, 422, 'quantum'],
+    [{ type: 'subscribe', quantum: -1 }, 422, 'quantum'],
+    [{ type: 'subscribe', quantum: '0.001' }, 400, 'quantum'],
+    ['{"type": "subscribe", "quantum": NaN}', 400, undefined],
+    [{ type: 'subscribe', encoding: 'zstd' }, 422, 'encoding'],
+    [{ type: 'keyframe', now: true }, 400, 'now'],
+  ]) {
+    const e = await answer(message);
+    assert.equal(e.type, 'error', JSON.stringify(message));
+    assert.equal(e.status, status, `${JSON.stringify(message)}: ${JSON.stringify(e)}`);
+    assert.equal(e.param, param);
+  }
+  // Four quanta at once (this client's 0.001 and three others'); a fifth is refused.
+  const others = [];
+  for (const quantum of [0.0002, 0.0003, 0.0004]) {
+    const o = await connect(d);
+    o.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', quantum }));
+    await next(o, 'frame', (f) => f.encoding === 'delta');
+    others.push(o);
+  }
+  const x = await connect(d); // an f32 client: a fifth quantum is refused
+  await next(x, 'text', (m) => m.type === 'hello');
+  x.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', quantum: 0.0005 }));
+  const e5 = await next(x, 'text', (m) => m.type === 'error');
+  assert.deepEqual([e5.status, e5.param], [422, 'quantum']);
+  assert.match(e5.detail, /at most 4 different quanta/);
+  x.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', quantum: 0.0003 })); // one in use is not
+  assert.equal((await next(x, 'frame', (f) => f.encoding === 'delta')).delta.quantum, Math.fround(0.0003));
+  x.ws.send(JSON.stringify({ type: 'subscribe', quantum: 0.0005 })); // nor one it alone does not hold
+  assert.equal((await next(x, 'text', (m) => m.type === 'error' && m.param === 'quantum', 15000, x.texts.length - 1)).status, 422);
+  // The subscription is as it was: the next frame is delta on the 0.001 grid.
+  const from = c.frames.length;
+  await ok(d, 'POST', '/v1/rocks', { position: [0, 0, 2], radius: 0.1 });
+  const f = await next(c, 'frame', () => true, 15000, from);
+  assert.equal(f.encoding, 'delta');
+  assert.equal(f.delta.quantum, Math.fround(0.001));
+  assert.equal(f.nRocks, 1);
+  assert.deepEqual(c.badFrames, []);
+  assert.notEqual(await hash(d), h0); // the rock; from here on nothing changes the simulation
+  const h1 = await hash(d);
+  // A client alone on its quantum may take another (its channel goes with it).
+  const regrid = await answer({ type: 'subscribe', quantum: 0.0005 });
+  assert.deepEqual([regrid.type, regrid.quantum], ['subscribed', 0.0005]);
+  const g = await next(c, 'frame', (f) => f.encoding === 'delta' && f.delta.quantum === Math.fround(0.0005), 15000, from);
+  assert.equal(g.delta.keyframe, true); // a new grid starts with a keyframe
+  // One of the others leaves: its quantum is free for another.
+  others[0].ws.close();
+  await until('a free channel', async () => {
+    const from = x.texts.length;
+    x.ws.send(JSON.stringify({ type: 'subscribe', quantum: 0.001 }));
+    return (await next(x, 'text', (m) => m.type === 'error' || m.type === 'subscribed', 15000, from)).type === 'subscribed';
+  });
+  assert.equal(await hash(d), h1); // none of the subscriptions changed the simulation
+  assert.deepEqual([...c.badFrames, ...x.badFrames], []);
+  for (const o of [c, x, ...others]) o.ws.close();
+  await stop(d);
+});
+
+// max_kbps: a client on a slow link gets fewer frames, each whole, at the rate it asked for; one
+// without it gets them all. 24 x 16 f32 frames are 4,752 bytes (+36 a rock), 60 a second: 285 kB/s.
+test('max_kbps: fewer whole frames within the byte budget, not a growing delay; each client in /metrics', async () => {
+  const d = await daemon(['--nx', '24', '--ny', '16', '--auto-drop-interval', '0']);
+  const slow = await connect(d), fast = await connect(d);
+  slow.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'f32', max_kbps: 400 })); // 50 kB/s
+  const ack = await next(slow, 'text', (m) => m.type === 'subscribed');
+  assert.equal(ack.max_kbps, 400);
+  await next(slow, 'frame', (f) => f.encoding === 'f32');
+  await new Promise((r) => setTimeout(r, 500));
+  const s0 = slow.frames.length, f0 = fast.frames.length, t0 = Date.now();
+  await new Promise((r) => setTimeout(r, 3000));
+  const dt = (Date.now() - t0) / 1000;
+  const got = slow.frames.slice(s0), bytes = got.reduce((a, f) => a + f.bytes, 0);
+  assert.ok(bytes / dt <= 50000 * 1.05 + 4800 / dt, `${(bytes / dt).toFixed(0)} bytes/s for a budget of 50000`);
+  assert.ok(got.length / dt >= 6, `${(got.length / dt).toFixed(1)} frames/s within the budget (about 10)`);
+  assert.ok((fast.frames.length - f0) / dt > 2 * (got.length / dt), 'the client without a budget gets more');
+  // The newest frame, not a queue: the last frame the slow client got is at most a budget's
+  // spacing (0.1 s) plus scheduling behind the newest the sim made.
+  const newest = (await ok(d, 'GET', '/v1/sim')).sim_time;
+  assert.ok(newest - got.at(-1).simTime < 0.5, `${newest - got.at(-1).simTime} s behind`);
+  // /metrics has each client's frames, bytes and achieved frame rate: the slow one's within its
+  // budget, the fast one's near 60 (one series per connected client, by id).
+  const m = (await call(d, 'GET', '/metrics')).text;
+  const fps = [...m.matchAll(/^clothd_stream_client_fps\{client="(\d+)",encoding="f32"\} ([\d.]+)$/gm)].map((x) => Number(x[2]));
+  assert.equal(fps.length, 2, m);
+  const [lo, hi] = fps.sort((a, b) => a - b);
+  assert.ok(lo >= 5 && lo <= 13, `slow client at ${lo} fps`);
+  assert.ok(hi > 2 * lo, `fast client at ${hi} fps`);
+  const bytesOf = [...m.matchAll(/^clothd_stream_client_bytes_total\{client="\d+"\} (\d+)$/gm)].map((x) => Number(x[1]));
+  assert.equal(bytesOf.length, 2);
+  assert.equal(metric(m, 'clothd_stream_client_frames_total') > 0, true);
+  // Lifted with null.
+  slow.ws.send(JSON.stringify({ type: 'subscribe', max_kbps: null }));
+  assert.equal((await next(slow, 'text', (m) => m.type === 'subscribed' && m.max_kbps === null)).max_kbps, null);
+  // Bad budgets: an error, the subscription as it was.
+  for (const [max_kbps, status] of [[0, 422], [-5, 422], [1.5, 422], [1e12, 422], ['fast', 400]]) {
+    const from = slow.texts.length;
+    slow.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'q16', max_kbps }));
+    const e = await next(slow, 'text', (m) => m.type === 'error', 15000, from);
+    assert.deepEqual([e.status, e.param], [status, 'max_kbps'], JSON.stringify(e));
+  }
+  const from = slow.frames.length;
+  await next(slow, 'frame', () => true, 15000, from);
+  assert.equal(slow.frames.at(-1).encoding, 'f32'); // not q16: nothing changed
+  for (const c of [slow, fast]) c.ws.close();
+  await until('the clients\' series gone', async () =>
+    !/clothd_stream_client_fps\{/.test((await call(d, 'GET', '/metrics')).text));
+  await stop(d);
 });

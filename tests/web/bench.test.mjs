@@ -3,7 +3,8 @@
 // $CLOTHD_ARTIFACTS/viewer-bench.json. It asserts only that each figure was measured; speed is
 // not a pass/fail matter on a shared machine.
 //   decode: the page's own decoder on one frame into the GPU buffer's array, per encoding, for a
-//     128 x 128 and a 256 x 256 cloth (median and 90th percentile of 30 runs of 10 decodes);
+//     128 x 128 and a 256 x 256 cloth (median and 90th percentile of 30 runs of 10 decodes; delta,
+//     whose frames need their keyframe, as the page's stream decodes 30 or more of them);
 //   drawn:  frames drawn per second at 128 x 128 (a) with the sim in slow motion (time_scale 0.25,
 //     so frames still come at 60 per second but clothd takes a quarter of a core), (b) with the
 //     sim in real time beside the browser on the same cores, and a bare three.js 128 x 128 lit
@@ -74,6 +75,19 @@ async function decodeTimes(label, runs) {
       return { median: ms[runs >> 1], p90: ms[Math.floor(runs * 0.9)], bytes: data.byteLength };
     }, runs);
   }
+  // delta frames need the keyframe before them: timed as the page's stream decodes them, one by
+  // one as they come (the client's own per-frame decode times).
+  await page.evaluate(() => {
+    window.__clothd.setView('encoding', 'delta');
+    window.__clothd.stream.stats.decodeMs.delta.length = 0; // this cloth's only
+  });
+  await until('30 delta frames decoded', () => page.evaluate(() => window.__clothd.stream.stats.decodeMs.delta.length >= 30),
+    { timeout: 120000, every: 200 });
+  figures.decode[label].delta = await page.evaluate(() => {
+    const s = window.__clothd.stream, ms = [...s.stats.decodeMs.delta].sort((a, b) => a - b);
+    return { median: ms[ms.length >> 1], p90: ms[Math.floor(ms.length * 0.9)], bytes: s.lastData.byteLength, bad: s.stats.badFrames };
+  });
+  assert.equal(figures.decode[label].delta.bad, 0);
   await page.evaluate(() => window.__clothd.setView('encoding', 'q16'));
 }
 

@@ -6,9 +6,12 @@
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import { MeshoptDecoder } from 'meshoptimizer';
-import { decodeFrame } from '../../proto/frame.mjs';
+import { ZSTDDecoder } from 'zstddec';
+import { createDecoder, decodeFrame } from '../../proto/frame.mjs';
 
 await MeshoptDecoder.ready;
+const zstd = new ZSTDDecoder();
+await zstd.init();
 
 // "43 4c // comment" lines -> bytes.
 const hex = (s) => Uint8Array.from(s.replace(/\/\/.*$/gm, '').match(/[0-9a-f]{2}/gi).map((b) => parseInt(b, 16)));
@@ -213,7 +216,7 @@ test('bad input throws a clear Error', () => {
   assert.throws(() => decodeFrame(magic), { name: 'Error', message: /magic/ });
   const enc3 = F32_FRAME.slice();
   enc3[6] = 3;
-  assert.throws(() => decodeFrame(enc3), { name: 'Error', message: /unknown encoding 3/ });
+  assert.throws(() => decodeFrame(enc3), { name: 'Error', message: /createDecoder/ });
   const trailing = new Uint8Array(136);
   trailing.set(F32_FRAME);
   assert.throws(() => decodeFrame(trailing), { name: 'Error', message: /136 bytes/ });
@@ -227,4 +230,80 @@ test('truncated payload throws a clear Error', () => {
   const huge = F32_FRAME.slice();
   new DataView(huge.buffer).setUint32(40, 0xffffffff, true);
   assert.throws(() => decodeFrame(huge), { name: 'Error', message: /more than/ });
+});
+
+// The delta section's head (clothd_frame.h), then the zstd frame of the byte planes.
+function deltaSection({ kind, keyId, keyFrame, quantum, origin, row, zstdBytes }) {
+  const dv = new DataView(new ArrayBuffer(44));
+  dv.setUint32(0, kind, true);
+  dv.setUint32(4, keyId, true);
+  dv.setBigUint64(8, BigInt(keyFrame), true);
+  dv.setFloat64(16, quantum, true);
+  origin.forEach((o, c) => dv.setInt32(24 + 4 * c, o, true));
+  dv.setUint32(36, row, true);
+  dv.setUint32(40, zstdBytes.length, true);
+  return frameOf(new Uint8Array(dv.buffer), zstdBytes);
+}
+// A 2 x 2 cloth on a 0.5 m grid, worked out by hand from the layout (as in
+// tests/server/unit/test_delta.c): keyframe g = (2,4,0) (4,4,0) (2,6,1) (5,6,-2), origin (2,4,-2),
+// zigzagged residuals x (0,4,0,2), y (0,0,4,0), z (4,0,2,5); the delta moves v0 +1 on x and v3 -2
+// on z: residuals x (2,1,1,2), z (0,0,0,3). The 48 bytes of planes of each were compressed once
+// with the zstd command line (zstd -1 --no-check) and pasted here.
+const KEY_ZSTD = hex('28b52ffd2030ad00006000040002000400040002050003100086e6f0a105');
+const DELTA_ZSTD = hex('28b52ffd20307d000038020101020003000200c0c022d002');
+const deltaFrame = (section, frame) => frameOf(header({ encoding: 3, frame, n: 4, min: [0, 0, 0], max: [1, 1, 1] }), section);
+const KEY_FRAME = deltaFrame(deltaSection({ kind: 0, keyId: 1, keyFrame: 77, quantum: 0.5, origin: [2, 4, -2], row: 2, zstdBytes: KEY_ZSTD }), 77);
+const DELTA_FRAME = deltaFrame(deltaSection({ kind: 1, keyId: 1, keyFrame: 77, quantum: 0.5, origin: [2, 4, -2], row: 2, zstdBytes: DELTA_ZSTD }), 78);
+
+test('delta: a keyframe and a delta worked out by hand', () => {
+  const d = createDecoder({ zstd });
+  assert.equal(d.keyframe(), null);
+  assert.throws(() => d.decode(DELTA_FRAME), { name: 'Error', message: /holds no keyframe/ });
+  const k = d.decode(KEY_FRAME);
+  assert.equal(k.encoding, 'delta');
+  assert.deepEqual(k.delta, { keyframe: true, keyId: 1, keyFrame: 77, quantum: 0.5 });
+  assert.deepEqual(k.positions, Float32Array.from([1, 2, 0, 2, 2, 0, 1, 3, 0.5, 2.5, 3, -1]));
+  assert.equal(k.bytes, 72 + 44 + 32); // 30 zstd bytes padded to 32
+  const f = d.decode(DELTA_FRAME);
+  assert.deepEqual(f.delta, { keyframe: false, keyId: 1, keyFrame: 77, quantum: 0.5 });
+  assert.equal(f.frame, 78);
+  assert.deepEqual(f.positions, Float32Array.from([1.5, 2, 0, 2, 2, 0, 1, 3, 0.5, 2.5, 3, -2]));
+  // Any number of deltas decode with the keyframe alone (the same delta again, as after skips).
+  assert.deepEqual(d.decode(DELTA_FRAME).positions, f.positions);
+  assert.deepEqual(d.keyframe(), { id: 1, frame: 77, quantum: 0.5, nVertices: 4 });
+  // The stateless decoder and a decoder without zstd refuse clearly.
+  assert.throws(() => decodeFrame(KEY_FRAME), { name: 'Error', message: /createDecoder/ });
+  assert.throws(() => createDecoder().decode(KEY_FRAME), { name: 'Error', message: /zstd/ });
+  // createDecoder decodes the other encodings too.
+  assert.deepEqual(d.decode(F32_FRAME).positions, Float32Array.from([-1, 0, 0.75, 0.25, 2, 0.5]));
+});
+
+test('delta: a delta of another keyframe, or broken, throws and leaves the keyframe', () => {
+  const d = createDecoder({ zstd });
+  d.decode(KEY_FRAME);
+  const other = deltaFrame(deltaSection({ kind: 1, keyId: 2, keyFrame: 90, quantum: 0.5, origin: [2, 4, -2], row: 2, zstdBytes: DELTA_ZSTD }), 91);
+  assert.throws(() => d.decode(other), { name: 'Error', message: /keyframe 2 \(frame 90\).*holds keyframe 1/ });
+  const quantum = deltaFrame(deltaSection({ kind: 1, keyId: 1, keyFrame: 77, quantum: 0.25, origin: [2, 4, -2], row: 2, zstdBytes: DELTA_ZSTD }), 78);
+  assert.throws(() => d.decode(quantum), { name: 'Error', message: /holds keyframe 1/ });
+  // A keyframe whose frame is broken after its positions (trailing bytes) does not replace the one held.
+  const broken = new Uint8Array(KEY_FRAME.length + 4);
+  broken.set(deltaFrame(deltaSection({ kind: 0, keyId: 5, keyFrame: 99, quantum: 0.5, origin: [0, 0, 0], row: 2, zstdBytes: KEY_ZSTD }), 99));
+  assert.throws(() => d.decode(broken), { name: 'Error', message: /bytes/ });
+  assert.equal(d.keyframe().id, 1);
+  assert.throws(() => d.decode(KEY_FRAME.subarray(0, 72 + 40)), { name: 'Error', message: /truncated/ });
+  assert.throws(() => d.decode(KEY_FRAME.subarray(0, KEY_FRAME.length - 8)), { name: 'Error', message: /truncated/ });
+  const kind = KEY_FRAME.slice();
+  kind[72] = 2;
+  assert.throws(() => d.decode(kind), { name: 'Error', message: /kind 2/ });
+  const nan = KEY_FRAME.slice();
+  new DataView(nan.buffer).setFloat64(72 + 16, NaN, true);
+  assert.throws(() => d.decode(nan), { name: 'Error', message: /quantum/ });
+  const row0 = KEY_FRAME.slice();
+  new DataView(row0.buffer).setUint32(72 + 36, 0, true);
+  assert.throws(() => d.decode(row0), { name: 'Error', message: /row/ });
+  // A zstd frame of the wrong size (the delta of 4 vertices in a frame that claims 3).
+  const short = frameOf(header({ encoding: 3, n: 3, min: [0, 0, 0], max: [1, 1, 1] }),
+    deltaSection({ kind: 0, keyId: 1, keyFrame: 1, quantum: 0.5, origin: [0, 0, 0], row: 2, zstdBytes: KEY_ZSTD }));
+  assert.throws(() => d.decode(short), { name: 'Error', message: /delta values/ });
+  assert.equal(d.keyframe().id, 1);
 });

@@ -39,7 +39,7 @@ export class Panel {
       .name('cloth').onChange((x) => v.onChange('mode', x));
     viewFolder.add(v.values, 'camera', { 'orbit (3D)': 'orbit', '2D orthographic': '2d' }).name('camera')
       .onChange((x) => v.onChange('camera', x));
-    viewFolder.add(v.values, 'encoding', ['q16', 'meshopt', 'f32']).name('frame encoding')
+    viewFolder.add(v.values, 'encoding', ['delta', 'q16', 'meshopt', 'f32']).name('frame encoding')
       .onChange((x) => v.onChange('encoding', x));
     viewFolder.add(v.values, 'dropRadius', 0.01, 1, 0.01).name('drop radius (m)');
     viewFolder.add(v.values, 'dropDensity', 10, 10000, 10).name('drop density (kg/m^3)');

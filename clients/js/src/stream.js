@@ -10,8 +10,13 @@
 //
 // Frames are decoded as they come (push), or, with `pull: true` (a page that draws at its own
 // rate), held undecoded until takeFrame(): a frame that arrives before the last one was taken
-// replaces it, undecoded and counted in stats.skipped.
-import { decodeFrame } from '../../../proto/frame.mjs';
+// replaces it, undecoded and counted in stats.skipped (a delta keyframe so replaced is still
+// decoded into the decoder, which keeps it: the deltas after it need it).
+//
+// delta frames are decoded with the zstddec package's decoder (imported when the first comes,
+// or given), meshopt frames with the meshoptimizer package's; `{"type": "keyframe"}` is
+// keyframe().
+import { createDecoder, DELTA_HEAD, HEADER_SIZE } from '../../../proto/frame.mjs';
 
 export const PROTOCOL = 'clothd.v1';
 export const DEFAULT_SCENE = 'default';
@@ -23,6 +28,15 @@ const HANDLERS = {
   hello: 'onHello', frame: 'onFrame', frameReady: 'onFrameReady', event: 'onEvent',
   message: 'onMessage', status: 'onStatus', problem: 'onProblem',
 };
+
+/** The decoders some encodings need (flags bits 0-1 -> how to load one, given or imported). */
+const CODECS = {
+  2: { option: 'meshopt', what: "meshopt frames need the meshoptimizer package's decoder",
+    load: async (given) => { const d = given ?? (await import('meshoptimizer')).MeshoptDecoder; await d.ready; return d; } },
+  3: { option: 'zstd', what: "delta frames need the zstddec package's decoder",
+    load: async (given) => { const d = given ?? new (await import('zstddec')).ZSTDDecoder(); await d.init(); return d; } },
+};
+const CODEC_OF = { meshopt: 2, delta: 3 };
 
 const view = (data) => (data instanceof ArrayBuffer ? new Uint8Array(data)
   : new Uint8Array(data.buffer, data.byteOffset, data.byteLength));
@@ -53,11 +67,14 @@ async function webSocketClass() {
 
 /**
  * @typedef {object} StreamOptions
- * @property {{encoding?: 'f32'|'q16'|'meshopt', max_fps?: number, scalar?: 'none'|'speed'|'strain'}} [subscription]
+ * @property {{encoding?: 'f32'|'q16'|'meshopt'|'delta', max_fps?: number, scalar?: 'none'|'speed'|'strain',
+ *   quantum?: number, max_kbps?: number|null}} [subscription]
  *   sent on every (re)connect; the server's default (f32, 60 fps, no scalar) otherwise
  * @property {boolean} [pull] hold frames undecoded until takeFrame()
  * @property {{decodeVertexBuffer: Function, ready: Promise<void>}} [meshopt] the meshoptimizer
  *   package's MeshoptDecoder (default: imported when the first meshopt frame comes)
+ * @property {{decode: Function, init: () => Promise<void>}} [zstd] the zstddec package's
+ *   ZSTDDecoder for delta frames (default: imported when the first delta frame comes)
  * @property {string} [scene] the scene (client.scene(id).stream() sets it)
  */
 
@@ -84,15 +101,17 @@ export class Stream {
     this.retryMs = null;
     this.connecting = false;
     this.listeners = new Set();
-    this.meshoptGiven = options.meshopt ?? null;
-    this.meshopt = null;
-    this.meshoptLoad = null;
-    this.awaitingMeshopt = null;
+    this.codecsGiven = { meshopt: options.meshopt ?? null, zstd: options.zstd ?? null };
+    /** The decoders' options (meshopt, zstd, and the targets' arrays), read at each decode. */
+    this.decodeOptions = {};
+    this.decoder = createDecoder(this.decodeOptions);
+    this.codecLoads = {};
+    this.awaitingCodec = null;
     this.pending = null;
     this.pendingGrab = null;
     this.lastData = null;
-    this.stats = { frames: 0, decoded: 0, skipped: 0, bytes: 0, badFrames: 0, badMessages: 0, reconnects: 0, decodeMs: { f32: [], q16: [], meshopt: [] } };
-    if (this.subscription.encoding === 'meshopt') this.loadMeshopt();
+    this.stats = { frames: 0, decoded: 0, skipped: 0, bytes: 0, badFrames: 0, badMessages: 0, reconnects: 0, decodeMs: { f32: [], q16: [], meshopt: [], delta: [] } };
+    if (CODEC_OF[this.subscription.encoding]) this.loadCodec(CODEC_OF[this.subscription.encoding]);
   }
 
   /** Adds a listener of one kind (hello, frame, frameReady, event, message, status, problem); returns its remover. */
@@ -221,6 +240,7 @@ export class Stream {
     ws.binaryType = 'arraybuffer';
     this.ws = ws;
     this.pending = null;
+    this.decoder = createDecoder(this.decodeOptions); // a new connection brings its own keyframe
     ws.onopen = () => {
       if (Object.keys(this.subscription).length) this.send({ type: 'subscribe', ...this.subscription });
     };
@@ -263,8 +283,13 @@ export class Stream {
   /** Changes the subscription (any subset of encoding, max_fps, scalar); kept across reconnects. */
   subscribe(change) {
     Object.assign(this.subscription, change);
-    if (change.encoding === 'meshopt') this.loadMeshopt();
+    if (CODEC_OF[change.encoding]) this.loadCodec(CODEC_OF[change.encoding]);
     return this.send({ type: 'subscribe', ...change });
+  }
+
+  /** Asks for a delta keyframe now (the server sends at most a few a second). */
+  keyframe() {
+    return this.send({ type: 'keyframe' });
   }
 
   /** Moves a grabbed vertex at mouse rate; while the socket is still sending, only the newest target goes. */
@@ -333,7 +358,10 @@ export class Stream {
     this.stats.bytes += data.byteLength;
     this.flushGrab();
     if (!this.pull) return this.decode(data);
-    if (this.pending) this.stats.skipped++;
+    if (this.pending) {
+      this.stats.skipped++;
+      if (isKeyframe(view(this.pending))) this.decode(this.pending, { quiet: true });
+    }
     this.pending = data;
     this.emit('frameReady');
   }
@@ -348,35 +376,38 @@ export class Stream {
     return true;
   }
 
-  /** @private The decoder for meshopt frames: the one given, else the meshoptimizer package's. */
-  loadMeshopt() {
-    this.meshoptLoad ??= (async () => {
-      const decoder = this.meshoptGiven ?? (await import('meshoptimizer')).MeshoptDecoder;
-      await decoder.ready;
-      this.meshopt = decoder;
-      const data = this.awaitingMeshopt;
-      this.awaitingMeshopt = null;
+  /** @private The decoder an encoding needs (flags bits 0-1): the one given, else its package's. */
+  loadCodec(code) {
+    const codec = CODECS[code];
+    this.codecLoads[code] ??= (async () => {
+      this.decodeOptions[codec.option] = await codec.load(this.codecsGiven[codec.option]);
+      const data = this.awaitingCodec;
+      this.awaitingCodec = null;
       if (data && !this.pull) this.decode(data);
       else if (data && !this.pending) {
         this.pending = data;
         this.emit('frameReady');
       }
-    })().catch((e) => this.emit('problem', `meshopt frames need the meshoptimizer package's decoder: ${e.message}`));
-    return this.meshoptLoad;
+    })().catch((e) => this.emit('problem', `${codec.what}: ${e.message}`));
+    return this.codecLoads[code];
   }
 
-  /** @private One frame: proto/frame.mjs's decodeFrame for every encoding it has. */
-  decode(data) {
+  /** @private One frame: proto/frame.mjs's decoder (createDecoder) for every encoding it has. */
+  decode(data, { quiet = false } = {}) {
     const bytes = view(data);
-    if (bytes.length >= 8 && (bytes[6] & 3) === 2 && !this.meshopt) {
-      this.awaitingMeshopt = data; // decoded once the decoder is there (the newest only)
-      this.loadMeshopt();
+    const code = bytes.length >= 8 ? bytes[6] & 3 : 0;
+    if (CODECS[code] && !this.decodeOptions[CODECS[code].option]) {
+      // Decoded once the decoder is there: the newest only, or the keyframe the deltas need.
+      if (!this.awaitingCodec || !isKeyframe(view(this.awaitingCodec)) || isKeyframe(bytes)) this.awaitingCodec = data;
+      this.loadCodec(code);
       return;
     }
+    Object.assign(this.decodeOptions, this.targets);
     const t0 = performance.now();
     let frame;
     try {
-      frame = decodeFrame(bytes, { meshopt: this.meshopt ?? undefined, ...this.targets });
+      frame = this.decoder.decode(bytes);
+      if (quiet) return;
     } catch (e) {
       this.stats.badFrames++;
       return this.emit('problem', `bad frame (${bytes.length} bytes): ${e.message}`);
@@ -390,4 +421,10 @@ export class Stream {
     this.stats.decoded++;
     this.emit('frame', frame, ms);
   }
+}
+
+/** Whether a frame is a delta keyframe (encoding 3, kind 0). */
+function isKeyframe(bytes) {
+  return bytes.length >= HEADER_SIZE + DELTA_HEAD && (bytes[6] & 3) === 3 &&
+    new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength).getUint32(HEADER_SIZE, true) === 0;
 }

@@ -6,14 +6,18 @@ section starting on a 4-byte boundary::
     offset size field
          0    4 magic "CLF1"
          4    2 header size (72)
-         6    2 flags: bits 0-1 encoding (0 f32, 1 q16, 2 meshopt), bit 2 scalar present
+         6    2 flags: bits 0-1 encoding (0 f32, 1 q16, 2 meshopt, 3 delta), bit 2 scalar present
          8    8 frame (u64)          16  8 step (u64)
         24    8 sim_time (f64, s)    32  8 wall clock at publish (u64, ns since the epoch)
         40    4 n_vertices (u32)     44  4 n_rocks (u32)
         48   12 bbox min (3 f32)     60 12 bbox max (3 f32)
         72      positions: f32: 3 f32 per vertex; q16: 3 u16 per vertex over the bbox;
                 meshopt: u32 byte count, then the q16 positions padded to 4 u16 per vertex and
-                compressed with meshoptimizer's vertex codec (vertex size 8)
+                compressed with meshoptimizer's vertex codec (vertex size 8);
+                delta: a 44-byte head (kind u32 0 keyframe 1 delta, keyframe id u32, keyframe
+                frame u64, quantum f64, grid origin 3 i32, row u32, byte count u32), then a zstd
+                frame of the byte planes of the zigzagged residuals of the grid values'
+                parallelogram prediction (PROTOCOL.md)
                 scalar (flag bit 2): one u8 per vertex
                 rocks: n_rocks x {id u32, position 3 f32, radius f32, orientation 4 f32 (x, y, z, w)}
 
@@ -25,10 +29,13 @@ meshopt frames are decoded by meshoptimizer's own C library (``meshopt_decodeVer
 Debian's libmeshoptimizer2d) through ctypes; where it is missing they raise MissingDependency.
 Set ``CLOTHD_MESHOPTIMIZER_LIB`` to the library's path where it is installed elsewhere.
 
+delta frames are decompressed by zstd's own C library (``ZSTD_decompress``, Debian's libzstd1)
+through ctypes (``CLOTHD_ZSTD_LIB`` names it where it is elsewhere), and refer to the newest
+keyframe: FrameDecoder, which decodes a stream's frames in order, keeps it; decode_frame, which
+keeps nothing, refuses them.
+
 The encodings are dispatched in one table, ``POSITION_DECODERS`` (flags bits 0-1 to a
-function). Encoding 3 is the protocol's coming ``delta`` encoding, whose frames need the newest
-keyframe: FrameDecoder, which decodes a stream's frames in order, is where that state will live;
-until then such a frame is a FrameError that says so.
+function).
 """
 
 import array
@@ -58,8 +65,10 @@ MAX_VERTICES = 4096 * 4096
 Q16_EXTENT_MIN = 1e-9
 
 _HEADER = struct.Struct("<4sHHQQdQII3f3f")
+_DELTA_HEAD = struct.Struct("<IIQd3iII")
+DELTA_HEAD = 44
 _ROCK = struct.Struct("<I3ff4f")
-assert _HEADER.size == HEADER_SIZE and _ROCK.size == ROCK_SIZE
+assert _HEADER.size == HEADER_SIZE and _ROCK.size == ROCK_SIZE and _DELTA_HEAD.size == DELTA_HEAD
 
 
 def _align4(n):
@@ -91,6 +100,7 @@ class Frame:
     scalar: object
     rocks: list = field(default_factory=list)
     nbytes: int = 0
+    delta: object = None  # a Delta for delta frames
 
 
 def numpy_available():
@@ -155,11 +165,96 @@ def _positions_meshopt(data, at, n, bmin, bmax, numpy):
     return _dequantize(_u16s(decoded, 0, 4 * n, numpy), 4, n, bmin, bmax, numpy), at + 4 + length
 
 
+@dataclass
+class Keyframe:
+    """The newest keyframe of a delta stream, as FrameDecoder holds it."""
+    id: int
+    frame: int
+    n: int
+    quantum: float
+    g: object  # 3 n int32 grid values: a numpy int32 array or a list
+
+
+def _undo_prediction(z, n, row, numpy):
+    """The grid differences a (3 n, mod 2^32) from the zigzagged residuals' byte planes z."""
+    if numpy:
+        planes = _numpy.frombuffer(z, dtype=_numpy.uint8).reshape(3, 4, n).astype(_numpy.uint32)
+        u = planes[:, 0] | (planes[:, 1] << 8) | (planes[:, 2] << 16) | (planes[:, 3] << 24)
+        r = (u >> 1) ^ (_numpy.uint32(0) - (u & 1))  # (3, n)
+        row = max(1, min(row, n))  # a row longer than the cloth is its one row
+        rows = -(-n // row)
+        grid = _numpy.zeros((3, rows * row), dtype=_numpy.uint32)
+        grid[:, :n] = r
+        # The parallelogram prediction's inverse is the 2D running sum, mod 2^32.
+        grid = grid.reshape(3, rows, row).cumsum(axis=2, dtype=_numpy.uint32).cumsum(axis=1, dtype=_numpy.uint32)
+        return grid.reshape(3, rows * row)[:, :n].T.reshape(3 * n).view(_numpy.int32)
+    m = 0xFFFFFFFF
+    a = [0] * (3 * n)
+    for c in range(3):
+        base = 4 * c * n
+        for v in range(n):
+            u = z[base + v] | z[base + n + v] << 8 | z[base + 2 * n + v] << 16 | z[base + 3 * n + v] << 24
+            r = (u >> 1) ^ (-(u & 1) & m)
+            i, k = v % row, 3 * v + c
+            if i and v >= row:
+                p = a[k - 3] + a[k - 3 * row] - a[k - 3 - 3 * row]
+            elif i:
+                p = a[k - 3]
+            elif v >= row:
+                p = a[k - 3 * row]
+            else:
+                p = 0
+            a[k] = (r + p) & m
+    return [x - (1 << 32) if x >= 1 << 31 else x for x in a]
+
+
+def _positions_delta(data, at, n, bmin, bmax, numpy, state=None):
+    if state is None:
+        raise FrameError("a delta frame (encoding 3) needs a FrameDecoder, which keeps its keyframe")
+    _need(data, at, DELTA_HEAD, "positions")
+    kind, key_id, key_frame, quantum, ox, oy, oz, row, length = _DELTA_HEAD.unpack_from(data, at)
+    if kind > 1:
+        raise FrameError("unknown delta kind %d" % kind)
+    if not 0 < quantum < float("inf"):
+        raise FrameError("delta quantum %r is not a positive number" % quantum)
+    if row < 1:
+        raise FrameError("delta row of 0 vertices")
+    _need(data, at + DELTA_HEAD, length, "positions")
+    key = state.keyframe
+    if kind == 1 and not (key and key.id == key_id and key.n == n and key.quantum == quantum):
+        raise FrameError("delta of keyframe %d (frame %d), and this decoder holds %s"
+                         % (key_id, key_frame, "keyframe %d" % key.id if key else "no keyframe"))
+    z = zstd_decompress(bytes(data[at + DELTA_HEAD:at + DELTA_HEAD + length]), 12 * n)
+    a = _undo_prediction(z, n, row, numpy)
+    origin = (ox, oy, oz)
+    if numpy:
+        base = _numpy.tile(_numpy.asarray(origin, dtype=_numpy.int32), n) if kind == 0 else key.g
+        g = (base.view(_numpy.uint32) + a.view(_numpy.uint32)).view(_numpy.int32)
+        positions = (g.astype(_numpy.float64) * quantum).astype(_numpy.float32).reshape(n, 3)
+    else:
+        base = [origin[k % 3] for k in range(3 * n)] if kind == 0 else key.g
+        g = [((b + d + (1 << 31)) & 0xFFFFFFFF) - (1 << 31) for b, d in zip(base, a)]
+        positions = [[float(array.array("f", [g[3 * v + c] * quantum])[0]) for c in range(3)] for v in range(n)]
+    state.pending = Keyframe(key_id, key_frame, n, quantum, g) if kind == 0 else None
+    state.last_delta = Delta(kind == 0, key_id, key_frame, quantum)
+    return positions, at + DELTA_HEAD + length
+
+
+@dataclass
+class Delta:
+    """What a delta frame says of itself: a keyframe or not, its keyframe's id and frame, the quantum."""
+    keyframe: bool
+    key_id: int
+    key_frame: int
+    quantum: float
+
+
 #: flags bits 0-1 -> (name, decoder of the positions section).
 POSITION_DECODERS = {
     0: ("f32", _positions_f32),
     1: ("q16", _positions_q16),
     2: ("meshopt", _positions_meshopt),
+    3: ("delta", _positions_delta),
 }
 DELTA = 3
 
@@ -169,10 +264,11 @@ def _need(data, at, count, what):
         raise FrameError("frame of %d bytes is truncated: its %s need %d" % (len(data), what, at + count))
 
 
-def decode_frame(data, numpy=None):
+def decode_frame(data, numpy=None, _state=None):
     """Decodes one binary stream message (bytes-like) into a Frame; FrameError when it is not one.
 
-    numpy: None to use numpy when it is importable, True to require it, False for lists.
+    numpy: None to use numpy when it is importable, True to require it, False for lists. A delta
+    frame needs FrameDecoder.
     """
     use_np = _use_numpy(numpy)
     data = memoryview(data).cast("B") if not isinstance(data, (bytes, bytearray)) else data
@@ -185,16 +281,14 @@ def decode_frame(data, numpy=None):
     if header_size < HEADER_SIZE:
         raise FrameError("frame header size %d is below %d" % (header_size, HEADER_SIZE))
     code = flags & ENCODING_MASK
-    if code not in POSITION_DECODERS:
-        if code == DELTA:
-            raise FrameError("a delta frame (encoding 3): this client does not decode delta frames yet; "
-                             "subscribe to f32, q16 or meshopt")
-        raise FrameError("unknown encoding %d" % code)
     if n > MAX_VERTICES:
         raise FrameError("frame claims %d vertices, more than %d" % (n, MAX_VERTICES))
     encoding, decode_positions = POSITION_DECODERS[code]
     bmin, bmax = (x0, y0, z0), (x1, y1, z1)
-    positions, at = decode_positions(data, header_size, n, bmin, bmax, use_np)
+    if code == DELTA:
+        positions, at = decode_positions(data, header_size, n, bmin, bmax, use_np, _state)
+    else:
+        positions, at = decode_positions(data, header_size, n, bmin, bmax, use_np)
     at = _align4(at)
     scalar = None
     if flags & FLAG_SCALAR:
@@ -210,71 +304,118 @@ def decode_frame(data, numpy=None):
         at += ROCK_SIZE
     if at != len(data):
         raise FrameError("frame has %d bytes, its sections %d" % (len(data), at))
-    return Frame(frame, step, sim_time, wall_ns, encoding, n, n_rocks, bmin, bmax, positions, scalar,
-                 rocks, len(data))
+    out = Frame(frame, step, sim_time, wall_ns, encoding, n, n_rocks, bmin, bmax, positions, scalar,
+                rocks, len(data))
+    if code == DELTA:
+        out.delta = _state.last_delta
+        if _state.pending is not None:  # only a frame that decoded whole replaces the keyframe
+            _state.keyframe, _state.pending = _state.pending, None
+    return out
 
 
 class FrameDecoder:
     """Decodes one stream's frames in the order they came.
 
-    f32, q16 and meshopt frames stand alone; this object is where the state of the delta
-    encoding to come (the newest keyframe) will be kept, so code that decodes a stream through
-    it needs no change when delta frames arrive.
+    f32, q16 and meshopt frames stand alone; delta frames refer to the newest keyframe, which
+    this object keeps (``keyframe``). A delta of a keyframe it has not seen is a FrameError and
+    changes nothing (the server sends each client the keyframe first; the stream's
+    ``{"type": "keyframe"}`` asks for a new one).
     """
 
     def __init__(self, numpy=None):
         self.numpy = numpy
+        self.keyframe = None
+        self.pending = None
+        self.last_delta = None
 
     def decode(self, data):
         """The Frame of one binary message (FrameError when it does not decode)."""
-        return decode_frame(data, numpy=self.numpy)
+        self.pending = None
+        return decode_frame(data, numpy=self.numpy, _state=self)
 
 
-# ---- meshoptimizer's vertex codec, from its C library ----
+# ---- C libraries through ctypes: meshoptimizer's vertex codec, zstd ----
 
-_meshopt = None
-_meshopt_why = None
+class _CLibrary:
+    """A C library loaded at first use: the first of its names (or the path in the environment
+    variable ``env``) that loads and has every function, each set to (restype, argtypes). ``get()``
+    gives the functions in that order, or None with the reason in ``why``."""
+
+    def __init__(self, env, names, functions):
+        self.env, self.names, self.functions = env, names, functions
+        self.fns, self.why = None, None
+
+    def get(self):
+        if self.fns is not None or self.why is not None:
+            return self.fns
+        given = os.environ.get(self.env)
+        names = [given] if given else [n for n in (ctypes.util.find_library(self.names[0]),) + self.names[1:] if n]
+        tried = []
+        for name in names:
+            try:
+                lib = ctypes.CDLL(name)
+                fns = [getattr(lib, f) for f in self.functions]
+            except (OSError, AttributeError) as e:
+                tried.append("%s (%s)" % (name, e))
+                continue
+            for fn, (restype, argtypes) in zip(fns, self.functions.values()):
+                fn.restype, fn.argtypes = restype, argtypes
+            self.fns = fns
+            return fns
+        self.why = "; ".join(tried) or "no library found"
+        return None
 
 
-def _load_meshopt():
-    global _meshopt, _meshopt_why
-    if _meshopt is not None or _meshopt_why is not None:
-        return _meshopt
-    given = os.environ.get("CLOTHD_MESHOPTIMIZER_LIB")
-    names = [given] if given else [n for n in (ctypes.util.find_library("meshoptimizer"), "libmeshoptimizer.so.2d",
-                                                "libmeshoptimizer.so", "libmeshoptimizer.dylib", "meshoptimizer.dll") if n]
-    tried = []
-    for name in names:
-        try:
-            lib = ctypes.CDLL(name)
-            fn = lib.meshopt_decodeVertexBuffer
-        except (OSError, AttributeError) as e:
-            tried.append("%s (%s)" % (name, e))
-            continue
-        fn.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_size_t, ctypes.c_char_p, ctypes.c_size_t]
-        fn.restype = ctypes.c_int
-        _meshopt = fn
-        return fn
-    _meshopt_why = "; ".join(tried) or "no library found"
-    return None
+_meshopt = _CLibrary("CLOTHD_MESHOPTIMIZER_LIB", ("meshoptimizer", "libmeshoptimizer.so.2d", "libmeshoptimizer.so",
+                                                  "libmeshoptimizer.dylib", "meshoptimizer.dll"),
+                     {"meshopt_decodeVertexBuffer": (ctypes.c_int, [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_size_t,
+                                                                     ctypes.c_char_p, ctypes.c_size_t])})
+_zstd = _CLibrary("CLOTHD_ZSTD_LIB", ("zstd", "libzstd.so.1", "libzstd.dylib", "zstd.dll"),
+                  {"ZSTD_decompress": (ctypes.c_size_t, [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_char_p, ctypes.c_size_t]),
+                   "ZSTD_isError": (ctypes.c_uint, [ctypes.c_size_t]),
+                   "ZSTD_getFrameContentSize": (ctypes.c_ulonglong, [ctypes.c_char_p, ctypes.c_size_t])})
 
 
 def meshopt_available():
     """Whether meshopt frames can be decoded here (meshoptimizer's C library is loadable)."""
-    return _load_meshopt() is not None
+    return _meshopt.get() is not None
 
 
 def meshopt_decode_vertex_buffer(encoded, count, size):
     """meshopt_decodeVertexBuffer: ``count`` vertices of ``size`` bytes from ``encoded`` (bytes)."""
-    fn = _load_meshopt()
-    if fn is None:
+    fns = _meshopt.get()
+    if fns is None:
         raise MissingDependency(
             "meshopt frames need meshoptimizer's C library (libmeshoptimizer; Debian: apt install "
             "libmeshoptimizer2d, or set CLOTHD_MESHOPTIMIZER_LIB to its path), which could not be "
-            "loaded: %s; subscribe to q16 or f32 instead" % _meshopt_why)
+            "loaded: %s; subscribe to q16 or f32 instead" % _meshopt.why)
+    (fn,) = fns
     out = ctypes.create_string_buffer(count * size)
     rc = fn(out, count, size, encoded, len(encoded))
     if rc != 0:
         raise FrameError("the meshopt payload of %d bytes does not decode to %d vertices (meshoptimizer error %d)"
                          % (len(encoded), count, rc))
     return out.raw
+
+
+def zstd_available():
+    """Whether delta frames can be decoded here (zstd's C library is loadable)."""
+    return _zstd.get() is not None
+
+
+def zstd_decompress(compressed, size):
+    """ZSTD_decompress: exactly ``size`` bytes from the zstd frame ``compressed`` (FrameError otherwise)."""
+    lib = _zstd.get()
+    if lib is None:
+        raise MissingDependency(
+            "delta frames need zstd's C library (libzstd; Debian: apt install libzstd1, or set "
+            "CLOTHD_ZSTD_LIB to its path), which could not be loaded: %s; subscribe to q16 or f32 "
+            "instead" % _zstd.why)
+    fn, is_error, content_size = lib
+    if content_size(compressed, len(compressed)) != size:  # before allocating what a frame claims
+        raise FrameError("the delta payload of %d bytes does not hold %d bytes" % (len(compressed), size))
+    out = ctypes.create_string_buffer(size + 1)
+    got = fn(out, size + 1, compressed, len(compressed))
+    if is_error(got) or got != size:
+        raise FrameError("the delta payload of %d bytes does not decompress to %d bytes" % (len(compressed), size))
+    return out.raw[:size]

@@ -43,7 +43,7 @@ def websocket_available():
 class Stream:
     """One connection to the stream of a scene (client.stream() makes one, connected).
 
-    subscription: {encoding, max_fps, scalar} sent on every connection. reconnect: open a lost
+    subscription: {encoding, max_fps, scalar, quantum, max_kbps} sent on every connection. reconnect: open a lost
     connection again with backoff. numpy: as clothd.frames.decode_frame's. timeout: seconds to
     connect and to wait for the hello (None: for ever). on_event(event), on_status(state,
     detail) and on_problem(text): called as they happen (on_status: "open", "closed").
@@ -105,6 +105,7 @@ class Stream:
             raise cls("the stream at %s refused the connection: %s" % (url, e), status=status) from e
         except (OSError, _websocket.WebSocketException) as e:
             raise ConnectionFailed("cannot open the stream at %s: %s" % (url, e)) from e
+        self.decoder = FrameDecoder(numpy=self.decoder.numpy)  # a new connection sends its own keyframe
         hello = self._receive(self.timeout)
         if not isinstance(hello, dict) or hello.get("type") != "hello":
             self._close_socket()
@@ -292,10 +293,14 @@ class Stream:
         except (OSError, _websocket.WebSocketException) as e:
             raise ConnectionFailed("the stream closed: %s" % e) from e
 
-    def subscribe(self, encoding=None, max_fps=None, scalar=None, wait=True, timeout=15.0):
-        """Changes the subscription (kept across reconnections). wait: return the server's
-        ``subscribed`` answer, or raise StreamRefused with its ``error``."""
-        change = {k: v for k, v in (("encoding", encoding), ("max_fps", max_fps), ("scalar", scalar)) if v is not None}
+    def subscribe(self, encoding=None, max_fps=None, scalar=None, quantum=None, max_kbps=None, wait=True, timeout=15.0):
+        """Changes the subscription (kept across reconnections): encoding (f32, q16, meshopt,
+        delta), max_fps, scalar, quantum (delta's grid, m), max_kbps (a byte budget; 0 lifts it).
+        wait: return the server's ``subscribed`` answer, or raise StreamRefused with its ``error``."""
+        change = {k: v for k, v in (("encoding", encoding), ("max_fps", max_fps), ("scalar", scalar),
+                                    ("quantum", quantum), ("max_kbps", max_kbps)) if v is not None}
+        if change.get("max_kbps") == 0:
+            change["max_kbps"] = None  # null: no budget
         self.subscription.update(change)
         self.send(dict(change, type="subscribe"))
         if not wait:
@@ -305,6 +310,10 @@ class Stream:
         if m["type"] == "error":
             raise StreamRefused("the stream refused the subscription: %s" % m.get("detail"), m)
         return m
+
+    def keyframe(self):
+        """Asks for a delta keyframe (the server sends at most four a second)."""
+        self.send({"type": "keyframe"})
 
     def grab(self, vertex, target):
         """Pulls ``vertex`` toward ``target`` [x, y, z], as PUT /v1/grab without a round trip."""

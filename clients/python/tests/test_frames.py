@@ -223,20 +223,83 @@ def test_every_truncation_and_random_corruption_is_a_frame_or_a_frame_error():
         samples.append(meshopt_frame())
     rng = random.Random(7)
     for data in samples:
-        for cut in range(len(data)):
-            with pytest.raises(clothd.FrameError):
-                clothd.decode_frame(data[:cut])
-        for _ in range(300):
-            b = bytearray(data)
-            for _ in range(rng.randint(1, 4)):
-                b[rng.randrange(len(b))] = rng.randrange(256)
-            try:
-                clothd.decode_frame(bytes(b))
-            except clothd.FrameError:
-                pass
+        truncate_and_corrupt(data, clothd.decode_frame, rng)
+
+
+def truncate_and_corrupt(data, decode, rng):
+    """Every truncation of data is a FrameError; 300 random corruptions decode or are one."""
+    for cut in range(len(data)):
+        with pytest.raises(clothd.FrameError):
+            decode(data[:cut])
+    for _ in range(300):
+        b = bytearray(data)
+        for _ in range(rng.randint(1, 4)):
+            b[rng.randrange(len(b))] = rng.randrange(256)
+        try:
+            decode(bytes(b))
+        except clothd.FrameError:
+            pass
 
 
 def test_frame_decoder_is_the_stateful_form_of_decode_frame():
     d = clothd.FrameDecoder(numpy=False)
     assert d.decode(F32_FRAME) == clothd.decode_frame(F32_FRAME, numpy=False)
     assert frames.POSITION_DECODERS[1][0] == "q16"
+
+
+# delta: a 2 x 2 cloth on a 0.5 m grid worked out by hand from the layout (PROTOCOL.md), the same
+# case as tests/web/frame.test.mjs: keyframe g = (2,4,0) (4,4,0) (2,6,1) (5,6,-2), origin (2,4,-2);
+# the delta moves vertex 0 by +1 on x and vertex 3 by -2 on z. The zstd frames of their byte
+# planes were made once with the zstd command line (zstd -1 --no-check) and pasted here.
+KEY_ZSTD = bytes.fromhex("28b52ffd2030ad00006000040002000400040002050003100086e6f0a105")
+DELTA_ZSTD = bytes.fromhex("28b52ffd20307d000038020101020003000200c0c022d002")
+
+
+def delta_frame(kind, key_id, key_frame, quantum, origin, row, payload, frame=1, n=4):
+    head = struct.pack("<IIQd3iII", kind, key_id, key_frame, quantum, *origin, row, len(payload))
+    return frame_of(header(3, n, (0, 0, 0), (1, 1, 1), frame=frame), head, payload)
+
+
+KEY = delta_frame(0, 1, 77, 0.5, (2, 4, -2), 2, KEY_ZSTD, frame=77)
+DELTA_1 = delta_frame(1, 1, 77, 0.5, (2, 4, -2), 2, DELTA_ZSTD, frame=78)
+needs_zstd = pytest.mark.skipif(not clothd.frames.zstd_available(), reason="zstd's C library is not loadable")
+
+
+@needs_zstd
+def test_delta_keyframe_and_delta_worked_out_by_hand():
+    for numpy in ([False, True] if clothd.frames.numpy_available() else [False]):
+        d = clothd.FrameDecoder(numpy=numpy)
+        with pytest.raises(clothd.FrameError, match="holds no keyframe"):
+            d.decode(DELTA_1)
+        k = d.decode(KEY)
+        assert k.encoding == "delta" and k.delta == frames.Delta(True, 1, 77, 0.5)
+        assert rows(k.positions) == [[1, 2, 0], [2, 2, 0], [1, 3, 0.5], [2.5, 3, -1]]
+        assert k.nbytes == 72 + 44 + 32
+        for _ in range(2):  # any number of deltas decode with the keyframe alone
+            f = d.decode(DELTA_1)
+            assert f.delta == frames.Delta(False, 1, 77, 0.5) and f.frame == 78
+            assert rows(f.positions) == [[1.5, 2, 0], [2, 2, 0], [1, 3, 0.5], [2.5, 3, -2]]
+        # Another keyframe's delta, a broken frame: errors that leave the keyframe held.
+        with pytest.raises(clothd.FrameError, match=r"keyframe 2 \(frame 90\).*holds keyframe 1"):
+            d.decode(delta_frame(1, 2, 90, 0.5, (2, 4, -2), 2, DELTA_ZSTD))
+        with pytest.raises(clothd.FrameError, match="bytes"):
+            d.decode(delta_frame(0, 5, 99, 0.5, (0, 0, 0), 2, KEY_ZSTD) + bytes(4))
+        with pytest.raises(clothd.FrameError, match="does not hold"):
+            d.decode(delta_frame(0, 6, 99, 0.5, (0, 0, 0), 2, KEY_ZSTD, n=3))
+        assert d.keyframe.id == 1
+        assert rows(d.decode(DELTA_1).positions)[0] == [1.5, 2, 0]
+
+
+def test_delta_needs_the_stateful_decoder():
+    with pytest.raises(clothd.FrameError, match="FrameDecoder"):
+        clothd.decode_frame(KEY)
+
+
+@needs_zstd
+def test_delta_truncations_and_corruption_are_frame_errors():
+    def decode(data):  # a decoder holding KEY, as a stream's would
+        d = clothd.FrameDecoder()
+        d.decode(KEY)
+        return d.decode(data)
+    for data in (KEY, DELTA_1):
+        truncate_and_corrupt(data, decode, random.Random(11))

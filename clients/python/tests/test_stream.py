@@ -5,6 +5,8 @@ journal; a refused subscription; reconnection with waits of 0.25 s doubling to 8
 0.25 s again once back; a scene the server lacks; a token; bad input; no websocket-client.
 """
 
+import struct
+
 import pytest
 
 import clothd
@@ -27,7 +29,8 @@ def test_frames_of_every_encoding_hold_the_cloth_state(client):
     client.add_rock([0.2, 0.1, 1.3], 0.2, density=2000)
     client.step(frames=20)
     expected = client.cloth_state_binary().positions
-    encodings = ["f32", "q16"] + (["meshopt"] if clothd.meshopt_available() else [])
+    encodings = (["f32", "q16"] + (["meshopt"] if clothd.meshopt_available() else [])
+                 + (["delta"] if clothd.frames.zstd_available() else []))
     with client.stream() as s:
         assert s.hello["protocol"] == "clothd.v1" and s.hello["state"] == "paused"
         assert s.hello["scene"]["nx"] == 64
@@ -41,6 +44,10 @@ def test_frames_of_every_encoding_hold_the_cloth_state(client):
             err = worst(f.positions, expected)
             if encoding == "f32":
                 assert err == [0, 0, 0]
+            elif encoding == "delta":  # the grid's half step, and float32's rounding of the result
+                assert f.delta.quantum == struct.unpack("<f", struct.pack("<f", 0.0001))[0]
+                assert all(e <= f.delta.quantum / 2 + 2 ** -24 * 4 for e in err), err
+                assert any(e > 0 for e in err)
             else:
                 half = [(f.bbox_max[c] - f.bbox_min[c]) / 65535 / 2 + 1e-6 for c in range(3)]
                 assert all(err[c] <= half[c] for c in range(3)), (encoding, err, half)
@@ -52,6 +59,26 @@ def test_frames_of_every_encoding_hold_the_cloth_state(client):
             else:
                 assert isinstance(f.positions, list)
     client.clear_rocks()
+
+
+@pytest.mark.skipif(not clothd.frames.zstd_available(), reason="zstd's C library is not loadable")
+def test_delta_keyframes_on_request(client):
+    with client.stream() as s:
+        assert s.subscribe(encoding="delta", quantum=0.001)["quantum"] == 0.001
+        first = s.wait_for(lambda m: isinstance(m, clothd.Frame) and m.encoding == "delta")
+        assert first.delta.keyframe  # a subscriber starts with a keyframe
+        s.keyframe()  # while paused it comes with the next change: step until it does
+        seen = []
+
+        def new_keyframe():
+            client.step(frames=1)
+            f = s.wait_for(lambda m: isinstance(m, clothd.Frame) and m.encoding == "delta")
+            seen.append(f)
+            return f.delta.keyframe and f.delta.key_id > first.delta.key_id
+        until("a keyframe after the ask", new_keyframe)
+        assert all(f.delta.key_id == first.delta.key_id for f in seen[:-1])  # deltas until then
+        # Asked for, not the once-a-second one: 0.25 s or more after the first, well before 1 s.
+        assert 0.25e9 <= seen[-1].wall_ns - first.wall_ns < 0.9e9, seen[-1].wall_ns - first.wall_ns
 
 
 def test_events_grab_release_and_a_refused_subscription(client):

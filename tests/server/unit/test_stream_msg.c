@@ -20,6 +20,23 @@ static void test_subscribe(void **unused)
     assert_int_equal(m.encoding, 1);
     assert_int_equal(m.max_fps, -1);
     assert_int_equal(m.scalar, -1);
+    assert_true(m.quantum == -1);
+    stream_msg_free(&m);
+    /* delta, with its grid; and a keyframe ask. */
+    assert_int_equal(parse("{\"type\":\"subscribe\",\"encoding\":\"delta\",\"quantum\":0.0005}", &m), STREAM_MSG_SUBSCRIBE);
+    assert_int_equal(m.encoding, 3);
+    assert_true(m.quantum == 0.0005);
+    stream_msg_free(&m);
+    assert_int_equal(parse("{\"type\":\"subscribe\",\"quantum\":1e-6}", &m), STREAM_MSG_SUBSCRIBE);
+    assert_true(m.quantum == 1e-6 && m.encoding == -1);
+    stream_msg_free(&m);
+    assert_int_equal(parse("{\"type\":\"subscribe\",\"max_kbps\":800}", &m), STREAM_MSG_SUBSCRIBE);
+    assert_true(m.max_kbps == 800 && m.quantum == -1);
+    stream_msg_free(&m);
+    assert_int_equal(parse("{\"type\":\"subscribe\",\"max_kbps\":null}", &m), STREAM_MSG_SUBSCRIBE);
+    assert_true(m.max_kbps == 0);
+    stream_msg_free(&m);
+    assert_int_equal(parse("{\"type\":\"keyframe\"}", &m), STREAM_MSG_KEYFRAME);
     stream_msg_free(&m);
 }
 
@@ -41,20 +58,35 @@ static void expect_refused(const char *text, int status, const char *about, cons
 static void test_refusals(void **unused)
 {
     (void)unused;
-    expect_refused("not json", 400, "message", NULL);
-    expect_refused("[1, 2]", 400, "message", NULL);
-    expect_refused("{\"type\": 3}", 400, "message", "type");
-    expect_refused("{\"type\": \"dance\"}", 400, "dance", "type");
-    expect_refused("{\"type\":\"subscribe\",\"encoding\":\"png\"}", 422, "subscribe", "encoding");
-    expect_refused("{\"type\":\"subscribe\",\"max_fps\":0}", 422, "subscribe", "max_fps");
-    expect_refused("{\"type\":\"subscribe\",\"max_fps\":241}", 422, "subscribe", "max_fps");
-    expect_refused("{\"type\":\"subscribe\",\"max_fps\":\"fast\"}", 400, "subscribe", "max_fps");
-    expect_refused("{\"type\":\"subscribe\",\"scalar\":\"heat\"}", 422, "subscribe", "scalar");
-    expect_refused("{\"type\":\"subscribe\",\"colour\":1}", 400, "subscribe", "colour");
-    expect_refused("{\"type\":\"grab\",\"target\":[0,0,1]}", 400, "grab", "vertex");
-    expect_refused("{\"type\":\"grab\",\"vertex\":3,\"target\":[0,0]}", 400, "grab", "target");
-    expect_refused("{\"type\":\"release\",\"vertex\":3}", 400, "release", "vertex");
-    expect_refused("{\"type\":\"subscribe\",\"type\":\"grab\"}", 400, "message", NULL); /* a key twice */
+    /* text, status, about, param (NULL: none) */
+    static const struct { const char *text; int status; const char *about, *param; } cases[] = {
+        {"{\"type\":\"subscribe\",\"quantum\":0.0101}", 422, "subscribe", "quantum"},
+        {"{\"type\":\"subscribe\",\"quantum\":9e-7}", 422, "subscribe", "quantum"},
+        {"{\"type\":\"subscribe\",\"quantum\":0}", 422, "subscribe", "quantum"},
+        {"{\"type\":\"subscribe\",\"quantum\":\"1e-4\"}", 400, "subscribe", "quantum"},
+        {"{\"type\":\"subscribe\",\"quantum\":NaN}", 400, "message", NULL},
+        {"{\"type\":\"subscribe\",\"quantum\":1e999}", 400, "message", NULL},
+        {"{\"type\":\"keyframe\",\"now\":1}", 400, "keyframe", "now"},
+        {"{\"type\":\"subscribe\",\"max_kbps\":0}", 422, "subscribe", "max_kbps"},
+        {"{\"type\":\"subscribe\",\"max_kbps\":10000001}", 422, "subscribe", "max_kbps"},
+        {"{\"type\":\"subscribe\",\"max_kbps\":\"x\"}", 400, "subscribe", "max_kbps"},
+        {"not json", 400, "message", NULL},
+        {"[1, 2]", 400, "message", NULL},
+        {"{\"type\": 3}", 400, "message", "type"},
+        {"{\"type\": \"dance\"}", 400, "dance", "type"},
+        {"{\"type\":\"subscribe\",\"encoding\":\"png\"}", 422, "subscribe", "encoding"},
+        {"{\"type\":\"subscribe\",\"max_fps\":0}", 422, "subscribe", "max_fps"},
+        {"{\"type\":\"subscribe\",\"max_fps\":241}", 422, "subscribe", "max_fps"},
+        {"{\"type\":\"subscribe\",\"max_fps\":\"fast\"}", 400, "subscribe", "max_fps"},
+        {"{\"type\":\"subscribe\",\"scalar\":\"heat\"}", 422, "subscribe", "scalar"},
+        {"{\"type\":\"subscribe\",\"colour\":1}", 400, "subscribe", "colour"},
+        {"{\"type\":\"grab\",\"target\":[0,0,1]}", 400, "grab", "vertex"},
+        {"{\"type\":\"grab\",\"vertex\":3,\"target\":[0,0]}", 400, "grab", "target"},
+        {"{\"type\":\"release\",\"vertex\":3}", 400, "release", "vertex"},
+        {"{\"type\":\"subscribe\",\"type\":\"grab\"}", 400, "message", NULL}, /* a key twice */
+    };
+    for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++)
+        expect_refused(cases[k].text, cases[k].status, cases[k].about, cases[k].param);
 }
 
 /* grab and release become the commands the HTTP API makes of PUT and DELETE /v1/grab. */

@@ -1,0 +1,176 @@
+/* test_delta.c - server/core/delta.c against hand-computed cases: the grid values of a few
+ * coordinates, the head and the byte planes of a 2 x 2 keyframe and of a delta (decompressed by
+ * libzstd itself, compared with bytes worked out by hand from the layout in clothd_frame.h), and
+ * the keyframe policy (first frame, shape change, once a second, asked for at most 4 times a
+ * second). */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cmocka.h>
+#include <zstd.h>
+
+#include "clothd_frame.h"
+#include "core/delta.h"
+
+#define MS 1000000ull
+
+static uint32_t get_u32(const unsigned char *p) { return p[0] | p[1] << 8 | p[2] << 16 | (uint32_t)p[3] << 24; }
+static uint64_t get_u64(const unsigned char *p) { return get_u32(p) | (uint64_t)get_u32(p + 4) << 32; }
+
+static void grid_values(void **state)
+{
+    (void)state;
+    assert_int_equal(delta_grid(0.00015f, 1e-4), 2);   /* 1.5 (f32 0.000150000007) -> 2 */
+    assert_int_equal(delta_grid(-0.00025f, 1e-4), -3); /* f32 -0.000250000012: -2.5000001 -> -3 */
+    assert_int_equal(delta_grid(-0.00024f, 1e-4), -2);
+    assert_int_equal(delta_grid(1.0f, 1e-4), 10000);
+    assert_int_equal(delta_grid(-0.75f, 0.5), -2);     /* -1.5 exactly: half away from 0 */
+    assert_int_equal(delta_grid(0.25f, 0.5), 1);       /* 0.5 exactly -> 1 */
+    assert_int_equal(delta_grid(1e9f, 1e-6), INT32_MAX);
+    assert_int_equal(delta_grid(-1e9f, 1e-6), INT32_MIN);
+    assert_int_equal(delta_grid(NAN, 1e-4), 0);
+    assert_true(delta_quantum_ok(1e-4) && delta_quantum_ok(1e-6) && delta_quantum_ok(1e-2));
+    assert_false(delta_quantum_ok(0.9e-6) || delta_quantum_ok(0.011) || delta_quantum_ok(NAN) || delta_quantum_ok(0));
+}
+
+/* The 12 n bytes the zstd frame of a section holds. */
+static unsigned char *planes_of(const unsigned char *section, size_t n)
+{
+    unsigned char *raw = malloc(12 * n + 1);
+    const size_t len = get_u32(section + CLF_DELTA_OFF_LENGTH);
+    assert_int_equal(ZSTD_getFrameContentSize(section + CLF_DELTA_HEAD, len), 12 * n);
+    assert_int_equal(ZSTD_decompress(raw, 12 * n + 1, section + CLF_DELTA_HEAD, len), 12 * n);
+    return raw;
+}
+
+/* A 2 x 2 cloth, quantum 0.5 m: vertices (i, j) = (0,0) (1,0) (0,1) (1,1). */
+static const float KEY[12] = {1.0f, 2.0f, 0.0f,  2.0f, 2.0f, 0.0f,  1.0f, 3.0f, 0.25f,  2.5f, 3.0f, -1.0f};
+/* g:      (2,4,0) (4,4,0) (2,6,1) (5,6,-2); origin = per-axis minimum (2,4,-2)
+ * a:      (0,0,2) (2,0,2) (0,2,3) (3,2,0)
+ * r:      v0 (0,0,2); v1 minus v0 (2,0,0); v2 minus v0 (0,2,1);
+ *         v3 minus (v1 + v2 - v0) = (3,2,0) - (2,2,3) = (1,0,-3)
+ * zigzag: (0,0,4) (4,0,0) (0,4,2) (2,0,5) */
+static const unsigned char KEY_PLANES[48] = {
+    0, 4, 0, 2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, /* x: byte 0 of v0..v3, bytes 1-3 */
+    0, 0, 4, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, /* y */
+    4, 0, 2, 5, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, /* z */
+};
+
+static void keyframe_by_hand(void **state)
+{
+    (void)state;
+    delta_enc e;
+    assert_int_equal(delta_init(&e, 0.5), 0);
+    unsigned char *out = calloc(1, delta_bound(4));
+    int is_key = -1;
+    const size_t len = delta_encode(&e, KEY, 4, 2, 77, 1000 * MS, out, &is_key);
+    assert_int_equal(is_key, 1);
+    assert_int_equal(len % 4, 0);
+    assert_int_equal(len, CLF_ALIGN4(CLF_DELTA_HEAD + get_u32(out + CLF_DELTA_OFF_LENGTH)));
+    assert_true(len <= delta_bound(4));
+    assert_int_equal(get_u32(out + CLF_DELTA_OFF_KIND), CLF_DELTA_KEY);
+    assert_int_equal(get_u32(out + CLF_DELTA_OFF_KEY_ID), 1);
+    assert_int_equal(get_u64(out + CLF_DELTA_OFF_KEY_FRAME), 77);
+    assert_int_equal(get_u64(out + CLF_DELTA_OFF_QUANTUM), 0x3fe0000000000000ull); /* 0.5 */
+    assert_int_equal((int32_t)get_u32(out + CLF_DELTA_OFF_ORIGIN), 2);
+    assert_int_equal((int32_t)get_u32(out + CLF_DELTA_OFF_ORIGIN + 4), 4);
+    assert_int_equal((int32_t)get_u32(out + CLF_DELTA_OFF_ORIGIN + 8), -2);
+    assert_int_equal(get_u32(out + CLF_DELTA_OFF_ROW), 2);
+    unsigned char *raw = planes_of(out, 4);
+    assert_memory_equal(raw, KEY_PLANES, 48);
+    free(raw);
+
+    /* The next frame, 10 ms later: a delta against it. Moves: v0 +x 0.5 (d = 1), v3 z -1.0
+     * (d = -2), v2 y -0.25 (3 - 0.25 = 2.75 / 0.5 = 5.5 -> 6: d = 0).
+     * d:      (1,0,0) (0,0,0) (0,0,0) (0,0,-2)
+     * r:      v0 (1,0,0); v1 - v0 (-1,0,0); v2 - v0 (-1,0,0); v3 - (v1 + v2 - v0) = (0,0,-2) - (-1,0,0)
+     *         = (1,0,-2)
+     * zigzag: (2,0,0) (1,0,0) (1,0,0) (2,0,3); -1 -> 0xffffffff - ... zigzag(-1) = 1 */
+    float next[12];
+    memcpy(next, KEY, sizeof next);
+    next[0] += 0.5f;
+    next[11] -= 1.0f;
+    next[7] -= 0.25f;
+    const size_t len2 = delta_encode(&e, next, 4, 2, 78, 1010 * MS, out, &is_key);
+    assert_true(len2 > CLF_DELTA_HEAD);
+    assert_int_equal(is_key, 0);
+    assert_int_equal(get_u32(out + CLF_DELTA_OFF_KIND), CLF_DELTA_DELTA);
+    assert_int_equal(get_u32(out + CLF_DELTA_OFF_KEY_ID), 1);
+    assert_int_equal(get_u64(out + CLF_DELTA_OFF_KEY_FRAME), 77);
+    assert_int_equal((int32_t)get_u32(out + CLF_DELTA_OFF_ORIGIN + 8), -2);
+    static const unsigned char DELTA_PLANES[48] = {
+        2, 1, 1, 2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
+        0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
+        0, 0, 0, 3, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
+    };
+    raw = planes_of(out, 4);
+    assert_memory_equal(raw, DELTA_PLANES, 48);
+    free(raw);
+
+    /* Residuals past a byte: v0 x at -999 m is g = -1998, d = -2000, zigzag 3999 = 0x0f9f;
+     * v1 and v2: 0 - d of v0 = 2000, zigzag 4000 = 0x0fa0; v3: 0 - (0 + 0 - (-2000)) = -2000. */
+    next[0] = KEY[0] - 1000.0f;
+    next[11] = KEY[11];
+    assert_true(delta_encode(&e, next, 4, 2, 79, 1020 * MS, out, &is_key) > 0);
+    assert_int_equal(is_key, 0);
+    raw = planes_of(out, 4);
+    static const unsigned char X_PLANES[16] = {0x9f, 0xa0, 0xa0, 0x9f, 0x0f, 0x0f, 0x0f, 0x0f, 0, 0, 0, 0, 0, 0, 0, 0};
+    assert_memory_equal(raw, X_PLANES, 16);
+    free(raw);
+    free(out);
+    delta_free(&e);
+}
+
+static void keyframe_policy(void **state)
+{
+    (void)state;
+    delta_enc e;
+    assert_int_equal(delta_init(&e, 1e-4), 0);
+    float xyz[3 * 6] = {0};
+    unsigned char *out = calloc(1, delta_bound(6));
+    int key;
+    uint64_t t = 5000 * MS;
+    assert_true(delta_encode(&e, xyz, 6, 3, 1, t, out, &key) && key);
+    assert_true(delta_encode(&e, xyz, 6, 3, 2, t + 16 * MS, out, &key) && !key);
+    /* A keyframe once a second: not at 999 ms, at 1000 ms. */
+    assert_true(delta_encode(&e, xyz, 6, 3, 3, t + 999 * MS, out, &key) && !key);
+    assert_true(delta_encode(&e, xyz, 6, 3, 4, t + 1000 * MS, out, &key) && key);
+    assert_int_equal(get_u32(out + CLF_DELTA_OFF_KEY_ID), 2);
+    t += 1000 * MS;
+    /* Asked for: not before 250 ms since the last, then at once; one ask, one keyframe. */
+    delta_want_key(&e);
+    assert_true(delta_encode(&e, xyz, 6, 3, 5, t + 100 * MS, out, &key) && !key);
+    assert_true(delta_encode(&e, xyz, 6, 3, 6, t + 250 * MS, out, &key) && key);
+    assert_true(delta_encode(&e, xyz, 6, 3, 7, t + 600 * MS, out, &key) && !key);
+    /* Asked for a thousand times a second: 4 keyframes a second, the policy's, not 1000. */
+    int keys = 0;
+    for (int ms = 1; ms <= 1000; ms++) {
+        delta_want_key(&e);
+        assert_true(delta_encode(&e, xyz, 6, 3, 8, t + 600 * MS + (uint64_t)ms * MS, out, &key));
+        keys += key;
+    }
+    assert_int_equal(keys, 4);
+    /* A new shape is a keyframe at once: another row, another n. */
+    assert_true(delta_encode(&e, xyz, 6, 2, 9, t + 1601 * MS, out, &key) && key);
+    assert_true(delta_encode(&e, xyz, 4, 2, 10, t + 1602 * MS, out, &key) && key);
+    assert_true(delta_encode(&e, xyz, 4, 2, 11, t + 1603 * MS, out, &key) && !key);
+    /* A clock that goes back (a restart of the frames' clock) starts again with a keyframe. */
+    assert_true(delta_encode(&e, xyz, 4, 2, 12, t, out, &key) && key);
+    assert_int_equal(delta_encode(&e, xyz, 4, 0, 13, t, out, &key), 0); /* no rows: refused */
+    free(out);
+    delta_free(&e);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(grid_values),
+        cmocka_unit_test(keyframe_by_hand),
+        cmocka_unit_test(keyframe_policy),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
