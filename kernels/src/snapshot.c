@@ -390,6 +390,11 @@ static cs_status load_state(cs_sim *sim, rbuf *b, const cs_scene *scene, cs_stat
         if (!all_finite(f, ROCK_FLOATS) || (k->kinematic != 0 && k->kinematic != 1) || k->id == 0 || k->id >= s->next_rock_id ||
             !(f[19] >= 1e-3f && f[19] <= 1e3f) || !(f[20] >= 1e-3f && f[20] <= 1e6f))
             return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds a bad rock");
+        /* A rock's orientation is a unit quaternion (the engine keeps it one every substep); a
+         * zero, denormal or huge one would turn into a NaN the first time it is normalized. */
+        const double qq = (double)f[15] * f[15] + (double)f[16] * f[16] + (double)f[17] * f[17] + (double)f[18] * f[18];
+        if (!(fabs(qq - 1.0) <= 1e-3))
+            return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds rock %u with an orientation that is not a unit quaternion", k->id);
         for (uint32_t o = 0; o < r; o++)
             if (s->rocks[o].id == k->id) return cs_fail(sim, CS_E_FORMAT, NULL, "snapshot holds a rock id twice");
         k->x = cs_v3(f[0], f[1], f[2]);

@@ -609,6 +609,9 @@ static void test_fixed_up_checksum(void **unused)
         {"rest length where the grid has no spring", off_rest(n, 12), E_F32, 0.1, 0}, /* SX owned by (12, 0), the last column */
         {"NaN rock position", off_rock(n, 0) + 8, E_F32, NAN, 0},
         {"zero rock radius", off_rock(n, 0) + 8 + 4 * 19, E_F32, 0.0, 0},
+        /* The fuzzer's find: an orientation of (0, 0, 0, 7.3e-40) turned into NaN once normalized. */
+        {"rock orientation w a denormal", off_rock(n, 0) + 8 + 4 * 18, E_F32, 7.34684e-40, 0},
+        {"rock orientation w 2 (not a unit quaternion)", off_rock(n, 0) + 8 + 4 * 18, E_F32, 2.0, 0},
         {"k_structural -1", HEADER + table_offset("k_structural"), E_F64, -1.0, 0},
         {"k_structural NaN", HEADER + table_offset("k_structural"), E_F64, NAN, 0},
         {"stability_safety 2", HEADER + table_offset("stability_safety"), E_F64, 2.0, 0},
