@@ -13,7 +13,7 @@
  *
  * The cloth kernel: a block is 256 columns (one chunk wide) and tile_rows rows of the grid, walked
  * row by row. For each row it stores the positions and velocities of the row two below into a
- * ring of three rows in shared memory (loaded one row ahead, so the loads overlap the work), evaluates the six springs each vertex owns (cs_spring_force once
+ * ring of four rows in shared memory (r-1 .. r+2, loaded one row ahead, so the loads overlap the work), evaluates the six springs each vertex owns (cs_spring_force once
  * per spring, as the CPU backend does: the far end gets the exact negation), gathers each vertex's
  * 12 springs in CS_SPRING_SLOTS order from its own registers, its neighbours' shared-memory forces
  * and the rows above, adds air and gravity, then contacts, and writes the vertex's next state.
