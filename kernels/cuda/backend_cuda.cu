@@ -1479,7 +1479,7 @@ static const char *cuda_error(void *ctx) { return ((cuda_ctx *)ctx)->err; }
 
 static const cs_backend cuda_backend = {
     "cuda", cuda_available, cuda_create, cuda_destroy, cuda_upload, cuda_download, cuda_refresh, cuda_step,
-    cuda_device, cuda_error, cuda_stats, cuda_cost, CS_CAP_SURFACE_CONTACT,
+    cuda_device, cuda_error, cuda_stats, cuda_cost, CS_CAP_SURFACE_CONTACT, NULL,
 };
 
 extern "C" const cs_backend *cs_backend_cuda(void) { return &cuda_backend; }

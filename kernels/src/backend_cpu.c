@@ -980,5 +980,5 @@ static void cpu_stats(void *ctx, const cs_model *m, cs_backend_stats *out)
 
 const cs_backend cs_backend_cpu = {
     "cpu", cpu_available, cpu_create, cpu_destroy, cpu_upload, cpu_download, cpu_refresh, cpu_step, cpu_device,
-    cpu_error, cpu_stats, cpu_cost, CS_CAP_SURFACE_CONTACT,
+    cpu_error, cpu_stats, cpu_cost, CS_CAP_SURFACE_CONTACT, NULL,
 };

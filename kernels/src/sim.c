@@ -292,33 +292,128 @@ cs_status cs_sim_reguard(cs_sim *sim, const cs_rock_state *rocks, int32_t n_rock
     return st;
 }
 
-cs_status cs_sim_step(cs_sim *sim, int64_t substeps)
+/* The checks of a step call, before anything runs. */
+static cs_status step_check(cs_sim *sim, int64_t substeps)
 {
-    if (!sim) return CS_E_INVALID;
     if (substeps < 0 || substeps > 1000000000)
         return cs_fail(sim, CS_E_RANGE, "substeps", "substeps must be 0..1e9 (got %lld)", (long long)substeps);
     if ((uint64_t)substeps > CS_STEP_MAX - sim->state.step)
         return cs_fail(sim, CS_E_LIMIT, "substeps", "the step count (%llu) would pass 2^63 - 1; rebuild the scene",
                        (unsigned long long)sim->state.step);
+    return CS_OK;
+}
+
+/* The core's counters after a backend ran `now` substeps. */
+static void step_account(cs_sim *sim, int32_t now, const cs_step_report *rep)
+{
+    sim->host_stale = stale_after(sim, CS_SYNC_ALL);
+    sim->state.step += (uint64_t)now;
+    /* One addition per substep: the clock reads the same however the substeps were split
+     * into calls (a frame stepped in slices, a replay stepped in one go). */
+    for (int32_t k = 0; k < now; k++) sim->state.time += sim->model.dt;
+    sim->state.n_torn += rep->torn;
+}
+
+static cs_status nonfinite(cs_sim *sim)
+{
+    return cs_fail(sim, CS_E_NONFINITE, NULL, "the state became non-finite by step %llu",
+                   (unsigned long long)sim->state.step);
+}
+
+#define STEP_CALL_MAX 100000 /* substeps one backend call runs at most */
+
+cs_status cs_sim_step(cs_sim *sim, int64_t substeps)
+{
+    if (!sim) return CS_E_INVALID;
+    cs_status st = step_check(sim, substeps);
+    if (st != CS_OK) return st;
     cs_step_report total = {0, 1};
     while (substeps > 0 && total.finite) {
-        const int32_t now = substeps > 100000 ? 100000 : (int32_t)substeps;
+        const int32_t now = substeps > STEP_CALL_MAX ? STEP_CALL_MAX : (int32_t)substeps;
         cs_step_report rep = {0, 1};
-        const cs_status st = sim->backend->step(sim->ctx, &sim->model, &sim->state, now, &rep);
+        st = sim->backend->step(sim->ctx, &sim->model, &sim->state, now, &rep);
         if (st != CS_OK) return cs_backend_fail(sim, st, "failed while stepping");
-        sim->host_stale = stale_after(sim, CS_SYNC_ALL);
-        sim->state.step += (uint64_t)now;
-        /* One addition per substep: the clock reads the same however the substeps were split
-         * into calls (a frame stepped in slices, a replay stepped in one go). */
-        for (int32_t k = 0; k < now; k++) sim->state.time += sim->model.dt;
-        sim->state.n_torn += rep.torn;
+        step_account(sim, now, &rep);
         total.finite = rep.finite;
         substeps -= now;
     }
-    if (!total.finite)
-        return cs_fail(sim, CS_E_NONFINITE, NULL, "the state became non-finite by step %llu",
-                       (unsigned long long)sim->state.step);
+    if (!total.finite) return nonfinite(sim);
     cs_ok(sim);
+    return CS_OK;
+}
+
+/* Runs one round of a batch: the items of one backend, in one call where it has step_batch. */
+static void batch_round(const cs_backend *b, cs_batch_item *items, int n)
+{
+    if (b->step_batch) {
+        const cs_status st = b->step_batch(items, n);
+        if (st == CS_OK) return;
+        for (int k = 0; k < n; k++)
+            if (items[k].status == CS_OK) items[k].status = st;
+        return;
+    }
+    for (int k = 0; k < n; k++) items[k].status = b->step(items[k].ctx, items[k].m, items[k].s, items[k].substeps, &items[k].rep);
+}
+
+cs_status cs_sims_step(cs_sim *const *sims, size_t n, const int64_t *substeps, cs_status *each)
+{
+    if (!sims || !substeps || !each || n > CS_BATCH_MAX) return CS_E_INVALID;
+    for (size_t k = 0; k < n; k++) {
+        if (!sims[k]) return CS_E_INVALID;
+        for (size_t j = 0; j < k; j++)
+            if (sims[j] == sims[k]) return CS_E_INVALID; /* one simulation twice */
+    }
+    if (n == 0) return CS_OK;
+    int64_t *left = malloc(n * sizeof *left);
+    cs_batch_item *items = malloc(n * sizeof *items);
+    size_t *of = malloc(n * sizeof *of);
+    if (!left || !items || !of) {
+        free(left);
+        free(items);
+        free(of);
+        return CS_E_NOMEM;
+    }
+    for (size_t k = 0; k < n; k++) {
+        each[k] = step_check(sims[k], substeps[k]);
+        left[k] = each[k] == CS_OK ? substeps[k] : 0;
+    }
+    /* Rounds of at most STEP_CALL_MAX substeps each: the simulations left of the first one's
+     * backend together, until none is left. */
+    for (;;) {
+        size_t first = 0;
+        while (first < n && left[first] == 0) first++;
+        if (first == n) break;
+        const cs_backend *b = sims[first]->backend;
+        int m = 0;
+        for (size_t k = first; k < n; k++) {
+            if (left[k] == 0 || sims[k]->backend != b) continue;
+            cs_sim *s = sims[k];
+            const int32_t now = left[k] > STEP_CALL_MAX ? STEP_CALL_MAX : (int32_t)left[k];
+            items[m] = (cs_batch_item){s->ctx, &s->model, &s->state, now, {0, 1}, CS_OK};
+            of[m++] = k;
+        }
+        batch_round(b, items, m);
+        for (int j = 0; j < m; j++) {
+            const size_t k = of[j];
+            cs_sim *s = sims[k];
+            if (items[j].status != CS_OK) {
+                each[k] = cs_backend_fail(s, items[j].status, "failed while stepping");
+                left[k] = 0;
+                continue;
+            }
+            step_account(s, items[j].substeps, &items[j].rep);
+            left[k] -= items[j].substeps;
+            if (!items[j].rep.finite) {
+                each[k] = nonfinite(s);
+                left[k] = 0;
+            }
+        }
+    }
+    for (size_t k = 0; k < n; k++)
+        if (each[k] == CS_OK) cs_ok(sims[k]);
+    free(left);
+    free(items);
+    free(of);
     return CS_OK;
 }
 

@@ -256,6 +256,55 @@ static void test_split_steps_agree(void **unused)
     cs_sim_destroy(parts);
 }
 
+/* A batch steps each simulation as it would be stepped alone, bit for bit, whatever sits beside
+ * it; a bad call runs nothing. */
+static void test_batch_steps_like_alone(void **unused)
+{
+    (void)unused;
+    cs_scene sc;
+    cs_params p;
+    cs_sim *alone[3], *batch[3];
+    const int64_t n[3] = {7, 0, 130};
+    for (int k = 0; k < 3; k++) {
+        small(&sc, &p);
+        sc.nx += 3 * k;
+        p.wind[0] = 0.5f * (float)k;
+        assert_int_equal(cs_sim_create(&sc, &p, "cpu", &alone[k], NULL, 0), CS_OK);
+        assert_int_equal(cs_sim_create(&sc, &p, "cpu", &batch[k], NULL, 0), CS_OK);
+        assert_int_equal(cs_sim_step(alone[k], n[k]), CS_OK);
+    }
+    cs_status each[3] = {99, 99, 99};
+    cs_sim *twice[2] = {batch[0], batch[0]};
+    const int64_t one[2] = {1, 1};
+    assert_int_equal(cs_sims_step(twice, 2, one, each), CS_E_INVALID);
+    assert_int_equal(each[0], 99);
+    const int64_t bad[3] = {1, -1, 1};
+    assert_int_equal(cs_sims_step(batch, 3, bad, each), CS_OK);
+    assert_int_equal(each[1], CS_E_RANGE);
+    assert_int_equal(each[0], CS_OK);
+    /* undo the good ones' substep by starting over */
+    for (int k = 0; k < 3; k++) {
+        cs_sim_destroy(batch[k]);
+        small(&sc, &p);
+        sc.nx += 3 * k;
+        p.wind[0] = 0.5f * (float)k;
+        assert_int_equal(cs_sim_create(&sc, &p, "cpu", &batch[k], NULL, 0), CS_OK);
+    }
+    assert_int_equal(cs_sims_step(batch, 3, n, each), CS_OK);
+    for (int k = 0; k < 3; k++) {
+        assert_int_equal(each[k], CS_OK);
+        cs_info a, b;
+        cs_sim_info(alone[k], &a);
+        cs_sim_info(batch[k], &b);
+        assert_int_equal(a.step, (uint64_t)n[k]);
+        assert_int_equal(b.step, a.step);
+        assert_true(b.time == a.time);
+        assert_int_equal(cs_state_hash(batch[k]), cs_state_hash(alone[k]));
+        cs_sim_destroy(alone[k]);
+        cs_sim_destroy(batch[k]);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -267,6 +316,7 @@ int main(void)
         cmocka_unit_test(test_grab_moves_at_grab_speed),
         cmocka_unit_test(test_threads_setting),
         cmocka_unit_test(test_split_steps_agree),
+        cmocka_unit_test(test_batch_steps_like_alone),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

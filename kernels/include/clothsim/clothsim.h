@@ -111,6 +111,14 @@ cs_status cs_sim_set_params(cs_sim *sim, const cs_params *params);
 cs_status cs_sim_step(cs_sim *sim, int64_t substeps);
 /* Runs frames of the effective substeps each. */
 cs_status cs_sim_step_frames(cs_sim *sim, int64_t frames);
+/* Steps many simulations together: sims[k] by substeps[k] (0..1e9; 0: not stepped), each[k] its
+ * result as cs_sim_step would give it (and its error in cs_sim_error). Simulations of one backend
+ * run in one batched call (the CPU backend shares them among its threads by work; CUDA covers
+ * them all in one launch per substep); what each ends with is bitwise what cs_sim_step gives it
+ * alone. CS_E_INVALID, nothing run, for NULL arrays, a NULL or repeated simulation, or n past
+ * CS_BATCH_MAX; else CS_OK (each[] says how each fared). */
+#define CS_BATCH_MAX 4096
+cs_status cs_sims_step(cs_sim *const *sims, size_t n, const int64_t *substeps, cs_status *each);
 
 typedef struct cs_info {
     uint64_t step;       /* substeps since the scene was built */

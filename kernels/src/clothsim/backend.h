@@ -72,6 +72,17 @@ typedef struct cs_step_report {
     int finite;       /* 1 when every position, velocity and rock value is finite */
 } cs_step_report;
 
+/* One simulation of a batch (step_batch): its backend context, model and state, the substeps it
+ * is to run (1 .. 100000), and what came of it. */
+typedef struct cs_batch_item {
+    void *ctx;
+    const cs_model *m;
+    cs_state *s;
+    int32_t substeps;
+    cs_step_report rep;
+    cs_status status;  /* CS_OK, or this simulation's failure (the others go on) */
+} cs_batch_item;
+
 /* Parts of the host state a download brings up to date. A frame needs positions and rocks (and
  * velocities or rest lengths for its scalars); a snapshot, a hash or a command needs all. */
 enum {
@@ -131,6 +142,11 @@ typedef struct cs_backend {
     /* CS_CAP_* it implements; a parameter that needs one it lacks is refused on it (and "auto"
      * then picks the CPU backend). Last, so a table that predates a flag leaves it 0. */
     unsigned caps;
+    /* Steps several simulations of this backend in one call, each by its own substeps, with the
+     * same sequence as step(): what each ends with is bitwise what its own step() gives. Returns
+     * CS_OK, or a failure of the whole call (then every item failed). NULL: the core calls step()
+     * for each in turn. */
+    cs_status (*step_batch)(cs_batch_item *items, int n);
 } cs_backend;
 
 /* contact_model surface (physics.h, "surface contact"). */
