@@ -441,6 +441,10 @@ static scenes *default_table(cs_sim *sim, clothd_config *cfg)
     return table;
 }
 
+/* The table's hooks: a scene that joins gets its sink; one that leaves closes its streams. */
+static void stream_added(void *ctx, scene *sc) { scene_set_sink(sc, stream_scene_sink(ctx, sc)); }
+static void stream_removed(void *ctx, scene *sc) { stream_scene_removed(ctx, sc); }
+
 static int serve_with(clothd_config *cfg, const access_policy *acc)
 {
 #ifdef CLOTHD_TEST_HOOKS
@@ -472,7 +476,10 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     http_info info = about;
     info.stream = st;
     info.stream_port = st ? stream_port(st) : 0;
-    if (st) scene_set_sink(sc, stream_sink(st));
+    if (st) {
+        scene_set_sink(sc, stream_scene_sink(st, sc));
+        scenes_set_hooks(table, (scenes_hooks){stream_added, stream_removed, st});
+    }
     http_server *http = st ? http_start(&cfg->set, table, m, &info, err, sizeof err) : NULL;
     const int started = http && simloop_start(sl) == 0;
     if (!started) {

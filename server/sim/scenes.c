@@ -11,6 +11,7 @@ struct scenes {
     int n, max;
     void (*wake)(void *ctx);
     void *wake_ctx;
+    scenes_hooks hooks;
 };
 
 scenes *scenes_new(int max)
@@ -45,8 +46,35 @@ int scenes_add(scenes *t, scene *sc)
         t->list[t->n++] = scene_hold(sc);
         scene_set_wake(sc, t->wake, t->wake_ctx);
     }
+    const scenes_hooks h = t->hooks;
     pthread_mutex_unlock(&t->lock);
+    if (ok && h.added) h.added(h.ctx, sc);
     return ok ? 0 : -1;
+}
+
+int scenes_remove(scenes *t, const char *id)
+{
+    scene *gone = NULL;
+    pthread_mutex_lock(&t->lock);
+    for (int k = 0; k < t->n && !gone; k++) {
+        if (strcmp(t->list[k]->id, id) != 0) continue;
+        gone = t->list[k];
+        memmove(t->list + k, t->list + k + 1, (size_t)(t->n - k - 1) * sizeof *t->list);
+        t->n--;
+    }
+    const scenes_hooks h = t->hooks;
+    pthread_mutex_unlock(&t->lock);
+    if (!gone) return -1;
+    if (h.removed) h.removed(h.ctx, gone);
+    scene_release(gone); /* the table's reference */
+    return 0;
+}
+
+void scenes_set_hooks(scenes *t, scenes_hooks hooks)
+{
+    pthread_mutex_lock(&t->lock);
+    t->hooks = hooks;
+    pthread_mutex_unlock(&t->lock);
 }
 
 scene *scenes_get(scenes *t, const char *id)

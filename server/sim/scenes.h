@@ -34,4 +34,18 @@ void scenes_set_wake(scenes *t, void (*wake)(void *ctx), void *ctx);
 /* 1 while every scene's backend answers (/v1/health). */
 int scenes_healthy(scenes *t);
 
+/* What the daemon does as a scene joins or leaves the table (main.c wires the stream here):
+ * `added` runs after scenes_add put it in (give it its sink), `removed` after scenes_remove took
+ * it out (close what streams it). Called on the adding or removing thread, outside the table's
+ * lock; either may be NULL. */
+typedef struct scenes_hooks {
+    void (*added)(void *ctx, scene *sc);
+    void (*removed)(void *ctx, scene *sc);
+    void *ctx;
+} scenes_hooks;
+void scenes_set_hooks(scenes *t, scenes_hooks hooks);
+/* Takes the scene of an id out of the table (its holders keep it until they release it): 0, or
+ * -1 when there is none. */
+int scenes_remove(scenes *t, const char *id);
+
 #endif

@@ -1210,3 +1210,12 @@ char *stream_metrics(stream *st)
 const frame_sink_ops stream_sink_ops = {sink_begin, sink_publish, sink_discard, sink_event, sink_bytes};
 
 frame_sink stream_sink(stream *st) { return (frame_sink){&stream_sink_ops, st}; }
+
+/* One scene today: the default's clients are the stream's. */
+frame_sink stream_scene_sink(stream *st, scene *sc)
+{
+    if (strcmp(sc->id, SCENE_DEFAULT) == 0) return stream_sink(st);
+    return (frame_sink){NULL, NULL};
+}
+
+void stream_scene_removed(stream *st, scene *sc) { (void)st, (void)sc; }

@@ -30,6 +30,11 @@ extern const frame_sink_ops stream_sink_ops;
 stream *stream_start(const clothd_settings *set, scenes *table, const access_policy *acc, char *err, size_t err_len);
 /* The sink a scene hands its poses and events to. */
 frame_sink stream_sink(stream *st);
+/* The sink of one scene's poses and events: the clients streaming that scene get them (no sink
+ * for a scene the stream does not serve yet). */
+frame_sink stream_scene_sink(stream *st, scene *sc);
+/* A scene left the daemon: the clients streaming it are closed (1001, "scene deleted"). */
+void stream_scene_removed(stream *st, scene *sc);
 int stream_port(stream *st);
 /* The HTTP port the viewer is served on (a page's Origin must name it); 0 until set. */
 void stream_set_http_port(stream *st, int port);
