@@ -94,7 +94,7 @@ static void refused(const char *trailer, statefile_error e, const char *reason)
 static void test_refusals(void **unused)
 {
     (void)unused;
-    refused("{\"clothd_state\":4,\"run\":\"paused\",\"params\":{}}", STATEFILE_NEWER, "this build reads formats 1 to 3");
+    refused("{\"clothd_state\":5,\"run\":\"paused\",\"params\":{}}", STATEFILE_NEWER, "this build reads formats 1 to 4");
     refused("{\"clothd_state\":3,\"run\":\"paused\"}", STATEFILE_DAMAGED, "has a trailer that is not");
     refused("{\"clothd_state\":3,\"run\":\"asleep\",\"params\":{}}", STATEFILE_DAMAGED, "has a trailer that is not");
     refused("{\"clothd_state\":3,\"run\":\"paused\",\"params\":{\"seed\":2,\"k_bend\":1}}", STATEFILE_DAMAGED,
