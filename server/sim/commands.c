@@ -141,14 +141,21 @@ static int rq_metrics(const api_request *rq, api_reply *out, scene_cmd *later)
 {
     (void)later;
     const api_daemon *d = rq->daemon;
-    metrics_gauges g = {0};
-    scene *sc = scenes_get(d->scenes, SCENE_DEFAULT);
-    if (sc) scene_gauges(sc, &g);
-    scene_release(sc);
+    const int max = scenes_max(d->scenes);
+    scene **all = malloc(sizeof *all * (size_t)max);
+    metrics_scene *each = malloc(sizeof *each * (size_t)max);
+    const int n = all && each ? scenes_list(d->scenes, all, max) : 0;
+    for (int k = 0; k < n; k++) {
+        each[k].id = all[k]->id;
+        scene_gauges(all[k], &each[k].g);
+    }
     char *extra = d->more_metrics ? d->more_metrics(d->more_ctx) : NULL;
     size_t len = 0;
-    char *text = metrics_render(d->m, &g, extra, &len);
+    char *text = metrics_render(d->m, each, n, extra, &len);
     free(extra);
+    for (int k = 0; k < n; k++) scene_release(all[k]);
+    free(all);
+    free(each);
     return reply_text(out, 200, "text/plain; version=0.0.4; charset=utf-8", text, len);
 }
 

@@ -8,7 +8,7 @@
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import { join } from 'node:path';
-import { start, stop, call, ok, until, tempDir, execChecked, CLOTHD, TESTHOOKS, PROBLEM } from './harness.mjs';
+import { start, stop, call, ok, until, tempDir, execChecked, refusedStart, CLOTHD, TESTHOOKS, PROBLEM } from './harness.mjs';
 
 const small = ['--nx', '8', '--ny', '8', '--auto-drop-interval', '0'];
 const ids = async (d) => (await ok(d, 'GET', '/v1/scenes')).scenes.map((s) => s.id);
@@ -117,6 +117,29 @@ test('every route of a scene answers under /v1/scenes/{scene}/ as it does withou
   await stop(d);
 });
 
+test("a scene's metrics carry its id; deleting it ends its step in progress and its series", async () => {
+  const d = await start([...small, '--paused']);
+  await ok(d, 'POST', '/v1/scenes', { id: 'long', scene: { nx: 48, ny: 48 } });
+  await ok(d, 'POST', '/v1/scenes/long/rocks', { position: [0, 0, 3], radius: 0.1 });
+  await ok(d, 'POST', '/v1/scenes/long/sim/pause');
+  const text = (await call(d, 'GET', '/metrics')).text;
+  assert.match(text, /^clothd_vertices\{scene="default"\} 64$/m);
+  assert.match(text, /^clothd_vertices\{scene="long"\} 2304$/m);
+  assert.match(text, /^clothd_rocks\{scene="long"\} 1$/m);
+  const step = call(d, 'POST', '/v1/scenes/long/sim/step', { frames: 100000 });
+  const s0 = (await ok(d, 'GET', '/v1/scenes/long/sim')).step;
+  await until('the step runs', async () => (await ok(d, 'GET', '/v1/scenes/long/sim')).step > s0);
+  await ok(d, 'DELETE', '/v1/scenes/long');
+  const ended = await step;
+  assert.equal(ended.status, 200, ended.text);
+  assert.equal(ended.json.interrupted_by, 'deleted');
+  assert.ok(ended.json.frames_run < 100000);
+  const after = (await call(d, 'GET', '/metrics')).text;
+  assert.doesNotMatch(after, /scene="long"/);
+  assert.match(after, /^clothd_paused\{scene="default"\} 1$/m);
+  await stop(d);
+});
+
 test('parallel creates and deletes from many clients leave the table consistent', async () => {
   const d = await start([...small, '--paused', '--max-scenes', '16']);
   const names = Array.from({ length: 10 }, (_, k) => `p${k}`);
@@ -209,6 +232,9 @@ test('the state file keeps every scene, paused ones paused, and a restart resume
   const c = await ok(a, 'GET', '/v1/scenes/c/sim');
   assert.equal((await stop(a)).code, 0);
   assert.match(a.log, /state saved to .* \(3 scenes: 1 paused, 2 running\)/);
+  const few = await refusedStart([...small, '--state-file', state, '--max-scenes', '2']);
+  assert.equal(few.code, 1);
+  assert.match(few.log, /it holds 3 scenes, more than max_scenes \(2\): raise max_scenes/);
   const r = await start([...small, '--state-file', state]);
   assert.deepEqual((await ok(r, 'GET', '/v1/scenes')).scenes.map((s) => [s.id, s.state]),
     [['default', 'running'], ['b', 'paused'], ['c', 'running']]);
