@@ -198,46 +198,84 @@ static int steps_whole(const scene *sc)
     return sc->frame_sub == 0 && (double)info.substeps * (double)info.n_vertices <= WHOLE_WORK;
 }
 
-/* The due frames of the running scenes: the small ones together, in one batched call (each
- * ends bitwise as alone: cs_sims_step), the large ones one by one, in parts when they are long.
- * The batch's compute time is shared among its scenes by their work. */
+/* Puts a scene's next whole frame in the batch, at slot nb. */
+static void batch_add(simloop *sl, int nb, scene *sc)
+{
+    cs_info info;
+    cs_sim_info(sc->engine, &info);
+    if (sc->before_frame) sc->before_frame(sc->engine, sc->frame);
+    sc->frame_wall = 0;
+    sl->batch[nb] = sc;
+    sl->engines[nb] = sc->engine;
+    sl->substeps[nb] = info.substeps;
+}
+
+/* Steps the batch's nb frames in one call (each ends bitwise as alone: cs_sims_step). The call's
+ * compute time is shared among the scenes by their work; a failure is dealt with as
+ * scene_run_substeps does, and a complete frame as advance_frame does. sl->each[k]: how each fared. */
+static void batch_run(simloop *sl, int nb)
+{
+    double work = 0;
+    for (int k = 0; k < nb; k++) {
+        cs_info info;
+        cs_sim_info(sl->batch[k]->engine, &info);
+        work += (double)sl->substeps[k] * (double)info.n_vertices;
+    }
+    const double t0 = clock_mono();
+    const cs_status st = cs_sims_step(sl->engines, (size_t)nb, sl->substeps, sl->each);
+    const double took = clock_mono() - t0;
+    for (int k = 0; k < nb; k++) {
+        scene *sc = sl->batch[k];
+        cs_info info;
+        cs_sim_info(sc->engine, &info);
+        const double share = work > 0 ? (double)sl->substeps[k] * (double)info.n_vertices / work : 0;
+        if (st != CS_OK) sl->each[k] = st;
+        scene_ran_substeps(sc, sl->substeps[k], sl->each[k], took * share);
+        if (sc->lost) {
+            sc->lost = 0;
+            kill(getpid(), SIGUSR1);
+        }
+        if (sl->each[k] == CS_OK) frame_done(sl, sc, (int32_t)sl->substeps[k]);
+    }
+}
+
+/* Whether a step in progress goes by whole frames stepped together with other scenes'. */
+static int batched_step(const scene *sc) { return sc->job.cmd && sc->job.frames && steps_whole(sc); }
+
+/* The steps in progress, for about one slice of compute: those of frames of small scenes frame by
+ * frame together in batched calls, the others one by one (step_slice). */
+static void step_slices(simloop *sl, int n)
+{
+    const double t0 = clock_mono();
+    for (int nb = -1; nb != 0 && clock_mono() - t0 < SIMLOOP_SLICE;) {
+        nb = 0;
+        for (int k = 0; k < n; k++)
+            if (batched_step(sl->turn[k])) batch_add(sl, nb++, sl->turn[k]);
+        if (nb == 0) break;
+        batch_run(sl, nb);
+        for (int k = 0; k < nb; k++) {
+            scene *sc = sl->batch[k];
+            if (sl->each[k] != CS_OK) scene_end_step(sc, sc->failed_as);
+            else if (++sc->job.frames_run == sc->job.want) scene_end_step(sc, NULL);
+        }
+    }
+    for (int k = 0; k < n; k++) {
+        scene *sc = sl->turn[k];
+        if (sc->job.cmd && !batched_step(sc)) step_slice(sl, sc);
+        else if (sc->job.cmd && clock_mono() - sc->last_publish >= PUBLISH_EVERY) scene_publish(sc, 0);
+    }
+}
+
+/* The due frames of the running scenes: the small ones together, in one batched call, the large
+ * ones one by one, in parts when they are long. */
 static void run_due_frames(simloop *sl, int n)
 {
     const double now = clock_mono();
     int nb = 0;
-    double work = 0;
-    for (int k = 0; k < n; k++) {
-        scene *sc = sl->turn[k];
-        if (!frame_due(sc, now) || !steps_whole(sc)) continue;
-        cs_info info;
-        cs_sim_info(sc->engine, &info);
-        if (sc->before_frame) sc->before_frame(sc->engine, sc->frame);
-        sc->frame_wall = 0;
-        sl->batch[nb] = sc;
-        sl->engines[nb] = sc->engine;
-        sl->substeps[nb] = info.substeps;
-        work += (double)info.substeps * (double)info.n_vertices;
-        nb++;
-    }
-    if (nb > 0) {
-        const double t0 = clock_mono();
-        const cs_status st = cs_sims_step(sl->engines, (size_t)nb, sl->substeps, sl->each);
-        const double took = clock_mono() - t0;
-        for (int k = 0; k < nb; k++) {
-            scene *sc = sl->batch[k];
-            cs_info info;
-            cs_sim_info(sc->engine, &info);
-            const double share = work > 0 ? (double)sl->substeps[k] * (double)info.n_vertices / work : 0;
-            const cs_status each = st == CS_OK ? sl->each[k] : st;
-            scene_ran_substeps(sc, sl->substeps[k], each, took * share);
-            if (sc->lost) {
-                sc->lost = 0;
-                kill(getpid(), SIGUSR1);
-            }
-            if (each == CS_OK) frame_done(sl, sc, (int32_t)sl->substeps[k]);
-            paced(sc, each == CS_OK ? 1 : -1);
-        }
-    }
+    for (int k = 0; k < n; k++)
+        if (frame_due(sl->turn[k], now) && steps_whole(sl->turn[k])) batch_add(sl, nb++, sl->turn[k]);
+    if (nb > 0) batch_run(sl, nb);
+    for (int k = 0; k < nb; k++) paced(sl->batch[k], sl->each[k] == CS_OK ? 1 : -1);
     for (int k = 0; k < n && !atomic_load(&sl->stopping); k++) {
         scene *sc = sl->turn[k];
         int in_batch = 0;
@@ -370,8 +408,7 @@ static void *run(void *arg)
             clock_in(sl, n, turn[k]);
         }
         if (!stop) {
-            for (int k = 0; k < n; k++)
-                if (turn[k]->job.cmd) step_slice(sl, turn[k]);
+            step_slices(sl, n);
             run_due_frames(sl, n);
         }
         for (int k = 0; k < n; k++) {
