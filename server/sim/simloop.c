@@ -421,6 +421,17 @@ static void *run(void *arg)
 
 /* ---- lifecycle ---- */
 
+/* The turn's arrays, and the loop itself. */
+static void free_turn(simloop *sl)
+{
+    free(sl->turn);
+    free(sl->batch);
+    free(sl->engines);
+    free(sl->substeps);
+    free(sl->each);
+    free(sl);
+}
+
 simloop *simloop_new(scenes *table, metrics *m)
 {
     simloop *sl = calloc(1, sizeof *sl);
@@ -435,12 +446,7 @@ simloop *simloop_new(scenes *table, metrics *m)
     sl->substeps = calloc(c, sizeof *sl->substeps);
     sl->each = calloc(c, sizeof *sl->each);
     if (!sl->turn || !sl->batch || !sl->engines || !sl->substeps || !sl->each) {
-        free(sl->turn);
-        free(sl->batch);
-        free(sl->engines);
-        free(sl->substeps);
-        free(sl->each);
-        free(sl);
+        free_turn(sl);
         return NULL;
     }
     pthread_mutex_init(&sl->lock, NULL);
@@ -489,10 +495,5 @@ void simloop_free(simloop *sl)
     scenes_set_wake(sl->table, NULL, NULL);
     pthread_mutex_destroy(&sl->lock);
     pthread_cond_destroy(&sl->cond);
-    free(sl->turn);
-    free(sl->batch);
-    free(sl->engines);
-    free(sl->substeps);
-    free(sl->each);
-    free(sl);
+    free_turn(sl);
 }
