@@ -7,6 +7,7 @@
 // runs; one scene's instability rolling back that scene only; the state file keeping every scene.
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
+import { writeFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { start, stop, call, ok, until, tempDir, execChecked, refusedStart, CLOTHD, TESTHOOKS, PROBLEM } from './harness.mjs';
 
@@ -199,6 +200,12 @@ test("a scene's state hash is the same alone and beside others created and delet
   await ok(d, 'POST', '/v1/scenes', { id: 'late', scene: { nx: 9, ny: 9 } });
   await ok(d, 'POST', '/v1/scenes', { id: 'later', params: { max_speed: true } });
   assert.deepEqual(await runs, [alone, alone]);
+  // Its journal bundle replays to its own hash.
+  const bundle = await call(d, 'GET', '/v1/scenes/x/journal', undefined, { Accept: 'application/octet-stream' });
+  const file = join(tempDir(), 'x.replay');
+  writeFileSync(file, bundle.buf);
+  const { stdout } = await execChecked(CLOTHD, ['replay', file, '--backend', 'cpu'], { env: { OMP_WAIT_POLICY: 'passive' } });
+  assert.equal(stdout.trim(), alone);
   for (const s of (await ok(d, 'GET', '/v1/scenes')).scenes)
     if (!['x', 'default'].includes(s.id)) assert.equal(s.state, 'running', s.id);
   await stop(d);
