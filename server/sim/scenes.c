@@ -242,25 +242,26 @@ int scenes_remove(scenes *t, const char *id)
         t->gone[t->n_gone++] = gone; /* the table's reference, for the sim thread */
         scene_mark_deleted(gone);
     }
-    const scenes_hooks h = t->hooks;
     void (*wake)(void *) = t->wake;
     void *wake_ctx = t->wake_ctx;
     pthread_mutex_unlock(&t->lock);
     if (!gone || !kept) return -1;
-    if (h.removed) h.removed(h.ctx, gone);
-    if (wake) wake(wake_ctx);
+    if (wake) wake(wake_ctx); /* the sim thread lets it go (scenes_drop_gone) */
     return 0;
 }
 
-int scenes_take_gone(scenes *t, scene **out, int cap)
+void scenes_drop_gone(scenes *t)
 {
-    pthread_mutex_lock(&t->lock);
-    const int n = t->n_gone < cap ? t->n_gone : cap;
-    memcpy(out, t->gone, sizeof *out * (size_t)n);
-    memmove(t->gone, t->gone + n, sizeof *out * (size_t)(t->n_gone - n));
-    t->n_gone -= n;
-    pthread_mutex_unlock(&t->lock);
-    return n;
+    for (;;) {
+        pthread_mutex_lock(&t->lock);
+        scene *sc = t->n_gone ? t->gone[--t->n_gone] : NULL;
+        const scenes_hooks h = t->hooks;
+        pthread_mutex_unlock(&t->lock);
+        if (!sc) return;
+        scene_drop_deleted(sc); /* nothing goes to its sink from here on */
+        if (h.removed) h.removed(h.ctx, sc);
+        scene_release(sc);
+    }
 }
 
 void scenes_close(scenes *t)

@@ -5,8 +5,8 @@
  * scene_release): a request or a stream client that got one keeps a valid scene however long it
  * takes, even once the scene has left the table (the last reference frees it). The sim thread
  * lists the table each turn and holds what it steps; a scene that leaves the table goes to the
- * table's list of deleted scenes, which the sim thread takes (scenes_take_gone) to end what it
- * still had running for it.
+ * table's list of deleted scenes, which the sim thread lets go (scenes_drop_gone) once it has
+ * ended what it still had running for it.
  *
  * The table also keeps what its scenes cost together (scene_cost): max_state_mb caps their sum.
  * A scene that joins is counted, and a scene change or snapshot that would take the sum past the
@@ -61,9 +61,9 @@ void scenes_set_wake(scenes *t, void (*wake)(void *ctx), void *ctx);
 int scenes_healthy(scenes *t);
 
 /* What the daemon does as a scene joins or leaves the table (main.c wires the stream here):
- * `added` runs after scenes_add put it in (give it its sink), `removed` after scenes_remove took
- * it out (close what streams it). Called on the adding or removing thread, outside the table's
- * lock; either may be NULL. */
+ * `added` runs after scenes_add put it in (give it its sink), on the adding thread; `removed`
+ * once the sim thread has let a deleted scene go (close what streams it): the scene hands its
+ * sink nothing from then on. Called outside the table's lock; either may be NULL. */
 typedef struct scenes_hooks {
     void (*added)(void *ctx, scene *sc);
     void (*removed)(void *ctx, scene *sc);
@@ -71,11 +71,15 @@ typedef struct scenes_hooks {
 } scenes_hooks;
 void scenes_set_hooks(scenes *t, scenes_hooks hooks);
 /* Takes the scene of an id out of the table (its holders keep it until they release it; commands
- * are refused from now on, 404): 0, or -1 when there is none. It joins the deleted scenes. */
+ * are refused from now on, 404): 0, or -1 when there is none. It joins the deleted scenes and the
+ * sim thread is woken to let it go. */
 int scenes_remove(scenes *t, const char *id);
 /* The daemon is stopping: no scene joins from now on (scenes_create: 503). */
 void scenes_close(scenes *t);
-/* The sim thread: up to cap deleted scenes, with the table's references (release them). */
-int scenes_take_gone(scenes *t, scene **out, int cap);
+/* The sim thread: lets the deleted scenes go - each one's step in progress ends ("deleted"), what
+ * it had queued is refused (404), its sink is dropped, then the `removed` hook runs and the
+ * table's reference goes. (scenes_free drops those left without the hook: the stream is gone by
+ * then.) */
+void scenes_drop_gone(scenes *t);
 
 #endif

@@ -368,16 +368,6 @@ static void clock_in(simloop *sl, int n, scene *sc)
     }
 }
 
-/* The deleted scenes: what the sim thread still had running for them ends. */
-static void drop_gone(simloop *sl)
-{
-    for (int n; (n = scenes_take_gone(sl->table, sl->batch, sl->cap)) > 0;)
-        for (int k = 0; k < n; k++) {
-            scene_drop_deleted(sl->batch[k]);
-            scene_release(sl->batch[k]);
-        }
-}
-
 static void *run(void *arg)
 {
     simloop *sl = arg;
@@ -402,7 +392,7 @@ static void *run(void *arg)
          * while paused, or until the next frame is due. */
         const int wait = !stepping && (!running || (!fast && clock_mono() < due));
         stop = wait_for_work(sl, wait, running ? due : 0);
-        drop_gone(sl);
+        scenes_drop_gone(sl->table);
         for (int k = 0; k < n; k++) {
             run_commands(turn[k]);
             clock_in(sl, n, turn[k]);
@@ -485,7 +475,7 @@ void simloop_stop(simloop *sl)
         scene_release(all[k]);
     }
     free(all);
-    drop_gone(sl);
+    scenes_drop_gone(sl->table);
 }
 
 void simloop_free(simloop *sl)

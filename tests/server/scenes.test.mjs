@@ -174,7 +174,7 @@ async function script(d, base) {
   await ok(d, 'POST', `${base}/sim/pause`);
   await ok(d, 'POST', `${base}/sim/reset`);
   await ok(d, 'POST', `${base}/rocks`, { position: [0.1, 0, 3], radius: 0.15 });
-  await ok(d, 'POST', `${base}/sim/step`, { frames: 1500 });
+  await ok(d, 'POST', `${base}/sim/step`, { frames: 1000 });
   await ok(d, 'PATCH', `${base}/params`, { k_bend: 0.002 });
   await ok(d, 'POST', `${base}/sim/step`, { frames: 9 });
   return (await ok(d, 'GET', `${base}/sim`)).state_hash;
