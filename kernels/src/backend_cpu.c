@@ -16,8 +16,8 @@
  *
  * A batch (step_batch) is shared among the threads by work, vertices x substeps: a scene larger
  * than a thread's fair share is stepped by all of them together, as step() does; the rest each
- * whole by one thread, in a nested team of one (the same code, no barrier that waits on another
- * thread), largest first as threads come free. */
+ * whole by one thread (the same code with its work-sharing constructs run plainly: no barrier that
+ * waits on another thread), largest first as threads come free. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -817,10 +817,33 @@ static void swap_rest(cs_state *s)
  * robustness on a busy machine; no slower on an idle one, as measured). */
 #define ROW_BLOCK 16
 
-/* Inside a parallel region: the force pass over every row. */
-static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain)
+/* The work sharing of a step: a team shares each loop over rows (the OpenMP construct named) and
+ * one of its threads runs each section; a thread stepping a scene alone (solo) runs them plainly,
+ * without the constructs' bookkeeping and barriers. */
+#define TEAM_ROWS(solo, construct, j, ny, ...)                                                     \
+    do {                                                                                          \
+        if (solo) {                                                                               \
+            for (int32_t j = 0; j < (ny); j++) __VA_ARGS__;                                        \
+        } else {                                                                                  \
+            _Pragma(construct) for (int32_t j = 0; j < (ny); j++) __VA_ARGS__;                      \
+        }                                                                                         \
+    } while (0)
+#define TEAM_ONE(solo, ...)                                                                        \
+    do {                                                                                          \
+        if (solo) {                                                                               \
+            __VA_ARGS__;                                                                          \
+        } else {                                                                                  \
+            _Pragma("omp single") { __VA_ARGS__; }                                                \
+        }                                                                                         \
+    } while (0)
+
+/* This thread's buffer: a solo thread uses the first. */
+static thread_buf *my_buf(cpu_ctx *c, int solo) { return c->tb[solo ? 0 : thread_id()]; }
+
+/* The force pass over every row, by the team of the innermost parallel region (or solo). */
+static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain, int solo)
 {
-    thread_buf *tb = c->tb[thread_id()];
+    thread_buf *tb = my_buf(c, solo);
     tb->last_row = -3;
     for (int k = 0; k < 3; k++)
         for (int g = 0; g < CS_MAX_SEG; g++) tb->rowbox_row[k][g] = -1;
@@ -828,11 +851,10 @@ static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain)
         tb->rk[0][r] = s->rocks[r].x.x, tb->rk[1][r] = s->rocks[r].x.y, tb->rk[2][r] = s->rocks[r].x.z;
         tb->rk[3][r] = s->rocks[r].radius + p->contact_offset;
     }
-#pragma omp for schedule(dynamic, ROW_BLOCK)
-    for (int32_t j = 0; j < p->ny; j++) {
+    TEAM_ROWS(solo, "omp for schedule(dynamic, ROW_BLOCK)", j, p->ny, {
         spring_row(p, s, tb, j, strain);
         contact_row(p, s, tb, j, c->partials);
-    }
+    });
 }
 
 /* The springs torn since the last call, summed over every thread buffer (a team may have used
@@ -854,7 +876,7 @@ static cs_status cpu_refresh(void *ctx, const cs_model *m, cs_state *s)
     const int threads = threads_of(m);
     if (reserve(c, m, s, threads) != CS_OK) return CS_E_NOMEM;
 #pragma omp parallel num_threads(threads)
-    force_pass(c, p, s, 0);
+    force_pass(c, p, s, 0, 0);
     rocks_forces(p, s, c->partials, 0.0f);
     take_torn(c);
     return CS_OK;
@@ -878,9 +900,9 @@ static int state_finite(const cs_state *s)
     return ok;
 }
 
-/* One step call's substeps, run by the team of the innermost parallel region (one thread or
- * many: every thread of it must call this, with the same arguments). */
-static void step_team(cpu_ctx *c, const cs_model *m, cs_state *s, int32_t substeps)
+/* One step call's substeps, run by the team of the innermost parallel region (every thread of it
+ * calls this, with the same arguments), or by one thread alone (solo). */
+static void step_team(cpu_ctx *c, const cs_model *m, cs_state *s, int32_t substeps, int solo)
 {
     const cs_phys *p = &m->phys;
     const int verlet = p->integrator == CS_VELOCITY_VERLET, strain = p->strain_on != 0;
@@ -888,50 +910,31 @@ static void step_team(cpu_ctx *c, const cs_model *m, cs_state *s, int32_t subste
     if (substeps <= 0) return;
     /* Velocity Verlet's steps 1 and 2 for the rocks and the grab (backend.h) run in the single
      * section that ends the previous substep: one barrier fewer per substep. */
-    if (verlet) {
-#pragma omp single
-        {
-            grab_motion(p, s);
-            rocks_move(s, p->hdt, p->dt);
-        }
-    }
+    if (verlet) TEAM_ONE(solo, grab_motion(p, s), rocks_move(s, p->hdt, p->dt));
     for (int32_t it = 0; it < substeps; it++) {
         if (verlet) {
-#pragma omp for schedule(dynamic, ROW_BLOCK)
-            for (int32_t j = 0; j < ny; j++) move_row(s, p, j, it > 0, p->hdt, p->dt);
-            force_pass(c, p, s, strain);
-#pragma omp single
-            {
+            TEAM_ROWS(solo, "omp for schedule(dynamic, ROW_BLOCK)", j, ny, move_row(s, p, j, it > 0, p->hdt, p->dt));
+            force_pass(c, p, s, strain, solo);
+            TEAM_ONE(solo, {
                 rocks_forces(p, s, c->partials, p->hdt);
                 if (strain) swap_rest(s);
                 if (it + 1 < substeps) {
                     grab_motion(p, s);
                     rocks_move(s, p->hdt, p->dt);
                 }
-            }
+            });
         } else {
-            force_pass(c, p, s, 0);
-#pragma omp single
-            {
-                rocks_forces(p, s, c->partials, 0.0f);
-                rocks_move(s, p->dt, p->dt);
-                grab_motion(p, s);
-            }
-#pragma omp for schedule(static)
-            for (int32_t j = 0; j < ny; j++) move_row(s, p, j, 0, p->dt, p->dt);
+            force_pass(c, p, s, 0, solo);
+            TEAM_ONE(solo, rocks_forces(p, s, c->partials, 0.0f), rocks_move(s, p->dt, p->dt), grab_motion(p, s));
+            TEAM_ROWS(solo, "omp for schedule(static)", j, ny, move_row(s, p, j, 0, p->dt, p->dt));
             if (strain) {
-                thread_buf *tb = c->tb[thread_id()];
-#pragma omp for schedule(static)
-                for (int32_t j = 0; j < ny; j++) tb->torn += strain_row(p, s, j);
-#pragma omp single
-                swap_rest(s);
+                thread_buf *tb = my_buf(c, solo);
+                TEAM_ROWS(solo, "omp for schedule(static)", j, ny, tb->torn += strain_row(p, s, j));
+                TEAM_ONE(solo, swap_rest(s));
             }
         }
     }
-    if (verlet) {
-#pragma omp for schedule(static)
-        for (int32_t j = 0; j < ny; j++) kick_row(s, p, j, p->hdt);
-    }
+    if (verlet) TEAM_ROWS(solo, "omp for schedule(static)", j, ny, kick_row(s, p, j, p->hdt));
 }
 
 /* What a step call reports, once its team is done. */
@@ -946,18 +949,25 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
     cpu_ctx *c = ctx;
     const int threads = threads_of(m);
     if (reserve(c, m, s, threads) != CS_OK) return CS_E_NOMEM;
+    if (threads == 1) {
+        step_team(c, m, s, substeps, 1);
+    } else {
 #pragma omp parallel num_threads(threads)
-    step_team(c, m, s, substeps);
+        step_team(c, m, s, substeps, 0);
+    }
     step_report(c, s, rep);
     return CS_OK;
 }
 
 /* ---- batches ---- */
 
-/* What a substep's barriers cost a team, in vertex-substeps of one thread's work (measured: see
- * step_batch). A scene shared by the team pays it every substep; one stepped whole by a thread
- * pays nothing. */
-#define TEAM_SUBSTEP_COST 2048.0
+/* What a substep's barriers cost a team, in vertex-substeps of one thread's work: a scene shared
+ * by the team pays it every substep, one stepped whole by a thread nothing. Measured on the build
+ * machine (2 vCPUs shared with other work, load 3-4): a 64 x 64 scene's substep took 103-123 us on
+ * one thread and 78-84 us on two, about 25 us more than half, some 900 vertex-substeps' work. On
+ * a busy machine it is far more (a descheduled thread holds up every barrier), so the planner
+ * errs towards stepping scenes whole. */
+#define TEAM_SUBSTEP_COST 1024.0
 /* Most scenes the planner moves from one thread to the team beyond those too large for a share. */
 #define PLAN_PROMOTE_MAX 8
 
@@ -1024,10 +1034,10 @@ static int plan_batch(batch_job *jobs, int n, int t, double *load)
 }
 
 /* Steps a batch (backend.h): the plan above, in one parallel region of the most threads any of
- * its models asks for. A scene stepped by one thread runs in a nested region of one thread, so
- * the very code of cpu_step runs for it without a barrier that waits on anyone else (and nothing
- * nests wider than the outer team). The results equal cpu_step's: no sum depends on how threads
- * share the work (the header's comment). */
+ * its models asks for. A scene stepped by one thread runs step_team solo: the very sequence of
+ * cpu_step without a barrier that waits on anyone else, and no nested parallel region (so nothing
+ * runs more threads than the one team). The results equal cpu_step's: no sum depends on how the
+ * threads share the work (the header's comment). */
 static cs_status cpu_step_batch(cs_batch_item *items, int n)
 {
     if (n <= 0) return CS_OK;
@@ -1062,7 +1072,7 @@ static cs_status cpu_step_batch(cs_batch_item *items, int n)
         for (int i = 0; i < team; i++) {
             cs_batch_item *it = jobs[i].it;
             if (it->status != CS_OK) continue;
-            step_team(it->ctx, it->m, it->s, it->substeps);
+            step_team(it->ctx, it->m, it->s, it->substeps, 0);
 #pragma omp single nowait
             step_report(it->ctx, it->s, &it->rep);
         }
@@ -1073,8 +1083,7 @@ static cs_status cpu_step_batch(cs_batch_item *items, int n)
             if (k >= nj) break;
             cs_batch_item *it = jobs[k].it;
             if (it->status != CS_OK) continue;
-#pragma omp parallel num_threads(1)
-            step_team(it->ctx, it->m, it->s, it->substeps);
+            step_team(it->ctx, it->m, it->s, it->substeps, 1);
             step_report(it->ctx, it->s, &it->rep);
         }
     }
