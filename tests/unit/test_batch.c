@@ -64,6 +64,14 @@ static cs_sim *make(const spec *sp)
     return sim;
 }
 
+static void destroy_all(cs_sim **a, cs_sim **b, int n)
+{
+    for (int k = 0; k < n; k++) {
+        cs_sim_destroy(a[k]);
+        cs_sim_destroy(b[k]);
+    }
+}
+
 /* a and b are in the same state, bit for bit, on the same clock. */
 static void assert_same(cs_sim *a, cs_sim *b, const char *what, int k)
 {
@@ -124,10 +132,7 @@ static void test_mixed_batch_bitwise_as_alone(void **unused)
     assert_true(info.n_torn > 0);
     cs_sim_info(batch[5], &info);
     assert_true(info.n_torn > 0);
-    for (int k = 0; k < 8; k++) {
-        cs_sim_destroy(batch[k]);
-        cs_sim_destroy(alone[k]);
-    }
+    destroy_all(batch, alone, 8);
 }
 
 /* One scene run alone in a batch, then beside 7 different ones, then while others are added and
@@ -225,10 +230,7 @@ static void test_nonfinite_fails_alone(void **unused)
         tk_step(alone[k], next[k]);
         if (!bad[k]) assert_same(batch[k], alone[k], "after the failure", k);
     }
-    for (int k = 0; k < 5; k++) {
-        cs_sim_destroy(batch[k]);
-        cs_sim_destroy(alone[k]);
-    }
+    destroy_all(batch, alone, 5);
 }
 
 int main(void)
