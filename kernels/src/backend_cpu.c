@@ -1008,9 +1008,9 @@ static double lpt_makespan(const batch_job *jobs, int n, int t, double *load)
     return most;
 }
 
-/* The simulations of a batch shared among t threads by work. jobs[] sorted largest first; the
- * first *n_team of them are stepped by the whole team one after the other (as cpu_step does),
- * the rest each whole by one thread, largest first as threads come free. A scene goes to the team
+/* The simulations of a batch shared among t threads by work: returns how many of jobs[] (sorted
+ * largest first) the whole team steps, one after the other (as cpu_step does); the rest are each
+ * stepped whole by one thread, largest first as threads come free. A scene goes to the team
  * when it alone is more than a thread's fair share of the batch, or when the estimate of the
  * whole (team time plus list-scheduling time) says so: a few large scenes that would leave
  * threads idle. */
