@@ -9,7 +9,16 @@
  * kernel (or CPU pass) reads and writes per vertex per substep and its launches per frame; for CUDA
  * the bandwidth roofline on an H100 (3.35 TB/s) and an H200 (4.8 TB/s), the launch floor at
  * LAUNCH_US per dependent kernel of a graph, and what this device's memory bandwidth allows.
- * --model prints the cost models without running anything (no device needed). */
+ * --model prints the cost models without running anything (no device needed).
+ *
+ * --batch N,...: for each size and each count N, N scenes of the default scene and parameters
+ * (cs_scene_default, cs_params_default; the effective substeps per frame from cs_sim_info),
+ * stepped frame by frame for --seconds each way: all N in one cs_sims_step call a frame (batch),
+ * and each by its own cs_sim_step (alone). Prints the aggregate vertex-substeps/s of both, their
+ * ratio, the batch's against one scene stepped alone (the single-scene figure), and how many such
+ * scenes the batch's throughput keeps in real time (each needs substeps x frame_rate substeps a
+ * second). --frames F --only batch|alone runs one way for F frames and prints nothing else: a
+ * fixed amount of work, for timing the two ways as whole processes. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -37,7 +46,9 @@ static void usage(FILE *f)
     fprintf(f,
             "usage: clothd-bench [--backend cpu|cuda|auto] [--json] [--threads N] [--seconds S]\n"
             "                    [--sizes 64,128,256,512] [--rocks 0,16] [--contact surface,vertex]\n"
-            "                    [--integrator velocity_verlet|symplectic_euler] [--model]\n");
+            "                    [--integrator velocity_verlet|symplectic_euler] [--model]\n"
+            "       clothd-bench --batch 1,4,16,64 [--sizes 32,64] [--threads N] [--seconds S]\n"
+            "                    [--frames F --only batch|alone] [--json]\n");
 }
 
 /* Rocks on a square grid over the middle of the cloth, just touching it (light ones: the case
@@ -109,6 +120,142 @@ static void print_model(const char *backend, const cs_cost_model *m, double n, i
     printf("}");
 }
 
+/* ---- batch mode ---- */
+
+/* n default scenes of size x size. */
+static cs_sim **batch_make(int size, int n, int threads)
+{
+    cs_sim **sims = calloc((size_t)n, sizeof *sims);
+    if (!sims) return NULL;
+    cs_scene sc;
+    cs_params p;
+    cs_scene_default(&sc);
+    cs_params_default(&p);
+    sc.nx = sc.ny = size;
+    for (int k = 0; k < n; k++) {
+        char err[256];
+        if (cs_sim_create(&sc, &p, "cpu", &sims[k], err, sizeof err) != CS_OK) {
+            fprintf(stderr, "clothd-bench: %dx%d: %s\n", size, size, err);
+            for (int j = 0; j < k; j++) cs_sim_destroy(sims[j]);
+            free(sims);
+            return NULL;
+        }
+        cs_sim_set_threads(sims[k], threads);
+    }
+    return sims;
+}
+
+/* Steps every scene one frame, in one batch or each alone; 0 when every one stepped. */
+static int batch_frame(cs_sim **sims, int n, const int64_t *sub, cs_status *each, int alone)
+{
+    if (!alone) {
+        if (cs_sims_step(sims, (size_t)n, sub, each) != CS_OK) return -1;
+    } else {
+        for (int k = 0; k < n; k++) each[k] = cs_sim_step(sims[k], sub[k]);
+    }
+    for (int k = 0; k < n; k++)
+        if (each[k] != CS_OK) {
+            fprintf(stderr, "clothd-bench: scene %d: %s\n", k, cs_sim_error(sims[k]));
+            return -1;
+        }
+    return 0;
+}
+
+/* Frames a second (of all scenes together) over `seconds` of wall time, after one frame that
+ * settles; or over `frames` frames when that is > 0. Negative on a failure. */
+static double batch_rate(cs_sim **sims, int n, const int64_t *sub, cs_status *each, int alone, double seconds,
+                         int64_t frames)
+{
+    if (frames > 0) {
+        for (int64_t f = 0; f < frames; f++)
+            if (batch_frame(sims, n, sub, each, alone) != 0) return -1;
+        return 0;
+    }
+    if (batch_frame(sims, n, sub, each, alone) != 0) return -1;
+    int64_t done = 0;
+    const double t0 = now();
+    double t = t0;
+    while (t - t0 < seconds) {
+        if (batch_frame(sims, n, sub, each, alone) != 0) return -1;
+        done++;
+        t = now();
+    }
+    return (double)done * n / (t - t0);
+}
+
+/* One count's figures, each way. */
+typedef struct batch_row {
+    int size, n, substeps;
+    double frame_rate, batch, alone; /* frames a second of all scenes together */
+} batch_row;
+
+static int run_batch(const int *sizes, int n_sizes, const int *counts, int n_counts, int threads, double seconds,
+                     int64_t frames, const char *only, int json)
+{
+    if (frames > 0) { /* one way, fixed work */
+        for (int si = 0; si < n_sizes; si++)
+            for (int ci = 0; ci < n_counts; ci++) {
+                const int n = counts[ci];
+                cs_sim **sims = batch_make(sizes[si], n, threads);
+                int64_t *sub = malloc(sizeof *sub * (size_t)n);
+                cs_status *each = malloc(sizeof *each * (size_t)n);
+                if (!sims || !sub || !each) return 1;
+                for (int k = 0; k < n; k++) {
+                    cs_info info;
+                    cs_sim_info(sims[k], &info);
+                    sub[k] = info.substeps;
+                }
+                if (batch_rate(sims, n, sub, each, strcmp(only, "alone") == 0, 0, frames) < 0) return 1;
+                for (int k = 0; k < n; k++) cs_sim_destroy(sims[k]);
+                free(sims), free(sub), free(each);
+            }
+        return 0;
+    }
+    if (!json)
+        printf("%-9s %6s %9s %19s %19s %8s %9s %9s\n", "grid", "scenes", "substeps", "batch vertex-sub/s",
+               "alone vertex-sub/s", "b/alone", "b/single", "realtime");
+    for (int si = 0; si < n_sizes; si++) {
+        const int size = sizes[si];
+        double single = 0; /* one scene alone: frames a second */
+        for (int ci = 0; ci < n_counts; ci++) {
+            const int n = counts[ci];
+            cs_sim **sims = batch_make(size, n, threads);
+            int64_t *sub = malloc(sizeof *sub * (size_t)n);
+            cs_status *each = malloc(sizeof *each * (size_t)n);
+            if (!sims || !sub || !each) return 1;
+            cs_info info;
+            cs_params p;
+            cs_sim_info(sims[0], &info);
+            cs_sim_params(sims[0], &p);
+            for (int k = 0; k < n; k++) sub[k] = info.substeps;
+            batch_row r = {size, n, info.substeps, p.frame_rate, 0, 0};
+            if (single == 0) {
+                single = batch_rate(sims, 1, sub, each, 1, seconds, 0);
+                if (single < 0) return 1;
+            }
+            r.alone = n == 1 ? single : batch_rate(sims, n, sub, each, 1, seconds, 0);
+            r.batch = batch_rate(sims, n, sub, each, 0, seconds, 0);
+            if (r.alone < 0 || r.batch < 0) return 1;
+            const double vs = (double)size * size * r.substeps; /* vertex-substeps a frame */
+            const double realtime = r.batch / r.frame_rate;    /* scenes it keeps in real time */
+            if (json)
+                printf("{\"backend\":\"cpu\",\"device\":\"%s\",\"nx\":%d,\"ny\":%d,\"scenes\":%d,"
+                       "\"substeps_per_frame\":%d,\"frame_rate\":%.1f,\"batch_vertex_substeps_per_s\":%.0f,"
+                       "\"alone_vertex_substeps_per_s\":%.0f,\"single_vertex_substeps_per_s\":%.0f,"
+                       "\"batch_over_alone\":%.3f,\"batch_over_single\":%.3f,\"scenes_in_real_time\":%.1f}\n",
+                       cs_sim_device(sims[0]), size, size, n, r.substeps, r.frame_rate, r.batch * vs, r.alone * vs,
+                       single * vs, r.batch / r.alone, r.batch / single, realtime);
+            else
+                printf("%4dx%-4d %6d %9d %19.0f %19.0f %8.2f %9.2f %9.1f\n", size, size, n, r.substeps, r.batch * vs,
+                       r.alone * vs, r.batch / r.alone, r.batch / single, realtime);
+            fflush(stdout);
+            for (int k = 0; k < n; k++) cs_sim_destroy(sims[k]);
+            free(sims), free(sub), free(each);
+        }
+    }
+    return 0;
+}
+
 static int parse_list(const char *s, int *out, int cap)
 {
     char list[256];
@@ -122,8 +269,10 @@ int main(int argc, char **argv)
 {
     const char *backend = "cpu", *sizes_arg = "64,128,256,512", *integrator = "velocity_verlet", *rocks_arg = "0,16";
     const char *contacts = "surface,vertex";
-    int json = 0, threads = 0, model_only = 0;
+    const char *batch_arg = NULL, *only = NULL;
+    int json = 0, threads = 0, model_only = 0, sizes_given = 0;
     double seconds = 1.5;
+    long long frames = 0;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         const char *val = i + 1 < argc ? argv[i + 1] : NULL;
@@ -132,7 +281,10 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--backend") == 0 && val) backend = val, i++;
         else if (strcmp(a, "--threads") == 0 && val) threads = atoi(val), i++;
         else if (strcmp(a, "--seconds") == 0 && val) seconds = atof(val), i++;
-        else if (strcmp(a, "--sizes") == 0 && val) sizes_arg = val, i++;
+        else if (strcmp(a, "--sizes") == 0 && val) sizes_arg = val, sizes_given = 1, i++;
+        else if (strcmp(a, "--batch") == 0 && val) batch_arg = val, i++;
+        else if (strcmp(a, "--frames") == 0 && val) frames = atoll(val), i++;
+        else if (strcmp(a, "--only") == 0 && val) only = val, i++;
         else if (strcmp(a, "--rocks") == 0 && val) rocks_arg = val, i++;
         else if (strcmp(a, "--contact") == 0 && val) contacts = val, i++;
         else if (strcmp(a, "--integrator") == 0 && val) integrator = val, i++;
@@ -161,6 +313,32 @@ int main(int argc, char **argv)
             fprintf(stderr, "clothd-bench: sizes must be 2..4096\n");
             return 2;
         }
+    if (!batch_arg && (frames || only)) {
+        fprintf(stderr, "clothd-bench: --frames and --only belong to --batch\n");
+        return 2;
+    }
+    if (batch_arg) {
+        int counts[16], bsizes[16];
+        const int n_counts = parse_list(batch_arg, counts, 16);
+        const int n_bsizes = sizes_given ? parse_list(sizes_arg, bsizes, 16) : parse_list("32,64", bsizes, 16);
+        for (int c = 0; c < n_counts; c++)
+            if (counts[c] < 1 || counts[c] > CS_BATCH_MAX) {
+                fprintf(stderr, "clothd-bench: --batch counts must be 1..%d\n", CS_BATCH_MAX);
+                return 2;
+            }
+        if (n_counts == 0 || (frames > 0) != (only != NULL) || frames < 0 || frames > 1000000 ||
+            (only && strcmp(only, "batch") != 0 && strcmp(only, "alone") != 0)) {
+            fprintf(stderr, "clothd-bench: --batch takes counts; --frames (1..1e6) and --only batch|alone go "
+                            "together\n");
+            return 2;
+        }
+        for (int s = 0; s < n_bsizes; s++)
+            if (bsizes[s] < 2 || bsizes[s] > 4096) {
+                fprintf(stderr, "clothd-bench: sizes must be 2..4096\n");
+                return 2;
+            }
+        return run_batch(bsizes, n_bsizes, counts, n_counts, threads, seconds, frames, only ? only : "", json);
+    }
     const cs_param_info *cm = cs_param_find("contact_model");
     int models[4], n_models = 0;
     char mlist[64];

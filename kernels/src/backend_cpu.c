@@ -12,7 +12,12 @@
  *
  * Nothing a thread computes depends on which thread it is or how many there are: rock forces
  * from the cloth go through per-chunk trees summed in chunk order, and torn-spring counts are
- * integers. So the state is the same bit for bit for any thread count. */
+ * integers. So the state is the same bit for bit for any thread count.
+ *
+ * A batch (step_batch) is shared among the threads by work, vertices x substeps: a scene larger
+ * than a thread's fair share is stepped by all of them together, as step() does; the rest each
+ * whole by one thread (the same code with its work-sharing constructs run plainly: no barrier that
+ * waits on another thread), largest first as threads come free. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -111,8 +116,8 @@ static void cpu_destroy(void *ctx)
     free(c);
 }
 
-/* Makes room for this scene, rock count and thread count. */
-static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s)
+/* Makes room for this scene and rock count, and for a team of t threads. */
+static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s, int t)
 {
     const size_t need = (size_t)m->phys.nchunks * (size_t)(s->n_rocks > 0 ? s->n_rocks : 1) * 6;
     if (need > c->partials_cap) {
@@ -121,7 +126,6 @@ static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s)
         c->partials = p;
         c->partials_cap = need;
     }
-    const int t = threads_of(m);
     if (t > c->n_tb) {
         thread_buf **tb = realloc(c->tb, sizeof *tb * (size_t)t);
         if (!tb) return CS_E_NOMEM;
@@ -136,7 +140,7 @@ static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s)
     return CS_OK;
 }
 
-static cs_status cpu_upload(void *ctx, const cs_model *m, cs_state *s) { return reserve(ctx, m, s); }
+static cs_status cpu_upload(void *ctx, const cs_model *m, cs_state *s) { return reserve(ctx, m, s, threads_of(m)); }
 
 static cs_status cpu_download(void *ctx, const cs_model *m, cs_state *s, unsigned what)
 {
@@ -813,10 +817,33 @@ static void swap_rest(cs_state *s)
  * robustness on a busy machine; no slower on an idle one, as measured). */
 #define ROW_BLOCK 16
 
-/* Inside a parallel region: the force pass over every row. */
-static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain)
+/* The work sharing of a step: a team shares each loop over rows (the OpenMP construct named) and
+ * one of its threads runs each section; a thread stepping a scene alone (solo) runs them plainly,
+ * without the constructs' bookkeeping and barriers. */
+#define TEAM_ROWS(solo, construct, j, ny, ...)                                                     \
+    do {                                                                                          \
+        if (solo) {                                                                               \
+            for (int32_t j = 0; j < (ny); j++) __VA_ARGS__;                                        \
+        } else {                                                                                  \
+            _Pragma(construct) for (int32_t j = 0; j < (ny); j++) __VA_ARGS__;                      \
+        }                                                                                         \
+    } while (0)
+#define TEAM_ONE(solo, ...)                                                                        \
+    do {                                                                                          \
+        if (solo) {                                                                               \
+            __VA_ARGS__;                                                                          \
+        } else {                                                                                  \
+            _Pragma("omp single") { __VA_ARGS__; }                                                \
+        }                                                                                         \
+    } while (0)
+
+/* This thread's buffer: a solo thread uses the first. */
+static thread_buf *my_buf(cpu_ctx *c, int solo) { return c->tb[solo ? 0 : thread_id()]; }
+
+/* The force pass over every row, by the team of the innermost parallel region (or solo). */
+static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain, int solo)
 {
-    thread_buf *tb = c->tb[thread_id()];
+    thread_buf *tb = my_buf(c, solo);
     tb->last_row = -3;
     for (int k = 0; k < 3; k++)
         for (int g = 0; g < CS_MAX_SEG; g++) tb->rowbox_row[k][g] = -1;
@@ -824,17 +851,18 @@ static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain)
         tb->rk[0][r] = s->rocks[r].x.x, tb->rk[1][r] = s->rocks[r].x.y, tb->rk[2][r] = s->rocks[r].x.z;
         tb->rk[3][r] = s->rocks[r].radius + p->contact_offset;
     }
-#pragma omp for schedule(dynamic, ROW_BLOCK)
-    for (int32_t j = 0; j < p->ny; j++) {
+    TEAM_ROWS(solo, "omp for schedule(dynamic, ROW_BLOCK)", j, p->ny, {
         spring_row(p, s, tb, j, strain);
         contact_row(p, s, tb, j, c->partials);
-    }
+    });
 }
 
-static int64_t take_torn(cpu_ctx *c, int threads)
+/* The springs torn since the last call, summed over every thread buffer (a team may have used
+ * fewer than there are). */
+static int64_t take_torn(cpu_ctx *c)
 {
     int64_t t = 0;
-    for (int i = 0; i < threads; i++) {
+    for (int i = 0; i < c->n_tb; i++) {
         t += c->tb[i]->torn;
         c->tb[i]->torn = 0;
     }
@@ -845,12 +873,12 @@ static cs_status cpu_refresh(void *ctx, const cs_model *m, cs_state *s)
 {
     cpu_ctx *c = ctx;
     const cs_phys *p = &m->phys;
-    if (reserve(c, m, s) != CS_OK) return CS_E_NOMEM;
     const int threads = threads_of(m);
+    if (reserve(c, m, s, threads) != CS_OK) return CS_E_NOMEM;
 #pragma omp parallel num_threads(threads)
-    force_pass(c, p, s, 0);
+    force_pass(c, p, s, 0, 0);
     rocks_forces(p, s, c->partials, 0.0f);
-    take_torn(c, threads);
+    take_torn(c);
     return CS_OK;
 }
 
@@ -872,62 +900,195 @@ static int state_finite(const cs_state *s)
     return ok;
 }
 
+/* One step call's substeps, run by the team of the innermost parallel region (every thread of it
+ * calls this, with the same arguments), or by one thread alone (solo). */
+static void step_team(cpu_ctx *c, const cs_model *m, cs_state *s, int32_t substeps, int solo)
+{
+    const cs_phys *p = &m->phys;
+    const int verlet = p->integrator == CS_VELOCITY_VERLET, strain = p->strain_on != 0;
+    const int32_t ny = p->ny;
+    if (substeps <= 0) return;
+    /* Velocity Verlet's steps 1 and 2 for the rocks and the grab (backend.h) run in the single
+     * section that ends the previous substep: one barrier fewer per substep. */
+    if (verlet) TEAM_ONE(solo, grab_motion(p, s), rocks_move(s, p->hdt, p->dt));
+    for (int32_t it = 0; it < substeps; it++) {
+        if (verlet) {
+            TEAM_ROWS(solo, "omp for schedule(dynamic, ROW_BLOCK)", j, ny, move_row(s, p, j, it > 0, p->hdt, p->dt));
+            force_pass(c, p, s, strain, solo);
+            TEAM_ONE(solo, {
+                rocks_forces(p, s, c->partials, p->hdt);
+                if (strain) swap_rest(s);
+                if (it + 1 < substeps) {
+                    grab_motion(p, s);
+                    rocks_move(s, p->hdt, p->dt);
+                }
+            });
+        } else {
+            force_pass(c, p, s, 0, solo);
+            TEAM_ONE(solo, rocks_forces(p, s, c->partials, 0.0f), rocks_move(s, p->dt, p->dt), grab_motion(p, s));
+            TEAM_ROWS(solo, "omp for schedule(static)", j, ny, move_row(s, p, j, 0, p->dt, p->dt));
+            if (strain) {
+                thread_buf *tb = my_buf(c, solo);
+                TEAM_ROWS(solo, "omp for schedule(static)", j, ny, tb->torn += strain_row(p, s, j));
+                TEAM_ONE(solo, swap_rest(s));
+            }
+        }
+    }
+    if (verlet) TEAM_ROWS(solo, "omp for schedule(static)", j, ny, kick_row(s, p, j, p->hdt));
+}
+
+/* What a step call reports, once its team is done. */
+static void step_report(cpu_ctx *c, const cs_state *s, cs_step_report *rep)
+{
+    rep->torn = take_torn(c);
+    rep->finite = state_finite(s);
+}
+
 static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t substeps, cs_step_report *rep)
 {
     cpu_ctx *c = ctx;
-    const cs_phys *p = &m->phys;
-    if (reserve(c, m, s) != CS_OK) return CS_E_NOMEM;
-    const int threads = threads_of(m), verlet = p->integrator == CS_VELOCITY_VERLET;
-    const int strain = p->strain_on != 0;
-    const int32_t ny = p->ny;
-    /* Velocity Verlet's steps 1 and 2 for the rocks and the grab (backend.h) run in the single
-     * section that ends the previous substep: one barrier fewer per substep. */
-    if (verlet && substeps > 0) {
-        grab_motion(p, s);
-        rocks_move(s, p->hdt, p->dt);
-    }
+    const int threads = threads_of(m);
+    if (reserve(c, m, s, threads) != CS_OK) return CS_E_NOMEM;
+    if (threads == 1) {
+        step_team(c, m, s, substeps, 1);
+    } else {
 #pragma omp parallel num_threads(threads)
-    {
-        for (int32_t it = 0; it < substeps; it++) {
-            if (verlet) {
-#pragma omp for schedule(dynamic, ROW_BLOCK)
-                for (int32_t j = 0; j < ny; j++) move_row(s, p, j, it > 0, p->hdt, p->dt);
-                force_pass(c, p, s, strain);
-#pragma omp single
-                {
-                    rocks_forces(p, s, c->partials, p->hdt);
-                    if (strain) swap_rest(s);
-                    if (it + 1 < substeps) {
-                        grab_motion(p, s);
-                        rocks_move(s, p->hdt, p->dt);
-                    }
-                }
-            } else {
-                force_pass(c, p, s, 0);
-#pragma omp single
-                {
-                    rocks_forces(p, s, c->partials, 0.0f);
-                    rocks_move(s, p->dt, p->dt);
-                    grab_motion(p, s);
-                }
-#pragma omp for schedule(static)
-                for (int32_t j = 0; j < ny; j++) move_row(s, p, j, 0, p->dt, p->dt);
-                if (strain) {
-                    thread_buf *tb = c->tb[thread_id()];
-#pragma omp for schedule(static)
-                    for (int32_t j = 0; j < ny; j++) tb->torn += strain_row(p, s, j);
-#pragma omp single
-                    swap_rest(s);
-                }
-            }
-        }
-        if (verlet && substeps > 0) {
-#pragma omp for schedule(static)
-            for (int32_t j = 0; j < ny; j++) kick_row(s, p, j, p->hdt);
+        step_team(c, m, s, substeps, 0);
+    }
+    step_report(c, s, rep);
+    return CS_OK;
+}
+
+/* ---- batches ---- */
+
+/* What a substep's barriers cost a team, in vertex-substeps of one thread's work: a scene shared
+ * by the team pays it every substep, one stepped whole by a thread nothing. Measured on the build
+ * machine (2 vCPUs shared with other work, load 3-4): a 64 x 64 scene's substep took 103-123 us on
+ * one thread and 78-84 us on two, about 25 us more than half, some 900 vertex-substeps' work. On
+ * a busy machine it is far more (a descheduled thread holds up every barrier), so the planner
+ * errs towards stepping scenes whole. */
+#define TEAM_SUBSTEP_COST 1024.0
+/* Most scenes the planner moves from one thread to the team beyond those too large for a share. */
+#define PLAN_PROMOTE_MAX 8
+
+typedef struct batch_job {
+    cs_batch_item *it;
+    double work; /* vertices x substeps */
+} batch_job;
+
+static int by_work_desc(const void *a, const void *b)
+{
+    const batch_job *x = a, *y = b;
+    if (x->work != y->work) return x->work < y->work ? 1 : -1;
+    return x->it < y->it ? -1 : x->it > y->it; /* a stable order: the same plan for the same batch */
+}
+
+/* The time (in vertex-substeps) that list scheduling of jobs[0 .. n), largest first, takes on t
+ * threads taking the next job as they come free: the most any thread gets. load[] has t slots. */
+static double lpt_makespan(const batch_job *jobs, int n, int t, double *load)
+{
+    for (int k = 0; k < t; k++) load[k] = 0.0;
+    /* load[] as a min-heap */
+    for (int i = 0; i < n; i++) {
+        load[0] += jobs[i].work;
+        for (int k = 0;;) {
+            const int l = 2 * k + 1, r = l + 1;
+            int m = k;
+            if (l < t && load[l] < load[m]) m = l;
+            if (r < t && load[r] < load[m]) m = r;
+            if (m == k) break;
+            const double tmp = load[k];
+            load[k] = load[m];
+            load[m] = tmp;
+            k = m;
         }
     }
-    rep->torn = take_torn(c, threads);
-    rep->finite = state_finite(s);
+    double most = 0.0;
+    for (int k = 0; k < t; k++) most = load[k] > most ? load[k] : most;
+    return most;
+}
+
+/* The simulations of a batch shared among t threads by work: returns how many of jobs[] (sorted
+ * largest first) the whole team steps, one after the other (as cpu_step does); the rest are each
+ * stepped whole by one thread, largest first as threads come free. A scene goes to the team
+ * when it alone is more than a thread's fair share of the batch, or when the estimate of the
+ * whole (team time plus list-scheduling time) says so: a few large scenes that would leave
+ * threads idle. */
+static int plan_batch(batch_job *jobs, int n, int t, double *load)
+{
+    double total = 0.0;
+    for (int i = 0; i < n; i++) total += jobs[i].work;
+    int team = 0;
+    while (team < n && jobs[team].work * t > total) team++;
+    if (t <= 1) return 0;
+    double team_time = 0.0;
+    for (int i = 0; i < team; i++) team_time += jobs[i].work / t + TEAM_SUBSTEP_COST * jobs[i].it->substeps;
+    double best = team_time + lpt_makespan(jobs + team, n - team, t, load);
+    for (int k = 0; k < PLAN_PROMOTE_MAX && team < n; k++) {
+        const double tt = team_time + jobs[team].work / t + TEAM_SUBSTEP_COST * jobs[team].it->substeps;
+        const double est = tt + lpt_makespan(jobs + team + 1, n - team - 1, t, load);
+        if (!(est < best)) break;
+        best = est, team_time = tt, team++;
+    }
+    return team;
+}
+
+/* Steps a batch (backend.h): the plan above, in one parallel region of the most threads any of
+ * its models asks for. A scene stepped by one thread runs step_team solo: the very sequence of
+ * cpu_step without a barrier that waits on anyone else, and no nested parallel region (so nothing
+ * runs more threads than the one team). The results equal cpu_step's: no sum depends on how the
+ * threads share the work (the header's comment). */
+static cs_status cpu_step_batch(cs_batch_item *items, int n)
+{
+    if (n <= 0) return CS_OK;
+    int t = 1;
+    for (int i = 0; i < n; i++) {
+        const int ti = threads_of(items[i].m);
+        t = ti > t ? ti : t;
+    }
+    batch_job *jobs = malloc(sizeof *jobs * (size_t)n);
+    double *load = malloc(sizeof *load * (size_t)t);
+    if (!jobs || !load) {
+        free(jobs);
+        free(load);
+        return CS_E_NOMEM;
+    }
+    int nj = 0;
+    for (int i = 0; i < n; i++) {
+        if (items[i].substeps <= 0) continue;
+        jobs[nj++] = (batch_job){&items[i], (double)items[i].s->n * (double)items[i].substeps};
+    }
+    qsort(jobs, (size_t)nj, sizeof *jobs, by_work_desc);
+    const int team = plan_batch(jobs, nj, t, load);
+    /* Scratch for the team (t thread buffers) or for one thread; a simulation that cannot have
+     * it fails alone. */
+    for (int i = 0; i < nj; i++) {
+        cs_batch_item *it = jobs[i].it;
+        if (reserve(it->ctx, it->m, it->s, i < team ? t : 1) != CS_OK) it->status = CS_E_NOMEM;
+    }
+    int next = team;
+#pragma omp parallel num_threads(t)
+    {
+        for (int i = 0; i < team; i++) {
+            cs_batch_item *it = jobs[i].it;
+            if (it->status != CS_OK) continue;
+            step_team(it->ctx, it->m, it->s, it->substeps, 0);
+#pragma omp single nowait
+            step_report(it->ctx, it->s, &it->rep);
+        }
+        for (;;) {
+            int k;
+#pragma omp atomic capture
+            k = next++;
+            if (k >= nj) break;
+            cs_batch_item *it = jobs[k].it;
+            if (it->status != CS_OK) continue;
+            step_team(it->ctx, it->m, it->s, it->substeps, 1);
+            step_report(it->ctx, it->s, &it->rep);
+        }
+    }
+    free(jobs);
+    free(load);
     return CS_OK;
 }
 
@@ -980,5 +1141,5 @@ static void cpu_stats(void *ctx, const cs_model *m, cs_backend_stats *out)
 
 const cs_backend cs_backend_cpu = {
     "cpu", cpu_available, cpu_create, cpu_destroy, cpu_upload, cpu_download, cpu_refresh, cpu_step, cpu_device,
-    cpu_error, cpu_stats, cpu_cost, CS_CAP_SURFACE_CONTACT, NULL,
+    cpu_error, cpu_stats, cpu_cost, CS_CAP_SURFACE_CONTACT, cpu_step_batch,
 };
