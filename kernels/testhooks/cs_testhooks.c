@@ -59,6 +59,7 @@ cs_status cs_test_break_backend(cs_sim *sim)
     broken.download = lost_download;
     broken.refresh = lost_state;
     broken.step = lost_step;
+    broken.step_batch = NULL; /* a batch falls back to lost_step */
     broken.error = lost_error;
     sim->backend = &broken;
     sim->host_stale = CS_SYNC_ALL;
