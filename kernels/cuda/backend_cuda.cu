@@ -47,6 +47,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <mutex>
+
 #include "clothsim/backend.h"
 #include "clothsim/physics.h"
 
@@ -405,16 +407,20 @@ __device__ static void finish_groups(const cuda_scene *sc, const cuda_bufs &b, f
     }
 }
 
-/* The cloth kernel (see the top of the file). Grid: (chunks per row, tiles); TILE_W threads. */
+/* One block of the cloth kernel (see the top of the file): chunk column seg of rows tile_rows
+ * tile .. on, TILE_W threads. k_cloth runs it for one scene, k_cloth_batch for the block's scene of
+ * a batch. What a vertex ends with does not depend on the tiling: every sum is in a fixed order
+ * (its springs, the rocks, a row chunk's tree, the chunks of a group, the groups). */
 template <int MODE, bool STRAIN, bool ROCKS>
-__global__ void __launch_bounds__(TILE_W) k_cloth(const cuda_scene *__restrict__ sc, cuda_bufs b)
+__device__ static void cloth_block(const cuda_scene *__restrict__ sc, const cuda_bufs &b, int32_t seg, int32_t tile,
+                                   int32_t tile_rows)
 {
     CS_DYNAMIC_SHARED(float, sm);
     const cs_phys *p = &sc->p;
     const int t = (int)threadIdx.x;
-    const int32_t nx = p->nx, seg = (int32_t)blockIdx.x, c0 = seg * TILE_W, i = c0 + t;
-    const int32_t j0 = (int32_t)blockIdx.y * sc->tile_rows;
-    const int32_t j1 = j0 + sc->tile_rows < p->ny ? j0 + sc->tile_rows : p->ny;
+    const int32_t nx = p->nx, c0 = seg * TILE_W, i = c0 + t;
+    const int32_t j0 = tile * tile_rows;
+    const int32_t j1 = j0 + tile_rows < p->ny ? j0 + tile_rows : p->ny;
     const bool live = i < nx;
     const bool surface = ROCKS && p->contact_model == CS_CONTACT_SURFACE;
     const int kf = t + FORCE_OFF; /* this column in the force rows */
@@ -609,19 +615,26 @@ __global__ void __launch_bounds__(TILE_W) k_cloth(const cuda_scene *__restrict__
     if (bad) atomicOr(&b.flags[FLAG_NONFINITE], 1);
 }
 
+/* The cloth kernel of one scene. Grid: (chunks per row, tiles). */
+template <int MODE, bool STRAIN, bool ROCKS>
+__global__ void __launch_bounds__(TILE_W) k_cloth(const cuda_scene *__restrict__ sc, cuda_bufs b)
+{
+    cloth_block<MODE, STRAIN, ROCKS>(sc, b, (int32_t)blockIdx.x, (int32_t)blockIdx.y, sc->tile_rows);
+}
+
 /* Velocity Verlet's first substep of a graph: grab, kick, drift of every vertex (no kick to
- * finish: a is complete) in place, and of every rock (block 0). */
-__global__ void k_drift_first(const cuda_scene *__restrict__ sc, cuda_bufs b)
+ * finish: a is complete) in place, and of every rock (block 0). Block blk of 256 threads. */
+__device__ static void drift_first_block(const cuda_scene *__restrict__ sc, const cuda_bufs &b, uint32_t blk)
 {
     const cs_phys *p = &sc->p;
-    if (blockIdx.x == 0)
+    if (blk == 0)
         for (int32_t r = (int32_t)threadIdx.x; r < sc->nr; r += (int32_t)blockDim.x) {
             cs_rock_state k = dload(&b.rocks[r]);
             cs_rock_kick(&k, p->hdt);
             cs_rock_drift(&k, p->dt);
             dstore(&b.rocks[r], k);
         }
-    const size_t v = (size_t)blockIdx.x * blockDim.x + threadIdx.x, n = (size_t)p->n;
+    const size_t v = (size_t)blk * blockDim.x + threadIdx.x, n = (size_t)p->n;
     if (v >= n) return;
     float *s = b.out; /* in place: in == out */
     const cs_vec3 xi = cs_v3(dload(&s[v]), dload(&s[n + v]), dload(&s[2 * n + v]));
@@ -634,11 +647,14 @@ __global__ void k_drift_first(const cuda_scene *__restrict__ sc, cuda_bufs b)
     for (int q = 0; q < 6; q++) dstore(&s[(size_t)q * n + v], o[q]);
 }
 
-/* Symplectic Euler's strain pass on the new positions (b.in), rest lengths as in k_cloth. */
-__global__ void k_strain(const cuda_scene *__restrict__ sc, cuda_bufs b)
+__global__ void k_drift_first(const cuda_scene *__restrict__ sc, cuda_bufs b) { drift_first_block(sc, b, blockIdx.x); }
+
+/* Symplectic Euler's strain pass on the new positions (b.in), rest lengths as in k_cloth. Block
+ * blk of 256 threads. */
+__device__ static void strain_block(const cuda_scene *__restrict__ sc, const cuda_bufs &b, uint32_t blk)
 {
     const cs_phys *p = &sc->p;
-    const int32_t v = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x);
+    const int32_t v = (int32_t)(blk * blockDim.x + threadIdx.x);
     if (v >= p->n) return;
     const int32_t nx = p->nx, ny = p->ny, i = v % nx, j = v / nx;
     const size_t n = (size_t)p->n;
@@ -663,6 +679,8 @@ __global__ void k_strain(const cuda_scene *__restrict__ sc, cuda_bufs b)
     if ((unsigned char)changed != before) dstore(&b.chg[v], (unsigned char)changed);
     if (torn) atomicAdd(&b.flags[FLAG_TORN], torn);
 }
+
+__global__ void k_strain(const cuda_scene *__restrict__ sc, cuda_bufs b) { strain_block(sc, b, blockIdx.x); }
 
 /* ---- rocks ---- */
 
@@ -735,7 +753,7 @@ __device__ static void rock_move(int mode, cs_rock_state *k, const cs_phys *p, i
 }
 
 /* Up to ROCKS_FUSED rocks: one block of 32 warps, a warp per rock (two rounds), then the moves. */
-template <int MODE> __global__ void __launch_bounds__(1024) k_rocks(const cuda_scene *__restrict__ sc, cuda_bufs b)
+__device__ static void rocks_block(const cuda_scene *__restrict__ sc, const cuda_bufs &b, int mode)
 {
     const int warp = (int)(threadIdx.x >> 5), lane = (int)(threadIdx.x & 31u);
     cs_vec3 F[2] = {cs_v3(0.0f, 0.0f, 0.0f), cs_v3(0.0f, 0.0f, 0.0f)}, T[2] = {F[0], F[1]};
@@ -750,15 +768,19 @@ template <int MODE> __global__ void __launch_bounds__(1024) k_rocks(const cuda_s
             if (r >= sc->nr) continue;
             cs_rock_state rk = dload(&b.rocks[r]);
             cs_rock_accel(&rk, F[k], T[k]);
-            rock_move(MODE, &rk, &sc->p, b.flags);
+            rock_move(mode, &rk, &sc->p, b.flags);
             dstore(&b.rocks[r], rk);
         }
 }
 
-/* More rocks: accelerations (a warp per rock; a rock's force never reads another's a) ... */
-__global__ void __launch_bounds__(32 * ROCK_WARPS) k_rock_force(const cuda_scene *__restrict__ sc, cuda_bufs b)
+template <int MODE> __global__ void __launch_bounds__(1024) k_rocks(const cuda_scene *__restrict__ sc, cuda_bufs b)
 {
-    const int32_t r = (int32_t)(blockIdx.x * ROCK_WARPS + (threadIdx.x >> 5));
+    rocks_block(sc, b, MODE);
+}
+
+/* More rocks: accelerations (a warp per rock; a rock's force never reads another's a) ... */
+__device__ static void rock_force_warp(const cuda_scene *__restrict__ sc, const cuda_bufs &b, int32_t r)
+{
     if (r >= sc->nr) return; /* warp-uniform */
     cs_vec3 F, T;
     rock_force(sc, b, r, &F, &T);
@@ -769,14 +791,145 @@ __global__ void __launch_bounds__(32 * ROCK_WARPS) k_rock_force(const cuda_scene
     }
 }
 
-/* ... then the moves, a thread per rock. */
-template <int MODE> __global__ void k_rock_move(const cuda_scene *__restrict__ sc, cuda_bufs b)
+__global__ void __launch_bounds__(32 * ROCK_WARPS) k_rock_force(const cuda_scene *__restrict__ sc, cuda_bufs b)
 {
-    const int32_t r = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x);
+    rock_force_warp(sc, b, (int32_t)(blockIdx.x * ROCK_WARPS + (threadIdx.x >> 5)));
+}
+
+/* ... then the moves, a thread per rock. */
+__device__ static void rock_move_thread(const cuda_scene *__restrict__ sc, const cuda_bufs &b, int32_t r, int mode)
+{
     if (r >= sc->nr) return;
     cs_rock_state k = dload(&b.rocks[r]);
-    rock_move(MODE, &k, &sc->p, b.flags);
+    rock_move(mode, &k, &sc->p, b.flags);
     dstore(&b.rocks[r], k);
+}
+
+template <int MODE> __global__ void k_rock_move(const cuda_scene *__restrict__ sc, cuda_bufs b)
+{
+    rock_move_thread(sc, b, (int32_t)(blockIdx.x * blockDim.x + threadIdx.x), MODE);
+}
+
+/* ---- batches: many scenes, one launch per kernel per substep ----
+ *
+ * Each scene keeps its own device buffers (its cuda_ctx's); a batch launch reads a device table of
+ * the scenes' descriptors and, per kernel, the prefix sums of the blocks each scene takes. A block
+ * finds its scene by binary search, and its place within the scene's launch, and runs the same
+ * block function (cloth_block, drift_first_block, strain_block, rocks_block, rock_force_warp,
+ * rock_move_thread) with the same arguments a lone launch gives it. Scenes past their substeps
+ * exit. */
+
+/* The kernels of a batch substep, in launch order: the index of each's block prefix sums. */
+enum { BK_DRIFT, BK_CLOTH, BK_ROCKS, BK_ROCK_MOVE, BK_STRAIN, BK_COUNT };
+#define BATCH_ROCK_THREADS 1024 /* the fused rock block's threads; the split force kernel's warps */
+
+/* One scene of a batch (device memory). Substep s reads cloth[s & 1] (the state and rest
+ * lengths of that substep), and the drift and strain passes swapped[s & 1] (their state is the
+ * other buffer: the drift works in place on it, the strain pass reads the positions just written). */
+struct batch_scene {
+    const cuda_scene *sc;
+    cuda_bufs cloth[2], swapped[2];
+    int32_t substeps;  /* of this round */
+    int32_t graph;     /* the lone step's graph length: a drift starts and a last kick ends each */
+    int32_t verlet, strain, rocks; /* rocks: rock_path */
+    int32_t tile_rows; /* rows of a cloth block: the batch's, not the lone step's */
+};
+
+/* The scene block `blk` of a launch belongs to: the last k with start[k] <= blk (empty scenes have
+ * start[k] == start[k + 1]). Block-uniform. */
+__device__ static int32_t batch_scene_of(const int32_t *__restrict__ start, int32_t n, uint32_t blk)
+{
+    int32_t lo = 0, hi = n; /* start[lo] <= blk < start[hi] */
+    while (hi - lo > 1) {
+        const int32_t mid = lo + (hi - lo) / 2;
+        if ((uint32_t)start[mid] <= blk) lo = mid;
+        else hi = mid;
+    }
+    return lo;
+}
+
+__device__ static inline bool batch_first(const batch_scene &d, int32_t s) { return s % d.graph == 0; }
+__device__ static inline bool batch_last(const batch_scene &d, int32_t s)
+{
+    return s == d.substeps - 1 || s % d.graph == d.graph - 1;
+}
+
+/* The instantiation launch_cloth picks for this scene: the strain update in the Verlet modes only. */
+template <int MODE>
+__device__ static void cloth_block_any(const batch_scene &d, const cuda_bufs &b, int32_t seg, int32_t tile)
+{
+    constexpr bool S = MODE == MODE_VERLET || MODE == MODE_VERLET_LAST;
+    const bool strain = S && d.strain, rocks = d.rocks != 0;
+    const int32_t tr = d.tile_rows;
+    if (strain && rocks) cloth_block<MODE, S, true>(d.sc, b, seg, tile, tr);
+    else if (strain) cloth_block<MODE, S, false>(d.sc, b, seg, tile, tr);
+    else if (rocks) cloth_block<MODE, false, true>(d.sc, b, seg, tile, tr);
+    else cloth_block<MODE, false, false>(d.sc, b, seg, tile, tr);
+}
+
+__global__ void __launch_bounds__(TILE_W)
+    k_cloth_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n, int32_t s)
+{
+    const int32_t k = batch_scene_of(start, n, blockIdx.x);
+    const batch_scene &d = tab[k];
+    if (s >= d.substeps) return;
+    const cuda_bufs b = d.cloth[s & 1];
+    const int32_t local = (int32_t)blockIdx.x - start[k], nseg = d.sc->p.nseg;
+    const int32_t seg = local % nseg, tile = local / nseg;
+    const bool last = batch_last(d, s);
+    if (d.verlet) {
+        if (last) cloth_block_any<MODE_VERLET_LAST>(d, b, seg, tile);
+        else cloth_block_any<MODE_VERLET>(d, b, seg, tile);
+    } else {
+        if (last) cloth_block_any<MODE_EULER_LAST>(d, b, seg, tile);
+        else cloth_block_any<MODE_EULER>(d, b, seg, tile);
+    }
+}
+
+/* Velocity Verlet scenes whose graph starts at substep s (the others have no blocks or exit). */
+__global__ void k_drift_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n, int32_t s)
+{
+    const int32_t k = batch_scene_of(start, n, blockIdx.x);
+    const batch_scene &d = tab[k];
+    if (s >= d.substeps || !batch_first(d, s)) return;
+    drift_first_block(d.sc, d.swapped[s & 1], blockIdx.x - (uint32_t)start[k]);
+}
+
+__global__ void k_strain_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n, int32_t s)
+{
+    const int32_t k = batch_scene_of(start, n, blockIdx.x);
+    const batch_scene &d = tab[k];
+    if (s >= d.substeps) return;
+    strain_block(d.sc, d.swapped[s & 1], blockIdx.x - (uint32_t)start[k]);
+}
+
+__device__ static inline int batch_rock_mode(const batch_scene &d, int32_t s)
+{
+    return d.verlet ? (batch_last(d, s) ? ROCKS_VERLET_LAST : ROCKS_VERLET) : ROCKS_EULER;
+}
+
+/* Up to ROCKS_FUSED rocks: the scene's one block does it all; more: a warp per rock, forces only. */
+__global__ void __launch_bounds__(BATCH_ROCK_THREADS)
+    k_rocks_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n, int32_t s)
+{
+    const int32_t k = batch_scene_of(start, n, blockIdx.x);
+    const batch_scene &d = tab[k];
+    if (s >= d.substeps) return;
+    const cuda_bufs b = d.cloth[s & 1];
+    const uint32_t local = blockIdx.x - (uint32_t)start[k];
+    if (d.rocks == 1) rocks_block(d.sc, b, batch_rock_mode(d, s));
+    else rock_force_warp(d.sc, b, (int32_t)(local * (BATCH_ROCK_THREADS / 32) + (threadIdx.x >> 5)));
+}
+
+/* ... and their moves, a thread per rock. */
+__global__ void k_rock_move_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n,
+                                  int32_t s)
+{
+    const int32_t k = batch_scene_of(start, n, blockIdx.x);
+    const batch_scene &d = tab[k];
+    if (s >= d.substeps) return;
+    const uint32_t local = blockIdx.x - (uint32_t)start[k];
+    rock_move_thread(d.sc, d.cloth[s & 1], (int32_t)(local * blockDim.x + threadIdx.x), batch_rock_mode(d, s));
 }
 
 /* ---- host side ---- */
@@ -822,6 +975,7 @@ struct cuda_ctx {
     int *flags, *host_flags;   /* device counters and their pinned host copy */
     /* frames: after a step call, what the host read of the previous frame, copied ahead */
     cudaEvent_t ready[2], copied[2];
+    cudaEvent_t queued;        /* a batch waits for what this scene's stream holds */
     int slot;
     int64_t calls, frame_call; /* step calls so far; the call the frame in `slot` is of */
     unsigned frame_parts;      /* CS_SYNC_* parts in that frame */
@@ -977,6 +1131,7 @@ static void cuda_destroy(void *ctx)
         if (c->ready[k]) cudaEventDestroy(c->ready[k]);
         if (c->copied[k]) cudaEventDestroy(c->copied[k]);
     }
+    if (c->queued) cudaEventDestroy(c->queued);
     if (c->stream) cudaStreamDestroy(c->stream);
     if (c->copy) cudaStreamDestroy(c->copy);
     free(c);
@@ -1004,6 +1159,7 @@ static cs_status cuda_create(void **out, char *err, size_t err_len)
         if (e == cudaSuccess) e = cudaStreamCreateWithFlags(&c->copy, cudaStreamNonBlocking);
         for (int k = 0; k < 2 && e == cudaSuccess; k++) {
             e = cudaEventCreateWithFlags(&c->ready[k], cudaEventDisableTiming);
+            if (e == cudaSuccess && k == 0) e = cudaEventCreateWithFlags(&c->queued, cudaEventDisableTiming);
             if (e == cudaSuccess) e = cudaEventCreateWithFlags(&c->copied[k], cudaEventDisableTiming);
         }
         if (e == cudaSuccess) e = cudaMalloc((void **)&c->flags, FLAG_COUNT * sizeof(int));
@@ -1023,12 +1179,16 @@ static cs_status cuda_create(void **out, char *err, size_t err_len)
     return CS_OK;
 }
 
+/* Cloth blocks of a scene at tr rows a block. */
+static int64_t cloth_blocks(const cs_phys *p, int32_t tr) { return (int64_t)p->nseg * ((p->ny + tr - 1) / tr); }
+
 /* Rows of a cloth block: as many as keep about four blocks per SM busy, at most 8 (fewer rows,
- * more blocks: small cloths are latency-bound, large ones bandwidth-bound). */
+ * more blocks: small cloths are latency-bound, large ones bandwidth-bound). A batch applies the
+ * same rule to all its scenes' blocks together (batch_run). */
 static int32_t tile_rows_for(const cs_phys *p, int sms)
 {
     int32_t tr = MAX_TILE_ROWS;
-    while (tr > 1 && (int64_t)p->nseg * ((p->ny + tr - 1) / tr) < 4 * (int64_t)sms) tr >>= 1;
+    while (tr > 1 && cloth_blocks(p, tr) < 4 * (int64_t)sms) tr >>= 1;
     return tr;
 }
 
@@ -1328,6 +1488,16 @@ static cs_status copy_frame(cuda_ctx *c)
     return CS_OK;
 }
 
+/* After a step call's substeps are queued: the buffers that now hold the state (each substep
+ * swaps the state's; the drift of a graph's first substep is in place), and the frame. */
+static cs_status end_call(cuda_ctx *c, int32_t substeps, bool strain)
+{
+    c->cur ^= substeps & 1;
+    if (strain) c->rest_cur ^= substeps & 1;
+    c->calls++;
+    return copy_frame(c);
+}
+
 static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t substeps, cs_step_report *rep)
 {
     cuda_ctx *c = (cuda_ctx *)ctx;
@@ -1344,24 +1514,208 @@ static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t su
         k.integrator = m->phys.integrator;
         k.strain = strain;
         k.rocks = rock_path(c->host_sc.nr);
-        k.pos = c->cur;
-        k.rest = c->rest_cur;
+        /* The buffers this graph starts from: each substep before it swapped them. */
+        const int32_t done = substeps - left;
+        k.pos = c->cur ^ (done & 1);
+        k.rest = c->rest_cur ^ (strain ? done & 1 : 0);
         cudaGraphExec_t exec;
         const cs_status st = graph_for(c, &k, &exec);
         if (st != CS_OK) return st;
         CUDA_CHECK(cudaGraphLaunch(exec, c->stream));
-        c->cur ^= k.len & 1; /* the drift of a graph's first substep is in place */
-        if (strain) c->rest_cur ^= k.len & 1;
         left -= k.len;
     }
-    c->calls++;
-    const cs_status fs = copy_frame(c);
+    const cs_status fs = end_call(c, substeps, strain);
     if (fs != CS_OK) return fs;
     CUDA_CHECK(cudaMemcpyAsync(c->host_flags, c->flags, FLAG_COUNT * sizeof(int), cudaMemcpyDeviceToHost, c->stream));
     CUDA_CHECK(cudaStreamSynchronize(c->stream));
     rep->torn = c->host_flags[FLAG_TORN];
     rep->finite = c->host_flags[FLAG_NONFINITE] == 0;
     return CS_OK;
+}
+
+/* ---- batches (host): see "batches" above ----
+ *
+ * What a batch call needs besides its scenes' own buffers: the descriptor table, the block prefix
+ * sums and per-scene flags, on the device and in pinned staging. One per process (the scenes of a
+ * process share the device they were created on), grown as batches grow and kept between calls. */
+struct batch_ctx {
+    cudaStream_t stream;
+    int32_t cap;                 /* scenes the arrays hold */
+    batch_scene *tab, *host_tab; /* [cap] */
+    int32_t *start, *host_start; /* [BK_COUNT][scenes + 1] */
+    int *flags, *host_flags;     /* [cap][FLAG_COUNT] */
+    int32_t *order;              /* [cap]: the batch's items, most substeps first */
+};
+static batch_ctx batch;
+static std::mutex batch_lock;
+
+static void free_batch_arrays(batch_ctx *b)
+{
+    cudaFree(b->tab);
+    cudaFree(b->start);
+    cudaFree(b->flags);
+    cudaFreeHost(b->host_tab);
+    cudaFreeHost(b->host_start);
+    cudaFreeHost(b->host_flags);
+    free(b->order);
+}
+
+/* Room for n scenes (and the stream, the first time). New arrays before the old are freed. */
+static cs_status batch_reserve(cuda_ctx *c, batch_ctx *b, int32_t n)
+{
+    if (!b->stream) CUDA_CHECK(cudaStreamCreateWithFlags(&b->stream, cudaStreamNonBlocking));
+    if (n <= b->cap) return CS_OK;
+    int32_t cap = 64;
+    while (cap < n) cap *= 2;
+    batch_ctx g;
+    memset(&g, 0, sizeof g);
+    g.stream = b->stream;
+    const size_t starts = sizeof(int32_t) * BK_COUNT * ((size_t)cap + 1), flags = sizeof(int) * FLAG_COUNT * (size_t)cap;
+    cudaError_t e = cudaMalloc((void **)&g.tab, sizeof(batch_scene) * (size_t)cap);
+    if (e == cudaSuccess) e = cudaMallocHost((void **)&g.host_tab, sizeof(batch_scene) * (size_t)cap);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&g.start, starts);
+    if (e == cudaSuccess) e = cudaMallocHost((void **)&g.host_start, starts);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&g.flags, flags);
+    if (e == cudaSuccess) e = cudaMallocHost((void **)&g.host_flags, flags);
+    if (e == cudaSuccess && !(g.order = (int32_t *)malloc(sizeof(int32_t) * (size_t)cap))) e = cudaErrorMemoryAllocation;
+    if (e != cudaSuccess) {
+        free_batch_arrays(&g);
+        return cuda_fail(c, e, "allocating a batch's tables", __LINE__);
+    }
+    free_batch_arrays(b);
+    g.cap = cap;
+    *b = g;
+    return CS_OK;
+}
+
+/* The blocks scene d takes in each batch kernel (BK_*). */
+static void batch_blocks(const cuda_ctx *c, const batch_scene *d, int32_t blocks[BK_COUNT])
+{
+    const cs_phys *p = &c->host_sc.p;
+    const int32_t vblocks = (p->n + 255) / 256, nr = c->host_sc.nr;
+    blocks[BK_DRIFT] = d->verlet ? vblocks : 0;
+    blocks[BK_CLOTH] = (int32_t)cloth_blocks(p, d->tile_rows);
+    blocks[BK_ROCKS] = d->rocks == 1 ? 1 : d->rocks == 2 ? (nr + BATCH_ROCK_THREADS / 32 - 1) / (BATCH_ROCK_THREADS / 32) : 0;
+    blocks[BK_ROCK_MOVE] = d->rocks == 2 ? (nr + 255) / 256 : 0;
+    blocks[BK_STRAIN] = !d->verlet && d->strain ? vblocks : 0;
+}
+
+/* One batch on the device: c (the first scene's context) records a CUDA failure; the items' own
+ * statuses say what became of each scene that ran. */
+static cs_status batch_run(cuda_ctx *c, batch_ctx *b, cs_batch_item *items, int n)
+{
+    cs_status st = batch_reserve(c, b, n);
+    if (st != CS_OK) return st;
+    /* Most substeps first: the scenes still running at a substep are a prefix of the table, and
+     * the launch covers only theirs blocks. */
+    int32_t m = 0;
+    for (int k = 0; k < n; k++) {
+        items[k].rep.torn = 0, items[k].rep.finite = 1, items[k].status = CS_OK;
+        if (items[k].substeps <= 0) continue;
+        int32_t at = m++;
+        while (at > 0 && items[b->order[at - 1]].substeps < items[k].substeps) {
+            b->order[at] = b->order[at - 1];
+            at--;
+        }
+        b->order[at] = k;
+    }
+    if (m == 0) return CS_OK;
+    /* Rows of a cloth block: tile_rows_for's rule over every scene's blocks. */
+    int32_t tr = MAX_TILE_ROWS;
+    for (;; tr >>= 1) {
+        int64_t total = 0;
+        for (int32_t j = 0; j < m; j++) total += cloth_blocks(&((cuda_ctx *)items[b->order[j]].ctx)->host_sc.p, tr);
+        if (tr == 1 || total >= 4 * (int64_t)c->sms) break;
+    }
+    const size_t stride = (size_t)m + 1;
+    int32_t *start = b->host_start;
+    for (int q = 0; q < BK_COUNT; q++) start[(size_t)q * stride] = 0;
+    size_t smem = cloth_smem(0);
+    int32_t gmax[GRAPH_MAX + 1] = {0}; /* Verlet scenes' most substeps, by graph length */
+    for (int32_t j = 0; j < m; j++) {
+        const cs_batch_item *it = &items[b->order[j]];
+        cuda_ctx *ck = (cuda_ctx *)it->ctx;
+        const cs_phys *p = &it->m->phys;
+        batch_scene *d = &b->host_tab[j];
+        memset(d, 0, sizeof *d);
+        d->sc = ck->sc;
+        d->substeps = it->substeps;
+        d->graph = graph_len(it->m);
+        d->verlet = p->integrator == CS_VELOCITY_VERLET;
+        d->strain = p->strain_on != 0;
+        d->rocks = rock_path(ck->host_sc.nr);
+        d->tile_rows = tr;
+        for (int e = 0; e < 2; e++) {
+            const int rest = ck->rest_cur ^ (d->strain ? e : 0);
+            d->cloth[e] = bufs_of(ck, ck->cur ^ e, rest);
+            d->swapped[e] = bufs_of(ck, ck->cur ^ e ^ 1, rest);
+            d->cloth[e].flags = d->swapped[e].flags = b->flags + (size_t)j * FLAG_COUNT;
+        }
+        int32_t blocks[BK_COUNT];
+        batch_blocks(ck, d, blocks);
+        for (int q = 0; q < BK_COUNT; q++) start[(size_t)q * stride + (size_t)j + 1] = start[(size_t)q * stride + (size_t)j] + blocks[q];
+        const size_t need = cloth_smem(ck->host_sc.nr > 0 ? ck->rb.cap : 0);
+        smem = need > smem ? need : smem;
+        if (d->verlet && d->substeps > gmax[d->graph]) gmax[d->graph] = d->substeps;
+        /* What the scene's own stream holds (an upload, the last frame's copy) comes first. */
+        CUDA_CHECK(cudaEventRecord(ck->queued, ck->stream));
+        CUDA_CHECK(cudaStreamWaitEvent(b->stream, ck->queued, 0));
+    }
+    CUDA_CHECK(cudaMemcpyAsync(b->tab, b->host_tab, sizeof(batch_scene) * (size_t)m, cudaMemcpyHostToDevice, b->stream));
+    CUDA_CHECK(cudaMemcpyAsync(b->start, start, sizeof(int32_t) * BK_COUNT * stride, cudaMemcpyHostToDevice, b->stream));
+    CUDA_CHECK(cudaMemsetAsync(b->flags, 0, sizeof(int) * FLAG_COUNT * (size_t)m, b->stream));
+    const int32_t *dev_start[BK_COUNT];
+    for (int q = 0; q < BK_COUNT; q++) dev_start[q] = b->start + (size_t)q * stride;
+    int32_t running = m; /* scenes with substeps left: the table's first `running` */
+    for (int32_t s = 0; running > 0; s++) {
+        while (running > 0 && b->host_tab[running - 1].substeps <= s) running--;
+        if (running == 0) break;
+        unsigned blocks[BK_COUNT];
+        for (int q = 0; q < BK_COUNT; q++) blocks[q] = (unsigned)start[(size_t)q * stride + (size_t)running];
+        int drift = 0;
+        for (int32_t g = 1; g <= GRAPH_MAX && !drift; g++) drift = gmax[g] > s && s % g == 0;
+        if (drift && blocks[BK_DRIFT]) k_drift_batch<<<blocks[BK_DRIFT], 256, 0, b->stream>>>(b->tab, dev_start[BK_DRIFT], running, s);
+        k_cloth_batch<<<blocks[BK_CLOTH], TILE_W, smem, b->stream>>>(b->tab, dev_start[BK_CLOTH], running, s);
+        if (blocks[BK_ROCKS])
+            k_rocks_batch<<<blocks[BK_ROCKS], BATCH_ROCK_THREADS, 0, b->stream>>>(b->tab, dev_start[BK_ROCKS], running, s);
+        if (blocks[BK_ROCK_MOVE])
+            k_rock_move_batch<<<blocks[BK_ROCK_MOVE], 256, 0, b->stream>>>(b->tab, dev_start[BK_ROCK_MOVE], running, s);
+        if (blocks[BK_STRAIN]) k_strain_batch<<<blocks[BK_STRAIN], 256, 0, b->stream>>>(b->tab, dev_start[BK_STRAIN], running, s);
+        CUDA_CHECK(cudaGetLastError());
+    }
+    CUDA_CHECK(cudaMemcpyAsync(b->host_flags, b->flags, sizeof(int) * FLAG_COUNT * (size_t)m, cudaMemcpyDeviceToHost, b->stream));
+    CUDA_CHECK(cudaStreamSynchronize(b->stream));
+    /* The batch is done: what each scene's stream takes next comes after it. */
+    for (int32_t j = 0; j < m; j++) {
+        cs_batch_item *it = &items[b->order[j]];
+        cuda_ctx *ck = (cuda_ctx *)it->ctx;
+        it->rep.torn = b->host_flags[(size_t)j * FLAG_COUNT + FLAG_TORN];
+        it->rep.finite = b->host_flags[(size_t)j * FLAG_COUNT + FLAG_NONFINITE] == 0;
+        it->status = end_call(ck, it->substeps, b->host_tab[j].strain != 0);
+    }
+    return CS_OK;
+}
+
+/* Every scene of the batch advanced by one launch per kernel and substep (step_batch of
+ * backend.h); scenes created on another device than the first's step alone. */
+static cs_status cuda_step_batch(cs_batch_item *items, int n)
+{
+    if (n <= 0) return CS_OK;
+    cuda_ctx *c = (cuda_ctx *)items[0].ctx;
+    for (int k = 1; k < n; k++)
+        if (((cuda_ctx *)items[k].ctx)->dev != c->dev) {
+            for (int j = 0; j < n; j++)
+                items[j].status = cuda_step(items[j].ctx, items[j].m, items[j].s, items[j].substeps, &items[j].rep);
+            return CS_OK;
+        }
+    std::lock_guard<std::mutex> hold(batch_lock);
+    const cs_status st = batch_run(c, &batch, items, n);
+    if (st != CS_OK) {
+        (void)cudaStreamSynchronize(batch.stream); /* nothing left running on the staging */
+        (void)cudaGetLastError();
+        for (int k = 1; k < n; k++) snprintf(((cuda_ctx *)items[k].ctx)->err, sizeof c->err, "%s", c->err);
+    }
+    return st;
 }
 
 static cs_status cuda_download(void *ctx, const cs_model *m, cs_state *s, unsigned what)
@@ -1479,7 +1833,7 @@ static const char *cuda_error(void *ctx) { return ((cuda_ctx *)ctx)->err; }
 
 static const cs_backend cuda_backend = {
     "cuda", cuda_available, cuda_create, cuda_destroy, cuda_upload, cuda_download, cuda_refresh, cuda_step,
-    cuda_device, cuda_error, cuda_stats, cuda_cost, CS_CAP_SURFACE_CONTACT, NULL,
+    cuda_device, cuda_error, cuda_stats, cuda_cost, CS_CAP_SURFACE_CONTACT, cuda_step_batch,
 };
 
 extern "C" const cs_backend *cs_backend_cuda(void) { return &cuda_backend; }
