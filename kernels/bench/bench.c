@@ -9,7 +9,8 @@
  * kernel (or CPU pass) reads and writes per vertex per substep and its launches per frame; for CUDA
  * the bandwidth roofline on an H100 (3.35 TB/s) and an H200 (4.8 TB/s), the launch floor at
  * LAUNCH_US per dependent kernel of a graph, and what this device's memory bandwidth allows.
- * --model prints the cost models without running anything (no device needed). */
+ * --model prints the cost models without running anything (no device needed), and for CUDA how
+ * many default scenes one batch runs in real time (print_batch). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -24,6 +25,9 @@
 #define H100_BW 3.35e12
 #define H200_BW 4.8e12
 #define LAUNCH_US 2.0
+/* The host time of one CUDA runtime call a batch makes per scene (an event, a wait, an async
+ * copy; an assumption until measured). */
+#define HOST_CALL_US 1.5
 
 static double now(void)
 {
@@ -107,6 +111,71 @@ static void print_model(const char *backend, const cs_cost_model *m, double n, i
                m->graphs_per_frame, rh100, rh200, launch, LAUNCH_US, ph100, ph200);
     if (cuda && measured_bw > 0) printf(",\"roofline_this_device_substeps_per_s\":%.0f", roofline(m, n, measured_bw));
     printf("}");
+}
+
+/* Scenes of one kind a batch runs in real time at this bandwidth: a frame's time is each scene's
+ * traffic (its substeps at the model's bytes) and host calls, plus the batch's kernels once (their
+ * launch gaps, shared by every scene), one after another. */
+static double scenes_in_real_time(const cs_cost_model *m, double n, double substeps, double fps, double bw,
+                                  double calls)
+{
+    const double traffic = substeps * (m->bytes_per_vertex_substep * n + m->fixed_per_substep) / bw;
+    const double shared = m->launches_per_frame * LAUNCH_US * 1e-6, host = calls * HOST_CALL_US * 1e-6;
+    const double left = 1.0 / fps - shared;
+    return left > 0 ? floor(left / (traffic + host)) : 0;
+}
+
+/* The batch prediction: the default scene (scene and parameters as the engine's defaults, no
+ * rocks) in one batch of many, on an H100 and an H200: by bandwidth and launches alone, with each
+ * scene's host calls when no frame is read, and with every scene's frame read each frame. */
+static void print_batch(int json)
+{
+    const cs_backend *cuda = cs_backend_cuda();
+    cs_sim *sim = NULL;
+    char err[256];
+    if (!cuda || cs_sim_create(NULL, NULL, "cpu", &sim, err, sizeof err) != CS_OK) return;
+    cs_info info;
+    cs_params p;
+    cs_cost_model m;
+    cs_sim_info(sim, &info);
+    cs_sim_params(sim, &p);
+    cs_sim_cost(sim, cuda, &m);
+    cs_scene sc;
+    cs_sim_scene(sim, &sc);
+    cs_sim_destroy(sim);
+    const double n = info.n_vertices, F = info.substeps, fps = p.frame_rate;
+    const double bws[2] = {H100_BW, H200_BW};
+    double k[2][3];
+    for (int d = 0; d < 2; d++) {
+        k[d][0] = scenes_in_real_time(&m, n, F, fps, bws[d], 0);
+        k[d][1] = scenes_in_real_time(&m, n, F, fps, bws[d], m.batch_calls_per_scene);
+        k[d][2] = scenes_in_real_time(&m, n, F, fps, bws[d], m.batch_calls_per_read_scene);
+    }
+    const double mb = F * (m.bytes_per_vertex_substep * n + m.fixed_per_substep) / 1e6;
+    if (json) {
+        printf("{\"backend\":\"cuda\",\"batch\":\"default scene\",\"nx\":%d,\"ny\":%d,\"substeps_per_frame\":%d,"
+               "\"frame_rate\":%.0f,\"bytes_per_vertex_substep\":%.2f,\"mb_per_scene_frame\":%.2f,"
+               "\"launches_per_frame\":%.1f,\"launch_us_assumed\":%.1f,\"host_call_us_assumed\":%.1f,"
+               "\"host_calls_per_scene\":%.0f,\"host_calls_per_read_scene\":%.0f",
+               (int)sc.nx, (int)sc.ny, info.substeps, fps, m.bytes_per_vertex_substep, mb, m.launches_per_frame,
+               LAUNCH_US, HOST_CALL_US, m.batch_calls_per_scene, m.batch_calls_per_read_scene);
+        const char *dev[2] = {"h100", "h200"};
+        for (int d = 0; d < 2; d++)
+            printf(",\"real_time_scenes_%s_device_only\":%.0f,\"real_time_scenes_%s\":%.0f,"
+                   "\"real_time_scenes_%s_frames_read\":%.0f",
+                   dev[d], k[d][0], dev[d], k[d][1], dev[d], k[d][2]);
+        printf("}\n");
+        return;
+    }
+    printf("cuda, a batch of default scenes (%d x %d, %d substeps a frame at %.0f fps, no rocks):\n", (int)sc.nx,
+           (int)sc.ny, info.substeps, fps);
+    printf("  %.2f bytes per vertex-substep: %.1f MB a scene-frame; %.0f launches a frame for the whole batch "
+           "(%.1f us each);\n  %.0f host calls a scene per frame, %.0f with its frame read (%.1f us each)\n",
+           m.bytes_per_vertex_substep, mb, m.launches_per_frame, LAUNCH_US, m.batch_calls_per_scene,
+           m.batch_calls_per_read_scene, HOST_CALL_US);
+    printf("  scenes in real time: H100 %.0f by bandwidth and launches, %.0f with host calls, %.0f with every frame "
+           "read;\n                       H200 %.0f, %.0f, %.0f\n",
+           k[0][0], k[0][1], k[0][2], k[1][0], k[1][1], k[1][2]);
 }
 
 static int parse_list(const char *s, int *out, int cap)
@@ -283,5 +352,6 @@ int main(int argc, char **argv)
             cs_sim_destroy(sim);
         }
     }
+    if (model_only) print_batch(json);
     return 0;
 }

@@ -975,7 +975,8 @@ struct cuda_ctx {
     int *flags, *host_flags;   /* device counters and their pinned host copy */
     /* frames: after a step call, what the host read of the previous frame, copied ahead */
     cudaEvent_t ready[2], copied[2];
-    cudaEvent_t queued;        /* a batch waits for what this scene's stream holds */
+    cudaEvent_t queued;        /* a batch waits for what this scene's stream holds ... */
+    int pending;               /* ... when something was queued on it since it was last idle */
     int slot;
     int64_t calls, frame_call; /* step calls so far; the call the frame in `slot` is of */
     unsigned frame_parts;      /* CS_SYNC_* parts in that frame */
@@ -1254,6 +1255,7 @@ static cuda_bufs bufs_of(const cuda_ctx *c, int pos, int rest)
 static cs_status cuda_upload(void *ctx, const cs_model *m, cs_state *s)
 {
     cuda_ctx *c = (cuda_ctx *)ctx;
+    c->pending = 1;
     cs_status st = reserve(c, m, s);
     if (st != CS_OK) return st;
     const size_t n = (size_t)s->n, f = sizeof(float) * n;
@@ -1345,6 +1347,7 @@ static cs_status cuda_refresh(void *ctx, const cs_model *m, cs_state *s)
 {
     cuda_ctx *c = (cuda_ctx *)ctx;
     (void)m, (void)s;
+    c->pending = 1;
     cloth(c, MODE_ACCEL, false, c->cur, c->rest_cur);
     CUDA_CHECK(cudaGetLastError());
     rocks(c, ROCKS_ACCEL, c->cur, c->rest_cur);
@@ -1459,6 +1462,7 @@ static cs_status copy_frame(cuda_ctx *c)
     c->wanted = 0;
     c->frame_call = -1;
     if (!parts) return CS_OK;
+    c->pending = 1;
     const int k = c->slot ^= 1;
     const size_t n = (size_t)c->vb.n, f3 = 3 * sizeof(float) * n;
     const size_t rocks = sizeof(cs_rock_state) * (size_t)c->host_sc.nr;
@@ -1528,6 +1532,7 @@ static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t su
     if (fs != CS_OK) return fs;
     CUDA_CHECK(cudaMemcpyAsync(c->host_flags, c->flags, FLAG_COUNT * sizeof(int), cudaMemcpyDeviceToHost, c->stream));
     CUDA_CHECK(cudaStreamSynchronize(c->stream));
+    c->pending = 0;
     rep->torn = c->host_flags[FLAG_TORN];
     rep->finite = c->host_flags[FLAG_NONFINITE] == 0;
     return CS_OK;
@@ -1658,8 +1663,10 @@ static cs_status batch_run(cuda_ctx *c, batch_ctx *b, cs_batch_item *items, int 
         smem = need > smem ? need : smem;
         if (d->verlet && d->substeps > gmax[d->graph]) gmax[d->graph] = d->substeps;
         /* What the scene's own stream holds (an upload, the last frame's copy) comes first. */
-        CUDA_CHECK(cudaEventRecord(ck->queued, ck->stream));
-        CUDA_CHECK(cudaStreamWaitEvent(b->stream, ck->queued, 0));
+        if (ck->pending) {
+            CUDA_CHECK(cudaEventRecord(ck->queued, ck->stream));
+            CUDA_CHECK(cudaStreamWaitEvent(b->stream, ck->queued, 0));
+        }
     }
     CUDA_CHECK(cudaMemcpyAsync(b->tab, b->host_tab, sizeof(batch_scene) * (size_t)m, cudaMemcpyHostToDevice, b->stream));
     CUDA_CHECK(cudaMemcpyAsync(b->start, start, sizeof(int32_t) * BK_COUNT * stride, cudaMemcpyHostToDevice, b->stream));
@@ -1685,10 +1692,12 @@ static cs_status batch_run(cuda_ctx *c, batch_ctx *b, cs_batch_item *items, int 
     }
     CUDA_CHECK(cudaMemcpyAsync(b->host_flags, b->flags, sizeof(int) * FLAG_COUNT * (size_t)m, cudaMemcpyDeviceToHost, b->stream));
     CUDA_CHECK(cudaStreamSynchronize(b->stream));
-    /* The batch is done: what each scene's stream takes next comes after it. */
+    /* The batch is done, and what the scenes' streams held before it: what each takes next comes
+     * after it. */
     for (int32_t j = 0; j < m; j++) {
         cs_batch_item *it = &items[b->order[j]];
         cuda_ctx *ck = (cuda_ctx *)it->ctx;
+        ck->pending = 0;
         it->rep.torn = b->host_flags[(size_t)j * FLAG_COUNT + FLAG_TORN];
         it->rep.finite = b->host_flags[(size_t)j * FLAG_COUNT + FLAG_NONFINITE] == 0;
         it->status = end_call(ck, it->substeps, b->host_tab[j].strain != 0);
@@ -1724,6 +1733,7 @@ static cs_status cuda_download(void *ctx, const cs_model *m, cs_state *s, unsign
     (void)m;
     const size_t n = (size_t)s->n, f = sizeof(float) * n;
     c->wanted |= what;
+    c->pending = 1;
     /* What the frame copied ahead holds: wait for that copy only. */
     unsigned from_frame = c->frame_call == c->calls ? what & c->frame_parts : 0;
     if (!(c->host_sc.nr)) from_frame &= ~(unsigned)CS_SYNC_ROCKS;
@@ -1815,6 +1825,11 @@ static void cuda_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     /* The frame the host reads, copied on the device once per step call. */
     cs_cost_add(out, "frame copy (positions, on the device)", 12.0, 12.0, 0, 1.0 / F, 0);
     out->graphs_per_frame = graphs;
+    /* batch_run: nothing for a scene whose stream is idle; copy_frame with the positions read: a
+     * wait, the device copy, an event, a wait, the copy to pinned memory, an event - and the next
+     * call then waits for the scene's stream (an event recorded and waited for). */
+    out->batch_calls_per_scene = 0.0;
+    out->batch_calls_per_read_scene = 6.0 + 2.0;
     out->nodes_per_substep = 1.0 + (n_rocks > 0 ? (n_rocks <= ROCKS_FUSED ? 1.0 : 2.0) : 0.0) +
                              (!verlet && strain ? 1.0 : 0.0) + (verlet ? 1.0 / G : 0.0);
 }

@@ -604,6 +604,19 @@ static int run_batch(const char *other)
             batch_drop(&sc[1]);
             fail |= batch_add(&sc[BATCH_N], &batch_variants[BATCH_N], other);
         }
+        if (r == 1) /* a command right before a batch: its upload must land first */
+            for (int k = 0; k < BATCH_N; k++) {
+                if (!sc[k].live) continue;
+                cs_params q;
+                cs_sim_params(sc[k].cpu, &q);
+                q.wind[0] = 1.5f + 0.25f * (float)k;
+                cs_sim *three[3] = {sc[k].cpu, sc[k].alone, sc[k].batched};
+                for (int c = 0; c < 3; c++)
+                    if (cs_sim_set_params(three[c], &q) != CS_OK) {
+                        printf("%-46s set_params failed: %s\n", sc[k].vr->name, cs_sim_error(three[c]));
+                        fail = 1;
+                    }
+            }
         if (r == poison_round) {
             poisoned = 0;
             const int32_t v = 5 * sc[0].vr->nx + 7;
