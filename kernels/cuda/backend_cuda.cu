@@ -932,6 +932,27 @@ __global__ void k_rock_move_batch(const batch_scene *__restrict__ tab, const int
     rock_move_thread(d.sc, d.cloth[s & 1], (int32_t)(local * blockDim.x + threadIdx.x), batch_rock_mode(d, s));
 }
 
+/* The frames a batch's scenes were read for: each job two ranges of 32-bit words (the state's
+ * positions and/or velocities, the rocks) copied into the scene's frame buffers, for all scenes in
+ * one launch (copy_frame's device copies, batched). */
+struct frame_job {
+    const uint32_t *src[2];
+    uint32_t *dst[2];
+    int32_t words[2];
+};
+static_assert(sizeof(cs_rock_state) % 4 == 0, "a rock is whole 32-bit words");
+#define FRAME_WORDS_PER_BLOCK 4096
+
+__global__ void k_frames_batch(const frame_job *__restrict__ jobs, const int32_t *__restrict__ start, int32_t n)
+{
+    const int32_t k = batch_scene_of(start, n, blockIdx.x);
+    const frame_job &j = jobs[k];
+    const int64_t first = (int64_t)(blockIdx.x - (uint32_t)start[k]) * FRAME_WORDS_PER_BLOCK;
+    for (int r = 0; r < 2; r++)
+        for (int64_t w = first + threadIdx.x; w < first + FRAME_WORDS_PER_BLOCK && w < j.words[r]; w += blockDim.x)
+            dstore(&j.dst[r][w], dload(&j.src[r][w]));
+}
+
 /* ---- host side ---- */
 
 /* A graph's shape: what its kernels are. Pointers and launch sizes can change under it (update). */
@@ -977,6 +998,7 @@ struct cuda_ctx {
     cudaEvent_t ready[2], copied[2];
     cudaEvent_t queued;        /* a batch waits for what this scene's stream holds ... */
     int pending;               /* ... when something was queued on it since it was last idle */
+    int after_batch;           /* a batch's frame copy may still read the state (join_batch) */
     int slot;
     int64_t calls, frame_call; /* step calls so far; the call the frame in `slot` is of */
     unsigned frame_parts;      /* CS_SYNC_* parts in that frame */
@@ -1252,11 +1274,42 @@ static cuda_bufs bufs_of(const cuda_ctx *c, int pos, int rest)
     return b;
 }
 
+/* ---- batches (host): see "batches" above ----
+ *
+ * What a batch call needs besides its scenes' own buffers: the descriptor table, the block prefix
+ * sums and per-scene flags, on the device and in pinned staging. One per process (the scenes of a
+ * process share the device they were created on), grown as batches grow and kept between calls. */
+struct batch_ctx {
+    cudaStream_t stream, copy;   /* the batch's kernels and frames' device copies; the copies to pinned memory */
+    cudaEvent_t frames;          /* recorded on stream after the frames' device copies */
+    int32_t cap;                 /* scenes the arrays hold */
+    batch_scene *tab, *host_tab; /* [cap] */
+    int32_t *start, *host_start; /* [BK_COUNT][scenes + 1] */
+    int *flags, *host_flags;     /* [cap][FLAG_COUNT] */
+    frame_job *jobs, *host_jobs; /* [cap] */
+    int32_t *jstart, *host_jstart; /* [cap + 1]: the frame jobs' block prefix sums */
+    int32_t *order;              /* [cap]: the batch's items, most substeps first */
+};
+static batch_ctx batch;
+static std::mutex batch_lock;
+
+/* Before a scene's own stream touches its buffers after a batch: the frame copies the batch
+ * queued after it (reading the state) come first. The event may have been recorded again by a
+ * later batch since: waiting for that later point is waiting longer, never too little. */
+static cs_status join_batch(cuda_ctx *c)
+{
+    if (!c->after_batch) return CS_OK;
+    CUDA_CHECK(cudaStreamWaitEvent(c->stream, batch.frames, 0));
+    c->after_batch = 0;
+    return CS_OK;
+}
+
 static cs_status cuda_upload(void *ctx, const cs_model *m, cs_state *s)
 {
     cuda_ctx *c = (cuda_ctx *)ctx;
     c->pending = 1;
-    cs_status st = reserve(c, m, s);
+    cs_status st = join_batch(c);
+    if (st == CS_OK) st = reserve(c, m, s);
     if (st != CS_OK) return st;
     const size_t n = (size_t)s->n, f = sizeof(float) * n;
     cuda_scene k;
@@ -1348,6 +1401,8 @@ static cs_status cuda_refresh(void *ctx, const cs_model *m, cs_state *s)
     cuda_ctx *c = (cuda_ctx *)ctx;
     (void)m, (void)s;
     c->pending = 1;
+    const cs_status st = join_batch(c);
+    if (st != CS_OK) return st;
     cloth(c, MODE_ACCEL, false, c->cur, c->rest_cur);
     CUDA_CHECK(cudaGetLastError());
     rocks(c, ROCKS_ACCEL, c->cur, c->rest_cur);
@@ -1494,12 +1549,11 @@ static cs_status copy_frame(cuda_ctx *c)
 
 /* After a step call's substeps are queued: the buffers that now hold the state (each substep
  * swaps the state's; the drift of a graph's first substep is in place), and the frame. */
-static cs_status end_call(cuda_ctx *c, int32_t substeps, bool strain)
+static void advance(cuda_ctx *c, int32_t substeps, bool strain)
 {
     c->cur ^= substeps & 1;
     if (strain) c->rest_cur ^= substeps & 1;
     c->calls++;
-    return copy_frame(c);
 }
 
 static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t substeps, cs_step_report *rep)
@@ -1509,6 +1563,8 @@ static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t su
     rep->torn = 0;
     rep->finite = 1;
     if (substeps <= 0) return CS_OK;
+    const cs_status js = join_batch(c);
+    if (js != CS_OK) return js;
     CUDA_CHECK(cudaMemsetAsync(c->flags, 0, FLAG_COUNT * sizeof(int), c->stream));
     const int strain = m->phys.strain_on != 0;
     for (int32_t left = substeps; left > 0;) {
@@ -1528,7 +1584,8 @@ static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t su
         CUDA_CHECK(cudaGraphLaunch(exec, c->stream));
         left -= k.len;
     }
-    const cs_status fs = end_call(c, substeps, strain);
+    advance(c, substeps, strain);
+    const cs_status fs = copy_frame(c);
     if (fs != CS_OK) return fs;
     CUDA_CHECK(cudaMemcpyAsync(c->host_flags, c->flags, FLAG_COUNT * sizeof(int), cudaMemcpyDeviceToHost, c->stream));
     CUDA_CHECK(cudaStreamSynchronize(c->stream));
@@ -1538,22 +1595,6 @@ static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t su
     return CS_OK;
 }
 
-/* ---- batches (host): see "batches" above ----
- *
- * What a batch call needs besides its scenes' own buffers: the descriptor table, the block prefix
- * sums and per-scene flags, on the device and in pinned staging. One per process (the scenes of a
- * process share the device they were created on), grown as batches grow and kept between calls. */
-struct batch_ctx {
-    cudaStream_t stream;
-    int32_t cap;                 /* scenes the arrays hold */
-    batch_scene *tab, *host_tab; /* [cap] */
-    int32_t *start, *host_start; /* [BK_COUNT][scenes + 1] */
-    int *flags, *host_flags;     /* [cap][FLAG_COUNT] */
-    int32_t *order;              /* [cap]: the batch's items, most substeps first */
-};
-static batch_ctx batch;
-static std::mutex batch_lock;
-
 static void free_batch_arrays(batch_ctx *b)
 {
     cudaFree(b->tab);
@@ -1562,6 +1603,10 @@ static void free_batch_arrays(batch_ctx *b)
     cudaFreeHost(b->host_tab);
     cudaFreeHost(b->host_start);
     cudaFreeHost(b->host_flags);
+    cudaFree(b->jobs);
+    cudaFree(b->jstart);
+    cudaFreeHost(b->host_jobs);
+    cudaFreeHost(b->host_jstart);
     free(b->order);
 }
 
@@ -1569,12 +1614,14 @@ static void free_batch_arrays(batch_ctx *b)
 static cs_status batch_reserve(cuda_ctx *c, batch_ctx *b, int32_t n)
 {
     if (!b->stream) CUDA_CHECK(cudaStreamCreateWithFlags(&b->stream, cudaStreamNonBlocking));
+    if (!b->copy) CUDA_CHECK(cudaStreamCreateWithFlags(&b->copy, cudaStreamNonBlocking));
+    if (!b->frames) CUDA_CHECK(cudaEventCreateWithFlags(&b->frames, cudaEventDisableTiming));
     if (n <= b->cap) return CS_OK;
     int32_t cap = 64;
     while (cap < n) cap *= 2;
     batch_ctx g;
     memset(&g, 0, sizeof g);
-    g.stream = b->stream;
+    g.stream = b->stream, g.copy = b->copy, g.frames = b->frames;
     const size_t starts = sizeof(int32_t) * BK_COUNT * ((size_t)cap + 1), flags = sizeof(int) * FLAG_COUNT * (size_t)cap;
     cudaError_t e = cudaMalloc((void **)&g.tab, sizeof(batch_scene) * (size_t)cap);
     if (e == cudaSuccess) e = cudaMallocHost((void **)&g.host_tab, sizeof(batch_scene) * (size_t)cap);
@@ -1582,6 +1629,10 @@ static cs_status batch_reserve(cuda_ctx *c, batch_ctx *b, int32_t n)
     if (e == cudaSuccess) e = cudaMallocHost((void **)&g.host_start, starts);
     if (e == cudaSuccess) e = cudaMalloc((void **)&g.flags, flags);
     if (e == cudaSuccess) e = cudaMallocHost((void **)&g.host_flags, flags);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&g.jobs, sizeof(frame_job) * (size_t)cap);
+    if (e == cudaSuccess) e = cudaMallocHost((void **)&g.host_jobs, sizeof(frame_job) * (size_t)cap);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&g.jstart, sizeof(int32_t) * ((size_t)cap + 1));
+    if (e == cudaSuccess) e = cudaMallocHost((void **)&g.host_jstart, sizeof(int32_t) * ((size_t)cap + 1));
     if (e == cudaSuccess && !(g.order = (int32_t *)malloc(sizeof(int32_t) * (size_t)cap))) e = cudaErrorMemoryAllocation;
     if (e != cudaSuccess) {
         free_batch_arrays(&g);
@@ -1603,6 +1654,64 @@ static void batch_blocks(const cuda_ctx *c, const batch_scene *d, int32_t blocks
     blocks[BK_ROCKS] = d->rocks == 1 ? 1 : d->rocks == 2 ? (nr + BATCH_ROCK_THREADS / 32 - 1) / (BATCH_ROCK_THREADS / 32) : 0;
     blocks[BK_ROCK_MOVE] = d->rocks == 2 ? (nr + 255) / 256 : 0;
     blocks[BK_STRAIN] = !d->verlet && d->strain ? vblocks : 0;
+}
+
+/* copy_frame for the scenes of a batch, m of them in b->order, whose frames were read since their
+ * last call: the device copies of all in one launch on the batch's stream, then each scene's copy
+ * to its pinned buffer on the batch's copy stream. */
+static cs_status batch_frames(cuda_ctx *c, batch_ctx *b, const cs_batch_item *items, int32_t m)
+{
+    int32_t nj = 0;
+    b->host_jstart[0] = 0;
+    for (int32_t j = 0; j < m; j++) {
+        cuda_ctx *ck = (cuda_ctx *)items[b->order[j]].ctx;
+        const unsigned parts = ck->wanted & (CS_SYNC_POSITIONS | CS_SYNC_VELOCITIES | CS_SYNC_ROCKS);
+        ck->wanted = 0;
+        ck->frame_call = -1;
+        if (!parts) continue;
+        const int k = ck->slot ^= 1;
+        /* The copy made two calls ago from this slot must be done before the slot is rewritten. */
+        CUDA_CHECK(cudaStreamWaitEvent(b->stream, ck->copied[k], 0));
+        const size_t n = (size_t)ck->vb.n;
+        const size_t lo = parts & CS_SYNC_POSITIONS ? 0 : 3 * n, hi = parts & CS_SYNC_VELOCITIES ? 6 * n : 3 * n;
+        const size_t rock_words = parts & CS_SYNC_ROCKS ? sizeof(cs_rock_state) / 4 * (size_t)ck->host_sc.nr : 0;
+        frame_job *f = &b->host_jobs[nj];
+        f->src[0] = (const uint32_t *)(ck->vb.state[ck->cur] + lo);
+        f->dst[0] = (uint32_t *)(ck->vb.frame_dev[k] + lo);
+        f->words[0] = (int32_t)(hi - lo);
+        f->src[1] = (const uint32_t *)ck->rb.rocks;
+        f->dst[1] = (uint32_t *)ck->rb.frame_rocks_dev[k];
+        f->words[1] = (int32_t)rock_words;
+        const int32_t most = f->words[0] > f->words[1] ? f->words[0] : f->words[1];
+        b->host_jstart[nj + 1] = b->host_jstart[nj] + (most + FRAME_WORDS_PER_BLOCK - 1) / FRAME_WORDS_PER_BLOCK;
+        ck->frame_call = ck->calls;
+        ck->frame_parts = parts;
+        ck->frame_waited = 0;
+        ck->after_batch = 1;
+        b->order[nj++] = b->order[j]; /* the scenes with a job, in job order (j >= nj: not read again) */
+    }
+    if (nj == 0) return CS_OK;
+    CUDA_CHECK(cudaMemcpyAsync(b->jobs, b->host_jobs, sizeof(frame_job) * (size_t)nj, cudaMemcpyHostToDevice, b->stream));
+    CUDA_CHECK(cudaMemcpyAsync(b->jstart, b->host_jstart, sizeof(int32_t) * ((size_t)nj + 1), cudaMemcpyHostToDevice,
+                               b->stream));
+    if (b->host_jstart[nj] > 0) k_frames_batch<<<(unsigned)b->host_jstart[nj], 256, 0, b->stream>>>(b->jobs, b->jstart, nj);
+    CUDA_CHECK(cudaGetLastError());
+    CUDA_CHECK(cudaEventRecord(b->frames, b->stream));
+    CUDA_CHECK(cudaStreamWaitEvent(b->copy, b->frames, 0));
+    for (int32_t q = 0; q < nj; q++) {
+        cuda_ctx *ck = (cuda_ctx *)items[b->order[q]].ctx;
+        const frame_job *f = &b->host_jobs[q];
+        const int k = ck->slot;
+        const size_t lo = (size_t)(f->dst[0] - (uint32_t *)ck->vb.frame_dev[k]);
+        if (f->words[0])
+            CUDA_CHECK(cudaMemcpyAsync(ck->vb.frame_host[k] + lo, ck->vb.frame_dev[k] + lo, 4 * (size_t)f->words[0],
+                                       cudaMemcpyDeviceToHost, b->copy));
+        if (f->words[1])
+            CUDA_CHECK(cudaMemcpyAsync(ck->rb.frame_rocks_host[k], ck->rb.frame_rocks_dev[k], 4 * (size_t)f->words[1],
+                                       cudaMemcpyDeviceToHost, b->copy));
+        CUDA_CHECK(cudaEventRecord(ck->copied[k], b->copy));
+    }
+    return CS_OK;
 }
 
 /* One batch on the device: c (the first scene's context) records a CUDA failure; the items' own
@@ -1700,9 +1809,9 @@ static cs_status batch_run(cuda_ctx *c, batch_ctx *b, cs_batch_item *items, int 
         ck->pending = 0;
         it->rep.torn = b->host_flags[(size_t)j * FLAG_COUNT + FLAG_TORN];
         it->rep.finite = b->host_flags[(size_t)j * FLAG_COUNT + FLAG_NONFINITE] == 0;
-        it->status = end_call(ck, it->substeps, b->host_tab[j].strain != 0);
+        advance(ck, it->substeps, b->host_tab[j].strain != 0);
     }
-    return CS_OK;
+    return batch_frames(c, b, items, m);
 }
 
 /* Every scene of the batch advanced by one launch per kernel and substep (step_batch of
@@ -1733,7 +1842,6 @@ static cs_status cuda_download(void *ctx, const cs_model *m, cs_state *s, unsign
     (void)m;
     const size_t n = (size_t)s->n, f = sizeof(float) * n;
     c->wanted |= what;
-    c->pending = 1;
     /* What the frame copied ahead holds: wait for that copy only. */
     unsigned from_frame = c->frame_call == c->calls ? what & c->frame_parts : 0;
     if (!(c->host_sc.nr)) from_frame &= ~(unsigned)CS_SYNC_ROCKS;
@@ -1752,7 +1860,8 @@ static cs_status cuda_download(void *ctx, const cs_model *m, cs_state *s, unsign
         what &= ~from_frame;
     }
     /* The rest from the device's current buffers, into pageable memory: each copy is done when it
-     * returns. */
+     * returns. (A batch's frame copy may still be reading the state too: nothing here writes it.) */
+    if (what) c->pending = 1;
     const float *st = c->vb.state[c->cur];
     float *arrays[] = {s->x, s->y, s->z, s->vx, s->vy, s->vz};
     for (int q = 0; q < 6; q++)
@@ -1825,11 +1934,11 @@ static void cuda_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     /* The frame the host reads, copied on the device once per step call. */
     cs_cost_add(out, "frame copy (positions, on the device)", 12.0, 12.0, 0, 1.0 / F, 0);
     out->graphs_per_frame = graphs;
-    /* batch_run: nothing for a scene whose stream is idle; copy_frame with the positions read: a
-     * wait, the device copy, an event, a wait, the copy to pinned memory, an event - and the next
-     * call then waits for the scene's stream (an event recorded and waited for). */
+    /* batch_run: nothing for a scene whose stream is idle; batch_frames, its positions read: a
+     * wait for the slot's last copy, the copy to pinned memory, an event (the device copies are
+     * one launch for the batch). */
     out->batch_calls_per_scene = 0.0;
-    out->batch_calls_per_read_scene = 6.0 + 2.0;
+    out->batch_calls_per_read_scene = 3.0;
     out->nodes_per_substep = 1.0 + (n_rocks > 0 ? (n_rocks <= ROCKS_FUSED ? 1.0 : 2.0) : 0.0) +
                              (!verlet && strain ? 1.0 : 0.0) + (verlet ? 1.0 / G : 0.0);
 }
