@@ -10,7 +10,8 @@
  * the bandwidth roofline on an H100 (3.35 TB/s) and an H200 (4.8 TB/s), the launch floor at
  * LAUNCH_US per dependent kernel of a graph, and what this device's memory bandwidth allows.
  * --model prints the cost models without running anything (no device needed), and for CUDA how
- * many default scenes one batch runs in real time (print_batch). */
+ * many default scenes one batch runs in real time (print_batch). --batch N measures it instead: N
+ * default scenes stepped a frame at a time in one cs_sims_step call, every frame read. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -41,7 +42,7 @@ static void usage(FILE *f)
     fprintf(f,
             "usage: clothd-bench [--backend cpu|cuda|auto] [--json] [--threads N] [--seconds S]\n"
             "                    [--sizes 64,128,256,512] [--rocks 0,16] [--contact surface,vertex]\n"
-            "                    [--integrator velocity_verlet|symplectic_euler] [--model]\n");
+            "                    [--integrator velocity_verlet|symplectic_euler] [--model] [--batch N]\n");
 }
 
 /* Rocks on a square grid over the middle of the cloth, just touching it (light ones: the case
@@ -178,6 +179,66 @@ static void print_batch(int json)
            k[0][0], k[0][1], k[0][2], k[1][0], k[1][1], k[1][2]);
 }
 
+/* --batch: `count` default scenes on the backend, a frame each per cs_sims_step call and every
+ * scene's positions read after it (what a daemon streaming them all does), for `seconds`. */
+static int bench_batch(const char *backend, int count, double seconds, int json, int threads)
+{
+    cs_sim **sims = calloc((size_t)count, sizeof *sims);
+    int64_t *substeps = calloc((size_t)count, sizeof *substeps);
+    cs_status *each = calloc((size_t)count, sizeof *each);
+    float *xyz = NULL;
+    int rc = 1;
+    if (!sims || !substeps || !each) goto out;
+    for (int k = 0; k < count; k++) {
+        char err[256];
+        if (cs_sim_create(NULL, NULL, backend, &sims[k], err, sizeof err) != CS_OK) {
+            fprintf(stderr, "clothd-bench: scene %d: %s\n", k, err);
+            goto out;
+        }
+        cs_sim_set_threads(sims[k], threads);
+    }
+    cs_info info;
+    cs_params p;
+    cs_scene sc;
+    cs_sim_info(sims[0], &info);
+    cs_sim_params(sims[0], &p);
+    cs_sim_scene(sims[0], &sc);
+    const size_t n3 = 3 * (size_t)info.n_vertices;
+    if (!(xyz = malloc(sizeof(float) * n3))) goto out;
+    for (int k = 0; k < count; k++) substeps[k] = info.substeps;
+    int64_t frames = -1; /* the first frame settles */
+    double t0 = now(), t = t0;
+    while (frames < 0 || t - t0 < seconds) {
+        if (cs_sims_step(sims, (size_t)count, substeps, each) != CS_OK) goto out;
+        for (int k = 0; k < count; k++)
+            if (each[k] != CS_OK || cs_read_positions(sims[k], xyz, n3) != CS_OK) {
+                fprintf(stderr, "clothd-bench: scene %d: %s\n", k, cs_sim_error(sims[k]));
+                goto out;
+            }
+        if (++frames == 0) t0 = now();
+        t = now();
+    }
+    const double fps = (double)frames / (t - t0), rtf = fps / p.frame_rate;
+    const double vsps = fps * info.substeps * (double)info.n_vertices * count;
+    if (json)
+        printf("{\"backend\":\"%s\",\"device\":\"%s\",\"batch_scenes\":%d,\"nx\":%d,\"ny\":%d,"
+               "\"substeps_per_frame\":%d,\"frames\":%lld,\"seconds\":%.3f,\"frames_per_s\":%.2f,"
+               "\"real_time_factor\":%.3f,\"vertex_substeps_per_s\":%.0f}\n",
+               cs_sim_backend(sims[0]), cs_sim_device(sims[0]), count, (int)sc.nx, (int)sc.ny, info.substeps, (long long)frames, t - t0, fps, rtf, vsps);
+    else
+        printf("%s: a batch of %d default scenes, %d substeps a frame, every frame read: %.1f frames/s, real-time "
+               "factor %.2f, %.0f vertex-substeps/s\n",
+               cs_sim_backend(sims[0]), count, info.substeps, fps, rtf, vsps);
+    rc = 0;
+out:
+    for (int k = 0; sims && k < count; k++) cs_sim_destroy(sims[k]);
+    free(sims);
+    free(substeps);
+    free(each);
+    free(xyz);
+    return rc;
+}
+
 static int parse_list(const char *s, int *out, int cap)
 {
     char list[256];
@@ -191,13 +252,14 @@ int main(int argc, char **argv)
 {
     const char *backend = "cpu", *sizes_arg = "64,128,256,512", *integrator = "velocity_verlet", *rocks_arg = "0,16";
     const char *contacts = "surface,vertex";
-    int json = 0, threads = 0, model_only = 0;
+    int json = 0, threads = 0, model_only = 0, batch_scenes = 0;
     double seconds = 1.5;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         const char *val = i + 1 < argc ? argv[i + 1] : NULL;
         if (strcmp(a, "--json") == 0) json = 1;
         else if (strcmp(a, "--model") == 0) model_only = 1;
+        else if (strcmp(a, "--batch") == 0 && val) batch_scenes = atoi(val), i++;
         else if (strcmp(a, "--backend") == 0 && val) backend = val, i++;
         else if (strcmp(a, "--threads") == 0 && val) threads = atoi(val), i++;
         else if (strcmp(a, "--seconds") == 0 && val) seconds = atof(val), i++;
@@ -216,6 +278,13 @@ int main(int argc, char **argv)
     if (!(seconds > 0 && seconds < 3600)) {
         fprintf(stderr, "clothd-bench: --seconds must be in (0, 3600)\n");
         return 2;
+    }
+    if (batch_scenes) {
+        if (batch_scenes < 1 || batch_scenes > CS_BATCH_MAX) {
+            fprintf(stderr, "clothd-bench: --batch must be 1..%d\n", CS_BATCH_MAX);
+            return 2;
+        }
+        return bench_batch(backend, batch_scenes, seconds, json, threads);
     }
     const cs_param_info *integ = cs_param_find("integrator");
     const int integ_index = cs_param_choice(integ, integrator);

@@ -40,7 +40,25 @@
  * After a call whose frame was read, the positions (and velocities, rocks) are copied on the
  * device, then to pinned double buffers on a second stream, overlapping whatever comes next; a
  * read waits for that copy only. Everything else (rest lengths, accelerations) is copied when a
- * snapshot, a hash or a command asks. */
+ * snapshot, a hash or a command asks.
+ *
+ * Batches (step_batch, cs_sims_step): many scenes advanced together, one launch per kernel per
+ * substep for all of them. Each scene keeps its own device buffers; the batch passes a device
+ * table of per-scene descriptors - the scene struct (parameters, rock count, grab), its buffers
+ * for even and odd substeps, its substeps, integrator, strain and rock path - and, per kernel, the
+ * prefix sums of the blocks each scene takes, so a block finds its scene by binary search and runs
+ * the block function the lone launch runs (cloth_block, drift_first_block, strain_block,
+ * rocks_block, rock_force_warp, rock_move_thread: one source). The table sorts the scenes by
+ * substeps, most first, so the scenes still running at a substep are a prefix and a launch covers
+ * only their blocks; the others have finished. A table of each scene's own pointers, not shared
+ * arrays with per-scene offsets: the launch shape is the same (one launch covers every scene's
+ * vertices), and adding, deleting or resizing a scene allocates or frees that scene's buffers only
+ * - nothing of another scene moves or is copied, so no scene can disturb another. The rows of a
+ * cloth block are chosen for the batch as a whole (tile_rows_for's rule over all its blocks): a
+ * scene's bits do not depend on them. What the scenes' frames were read for is copied on the
+ * device in one launch after the batch and to pinned memory on the batch's copy stream. The
+ * batch launches its kernels one by one on its stream (no graph yet): about substeps + 1 launches
+ * a frame for the whole batch. */
 #include <cuda_runtime.h>
 
 #include <stdio.h>
