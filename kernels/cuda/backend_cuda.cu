@@ -866,6 +866,16 @@ __device__ static int32_t batch_scene_of(const int32_t *__restrict__ start, int3
     return lo;
 }
 
+/* This block's scene in a batch launch at substep s, and the block's index in the scene's own
+ * launch; NULL when the scene has run all its substeps. */
+__device__ static const batch_scene *batch_block(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start,
+                                                 int32_t n, int32_t s, uint32_t *local)
+{
+    const int32_t k = batch_scene_of(start, n, blockIdx.x);
+    *local = blockIdx.x - (uint32_t)start[k];
+    return s < tab[k].substeps ? &tab[k] : NULL;
+}
+
 __device__ static inline bool batch_first(const batch_scene &d, int32_t s) { return s % d.graph == 0; }
 __device__ static inline bool batch_last(const batch_scene &d, int32_t s)
 {
@@ -888,12 +898,12 @@ __device__ static void cloth_block_any(const batch_scene &d, const cuda_bufs &b,
 __global__ void __launch_bounds__(TILE_W)
     k_cloth_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n, int32_t s)
 {
-    const int32_t k = batch_scene_of(start, n, blockIdx.x);
-    const batch_scene &d = tab[k];
-    if (s >= d.substeps) return;
+    uint32_t local;
+    const batch_scene *in = batch_block(tab, start, n, s, &local);
+    if (!in) return;
+    const batch_scene &d = *in;
     const cuda_bufs b = d.cloth[s & 1];
-    const int32_t local = (int32_t)blockIdx.x - start[k], nseg = d.sc->p.nseg;
-    const int32_t seg = local % nseg, tile = local / nseg;
+    const int32_t nseg = d.sc->p.nseg, seg = (int32_t)local % nseg, tile = (int32_t)local / nseg;
     const bool last = batch_last(d, s);
     if (d.verlet) {
         if (last) cloth_block_any<MODE_VERLET_LAST>(d, b, seg, tile);
@@ -907,18 +917,16 @@ __global__ void __launch_bounds__(TILE_W)
 /* Velocity Verlet scenes whose graph starts at substep s (the others have no blocks or exit). */
 __global__ void k_drift_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n, int32_t s)
 {
-    const int32_t k = batch_scene_of(start, n, blockIdx.x);
-    const batch_scene &d = tab[k];
-    if (s >= d.substeps || !batch_first(d, s)) return;
-    drift_first_block(d.sc, d.swapped[s & 1], blockIdx.x - (uint32_t)start[k]);
+    uint32_t local;
+    const batch_scene *d = batch_block(tab, start, n, s, &local);
+    if (d && batch_first(*d, s)) drift_first_block(d->sc, d->swapped[s & 1], local);
 }
 
 __global__ void k_strain_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n, int32_t s)
 {
-    const int32_t k = batch_scene_of(start, n, blockIdx.x);
-    const batch_scene &d = tab[k];
-    if (s >= d.substeps) return;
-    strain_block(d.sc, d.swapped[s & 1], blockIdx.x - (uint32_t)start[k]);
+    uint32_t local;
+    const batch_scene *d = batch_block(tab, start, n, s, &local);
+    if (d) strain_block(d->sc, d->swapped[s & 1], local);
 }
 
 __device__ static inline int batch_rock_mode(const batch_scene &d, int32_t s)
@@ -930,24 +938,21 @@ __device__ static inline int batch_rock_mode(const batch_scene &d, int32_t s)
 __global__ void __launch_bounds__(BATCH_ROCK_THREADS)
     k_rocks_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n, int32_t s)
 {
-    const int32_t k = batch_scene_of(start, n, blockIdx.x);
-    const batch_scene &d = tab[k];
-    if (s >= d.substeps) return;
-    const cuda_bufs b = d.cloth[s & 1];
-    const uint32_t local = blockIdx.x - (uint32_t)start[k];
-    if (d.rocks == 1) rocks_block(d.sc, b, batch_rock_mode(d, s));
-    else rock_force_warp(d.sc, b, (int32_t)(local * (BATCH_ROCK_THREADS / 32) + (threadIdx.x >> 5)));
+    uint32_t local;
+    const batch_scene *d = batch_block(tab, start, n, s, &local);
+    if (!d) return;
+    const cuda_bufs b = d->cloth[s & 1];
+    if (d->rocks == 1) rocks_block(d->sc, b, batch_rock_mode(*d, s));
+    else rock_force_warp(d->sc, b, (int32_t)(local * (BATCH_ROCK_THREADS / 32) + (threadIdx.x >> 5)));
 }
 
 /* ... and their moves, a thread per rock. */
 __global__ void k_rock_move_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n,
                                   int32_t s)
 {
-    const int32_t k = batch_scene_of(start, n, blockIdx.x);
-    const batch_scene &d = tab[k];
-    if (s >= d.substeps) return;
-    const uint32_t local = blockIdx.x - (uint32_t)start[k];
-    rock_move_thread(d.sc, d.cloth[s & 1], (int32_t)(local * blockDim.x + threadIdx.x), batch_rock_mode(d, s));
+    uint32_t local;
+    const batch_scene *d = batch_block(tab, start, n, s, &local);
+    if (d) rock_move_thread(d->sc, d->cloth[s & 1], (int32_t)(local * blockDim.x + threadIdx.x), batch_rock_mode(*d, s));
 }
 
 /* The frames a batch's scenes were read for: each job two ranges of 32-bit words (the state's
