@@ -20,7 +20,12 @@
  * and on the CPU imitation of CUDA in ctest (emu.parity); `test_parity cpu` compares the CPU
  * backend on one thread with itself on two; `quick` as the second argument runs about a tenth of
  * the substeps (for compute-sanitizer); with CLOTHD_SANITIZED set as well (the ASan build of the
- * emulated backend) it stops after 50. */
+ * emulated backend) it stops after 50.
+ *
+ * Every full run ends with the batch check (run_batch; `batch` as the second argument runs it
+ * alone): mixed scenes stepped together by cs_sims_step, each bitwise equal to a copy stepped
+ * alone on the same backend and to one on the CPU backend, with scenes leaving and joining between
+ * rounds and one poisoned scene failing alone. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
