@@ -9,7 +9,8 @@
  * kernel (or CPU pass) reads and writes per vertex per substep and its launches per frame; for CUDA
  * the bandwidth roofline on an H100 (3.35 TB/s) and an H200 (4.8 TB/s), the launch floor at
  * LAUNCH_US per dependent kernel of a graph, and what this device's memory bandwidth allows.
- * --model prints the cost models without running anything (no device needed).
+ * --model prints the cost models without running anything (no device needed), and for CUDA how
+ * many default scenes one batch runs in real time (print_batch).
  *
  * --batch N,...: for each size and each count N, N scenes of the default scene and parameters
  * (cs_scene_default, cs_params_default; the effective substeps per frame from cs_sim_info),
@@ -18,7 +19,8 @@
  * ratio, the batch's against one scene stepped alone (the single-scene figure), and how many such
  * scenes the batch's throughput keeps in real time (each needs substeps x frame_rate substeps a
  * second). --frames F --only batch|alone runs one way for F frames and prints nothing else: a
- * fixed amount of work, for timing the two ways as whole processes. */
+ * fixed amount of work, for timing the two ways as whole processes. --read reads every scene's
+ * positions after each frame (what a daemon streaming them all does). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -33,6 +35,9 @@
 #define H100_BW 3.35e12
 #define H200_BW 4.8e12
 #define LAUNCH_US 2.0
+/* The host time of one CUDA runtime call a batch makes per scene (an event, a wait, an async
+ * copy; an assumption until measured). */
+#define HOST_CALL_US 1.5
 
 static double now(void)
 {
@@ -47,8 +52,8 @@ static void usage(FILE *f)
             "usage: clothd-bench [--backend cpu|cuda|auto] [--json] [--threads N] [--seconds S]\n"
             "                    [--sizes 64,128,256,512] [--rocks 0,16] [--contact surface,vertex]\n"
             "                    [--integrator velocity_verlet|symplectic_euler] [--model]\n"
-            "       clothd-bench --batch 1,4,16,64 [--sizes 32,64] [--threads N] [--seconds S]\n"
-            "                    [--frames F --only batch|alone] [--json]\n");
+            "       clothd-bench --batch 1,4,16,64 [--backend B] [--sizes 32,64] [--threads N] [--seconds S]\n"
+            "                    [--frames F --only batch|alone] [--read] [--json]\n");
 }
 
 /* Rocks on a square grid over the middle of the cloth, just touching it (light ones: the case
@@ -122,8 +127,17 @@ static void print_model(const char *backend, const cs_cost_model *m, double n, i
 
 /* ---- batch mode ---- */
 
+/* How a batch runs: its backend, and whether every scene's positions are read after each frame
+ * (into buf, of len floats: the largest scene's). */
+typedef struct batch_how {
+    const char *backend;
+    int read;
+    float *buf;
+    size_t len;
+} batch_how;
+
 /* n default scenes of size x size. */
-static cs_sim **batch_make(int size, int n, int threads)
+static cs_sim **batch_make(const batch_how *how, int size, int n, int threads)
 {
     cs_sim **sims = calloc((size_t)n, sizeof *sims);
     if (!sims) return NULL;
@@ -134,7 +148,7 @@ static cs_sim **batch_make(int size, int n, int threads)
     sc.nx = sc.ny = size;
     for (int k = 0; k < n; k++) {
         char err[256];
-        if (cs_sim_create(&sc, &p, "cpu", &sims[k], err, sizeof err) != CS_OK) {
+        if (cs_sim_create(&sc, &p, how->backend, &sims[k], err, sizeof err) != CS_OK) {
             fprintf(stderr, "clothd-bench: %dx%d: %s\n", size, size, err);
             for (int j = 0; j < k; j++) cs_sim_destroy(sims[j]);
             free(sims);
@@ -146,7 +160,7 @@ static cs_sim **batch_make(int size, int n, int threads)
 }
 
 /* Steps every scene one frame, in one batch or each alone; 0 when every one stepped. */
-static int batch_frame(cs_sim **sims, int n, const int64_t *sub, cs_status *each, int alone)
+static int batch_frame(const batch_how *how, cs_sim **sims, int n, const int64_t *sub, cs_status *each, int alone)
 {
     if (!alone) {
         if (cs_sims_step(sims, (size_t)n, sub, each) != CS_OK) return -1;
@@ -158,25 +172,33 @@ static int batch_frame(cs_sim **sims, int n, const int64_t *sub, cs_status *each
             fprintf(stderr, "clothd-bench: scene %d: %s\n", k, cs_sim_error(sims[k]));
             return -1;
         }
+    for (int k = 0; how->read && k < n; k++) {
+        cs_info info;
+        cs_sim_info(sims[k], &info);
+        if (cs_read_positions(sims[k], how->buf, 3 * (size_t)info.n_vertices) != CS_OK) {
+            fprintf(stderr, "clothd-bench: scene %d: %s\n", k, cs_sim_error(sims[k]));
+            return -1;
+        }
+    }
     return 0;
 }
 
 /* Frames a second (of all scenes together) over `seconds` of wall time, after one frame that
  * settles; or over `frames` frames when that is > 0. Negative on a failure. */
-static double batch_rate(cs_sim **sims, int n, const int64_t *sub, cs_status *each, int alone, double seconds,
+static double batch_rate(const batch_how *how, cs_sim **sims, int n, const int64_t *sub, cs_status *each, int alone, double seconds,
                          int64_t frames)
 {
     if (frames > 0) {
         for (int64_t f = 0; f < frames; f++)
-            if (batch_frame(sims, n, sub, each, alone) != 0) return -1;
+            if (batch_frame(how, sims, n, sub, each, alone) != 0) return -1;
         return 0;
     }
-    if (batch_frame(sims, n, sub, each, alone) != 0) return -1;
+    if (batch_frame(how, sims, n, sub, each, alone) != 0) return -1;
     int64_t done = 0;
     const double t0 = now();
     double t = t0;
     while (t - t0 < seconds) {
-        if (batch_frame(sims, n, sub, each, alone) != 0) return -1;
+        if (batch_frame(how, sims, n, sub, each, alone) != 0) return -1;
         done++;
         t = now();
     }
@@ -189,14 +211,14 @@ typedef struct batch_row {
     double frame_rate, batch, alone; /* frames a second of all scenes together */
 } batch_row;
 
-static int run_batch(const int *sizes, int n_sizes, const int *counts, int n_counts, int threads, double seconds,
+static int run_batch(batch_how *how, const int *sizes, int n_sizes, const int *counts, int n_counts, int threads, double seconds,
                      int64_t frames, const char *only, int json)
 {
     if (frames > 0) { /* one way, fixed work */
         for (int si = 0; si < n_sizes; si++)
             for (int ci = 0; ci < n_counts; ci++) {
                 const int n = counts[ci];
-                cs_sim **sims = batch_make(sizes[si], n, threads);
+                cs_sim **sims = batch_make(how, sizes[si], n, threads);
                 int64_t *sub = malloc(sizeof *sub * (size_t)n);
                 cs_status *each = malloc(sizeof *each * (size_t)n);
                 if (!sims || !sub || !each) return 1;
@@ -205,7 +227,7 @@ static int run_batch(const int *sizes, int n_sizes, const int *counts, int n_cou
                     cs_sim_info(sims[k], &info);
                     sub[k] = info.substeps;
                 }
-                if (batch_rate(sims, n, sub, each, strcmp(only, "alone") == 0, 0, frames) < 0) return 1;
+                if (batch_rate(how, sims, n, sub, each, strcmp(only, "alone") == 0, 0, frames) < 0) return 1;
                 for (int k = 0; k < n; k++) cs_sim_destroy(sims[k]);
                 free(sims), free(sub), free(each);
             }
@@ -219,7 +241,7 @@ static int run_batch(const int *sizes, int n_sizes, const int *counts, int n_cou
         double single = 0; /* one scene alone: frames a second */
         for (int ci = 0; ci < n_counts; ci++) {
             const int n = counts[ci];
-            cs_sim **sims = batch_make(size, n, threads);
+            cs_sim **sims = batch_make(how, size, n, threads);
             int64_t *sub = malloc(sizeof *sub * (size_t)n);
             cs_status *each = malloc(sizeof *each * (size_t)n);
             if (!sims || !sub || !each) return 1;
@@ -230,20 +252,20 @@ static int run_batch(const int *sizes, int n_sizes, const int *counts, int n_cou
             for (int k = 0; k < n; k++) sub[k] = info.substeps;
             batch_row r = {size, n, info.substeps, p.frame_rate, 0, 0};
             if (single == 0) {
-                single = batch_rate(sims, 1, sub, each, 1, seconds, 0);
+                single = batch_rate(how, sims, 1, sub, each, 1, seconds, 0);
                 if (single < 0) return 1;
             }
-            r.alone = n == 1 ? single : batch_rate(sims, n, sub, each, 1, seconds, 0);
-            r.batch = batch_rate(sims, n, sub, each, 0, seconds, 0);
+            r.alone = n == 1 ? single : batch_rate(how, sims, n, sub, each, 1, seconds, 0);
+            r.batch = batch_rate(how, sims, n, sub, each, 0, seconds, 0);
             if (r.alone < 0 || r.batch < 0) return 1;
             const double vs = (double)size * size * r.substeps; /* vertex-substeps a frame */
             const double realtime = r.batch / r.frame_rate;    /* scenes it keeps in real time */
             if (json)
-                printf("{\"backend\":\"cpu\",\"device\":\"%s\",\"nx\":%d,\"ny\":%d,\"scenes\":%d,"
+                printf("{\"backend\":\"%s\",\"device\":\"%s\",\"read\":%s,\"nx\":%d,\"ny\":%d,\"scenes\":%d,"
                        "\"substeps_per_frame\":%d,\"frame_rate\":%.1f,\"batch_vertex_substeps_per_s\":%.0f,"
                        "\"alone_vertex_substeps_per_s\":%.0f,\"single_vertex_substeps_per_s\":%.0f,"
                        "\"batch_over_alone\":%.3f,\"batch_over_single\":%.3f,\"scenes_in_real_time\":%.1f}\n",
-                       cs_sim_device(sims[0]), size, size, n, r.substeps, r.frame_rate, r.batch * vs, r.alone * vs,
+                       cs_sim_backend(sims[0]), cs_sim_device(sims[0]), how->read ? "true" : "false", size, size, n, r.substeps, r.frame_rate, r.batch * vs, r.alone * vs,
                        single * vs, r.batch / r.alone, r.batch / single, realtime);
             else
                 printf("%4dx%-4d %6d %9d %19.0f %19.0f %8.2f %9.2f %9.1f\n", size, size, n, r.substeps, r.batch * vs,
@@ -254,6 +276,71 @@ static int run_batch(const int *sizes, int n_sizes, const int *counts, int n_cou
         }
     }
     return 0;
+}
+
+/* Scenes of one kind a batch runs in real time at this bandwidth: a frame's time is each scene's
+ * traffic (its substeps at the model's bytes) and host calls, plus the batch's kernels once (their
+ * launch gaps, shared by every scene), one after another. */
+static double scenes_in_real_time(const cs_cost_model *m, double n, double substeps, double fps, double bw,
+                                  double calls)
+{
+    const double traffic = substeps * (m->bytes_per_vertex_substep * n + m->fixed_per_substep) / bw;
+    const double shared = m->launches_per_frame * LAUNCH_US * 1e-6, host = calls * HOST_CALL_US * 1e-6;
+    const double left = 1.0 / fps - shared;
+    return left > 0 ? floor(left / (traffic + host)) : 0;
+}
+
+/* The batch prediction: the default scene (scene and parameters as the engine's defaults, no
+ * rocks) in one batch of many, on an H100 and an H200: by bandwidth and launches alone, with each
+ * scene's host calls when no frame is read, and with every scene's frame read each frame. */
+static void print_batch(int json)
+{
+    const cs_backend *cuda = cs_backend_cuda();
+    cs_sim *sim = NULL;
+    char err[256];
+    if (!cuda || cs_sim_create(NULL, NULL, "cpu", &sim, err, sizeof err) != CS_OK) return;
+    cs_info info;
+    cs_params p;
+    cs_cost_model m;
+    cs_sim_info(sim, &info);
+    cs_sim_params(sim, &p);
+    cs_sim_cost(sim, cuda, &m);
+    cs_scene sc;
+    cs_sim_scene(sim, &sc);
+    cs_sim_destroy(sim);
+    const double n = info.n_vertices, F = info.substeps, fps = p.frame_rate;
+    const double bws[2] = {H100_BW, H200_BW};
+    double k[2][3];
+    for (int d = 0; d < 2; d++) {
+        k[d][0] = scenes_in_real_time(&m, n, F, fps, bws[d], 0);
+        k[d][1] = scenes_in_real_time(&m, n, F, fps, bws[d], m.batch_calls_per_scene);
+        k[d][2] = scenes_in_real_time(&m, n, F, fps, bws[d], m.batch_calls_per_read_scene);
+    }
+    const double mb = F * (m.bytes_per_vertex_substep * n + m.fixed_per_substep) / 1e6;
+    if (json) {
+        printf("{\"backend\":\"cuda\",\"batch\":\"default scene\",\"nx\":%d,\"ny\":%d,\"substeps_per_frame\":%d,"
+               "\"frame_rate\":%.0f,\"bytes_per_vertex_substep\":%.2f,\"mb_per_scene_frame\":%.2f,"
+               "\"launches_per_frame\":%.1f,\"launch_us_assumed\":%.1f,\"host_call_us_assumed\":%.1f,"
+               "\"host_calls_per_scene\":%.0f,\"host_calls_per_read_scene\":%.0f",
+               (int)sc.nx, (int)sc.ny, info.substeps, fps, m.bytes_per_vertex_substep, mb, m.launches_per_frame,
+               LAUNCH_US, HOST_CALL_US, m.batch_calls_per_scene, m.batch_calls_per_read_scene);
+        const char *dev[2] = {"h100", "h200"};
+        for (int d = 0; d < 2; d++)
+            printf(",\"real_time_scenes_%s_device_only\":%.0f,\"real_time_scenes_%s\":%.0f,"
+                   "\"real_time_scenes_%s_frames_read\":%.0f",
+                   dev[d], k[d][0], dev[d], k[d][1], dev[d], k[d][2]);
+        printf("}\n");
+        return;
+    }
+    printf("cuda, a batch of default scenes (%d x %d, %d substeps a frame at %.0f fps, no rocks):\n", (int)sc.nx,
+           (int)sc.ny, info.substeps, fps);
+    printf("  %.2f bytes per vertex-substep: %.1f MB a scene-frame; %.0f launches a frame for the whole batch "
+           "(%.1f us each);\n  %.0f host calls a scene per frame, %.0f with its frame read (%.1f us each)\n",
+           m.bytes_per_vertex_substep, mb, m.launches_per_frame, LAUNCH_US, m.batch_calls_per_scene,
+           m.batch_calls_per_read_scene, HOST_CALL_US);
+    printf("  scenes in real time: H100 %.0f by bandwidth and launches, %.0f with host calls, %.0f with every frame "
+           "read;\n                       H200 %.0f, %.0f, %.0f\n",
+           k[0][0], k[0][1], k[0][2], k[1][0], k[1][1], k[1][2]);
 }
 
 static int parse_list(const char *s, int *out, int cap)
@@ -270,7 +357,7 @@ int main(int argc, char **argv)
     const char *backend = "cpu", *sizes_arg = "64,128,256,512", *integrator = "velocity_verlet", *rocks_arg = "0,16";
     const char *contacts = "surface,vertex";
     const char *batch_arg = NULL, *only = NULL;
-    int json = 0, threads = 0, model_only = 0, sizes_given = 0;
+    int json = 0, threads = 0, model_only = 0, sizes_given = 0, read_frames = 0;
     double seconds = 1.5;
     long long frames = 0;
     for (int i = 1; i < argc; i++) {
@@ -278,6 +365,7 @@ int main(int argc, char **argv)
         const char *val = i + 1 < argc ? argv[i + 1] : NULL;
         if (strcmp(a, "--json") == 0) json = 1;
         else if (strcmp(a, "--model") == 0) model_only = 1;
+        else if (strcmp(a, "--read") == 0) read_frames = 1;
         else if (strcmp(a, "--backend") == 0 && val) backend = val, i++;
         else if (strcmp(a, "--threads") == 0 && val) threads = atoi(val), i++;
         else if (strcmp(a, "--seconds") == 0 && val) seconds = atof(val), i++;
@@ -337,7 +425,13 @@ int main(int argc, char **argv)
                 fprintf(stderr, "clothd-bench: sizes must be 2..4096\n");
                 return 2;
             }
-        return run_batch(bsizes, n_bsizes, counts, n_counts, threads, seconds, frames, only ? only : "", json);
+        int widest = 0;
+        for (int k = 0; k < n_bsizes; k++) widest = bsizes[k] > widest ? bsizes[k] : widest;
+        batch_how how = {backend, read_frames, NULL, 3 * (size_t)widest * (size_t)widest};
+        if (read_frames && !(how.buf = malloc(sizeof(float) * how.len))) return 1;
+        const int rc = run_batch(&how, bsizes, n_bsizes, counts, n_counts, threads, seconds, frames, only ? only : "", json);
+        free(how.buf);
+        return rc;
     }
     const cs_param_info *cm = cs_param_find("contact_model");
     int models[4], n_models = 0;
@@ -461,5 +555,6 @@ int main(int argc, char **argv)
             cs_sim_destroy(sim);
         }
     }
+    if (model_only) print_batch(json);
     return 0;
 }

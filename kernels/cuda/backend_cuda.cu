@@ -40,12 +40,32 @@
  * After a call whose frame was read, the positions (and velocities, rocks) are copied on the
  * device, then to pinned double buffers on a second stream, overlapping whatever comes next; a
  * read waits for that copy only. Everything else (rest lengths, accelerations) is copied when a
- * snapshot, a hash or a command asks. */
+ * snapshot, a hash or a command asks.
+ *
+ * Batches (step_batch, cs_sims_step): many scenes advanced together, one launch per kernel per
+ * substep for all of them. Each scene keeps its own device buffers; the batch passes a device
+ * table of per-scene descriptors - the scene struct (parameters, rock count, grab), its buffers
+ * for even and odd substeps, its substeps, integrator, strain and rock path - and, per kernel, the
+ * prefix sums of the blocks each scene takes, so a block finds its scene by binary search and runs
+ * the block function the lone launch runs (cloth_block, drift_first_block, strain_block,
+ * rocks_block, rock_force_warp, rock_move_thread: one source). The table sorts the scenes by
+ * substeps, most first, so the scenes still running at a substep are a prefix and a launch covers
+ * only their blocks; the others have finished. A table of each scene's own pointers, not shared
+ * arrays with per-scene offsets: the launch shape is the same (one launch covers every scene's
+ * vertices), and adding, deleting or resizing a scene allocates or frees that scene's buffers only
+ * - nothing of another scene moves or is copied, so no scene can disturb another. The rows of a
+ * cloth block are chosen for the batch as a whole (tile_rows_for's rule over all its blocks): a
+ * scene's bits do not depend on them. What the scenes' frames were read for is copied on the
+ * device in one launch after the batch and to pinned memory on the batch's copy stream. The
+ * batch launches its kernels one by one on its stream (no graph yet): about substeps + 1 launches
+ * a frame for the whole batch. */
 #include <cuda_runtime.h>
 
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include <mutex>
 
 #include "clothsim/backend.h"
 #include "clothsim/physics.h"
@@ -405,16 +425,20 @@ __device__ static void finish_groups(const cuda_scene *sc, const cuda_bufs &b, f
     }
 }
 
-/* The cloth kernel (see the top of the file). Grid: (chunks per row, tiles); TILE_W threads. */
+/* One block of the cloth kernel (see the top of the file): chunk column seg of rows tile_rows
+ * tile .. on, TILE_W threads. k_cloth runs it for one scene, k_cloth_batch for the block's scene of
+ * a batch. What a vertex ends with does not depend on the tiling: every sum is in a fixed order
+ * (its springs, the rocks, a row chunk's tree, the chunks of a group, the groups). */
 template <int MODE, bool STRAIN, bool ROCKS>
-__global__ void __launch_bounds__(TILE_W) k_cloth(const cuda_scene *__restrict__ sc, cuda_bufs b)
+__device__ static void cloth_block(const cuda_scene *__restrict__ sc, const cuda_bufs &b, int32_t seg, int32_t tile,
+                                   int32_t tile_rows)
 {
     CS_DYNAMIC_SHARED(float, sm);
     const cs_phys *p = &sc->p;
     const int t = (int)threadIdx.x;
-    const int32_t nx = p->nx, seg = (int32_t)blockIdx.x, c0 = seg * TILE_W, i = c0 + t;
-    const int32_t j0 = (int32_t)blockIdx.y * sc->tile_rows;
-    const int32_t j1 = j0 + sc->tile_rows < p->ny ? j0 + sc->tile_rows : p->ny;
+    const int32_t nx = p->nx, c0 = seg * TILE_W, i = c0 + t;
+    const int32_t j0 = tile * tile_rows;
+    const int32_t j1 = j0 + tile_rows < p->ny ? j0 + tile_rows : p->ny;
     const bool live = i < nx;
     const bool surface = ROCKS && p->contact_model == CS_CONTACT_SURFACE;
     const int kf = t + FORCE_OFF; /* this column in the force rows */
@@ -609,19 +633,26 @@ __global__ void __launch_bounds__(TILE_W) k_cloth(const cuda_scene *__restrict__
     if (bad) atomicOr(&b.flags[FLAG_NONFINITE], 1);
 }
 
+/* The cloth kernel of one scene. Grid: (chunks per row, tiles). */
+template <int MODE, bool STRAIN, bool ROCKS>
+__global__ void __launch_bounds__(TILE_W) k_cloth(const cuda_scene *__restrict__ sc, cuda_bufs b)
+{
+    cloth_block<MODE, STRAIN, ROCKS>(sc, b, (int32_t)blockIdx.x, (int32_t)blockIdx.y, sc->tile_rows);
+}
+
 /* Velocity Verlet's first substep of a graph: grab, kick, drift of every vertex (no kick to
- * finish: a is complete) in place, and of every rock (block 0). */
-__global__ void k_drift_first(const cuda_scene *__restrict__ sc, cuda_bufs b)
+ * finish: a is complete) in place, and of every rock (block 0). Block blk of 256 threads. */
+__device__ static void drift_first_block(const cuda_scene *__restrict__ sc, const cuda_bufs &b, uint32_t blk)
 {
     const cs_phys *p = &sc->p;
-    if (blockIdx.x == 0)
+    if (blk == 0)
         for (int32_t r = (int32_t)threadIdx.x; r < sc->nr; r += (int32_t)blockDim.x) {
             cs_rock_state k = dload(&b.rocks[r]);
             cs_rock_kick(&k, p->hdt);
             cs_rock_drift(&k, p->dt);
             dstore(&b.rocks[r], k);
         }
-    const size_t v = (size_t)blockIdx.x * blockDim.x + threadIdx.x, n = (size_t)p->n;
+    const size_t v = (size_t)blk * blockDim.x + threadIdx.x, n = (size_t)p->n;
     if (v >= n) return;
     float *s = b.out; /* in place: in == out */
     const cs_vec3 xi = cs_v3(dload(&s[v]), dload(&s[n + v]), dload(&s[2 * n + v]));
@@ -634,11 +665,14 @@ __global__ void k_drift_first(const cuda_scene *__restrict__ sc, cuda_bufs b)
     for (int q = 0; q < 6; q++) dstore(&s[(size_t)q * n + v], o[q]);
 }
 
-/* Symplectic Euler's strain pass on the new positions (b.in), rest lengths as in k_cloth. */
-__global__ void k_strain(const cuda_scene *__restrict__ sc, cuda_bufs b)
+__global__ void k_drift_first(const cuda_scene *__restrict__ sc, cuda_bufs b) { drift_first_block(sc, b, blockIdx.x); }
+
+/* Symplectic Euler's strain pass on the new positions (b.in), rest lengths as in k_cloth. Block
+ * blk of 256 threads. */
+__device__ static void strain_block(const cuda_scene *__restrict__ sc, const cuda_bufs &b, uint32_t blk)
 {
     const cs_phys *p = &sc->p;
-    const int32_t v = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x);
+    const int32_t v = (int32_t)(blk * blockDim.x + threadIdx.x);
     if (v >= p->n) return;
     const int32_t nx = p->nx, ny = p->ny, i = v % nx, j = v / nx;
     const size_t n = (size_t)p->n;
@@ -663,6 +697,8 @@ __global__ void k_strain(const cuda_scene *__restrict__ sc, cuda_bufs b)
     if ((unsigned char)changed != before) dstore(&b.chg[v], (unsigned char)changed);
     if (torn) atomicAdd(&b.flags[FLAG_TORN], torn);
 }
+
+__global__ void k_strain(const cuda_scene *__restrict__ sc, cuda_bufs b) { strain_block(sc, b, blockIdx.x); }
 
 /* ---- rocks ---- */
 
@@ -735,7 +771,7 @@ __device__ static void rock_move(int mode, cs_rock_state *k, const cs_phys *p, i
 }
 
 /* Up to ROCKS_FUSED rocks: one block of 32 warps, a warp per rock (two rounds), then the moves. */
-template <int MODE> __global__ void __launch_bounds__(1024) k_rocks(const cuda_scene *__restrict__ sc, cuda_bufs b)
+__device__ static void rocks_block(const cuda_scene *__restrict__ sc, const cuda_bufs &b, int mode)
 {
     const int warp = (int)(threadIdx.x >> 5), lane = (int)(threadIdx.x & 31u);
     cs_vec3 F[2] = {cs_v3(0.0f, 0.0f, 0.0f), cs_v3(0.0f, 0.0f, 0.0f)}, T[2] = {F[0], F[1]};
@@ -750,15 +786,19 @@ template <int MODE> __global__ void __launch_bounds__(1024) k_rocks(const cuda_s
             if (r >= sc->nr) continue;
             cs_rock_state rk = dload(&b.rocks[r]);
             cs_rock_accel(&rk, F[k], T[k]);
-            rock_move(MODE, &rk, &sc->p, b.flags);
+            rock_move(mode, &rk, &sc->p, b.flags);
             dstore(&b.rocks[r], rk);
         }
 }
 
-/* More rocks: accelerations (a warp per rock; a rock's force never reads another's a) ... */
-__global__ void __launch_bounds__(32 * ROCK_WARPS) k_rock_force(const cuda_scene *__restrict__ sc, cuda_bufs b)
+template <int MODE> __global__ void __launch_bounds__(1024) k_rocks(const cuda_scene *__restrict__ sc, cuda_bufs b)
 {
-    const int32_t r = (int32_t)(blockIdx.x * ROCK_WARPS + (threadIdx.x >> 5));
+    rocks_block(sc, b, MODE);
+}
+
+/* More rocks: accelerations (a warp per rock; a rock's force never reads another's a) ... */
+__device__ static void rock_force_warp(const cuda_scene *__restrict__ sc, const cuda_bufs &b, int32_t r)
+{
     if (r >= sc->nr) return; /* warp-uniform */
     cs_vec3 F, T;
     rock_force(sc, b, r, &F, &T);
@@ -769,14 +809,171 @@ __global__ void __launch_bounds__(32 * ROCK_WARPS) k_rock_force(const cuda_scene
     }
 }
 
-/* ... then the moves, a thread per rock. */
-template <int MODE> __global__ void k_rock_move(const cuda_scene *__restrict__ sc, cuda_bufs b)
+__global__ void __launch_bounds__(32 * ROCK_WARPS) k_rock_force(const cuda_scene *__restrict__ sc, cuda_bufs b)
 {
-    const int32_t r = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x);
+    rock_force_warp(sc, b, (int32_t)(blockIdx.x * ROCK_WARPS + (threadIdx.x >> 5)));
+}
+
+/* ... then the moves, a thread per rock. */
+__device__ static void rock_move_thread(const cuda_scene *__restrict__ sc, const cuda_bufs &b, int32_t r, int mode)
+{
     if (r >= sc->nr) return;
     cs_rock_state k = dload(&b.rocks[r]);
-    rock_move(MODE, &k, &sc->p, b.flags);
+    rock_move(mode, &k, &sc->p, b.flags);
     dstore(&b.rocks[r], k);
+}
+
+template <int MODE> __global__ void k_rock_move(const cuda_scene *__restrict__ sc, cuda_bufs b)
+{
+    rock_move_thread(sc, b, (int32_t)(blockIdx.x * blockDim.x + threadIdx.x), MODE);
+}
+
+/* ---- batches: many scenes, one launch per kernel per substep ----
+ *
+ * Each scene keeps its own device buffers (its cuda_ctx's); a batch launch reads a device table of
+ * the scenes' descriptors and, per kernel, the prefix sums of the blocks each scene takes. A block
+ * finds its scene by binary search, and its place within the scene's launch, and runs the same
+ * block function (cloth_block, drift_first_block, strain_block, rocks_block, rock_force_warp,
+ * rock_move_thread) with the same arguments a lone launch gives it. Scenes past their substeps
+ * exit. */
+
+/* The kernels of a batch substep, in launch order: the index of each's block prefix sums. */
+enum { BK_DRIFT, BK_CLOTH, BK_ROCKS, BK_ROCK_MOVE, BK_STRAIN, BK_COUNT };
+#define BATCH_ROCK_THREADS 1024 /* the fused rock block's threads; the split force kernel's warps */
+
+/* One scene of a batch (device memory). Substep s reads cloth[s & 1] (the state and rest
+ * lengths of that substep), and the drift and strain passes swapped[s & 1] (their state is the
+ * other buffer: the drift works in place on it, the strain pass reads the positions just written). */
+struct batch_scene {
+    const cuda_scene *sc;
+    cuda_bufs cloth[2], swapped[2];
+    int32_t substeps;  /* of this round */
+    int32_t graph;     /* the lone step's graph length: a drift starts and a last kick ends each */
+    int32_t verlet, strain, rocks; /* rocks: rock_path */
+    int32_t tile_rows; /* rows of a cloth block: the batch's, not the lone step's */
+};
+
+/* The scene block `blk` of a launch belongs to: the last k with start[k] <= blk (empty scenes have
+ * start[k] == start[k + 1]). Block-uniform. */
+__device__ static int32_t batch_scene_of(const int32_t *__restrict__ start, int32_t n, uint32_t blk)
+{
+    int32_t lo = 0, hi = n; /* start[lo] <= blk < start[hi] */
+    while (hi - lo > 1) {
+        const int32_t mid = lo + (hi - lo) / 2;
+        if ((uint32_t)start[mid] <= blk) lo = mid;
+        else hi = mid;
+    }
+    return lo;
+}
+
+/* This block's scene in a batch launch at substep s, and the block's index in the scene's own
+ * launch; NULL when the scene has run all its substeps. */
+__device__ static const batch_scene *batch_block(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start,
+                                                 int32_t n, int32_t s, uint32_t *local)
+{
+    const int32_t k = batch_scene_of(start, n, blockIdx.x);
+    *local = blockIdx.x - (uint32_t)start[k];
+    return s < tab[k].substeps ? &tab[k] : NULL;
+}
+
+__device__ static inline bool batch_first(const batch_scene &d, int32_t s) { return s % d.graph == 0; }
+__device__ static inline bool batch_last(const batch_scene &d, int32_t s)
+{
+    return s == d.substeps - 1 || s % d.graph == d.graph - 1;
+}
+
+/* The instantiation launch_cloth picks for this scene: the strain update in the Verlet modes only. */
+template <int MODE>
+__device__ static void cloth_block_any(const batch_scene &d, const cuda_bufs &b, int32_t seg, int32_t tile)
+{
+    constexpr bool S = MODE == MODE_VERLET || MODE == MODE_VERLET_LAST;
+    const bool strain = S && d.strain, rocks = d.rocks != 0;
+    const int32_t tr = d.tile_rows;
+    if (strain && rocks) cloth_block<MODE, S, true>(d.sc, b, seg, tile, tr);
+    else if (strain) cloth_block<MODE, S, false>(d.sc, b, seg, tile, tr);
+    else if (rocks) cloth_block<MODE, false, true>(d.sc, b, seg, tile, tr);
+    else cloth_block<MODE, false, false>(d.sc, b, seg, tile, tr);
+}
+
+__global__ void __launch_bounds__(TILE_W)
+    k_cloth_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n, int32_t s)
+{
+    uint32_t local;
+    const batch_scene *in = batch_block(tab, start, n, s, &local);
+    if (!in) return;
+    const batch_scene &d = *in;
+    const cuda_bufs b = d.cloth[s & 1];
+    const int32_t nseg = d.sc->p.nseg, seg = (int32_t)local % nseg, tile = (int32_t)local / nseg;
+    const bool last = batch_last(d, s);
+    if (d.verlet) {
+        if (last) cloth_block_any<MODE_VERLET_LAST>(d, b, seg, tile);
+        else cloth_block_any<MODE_VERLET>(d, b, seg, tile);
+    } else {
+        if (last) cloth_block_any<MODE_EULER_LAST>(d, b, seg, tile);
+        else cloth_block_any<MODE_EULER>(d, b, seg, tile);
+    }
+}
+
+/* Velocity Verlet scenes whose graph starts at substep s (the others have no blocks or exit). */
+__global__ void k_drift_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n, int32_t s)
+{
+    uint32_t local;
+    const batch_scene *d = batch_block(tab, start, n, s, &local);
+    if (d && batch_first(*d, s)) drift_first_block(d->sc, d->swapped[s & 1], local);
+}
+
+__global__ void k_strain_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n, int32_t s)
+{
+    uint32_t local;
+    const batch_scene *d = batch_block(tab, start, n, s, &local);
+    if (d) strain_block(d->sc, d->swapped[s & 1], local);
+}
+
+__device__ static inline int batch_rock_mode(const batch_scene &d, int32_t s)
+{
+    return d.verlet ? (batch_last(d, s) ? ROCKS_VERLET_LAST : ROCKS_VERLET) : ROCKS_EULER;
+}
+
+/* Up to ROCKS_FUSED rocks: the scene's one block does it all; more: a warp per rock, forces only. */
+__global__ void __launch_bounds__(BATCH_ROCK_THREADS)
+    k_rocks_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n, int32_t s)
+{
+    uint32_t local;
+    const batch_scene *d = batch_block(tab, start, n, s, &local);
+    if (!d) return;
+    const cuda_bufs b = d->cloth[s & 1];
+    if (d->rocks == 1) rocks_block(d->sc, b, batch_rock_mode(*d, s));
+    else rock_force_warp(d->sc, b, (int32_t)(local * (BATCH_ROCK_THREADS / 32) + (threadIdx.x >> 5)));
+}
+
+/* ... and their moves, a thread per rock. */
+__global__ void k_rock_move_batch(const batch_scene *__restrict__ tab, const int32_t *__restrict__ start, int32_t n,
+                                  int32_t s)
+{
+    uint32_t local;
+    const batch_scene *d = batch_block(tab, start, n, s, &local);
+    if (d) rock_move_thread(d->sc, d->cloth[s & 1], (int32_t)(local * blockDim.x + threadIdx.x), batch_rock_mode(*d, s));
+}
+
+/* The frames a batch's scenes were read for: each job two ranges of 32-bit words (the state's
+ * positions and/or velocities, the rocks) copied into the scene's frame buffers, for all scenes in
+ * one launch (copy_frame's device copies, batched). */
+struct frame_job {
+    const uint32_t *src[2];
+    uint32_t *dst[2];
+    int32_t words[2];
+};
+static_assert(sizeof(cs_rock_state) % 4 == 0, "a rock is whole 32-bit words");
+#define FRAME_WORDS_PER_BLOCK 4096
+
+__global__ void k_frames_batch(const frame_job *__restrict__ jobs, const int32_t *__restrict__ start, int32_t n)
+{
+    const int32_t k = batch_scene_of(start, n, blockIdx.x);
+    const frame_job &j = jobs[k];
+    const int64_t first = (int64_t)(blockIdx.x - (uint32_t)start[k]) * FRAME_WORDS_PER_BLOCK;
+    for (int r = 0; r < 2; r++)
+        for (int64_t w = first + threadIdx.x; w < first + FRAME_WORDS_PER_BLOCK && w < j.words[r]; w += blockDim.x)
+            dstore(&j.dst[r][w], dload(&j.src[r][w]));
 }
 
 /* ---- host side ---- */
@@ -822,6 +1019,9 @@ struct cuda_ctx {
     int *flags, *host_flags;   /* device counters and their pinned host copy */
     /* frames: after a step call, what the host read of the previous frame, copied ahead */
     cudaEvent_t ready[2], copied[2];
+    cudaEvent_t queued;        /* a batch waits for what this scene's stream holds ... */
+    int pending;               /* ... when something was queued on it since it was last idle */
+    int after_batch;           /* a batch's frame copy may still read the state (join_batch) */
     int slot;
     int64_t calls, frame_call; /* step calls so far; the call the frame in `slot` is of */
     unsigned frame_parts;      /* CS_SYNC_* parts in that frame */
@@ -977,6 +1177,7 @@ static void cuda_destroy(void *ctx)
         if (c->ready[k]) cudaEventDestroy(c->ready[k]);
         if (c->copied[k]) cudaEventDestroy(c->copied[k]);
     }
+    if (c->queued) cudaEventDestroy(c->queued);
     if (c->stream) cudaStreamDestroy(c->stream);
     if (c->copy) cudaStreamDestroy(c->copy);
     free(c);
@@ -1004,6 +1205,7 @@ static cs_status cuda_create(void **out, char *err, size_t err_len)
         if (e == cudaSuccess) e = cudaStreamCreateWithFlags(&c->copy, cudaStreamNonBlocking);
         for (int k = 0; k < 2 && e == cudaSuccess; k++) {
             e = cudaEventCreateWithFlags(&c->ready[k], cudaEventDisableTiming);
+            if (e == cudaSuccess && k == 0) e = cudaEventCreateWithFlags(&c->queued, cudaEventDisableTiming);
             if (e == cudaSuccess) e = cudaEventCreateWithFlags(&c->copied[k], cudaEventDisableTiming);
         }
         if (e == cudaSuccess) e = cudaMalloc((void **)&c->flags, FLAG_COUNT * sizeof(int));
@@ -1023,12 +1225,16 @@ static cs_status cuda_create(void **out, char *err, size_t err_len)
     return CS_OK;
 }
 
+/* Cloth blocks of a scene at tr rows a block. */
+static int64_t cloth_blocks(const cs_phys *p, int32_t tr) { return (int64_t)p->nseg * ((p->ny + tr - 1) / tr); }
+
 /* Rows of a cloth block: as many as keep about four blocks per SM busy, at most 8 (fewer rows,
- * more blocks: small cloths are latency-bound, large ones bandwidth-bound). */
+ * more blocks: small cloths are latency-bound, large ones bandwidth-bound). A batch applies the
+ * same rule to all its scenes' blocks together (batch_run). */
 static int32_t tile_rows_for(const cs_phys *p, int sms)
 {
     int32_t tr = MAX_TILE_ROWS;
-    while (tr > 1 && (int64_t)p->nseg * ((p->ny + tr - 1) / tr) < 4 * (int64_t)sms) tr >>= 1;
+    while (tr > 1 && cloth_blocks(p, tr) < 4 * (int64_t)sms) tr >>= 1;
     return tr;
 }
 
@@ -1091,10 +1297,42 @@ static cuda_bufs bufs_of(const cuda_ctx *c, int pos, int rest)
     return b;
 }
 
+/* ---- batches (host): see "batches" above ----
+ *
+ * What a batch call needs besides its scenes' own buffers: the descriptor table, the block prefix
+ * sums and per-scene flags, on the device and in pinned staging. One per process (the scenes of a
+ * process share the device they were created on), grown as batches grow and kept between calls. */
+struct batch_ctx {
+    cudaStream_t stream, copy;   /* the batch's kernels and frames' device copies; the copies to pinned memory */
+    cudaEvent_t frames;          /* recorded on stream after the frames' device copies */
+    int32_t cap;                 /* scenes the arrays hold */
+    batch_scene *tab, *host_tab; /* [cap] */
+    int32_t *start, *host_start; /* [BK_COUNT][scenes + 1] */
+    int *flags, *host_flags;     /* [cap][FLAG_COUNT] */
+    frame_job *jobs, *host_jobs; /* [cap] */
+    int32_t *jstart, *host_jstart; /* [cap + 1]: the frame jobs' block prefix sums */
+    int32_t *order;              /* [cap]: the batch's items, most substeps first */
+};
+static batch_ctx batch;
+static std::mutex batch_lock;
+
+/* Before a scene's own stream touches its buffers after a batch: the frame copies the batch
+ * queued after it (reading the state) come first. The event may have been recorded again by a
+ * later batch since: waiting for that later point is waiting longer, never too little. */
+static cs_status join_batch(cuda_ctx *c)
+{
+    if (!c->after_batch) return CS_OK;
+    CUDA_CHECK(cudaStreamWaitEvent(c->stream, batch.frames, 0));
+    c->after_batch = 0;
+    return CS_OK;
+}
+
 static cs_status cuda_upload(void *ctx, const cs_model *m, cs_state *s)
 {
     cuda_ctx *c = (cuda_ctx *)ctx;
-    cs_status st = reserve(c, m, s);
+    c->pending = 1;
+    cs_status st = join_batch(c);
+    if (st == CS_OK) st = reserve(c, m, s);
     if (st != CS_OK) return st;
     const size_t n = (size_t)s->n, f = sizeof(float) * n;
     cuda_scene k;
@@ -1185,6 +1423,9 @@ static cs_status cuda_refresh(void *ctx, const cs_model *m, cs_state *s)
 {
     cuda_ctx *c = (cuda_ctx *)ctx;
     (void)m, (void)s;
+    c->pending = 1;
+    const cs_status st = join_batch(c);
+    if (st != CS_OK) return st;
     cloth(c, MODE_ACCEL, false, c->cur, c->rest_cur);
     CUDA_CHECK(cudaGetLastError());
     rocks(c, ROCKS_ACCEL, c->cur, c->rest_cur);
@@ -1299,6 +1540,7 @@ static cs_status copy_frame(cuda_ctx *c)
     c->wanted = 0;
     c->frame_call = -1;
     if (!parts) return CS_OK;
+    c->pending = 1;
     const int k = c->slot ^= 1;
     const size_t n = (size_t)c->vb.n, f3 = 3 * sizeof(float) * n;
     const size_t rocks = sizeof(cs_rock_state) * (size_t)c->host_sc.nr;
@@ -1328,6 +1570,15 @@ static cs_status copy_frame(cuda_ctx *c)
     return CS_OK;
 }
 
+/* After a step call's substeps are queued: the buffers that now hold the state (each substep
+ * swaps the state's; the drift of a graph's first substep is in place), and the frame. */
+static void advance(cuda_ctx *c, int32_t substeps, bool strain)
+{
+    c->cur ^= substeps & 1;
+    if (strain) c->rest_cur ^= substeps & 1;
+    c->calls++;
+}
+
 static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t substeps, cs_step_report *rep)
 {
     cuda_ctx *c = (cuda_ctx *)ctx;
@@ -1335,6 +1586,8 @@ static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t su
     rep->torn = 0;
     rep->finite = 1;
     if (substeps <= 0) return CS_OK;
+    const cs_status js = join_batch(c);
+    if (js != CS_OK) return js;
     CUDA_CHECK(cudaMemsetAsync(c->flags, 0, FLAG_COUNT * sizeof(int), c->stream));
     const int strain = m->phys.strain_on != 0;
     for (int32_t left = substeps; left > 0;) {
@@ -1344,24 +1597,266 @@ static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t su
         k.integrator = m->phys.integrator;
         k.strain = strain;
         k.rocks = rock_path(c->host_sc.nr);
-        k.pos = c->cur;
-        k.rest = c->rest_cur;
+        /* The buffers this graph starts from: each substep before it swapped them. */
+        const int32_t done = substeps - left;
+        k.pos = c->cur ^ (done & 1);
+        k.rest = c->rest_cur ^ (strain ? done & 1 : 0);
         cudaGraphExec_t exec;
         const cs_status st = graph_for(c, &k, &exec);
         if (st != CS_OK) return st;
         CUDA_CHECK(cudaGraphLaunch(exec, c->stream));
-        c->cur ^= k.len & 1; /* the drift of a graph's first substep is in place */
-        if (strain) c->rest_cur ^= k.len & 1;
         left -= k.len;
     }
-    c->calls++;
+    advance(c, substeps, strain);
     const cs_status fs = copy_frame(c);
     if (fs != CS_OK) return fs;
     CUDA_CHECK(cudaMemcpyAsync(c->host_flags, c->flags, FLAG_COUNT * sizeof(int), cudaMemcpyDeviceToHost, c->stream));
     CUDA_CHECK(cudaStreamSynchronize(c->stream));
+    c->pending = 0;
     rep->torn = c->host_flags[FLAG_TORN];
     rep->finite = c->host_flags[FLAG_NONFINITE] == 0;
     return CS_OK;
+}
+
+static void free_batch_arrays(batch_ctx *b)
+{
+    cudaFree(b->tab);
+    cudaFree(b->start);
+    cudaFree(b->flags);
+    cudaFreeHost(b->host_tab);
+    cudaFreeHost(b->host_start);
+    cudaFreeHost(b->host_flags);
+    cudaFree(b->jobs);
+    cudaFree(b->jstart);
+    cudaFreeHost(b->host_jobs);
+    cudaFreeHost(b->host_jstart);
+    free(b->order);
+}
+
+/* Room for n scenes (and the stream, the first time). New arrays before the old are freed. */
+static cs_status batch_reserve(cuda_ctx *c, batch_ctx *b, int32_t n)
+{
+    if (!b->stream) CUDA_CHECK(cudaStreamCreateWithFlags(&b->stream, cudaStreamNonBlocking));
+    if (!b->copy) CUDA_CHECK(cudaStreamCreateWithFlags(&b->copy, cudaStreamNonBlocking));
+    if (!b->frames) CUDA_CHECK(cudaEventCreateWithFlags(&b->frames, cudaEventDisableTiming));
+    if (n <= b->cap) return CS_OK;
+    int32_t cap = 64;
+    while (cap < n) cap *= 2;
+    batch_ctx g;
+    memset(&g, 0, sizeof g);
+    g.stream = b->stream, g.copy = b->copy, g.frames = b->frames;
+    const size_t starts = sizeof(int32_t) * BK_COUNT * ((size_t)cap + 1), flags = sizeof(int) * FLAG_COUNT * (size_t)cap;
+    cudaError_t e = cudaMalloc((void **)&g.tab, sizeof(batch_scene) * (size_t)cap);
+    if (e == cudaSuccess) e = cudaMallocHost((void **)&g.host_tab, sizeof(batch_scene) * (size_t)cap);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&g.start, starts);
+    if (e == cudaSuccess) e = cudaMallocHost((void **)&g.host_start, starts);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&g.flags, flags);
+    if (e == cudaSuccess) e = cudaMallocHost((void **)&g.host_flags, flags);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&g.jobs, sizeof(frame_job) * (size_t)cap);
+    if (e == cudaSuccess) e = cudaMallocHost((void **)&g.host_jobs, sizeof(frame_job) * (size_t)cap);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&g.jstart, sizeof(int32_t) * ((size_t)cap + 1));
+    if (e == cudaSuccess) e = cudaMallocHost((void **)&g.host_jstart, sizeof(int32_t) * ((size_t)cap + 1));
+    if (e == cudaSuccess && !(g.order = (int32_t *)malloc(sizeof(int32_t) * (size_t)cap))) e = cudaErrorMemoryAllocation;
+    if (e != cudaSuccess) {
+        free_batch_arrays(&g);
+        return cuda_fail(c, e, "allocating a batch's tables", __LINE__);
+    }
+    free_batch_arrays(b);
+    g.cap = cap;
+    *b = g;
+    return CS_OK;
+}
+
+/* The blocks scene d takes in each batch kernel (BK_*). */
+static void batch_blocks(const cuda_ctx *c, const batch_scene *d, int32_t blocks[BK_COUNT])
+{
+    const cs_phys *p = &c->host_sc.p;
+    const int32_t vblocks = (p->n + 255) / 256, nr = c->host_sc.nr;
+    blocks[BK_DRIFT] = d->verlet ? vblocks : 0;
+    blocks[BK_CLOTH] = (int32_t)cloth_blocks(p, d->tile_rows);
+    blocks[BK_ROCKS] = d->rocks == 1 ? 1 : d->rocks == 2 ? (nr + BATCH_ROCK_THREADS / 32 - 1) / (BATCH_ROCK_THREADS / 32) : 0;
+    blocks[BK_ROCK_MOVE] = d->rocks == 2 ? (nr + 255) / 256 : 0;
+    blocks[BK_STRAIN] = !d->verlet && d->strain ? vblocks : 0;
+}
+
+/* copy_frame for the scenes of a batch, m of them in b->order, whose frames were read since their
+ * last call: the device copies of all in one launch on the batch's stream, then each scene's copy
+ * to its pinned buffer on the batch's copy stream. */
+static cs_status batch_frames(cuda_ctx *c, batch_ctx *b, const cs_batch_item *items, int32_t m)
+{
+    int32_t nj = 0;
+    b->host_jstart[0] = 0;
+    for (int32_t j = 0; j < m; j++) {
+        cuda_ctx *ck = (cuda_ctx *)items[b->order[j]].ctx;
+        const unsigned parts = ck->wanted & (CS_SYNC_POSITIONS | CS_SYNC_VELOCITIES | CS_SYNC_ROCKS);
+        ck->wanted = 0;
+        ck->frame_call = -1;
+        if (!parts) continue;
+        const int k = ck->slot ^= 1;
+        /* The copy made two calls ago from this slot must be done before the slot is rewritten. */
+        CUDA_CHECK(cudaStreamWaitEvent(b->stream, ck->copied[k], 0));
+        const size_t n = (size_t)ck->vb.n;
+        const size_t lo = parts & CS_SYNC_POSITIONS ? 0 : 3 * n, hi = parts & CS_SYNC_VELOCITIES ? 6 * n : 3 * n;
+        const size_t rock_words = parts & CS_SYNC_ROCKS ? sizeof(cs_rock_state) / 4 * (size_t)ck->host_sc.nr : 0;
+        frame_job *f = &b->host_jobs[nj];
+        f->src[0] = (const uint32_t *)(ck->vb.state[ck->cur] + lo);
+        f->dst[0] = (uint32_t *)(ck->vb.frame_dev[k] + lo);
+        f->words[0] = (int32_t)(hi - lo);
+        f->src[1] = (const uint32_t *)ck->rb.rocks;
+        f->dst[1] = (uint32_t *)ck->rb.frame_rocks_dev[k];
+        f->words[1] = (int32_t)rock_words;
+        const int32_t most = f->words[0] > f->words[1] ? f->words[0] : f->words[1];
+        b->host_jstart[nj + 1] = b->host_jstart[nj] + (most + FRAME_WORDS_PER_BLOCK - 1) / FRAME_WORDS_PER_BLOCK;
+        ck->frame_call = ck->calls;
+        ck->frame_parts = parts;
+        ck->frame_waited = 0;
+        ck->after_batch = 1;
+        b->order[nj++] = b->order[j]; /* the scenes with a job, in job order (j >= nj: not read again) */
+    }
+    if (nj == 0) return CS_OK;
+    CUDA_CHECK(cudaMemcpyAsync(b->jobs, b->host_jobs, sizeof(frame_job) * (size_t)nj, cudaMemcpyHostToDevice, b->stream));
+    CUDA_CHECK(cudaMemcpyAsync(b->jstart, b->host_jstart, sizeof(int32_t) * ((size_t)nj + 1), cudaMemcpyHostToDevice,
+                               b->stream));
+    if (b->host_jstart[nj] > 0) k_frames_batch<<<(unsigned)b->host_jstart[nj], 256, 0, b->stream>>>(b->jobs, b->jstart, nj);
+    CUDA_CHECK(cudaGetLastError());
+    CUDA_CHECK(cudaEventRecord(b->frames, b->stream));
+    CUDA_CHECK(cudaStreamWaitEvent(b->copy, b->frames, 0));
+    for (int32_t q = 0; q < nj; q++) {
+        cuda_ctx *ck = (cuda_ctx *)items[b->order[q]].ctx;
+        const frame_job *f = &b->host_jobs[q];
+        const int k = ck->slot;
+        const size_t lo = (size_t)(f->dst[0] - (uint32_t *)ck->vb.frame_dev[k]);
+        if (f->words[0])
+            CUDA_CHECK(cudaMemcpyAsync(ck->vb.frame_host[k] + lo, ck->vb.frame_dev[k] + lo, 4 * (size_t)f->words[0],
+                                       cudaMemcpyDeviceToHost, b->copy));
+        if (f->words[1])
+            CUDA_CHECK(cudaMemcpyAsync(ck->rb.frame_rocks_host[k], ck->rb.frame_rocks_dev[k], 4 * (size_t)f->words[1],
+                                       cudaMemcpyDeviceToHost, b->copy));
+        CUDA_CHECK(cudaEventRecord(ck->copied[k], b->copy));
+    }
+    return CS_OK;
+}
+
+/* One batch on the device: c (the first scene's context) records a CUDA failure; the items' own
+ * statuses say what became of each scene that ran. */
+static cs_status batch_run(cuda_ctx *c, batch_ctx *b, cs_batch_item *items, int n)
+{
+    cs_status st = batch_reserve(c, b, n);
+    if (st != CS_OK) return st;
+    /* Most substeps first: the scenes still running at a substep are a prefix of the table, and
+     * the launch covers only theirs blocks. */
+    int32_t m = 0;
+    for (int k = 0; k < n; k++) {
+        items[k].rep.torn = 0, items[k].rep.finite = 1, items[k].status = CS_OK;
+        if (items[k].substeps <= 0) continue;
+        int32_t at = m++;
+        while (at > 0 && items[b->order[at - 1]].substeps < items[k].substeps) {
+            b->order[at] = b->order[at - 1];
+            at--;
+        }
+        b->order[at] = k;
+    }
+    if (m == 0) return CS_OK;
+    /* Rows of a cloth block: tile_rows_for's rule over every scene's blocks. */
+    int32_t tr = MAX_TILE_ROWS;
+    for (;; tr >>= 1) {
+        int64_t total = 0;
+        for (int32_t j = 0; j < m; j++) total += cloth_blocks(&((cuda_ctx *)items[b->order[j]].ctx)->host_sc.p, tr);
+        if (tr == 1 || total >= 4 * (int64_t)c->sms) break;
+    }
+    const size_t stride = (size_t)m + 1;
+    int32_t *start = b->host_start;
+    for (int q = 0; q < BK_COUNT; q++) start[(size_t)q * stride] = 0;
+    size_t smem = cloth_smem(0);
+    int32_t gmax[GRAPH_MAX + 1] = {0}; /* Verlet scenes' most substeps, by graph length */
+    for (int32_t j = 0; j < m; j++) {
+        const cs_batch_item *it = &items[b->order[j]];
+        cuda_ctx *ck = (cuda_ctx *)it->ctx;
+        const cs_phys *p = &it->m->phys;
+        batch_scene *d = &b->host_tab[j];
+        memset(d, 0, sizeof *d);
+        d->sc = ck->sc;
+        d->substeps = it->substeps;
+        d->graph = graph_len(it->m);
+        d->verlet = p->integrator == CS_VELOCITY_VERLET;
+        d->strain = p->strain_on != 0;
+        d->rocks = rock_path(ck->host_sc.nr);
+        d->tile_rows = tr;
+        for (int e = 0; e < 2; e++) {
+            const int rest = ck->rest_cur ^ (d->strain ? e : 0);
+            d->cloth[e] = bufs_of(ck, ck->cur ^ e, rest);
+            d->swapped[e] = bufs_of(ck, ck->cur ^ e ^ 1, rest);
+            d->cloth[e].flags = d->swapped[e].flags = b->flags + (size_t)j * FLAG_COUNT;
+        }
+        int32_t blocks[BK_COUNT];
+        batch_blocks(ck, d, blocks);
+        for (int q = 0; q < BK_COUNT; q++) start[(size_t)q * stride + (size_t)j + 1] = start[(size_t)q * stride + (size_t)j] + blocks[q];
+        const size_t need = cloth_smem(ck->host_sc.nr > 0 ? ck->rb.cap : 0);
+        smem = need > smem ? need : smem;
+        if (d->verlet && d->substeps > gmax[d->graph]) gmax[d->graph] = d->substeps;
+        /* What the scene's own stream holds (an upload, the last frame's copy) comes first. */
+        if (ck->pending) {
+            CUDA_CHECK(cudaEventRecord(ck->queued, ck->stream));
+            CUDA_CHECK(cudaStreamWaitEvent(b->stream, ck->queued, 0));
+        }
+    }
+    CUDA_CHECK(cudaMemcpyAsync(b->tab, b->host_tab, sizeof(batch_scene) * (size_t)m, cudaMemcpyHostToDevice, b->stream));
+    CUDA_CHECK(cudaMemcpyAsync(b->start, start, sizeof(int32_t) * BK_COUNT * stride, cudaMemcpyHostToDevice, b->stream));
+    CUDA_CHECK(cudaMemsetAsync(b->flags, 0, sizeof(int) * FLAG_COUNT * (size_t)m, b->stream));
+    const int32_t *dev_start[BK_COUNT];
+    for (int q = 0; q < BK_COUNT; q++) dev_start[q] = b->start + (size_t)q * stride;
+    int32_t running = m; /* scenes with substeps left: the table's first `running` */
+    for (int32_t s = 0; running > 0; s++) {
+        while (running > 0 && b->host_tab[running - 1].substeps <= s) running--;
+        if (running == 0) break;
+        unsigned blocks[BK_COUNT];
+        for (int q = 0; q < BK_COUNT; q++) blocks[q] = (unsigned)start[(size_t)q * stride + (size_t)running];
+        int drift = 0;
+        for (int32_t g = 1; g <= GRAPH_MAX && !drift; g++) drift = gmax[g] > s && s % g == 0;
+        if (drift && blocks[BK_DRIFT]) k_drift_batch<<<blocks[BK_DRIFT], 256, 0, b->stream>>>(b->tab, dev_start[BK_DRIFT], running, s);
+        k_cloth_batch<<<blocks[BK_CLOTH], TILE_W, smem, b->stream>>>(b->tab, dev_start[BK_CLOTH], running, s);
+        if (blocks[BK_ROCKS])
+            k_rocks_batch<<<blocks[BK_ROCKS], BATCH_ROCK_THREADS, 0, b->stream>>>(b->tab, dev_start[BK_ROCKS], running, s);
+        if (blocks[BK_ROCK_MOVE])
+            k_rock_move_batch<<<blocks[BK_ROCK_MOVE], 256, 0, b->stream>>>(b->tab, dev_start[BK_ROCK_MOVE], running, s);
+        if (blocks[BK_STRAIN]) k_strain_batch<<<blocks[BK_STRAIN], 256, 0, b->stream>>>(b->tab, dev_start[BK_STRAIN], running, s);
+        CUDA_CHECK(cudaGetLastError());
+    }
+    CUDA_CHECK(cudaMemcpyAsync(b->host_flags, b->flags, sizeof(int) * FLAG_COUNT * (size_t)m, cudaMemcpyDeviceToHost, b->stream));
+    CUDA_CHECK(cudaStreamSynchronize(b->stream));
+    /* The batch is done, and what the scenes' streams held before it: what each takes next comes
+     * after it. */
+    for (int32_t j = 0; j < m; j++) {
+        cs_batch_item *it = &items[b->order[j]];
+        cuda_ctx *ck = (cuda_ctx *)it->ctx;
+        ck->pending = 0;
+        it->rep.torn = b->host_flags[(size_t)j * FLAG_COUNT + FLAG_TORN];
+        it->rep.finite = b->host_flags[(size_t)j * FLAG_COUNT + FLAG_NONFINITE] == 0;
+        advance(ck, it->substeps, b->host_tab[j].strain != 0);
+    }
+    return batch_frames(c, b, items, m);
+}
+
+/* Every scene of the batch advanced by one launch per kernel and substep (step_batch of
+ * backend.h); scenes created on another device than the first's step alone. */
+static cs_status cuda_step_batch(cs_batch_item *items, int n)
+{
+    if (n <= 0) return CS_OK;
+    cuda_ctx *c = (cuda_ctx *)items[0].ctx;
+    for (int k = 1; k < n; k++)
+        if (((cuda_ctx *)items[k].ctx)->dev != c->dev) {
+            for (int j = 0; j < n; j++)
+                items[j].status = cuda_step(items[j].ctx, items[j].m, items[j].s, items[j].substeps, &items[j].rep);
+            return CS_OK;
+        }
+    std::lock_guard<std::mutex> hold(batch_lock);
+    const cs_status st = batch_run(c, &batch, items, n);
+    if (st != CS_OK) {
+        (void)cudaStreamSynchronize(batch.stream); /* nothing left running on the staging */
+        (void)cudaGetLastError();
+        for (int k = 1; k < n; k++) snprintf(((cuda_ctx *)items[k].ctx)->err, sizeof c->err, "%s", c->err);
+    }
+    return st;
 }
 
 static cs_status cuda_download(void *ctx, const cs_model *m, cs_state *s, unsigned what)
@@ -1388,7 +1883,8 @@ static cs_status cuda_download(void *ctx, const cs_model *m, cs_state *s, unsign
         what &= ~from_frame;
     }
     /* The rest from the device's current buffers, into pageable memory: each copy is done when it
-     * returns. */
+     * returns. (A batch's frame copy may still be reading the state too: nothing here writes it.) */
+    if (what) c->pending = 1;
     const float *st = c->vb.state[c->cur];
     float *arrays[] = {s->x, s->y, s->z, s->vx, s->vy, s->vz};
     for (int q = 0; q < 6; q++)
@@ -1461,6 +1957,11 @@ static void cuda_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     /* The frame the host reads, copied on the device once per step call. */
     cs_cost_add(out, "frame copy (positions, on the device)", 12.0, 12.0, 0, 1.0 / F, 0);
     out->graphs_per_frame = graphs;
+    /* batch_run: nothing for a scene whose stream is idle; batch_frames, its positions read: a
+     * wait for the slot's last copy, the copy to pinned memory, an event (the device copies are
+     * one launch for the batch). */
+    out->batch_calls_per_scene = 0.0;
+    out->batch_calls_per_read_scene = 3.0;
     out->nodes_per_substep = 1.0 + (n_rocks > 0 ? (n_rocks <= ROCKS_FUSED ? 1.0 : 2.0) : 0.0) +
                              (!verlet && strain ? 1.0 : 0.0) + (verlet ? 1.0 / G : 0.0);
 }
@@ -1479,7 +1980,7 @@ static const char *cuda_error(void *ctx) { return ((cuda_ctx *)ctx)->err; }
 
 static const cs_backend cuda_backend = {
     "cuda", cuda_available, cuda_create, cuda_destroy, cuda_upload, cuda_download, cuda_refresh, cuda_step,
-    cuda_device, cuda_error, cuda_stats, cuda_cost, CS_CAP_SURFACE_CONTACT, NULL,
+    cuda_device, cuda_error, cuda_stats, cuda_cost, CS_CAP_SURFACE_CONTACT, cuda_step_batch,
 };
 
 extern "C" const cs_backend *cs_backend_cuda(void) { return &cuda_backend; }

@@ -2,12 +2,14 @@
 # On a machine with an NVIDIA GPU, one command: build the engine with CUDA, run the parity test
 # (the CUDA backend against the CPU backend, bitwise, 1,000 substeps a scene), run it again under
 # compute-sanitizer's memcheck, racecheck, initcheck and synccheck (the full run, the four at once),
-# then the GPU benchmark at 128^2, 512^2 and 1024^2 with 0 and 64 rocks as JSON lines, and the CPU
-# benchmark for comparison. Needs only nvcc, CMake and a C compiler (no Debian -dev packages, no
+# then the GPU benchmark at 128^2, 512^2 and 1024^2 with 0 and 64 rocks as JSON lines, a batch of
+# 1,000 default scenes in one cs_sims_step a frame (its real-time factor, beside the cost model's
+# prediction), and the CPU benchmark for comparison. The parity run ends with the batch check
+# (cs_sims_step over mixed scenes, bitwise equal to each alone). Needs only nvcc, CMake and a C compiler (no Debian -dev packages, no
 # network). On a machine without a usable GPU it says so and exits 77 (skipped).
 #   tests/gpu/run.sh [benchmark sizes, default 128,512,1024] [rock counts, default 0,64]
 # CLOTHD_GPU_SANITIZE=quick runs the sanitizers on the quick parity run instead (a tenth of the
-# substeps), =off skips them.
+# substeps), =off skips them; CLOTHD_GPU_BATCH=N batches N default scenes instead of 1,000.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/../.." && pwd)
 build="$root/build-gpu"
@@ -82,6 +84,9 @@ fi
 
 stamp "GPU benchmark (JSON lines: measured, with the cost model and roofline predictions)"
 "$build/kernels/clothd-bench" --backend cuda --json --sizes "$sizes" --rocks "$rocks" --seconds 2
+stamp "a batch of 1,000 default scenes (the model's prediction, then the measurement)"
+"$build/kernels/clothd-bench" --model --json --sizes 64 --rocks 0 | tail -n 1
+"$build/kernels/clothd-bench" --backend cuda --json --batch "${CLOTHD_GPU_BATCH:-1000}" --sizes 64 --read --seconds 3
 stamp "CPU benchmark on this machine, for comparison"
 "$build/kernels/clothd-bench" --backend cpu --json --sizes 128 --rocks 0 --seconds 1
 stamp "done"

@@ -20,7 +20,12 @@
  * and on the CPU imitation of CUDA in ctest (emu.parity); `test_parity cpu` compares the CPU
  * backend on one thread with itself on two; `quick` as the second argument runs about a tenth of
  * the substeps (for compute-sanitizer); with CLOTHD_SANITIZED set as well (the ASan build of the
- * emulated backend) it stops after 50. */
+ * emulated backend) it stops after 50.
+ *
+ * Every full run ends with the batch check (run_batch; `batch` as the second argument runs it
+ * alone): mixed scenes stepped together by cs_sims_step, each bitwise equal to a copy stepped
+ * alone on the same backend and to one on the CPU backend, with scenes leaving and joining between
+ * rounds and one poisoned scene failing alone. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -29,6 +34,7 @@
 
 #include "clothsim/backend.h"
 #include "clothsim/clothsim.h"
+#include "cs_testhooks.h"
 
 static int quick;
 
@@ -480,10 +486,212 @@ static int run(const variant *vr, const char *other, int other_threads)
     return pr.fail;
 }
 
+/* ---- batches: cs_sims_step ---- */
+
+/* Scenes of different sizes, integrators, friction and contact models, rock paths (none, fused,
+ * split past 64) and substeps per frame, stepped together in one batch. */
+static const variant batch_variants[] = {
+    {"batch: verlet coulomb strain rocks grab", 24, 20, VV, CV, 1, 3, S_GRAB, 0, 0},
+    {"batch: euler resultant strain rocks", 20, 16, SE, RS, 1, 2, 0, 0, 0},
+    {"batch: verlet plain, soft (few substeps a frame)", 16, 12, VV, CV, 0, 0, 0, 0, 0},
+    {"batch: surface contact, two rocks at once", 21, 21, VV, CV, 1, 2, S_PAIR, 0.05f, 1},
+    {"batch: 66 rocks (the split rock kernels)", 20, 20, SE, CV, 1, 66, 0, 0.012f, 0},
+    {"batch: wide rows (2 chunks a row), grab", 300, 3, VV, RS, 1, 1, S_GRAB, 0, 0},
+    {"batch: joins mid-run, euler surface", 18, 18, SE, CV, 1, 2, 0, 0, 1},
+};
+#define BATCH_N 6 /* the first six start together; the seventh joins when the third leaves */
+
+typedef struct batch_scene {
+    const variant *vr;
+    cs_sim *cpu, *alone, *batched; /* the CPU backend alone, the backend under test alone and in the batch */
+    int live;
+} batch_scene;
+
+static cs_sim *batch_build(const variant *vr, const char *backend, int threads, char *err, size_t err_len)
+{
+    cs_sim *sim = build(vr, backend, threads, err, err_len);
+    /* The soft one: fewer substeps a frame than a call runs, so a call crosses the lone step's graphs. */
+    if (sim && vr->nx == 16) {
+        cs_params q;
+        cs_sim_params(sim, &q);
+        q.frame_rate = 1000.0f, q.substeps = 1;
+        if (cs_sim_set_params(sim, &q) != CS_OK) {
+            snprintf(err, err_len, "softening: %s", cs_sim_error(sim));
+            cs_sim_destroy(sim);
+            return NULL;
+        }
+    }
+    return sim;
+}
+
+/* A copy of the CPU sim on a backend: its scene and parameters, then its snapshot (rocks, pins,
+ * grab and all in one load, where adding 66 rocks one by one would refresh the device 66 times). */
+static cs_sim *batch_copy(cs_sim *cpu, const char *backend, char *err, size_t err_len)
+{
+    cs_scene sc;
+    cs_params p;
+    cs_sim_scene(cpu, &sc);
+    cs_sim_params(cpu, &p);
+    cs_sim *sim = NULL;
+    if (cs_sim_create(&sc, &p, backend, &sim, err, err_len) != CS_OK) return NULL;
+    const size_t cap = cs_snapshot_size(cpu);
+    unsigned char *buf = malloc(cap);
+    size_t len = 0;
+    if (!buf || cs_snapshot_save(cpu, buf, cap, &len) != CS_OK || cs_snapshot_load(sim, buf, len) != CS_OK) {
+        snprintf(err, err_len, "copying the scene: %s", cs_sim_error(sim));
+        cs_sim_destroy(sim);
+        sim = NULL;
+    }
+    free(buf);
+    return sim;
+}
+
+static int batch_add(batch_scene *b, const variant *vr, const char *other)
+{
+    char err[256];
+    b->vr = vr;
+    b->cpu = batch_build(vr, "cpu", 1, err, sizeof err);
+    b->alone = b->cpu ? batch_copy(b->cpu, other, err, sizeof err) : NULL;
+    b->batched = b->alone ? batch_copy(b->cpu, other, err, sizeof err) : NULL;
+    b->live = b->batched != NULL;
+    if (!b->live) printf("%-46s %s\n", vr->name, err);
+    return b->live ? 0 : -1;
+}
+
+static void batch_drop(batch_scene *b)
+{
+    cs_sim_destroy(b->cpu);
+    cs_sim_destroy(b->alone);
+    cs_sim_destroy(b->batched);
+    b->cpu = b->alone = b->batched = NULL;
+    b->live = 0;
+}
+
+/* The batched copy against the backend alone and the CPU backend, all of it or the frame. */
+static int batch_compare(batch_scene *b, const char *phase, int all)
+{
+    pair alone = {b->batched, b->alone, b->vr, phase, 0}, cpu = {b->batched, b->cpu, b->vr, phase, 0};
+    if (all) {
+        compare_all(&alone);
+        compare_all(&cpu);
+    } else {
+        compare_frame(&alone);
+        compare_frame(&cpu);
+    }
+    if (alone.fail) printf("%-46s   (batched vs alone on the same backend)\n", b->vr->name);
+    if (cpu.fail) printf("%-46s   (batched vs the CPU backend alone)\n", b->vr->name);
+    return alone.fail | cpu.fail;
+}
+
+/* Rounds of one cs_sims_step each, every scene by its own substeps (some finish early and idle),
+ * with the same substeps stepped alone beside; a scene deleted and another added between rounds;
+ * then one scene's state poisoned with a NaN: it alone fails the round, the others go on. */
+static int run_batch(const char *other)
+{
+    const double t0 = now();
+    /* Under sanitizers (CLOTHD_SANITIZED) shorter rounds: the same paths. */
+    const int sanitized = getenv("CLOTHD_SANITIZED") != NULL;
+    batch_scene sc[BATCH_N + 1];
+    memset(sc, 0, sizeof sc);
+    int fail = 0;
+    for (int k = 0; k < BATCH_N; k++) fail |= batch_add(&sc[k], &batch_variants[k], other);
+    if (!fail && shared_contacts(sc[3].cpu) == 0) {
+        printf("%-46s no vertex touches both rocks\n", sc[3].vr->name);
+        fail = 1;
+    }
+    int64_t soft_call = 0; /* the longest call of the soft scene */
+    const int64_t base_full[] = {1, 9, 37, 23, 61}, base_fast[] = {1, 5, 11, 3};
+    const int64_t *base = sanitized ? base_fast : base_full;
+    const int rounds = sanitized ? 4 : 5, poison_round = rounds - 1;
+    int poisoned = -1;
+    for (int r = 0; r < rounds && !fail; r++) {
+        if (r == 2) { /* one leaves, another joins */
+            batch_drop(&sc[1]);
+            fail |= batch_add(&sc[BATCH_N], &batch_variants[BATCH_N], other);
+        }
+        if (r == 1) /* a command right before a batch: its upload must land first */
+            for (int k = 0; k < BATCH_N; k++) {
+                if (!sc[k].live) continue;
+                cs_params q;
+                cs_sim_params(sc[k].cpu, &q);
+                q.wind[0] = 1.5f + 0.25f * (float)k;
+                cs_sim *three[3] = {sc[k].cpu, sc[k].alone, sc[k].batched};
+                for (int c = 0; c < 3; c++)
+                    if (cs_sim_set_params(three[c], &q) != CS_OK) {
+                        printf("%-46s set_params failed: %s\n", sc[k].vr->name, cs_sim_error(three[c]));
+                        fail = 1;
+                    }
+            }
+        if (r == poison_round) {
+            poisoned = 0;
+            const int32_t v = 5 * sc[0].vr->nx + 7;
+            if (cs_test_poison(sc[0].cpu, v) != CS_OK || cs_test_poison(sc[0].alone, v) != CS_OK ||
+                cs_test_poison(sc[0].batched, v) != CS_OK) {
+                printf("%-46s poisoning failed: %s\n", sc[0].vr->name, cs_sim_error(sc[0].batched));
+                fail = 1;
+                break;
+            }
+        }
+        cs_sim *batch[BATCH_N + 1];
+        int64_t substeps[BATCH_N + 1];
+        cs_status each[BATCH_N + 1];
+        int of[BATCH_N + 1], n = 0;
+        for (int k = 0; k <= BATCH_N; k++)
+            if (sc[k].live) {
+                substeps[n] = base[r] + 2 * k; /* each its own: the shorter ones idle */
+                if (k == 2 && substeps[n] > soft_call) soft_call = substeps[n];
+                batch[n] = sc[k].batched;
+                of[n++] = k;
+            }
+        const cs_status st = cs_sims_step(batch, (size_t)n, substeps, each);
+        if (st != CS_OK) {
+            printf("batch: cs_sims_step refused the round (%s)\n", cs_status_name(st));
+            fail = 1;
+            break;
+        }
+        char phase[64];
+        snprintf(phase, sizeof phase, "batch round %d", r + 1);
+        for (int j = 0; j < n; j++) {
+            batch_scene *b = &sc[of[j]];
+            const cs_status want = of[j] == poisoned ? CS_E_NONFINITE : CS_OK;
+            const cs_status sa = cs_sim_step(b->cpu, substeps[j]);
+            const cs_status sb = cs_sim_step(b->alone, substeps[j]);
+            if (each[j] != want || sa != want || sb != want) {
+                printf("%-46s %s: %s batched, %s alone, %s on the CPU backend (expected %s): %s\n", b->vr->name, phase,
+                       cs_status_name(each[j]), cs_status_name(sb), cs_status_name(sa), cs_status_name(want),
+                       cs_sim_error(b->batched));
+                fail = 1;
+            } else if (want == CS_OK) {
+                fail |= batch_compare(b, phase, r == rounds - 1 || r == 2);
+            }
+        }
+    }
+    int crossed = 0; /* some call ran past a frame of the soft scene: its graphs split the call */
+    for (int k = 0; k <= BATCH_N; k++) {
+        if (!sc[k].live) continue;
+        cs_info info;
+        cs_sim_info(sc[k].batched, &info);
+        if (k == 2) crossed = info.substeps < soft_call;
+        batch_drop(&sc[k]);
+    }
+    if (!crossed && !fail) {
+        printf("batch: no call crossed a frame of the soft scene (it tests less than it says)\n");
+        fail = 1;
+    }
+    if (fail) printf("batch: FAILED\n");
+    else
+        printf("batch: %d scenes in rounds of cs_sims_step bitwise equal to each alone on the same backend and on the "
+               "CPU backend; the poisoned one alone failed (%.1f s)\n",
+               BATCH_N + 1, now() - t0);
+    return fail;
+}
+
 int main(int argc, char **argv)
 {
     const char *other = argc > 1 ? argv[1] : "cuda";
     quick = argc > 2 && strcmp(argv[2], "quick") == 0;
+    /* `test_parity cuda batch`: the batch check alone (emu.batch); every full run ends with it. */
+    const int batch_only = argc > 2 && strcmp(argv[2], "batch") == 0;
     if (strcmp(other, "cuda") == 0) {
         char why[160] = "this build has no CUDA backend";
         const cs_backend *cuda = cs_backend_cuda();
@@ -498,8 +706,9 @@ int main(int argc, char **argv)
     /* PARITY_ONLY=text runs the scenes whose names contain it (for looking into one). */
     const char *only = getenv("PARITY_ONLY");
     int fail = 0;
-    for (size_t k = 0; k < sizeof variants / sizeof variants[0]; k++)
+    for (size_t k = 0; k < sizeof variants / sizeof variants[0] && !batch_only; k++)
         if (!only || strstr(variants[k].name, only)) fail |= run(&variants[k], other, strcmp(other, "cpu") == 0 ? 2 : 0);
+    if (batch_only || (!quick && !only)) fail |= run_batch(other);
     printf(fail ? "parity: FAILED\n" : "parity: passed\n");
     return fail;
 }

@@ -114,6 +114,11 @@ typedef struct cs_cost_model {
     double launches_per_frame;       /* kernels (or parallel passes) per frame */
     double graphs_per_frame;         /* CUDA graph launches per frame (0: none) */
     double nodes_per_substep;        /* kernels per substep on the critical path */
+    /* A batch of such simulations (step_batch) launches the kernels above once for all of them:
+     * launches_per_frame is the whole batch's, whatever its size. What each simulation adds is
+     * host work: the runtime calls the batch makes for it per step call, without and with its
+     * frame read. 0 where the backend has no batched step. */
+    double batch_calls_per_scene, batch_calls_per_read_scene;
 } cs_cost_model;
 
 typedef struct cs_backend {
