@@ -18,6 +18,7 @@
  * than a thread's fair share is stepped by all of them together, as step() does; the rest each
  * whole by one thread (the same code with its work-sharing constructs run plainly: no barrier that
  * waits on another thread), largest first as threads come free. */
+#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -57,17 +58,26 @@ typedef struct thread_buf {
     uint8_t cand[CS_CHUNK];           /* surface contact: the vertices of a chunk to gather for a rock */
     uint8_t rhit[CS_MAX_ROCKS];       /* rocks that may reach a chunk */
     uint8_t idx[CS_CHUNK];            /* vertices of a chunk touching a rock */
-    int64_t torn;
     int32_t last_row;
+    struct thread_buf *next;          /* the pool's free list */
 } thread_buf;
 
 typedef struct cpu_ctx {
     float *partials;      /* nchunks x rocks x 6: each chunk's force and torque on each rock */
     size_t partials_cap;  /* floats */
-    thread_buf **tb;
-    int n_tb;
+    int64_t torn;         /* springs torn since the last report (atomic adds from the team) */
     char device[160];
 } cpu_ctx;
+
+/* The thread buffers, shared by every CPU simulation of the process. Nothing in one outlives the
+ * pass that fills it, so a step call takes a buffer for each thread it runs before its parallel
+ * region and gives them back after: there are as many as threads have stepped at once, not one
+ * per thread per simulation. The last context destroyed frees them. */
+static struct {
+    pthread_mutex_t lock;
+    thread_buf *free; /* buffers no call holds */
+    int contexts;     /* CPU contexts alive */
+} pool = {PTHREAD_MUTEX_INITIALIZER, NULL, 0};
 
 static int cpu_available(char *why, size_t why_len)
 {
@@ -102,6 +112,9 @@ static cs_status cpu_create(void **out, char *err, size_t err_len)
         snprintf(err, err_len, "out of memory");
         return CS_E_NOMEM;
     }
+    pthread_mutex_lock(&pool.lock);
+    pool.contexts++;
+    pthread_mutex_unlock(&pool.lock);
     *out = c;
     return CS_OK;
 }
@@ -110,14 +123,56 @@ static void cpu_destroy(void *ctx)
 {
     cpu_ctx *c = ctx;
     if (!c) return;
-    for (int i = 0; i < c->n_tb; i++) free(c->tb[i]);
-    free(c->tb);
+    pthread_mutex_lock(&pool.lock);
+    if (--pool.contexts == 0) /* no call can hold a buffer: every one is free */
+        while (pool.free) {
+            thread_buf *b = pool.free;
+            pool.free = b->next;
+            free(b);
+        }
+    pthread_mutex_unlock(&pool.lock);
     free(c->partials);
     free(c);
 }
 
-/* Makes room for this scene and rock count, and for a team of t threads. */
-static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s, int t)
+/* Gives the t buffers of b[] back to the pool, and frees b. */
+static void scratch_give(thread_buf **b, int t)
+{
+    pthread_mutex_lock(&pool.lock);
+    for (int i = 0; i < t; i++) {
+        b[i]->next = pool.free;
+        pool.free = b[i];
+    }
+    pthread_mutex_unlock(&pool.lock);
+    free(b);
+}
+
+/* Buffers for a call's t threads (thread k uses the k-th), from the pool or new; NULL when out of
+ * memory. */
+static thread_buf **scratch_take(int t)
+{
+    thread_buf **b = malloc(sizeof *b * (size_t)t);
+    if (!b) return NULL;
+    int k = 0;
+    pthread_mutex_lock(&pool.lock);
+    for (; k < t && pool.free; k++) {
+        b[k] = pool.free;
+        pool.free = b[k]->next;
+    }
+    pthread_mutex_unlock(&pool.lock);
+    for (; k < t; k++) {
+        b[k] = aligned_alloc(64, (sizeof *b[k] + 63) / 64 * 64);
+        if (!b[k]) {
+            scratch_give(b, k);
+            return NULL;
+        }
+        memset(b[k], 0, sizeof *b[k]);
+    }
+    return b;
+}
+
+/* Makes room for this scene's rock partials. */
+static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s)
 {
     const size_t need = (size_t)m->phys.nchunks * (size_t)(s->n_rocks > 0 ? s->n_rocks : 1) * 6;
     if (need > c->partials_cap) {
@@ -126,21 +181,10 @@ static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s, int t
         c->partials = p;
         c->partials_cap = need;
     }
-    if (t > c->n_tb) {
-        thread_buf **tb = realloc(c->tb, sizeof *tb * (size_t)t);
-        if (!tb) return CS_E_NOMEM;
-        c->tb = tb;
-        for (; c->n_tb < t; c->n_tb++) {
-            thread_buf *b = aligned_alloc(64, (sizeof *b + 63) / 64 * 64);
-            if (!b) return CS_E_NOMEM;
-            memset(b, 0, sizeof *b);
-            c->tb[c->n_tb] = b;
-        }
-    }
     return CS_OK;
 }
 
-static cs_status cpu_upload(void *ctx, const cs_model *m, cs_state *s) { return reserve(ctx, m, s, threads_of(m)); }
+static cs_status cpu_upload(void *ctx, const cs_model *m, cs_state *s) { return reserve(ctx, m, s); }
 
 static cs_status cpu_download(void *ctx, const cs_model *m, cs_state *s, unsigned what)
 {
@@ -682,8 +726,9 @@ static void accel(int32_t cnt, float inv_mass, const float *restrict W, const fl
 }
 
 /* The non-contact forces of row j (springs, air, gravity) into tb->f, and strain updates of its
- * springs. Rows j-2 and j-1 must already be in the ring (this thread's previous rows). */
-static void spring_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, int strain)
+ * springs; returns the springs torn. Rows j-2 and j-1 must already be in the ring (this thread's
+ * previous rows). */
+static int spring_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, int strain)
 {
     const int32_t nx = p->nx, v0 = j * nx;
     if (tb->last_row != j - 1) {
@@ -692,9 +737,10 @@ static void spring_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j,
         owned_row(p, s, j - 1, tb->ring[(j + 2) % 3], 0);
     }
     tb->last_row = j;
-    tb->torn += owned_row(p, s, j, tb->ring[j % 3], strain);
+    const int torn = owned_row(p, s, j, tb->ring[j % 3], strain);
     gather_row(p, v0, nx, tb->ring[j % 3], tb->ring[(j + 2) % 3], tb->ring[(j + 1) % 3], s->vx, s->vy, s->vz,
                tb->f[0], tb->f[1], tb->f[2]);
+    return torn;
 }
 
 /* Row j's contacts onto tb->f, its chunks' partials, then a for its vertices. */
@@ -837,13 +883,19 @@ static void swap_rest(cs_state *s)
         }                                                                                         \
     } while (0)
 
-/* This thread's buffer: a solo thread uses the first. */
-static thread_buf *my_buf(cpu_ctx *c, int solo) { return c->tb[solo ? 0 : thread_id()]; }
-
-/* The force pass over every row, by the team of the innermost parallel region (or solo). */
-static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain, int solo)
+/* Counts springs torn (rare: no atomic at all where none tore). */
+static void count_torn(cpu_ctx *c, int torn)
 {
-    thread_buf *tb = my_buf(c, solo);
+    if (torn) {
+#pragma omp atomic
+        c->torn += torn;
+    }
+}
+
+/* The force pass over every row, by the team of the innermost parallel region (or solo), each
+ * thread with its buffer tb. */
+static void force_pass(cpu_ctx *c, thread_buf *tb, const cs_phys *p, cs_state *s, int strain, int solo)
+{
     tb->last_row = -3;
     for (int k = 0; k < 3; k++)
         for (int g = 0; g < CS_MAX_SEG; g++) tb->rowbox_row[k][g] = -1;
@@ -852,20 +904,16 @@ static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain, in
         tb->rk[3][r] = s->rocks[r].radius + p->contact_offset;
     }
     TEAM_ROWS(solo, "omp for schedule(dynamic, ROW_BLOCK)", j, p->ny, {
-        spring_row(p, s, tb, j, strain);
+        count_torn(c, spring_row(p, s, tb, j, strain));
         contact_row(p, s, tb, j, c->partials);
     });
 }
 
-/* The springs torn since the last call, summed over every thread buffer (a team may have used
- * fewer than there are). */
+/* The springs torn since the last call. */
 static int64_t take_torn(cpu_ctx *c)
 {
-    int64_t t = 0;
-    for (int i = 0; i < c->n_tb; i++) {
-        t += c->tb[i]->torn;
-        c->tb[i]->torn = 0;
-    }
+    const int64_t t = c->torn;
+    c->torn = 0;
     return t;
 }
 
@@ -874,9 +922,11 @@ static cs_status cpu_refresh(void *ctx, const cs_model *m, cs_state *s)
     cpu_ctx *c = ctx;
     const cs_phys *p = &m->phys;
     const int threads = threads_of(m);
-    if (reserve(c, m, s, threads) != CS_OK) return CS_E_NOMEM;
+    thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(threads) : NULL;
+    if (!tb) return CS_E_NOMEM;
 #pragma omp parallel num_threads(threads)
-    force_pass(c, p, s, 0, 0);
+    force_pass(c, tb[thread_id()], p, s, 0, 0);
+    scratch_give(tb, threads);
     rocks_forces(p, s, c->partials, 0.0f);
     take_torn(c);
     return CS_OK;
@@ -901,8 +951,8 @@ static int state_finite(const cs_state *s)
 }
 
 /* One step call's substeps, run by the team of the innermost parallel region (every thread of it
- * calls this, with the same arguments), or by one thread alone (solo). */
-static void step_team(cpu_ctx *c, const cs_model *m, cs_state *s, int32_t substeps, int solo)
+ * calls this, with the same arguments but its own buffer tb), or by one thread alone (solo). */
+static void step_team(cpu_ctx *c, thread_buf *tb, const cs_model *m, cs_state *s, int32_t substeps, int solo)
 {
     const cs_phys *p = &m->phys;
     const int verlet = p->integrator == CS_VELOCITY_VERLET, strain = p->strain_on != 0;
@@ -914,7 +964,7 @@ static void step_team(cpu_ctx *c, const cs_model *m, cs_state *s, int32_t subste
     for (int32_t it = 0; it < substeps; it++) {
         if (verlet) {
             TEAM_ROWS(solo, "omp for schedule(dynamic, ROW_BLOCK)", j, ny, move_row(s, p, j, it > 0, p->hdt, p->dt));
-            force_pass(c, p, s, strain, solo);
+            force_pass(c, tb, p, s, strain, solo);
             TEAM_ONE(solo, {
                 rocks_forces(p, s, c->partials, p->hdt);
                 if (strain) swap_rest(s);
@@ -924,12 +974,11 @@ static void step_team(cpu_ctx *c, const cs_model *m, cs_state *s, int32_t subste
                 }
             });
         } else {
-            force_pass(c, p, s, 0, solo);
+            force_pass(c, tb, p, s, 0, solo);
             TEAM_ONE(solo, rocks_forces(p, s, c->partials, 0.0f), rocks_move(s, p->dt, p->dt), grab_motion(p, s));
             TEAM_ROWS(solo, "omp for schedule(static)", j, ny, move_row(s, p, j, 0, p->dt, p->dt));
             if (strain) {
-                thread_buf *tb = my_buf(c, solo);
-                TEAM_ROWS(solo, "omp for schedule(static)", j, ny, tb->torn += strain_row(p, s, j));
+                TEAM_ROWS(solo, "omp for schedule(static)", j, ny, count_torn(c, strain_row(p, s, j)));
                 TEAM_ONE(solo, swap_rest(s));
             }
         }
@@ -948,13 +997,15 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
 {
     cpu_ctx *c = ctx;
     const int threads = threads_of(m);
-    if (reserve(c, m, s, threads) != CS_OK) return CS_E_NOMEM;
+    thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(threads) : NULL;
+    if (!tb) return CS_E_NOMEM;
     if (threads == 1) {
-        step_team(c, m, s, substeps, 1);
+        step_team(c, tb[0], m, s, substeps, 1);
     } else {
 #pragma omp parallel num_threads(threads)
-        step_team(c, m, s, substeps, 0);
+        step_team(c, tb[thread_id()], m, s, substeps, 0);
     }
+    scratch_give(tb, threads);
     step_report(c, s, rep);
     return CS_OK;
 }
@@ -1060,19 +1111,26 @@ static cs_status cpu_step_batch(cs_batch_item *items, int n)
     }
     qsort(jobs, (size_t)nj, sizeof *jobs, by_work_desc);
     const int team = plan_batch(jobs, nj, t, load);
-    /* Scratch for the team (t thread buffers) or for one thread; a simulation that cannot have
-     * it fails alone. */
+    /* A simulation that cannot have its partials fails alone; the t thread buffers serve every
+     * simulation of the batch (a thread steps one at a time). */
     for (int i = 0; i < nj; i++) {
         cs_batch_item *it = jobs[i].it;
-        if (reserve(it->ctx, it->m, it->s, i < team ? t : 1) != CS_OK) it->status = CS_E_NOMEM;
+        if (reserve(it->ctx, it->m, it->s) != CS_OK) it->status = CS_E_NOMEM;
+    }
+    thread_buf **tb = scratch_take(t);
+    if (!tb) {
+        free(jobs);
+        free(load);
+        return CS_E_NOMEM;
     }
     int next = team;
 #pragma omp parallel num_threads(t)
     {
+        thread_buf *mine = tb[thread_id()];
         for (int i = 0; i < team; i++) {
             cs_batch_item *it = jobs[i].it;
             if (it->status != CS_OK) continue;
-            step_team(it->ctx, it->m, it->s, it->substeps, 0);
+            step_team(it->ctx, mine, it->m, it->s, it->substeps, 0);
 #pragma omp single nowait
             step_report(it->ctx, it->s, &it->rep);
         }
@@ -1083,10 +1141,11 @@ static cs_status cpu_step_batch(cs_batch_item *items, int n)
             if (k >= nj) break;
             cs_batch_item *it = jobs[k].it;
             if (it->status != CS_OK) continue;
-            step_team(it->ctx, it->m, it->s, it->substeps, 1);
+            step_team(it->ctx, mine, it->m, it->s, it->substeps, 1);
             step_report(it->ctx, it->s, &it->rep);
         }
     }
+    scratch_give(tb, t);
     free(jobs);
     free(load);
     return CS_OK;
