@@ -33,19 +33,31 @@
 #else
 #define CS_ALWAYS_INLINE inline
 #endif
+/* A loop whose iterations store nothing another reads or overwrites (gcc would otherwise check
+ * at run time that rows of a runtime stride do not overlap, and gives up past ten checks). */
+#if defined(__GNUC__) && !defined(__clang__)
+#define CS_IVDEP _Pragma("GCC ivdep")
+#else
+#define CS_IVDEP
+#endif
 
-/* Columns -2 .. 4097 of the widest row, rounded up: a ring row has this fixed stride so the
- * compiler can tell its component rows apart. */
-#define RING_W 4104
-#define RING_PAD 2
+#define RING_PAD 2                /* columns -2 .. nx + 1 of a ring row: the bending springs' reach */
 #define RING_ROWS (3 * CS_NTYPES) /* x, y, z of each owned spring type */
 #define CS_MAX_SEG ((4096 + CS_CHUNK - 1) / CS_CHUNK) /* chunks in the widest row */
 
+/* The stride (floats) of the rows of a thread buffer for a cloth nx wide: columns -RING_PAD ..
+ * nx + RING_PAD - 1, in whole 64-byte lines, an odd number of them (so the 18 rows a loop writes
+ * fall in different cache sets). */
+static int32_t row_stride(int32_t nx) { return 16 * (((nx + 2 * RING_PAD + 15) / 16) | 1); }
+
 typedef struct thread_buf {
-    float ring[3][RING_ROWS * RING_W]; /* owned-spring forces of rows j, j-1, j-2 (slot j mod 3);
-                                          component row q = 3 t + c at q RING_W, column i at RING_PAD + i */
-    float f[3][RING_W];               /* resultant on the vertices of the current row */
-    float ro[3][RING_W];              /* non-contact resultant Ro (resultant friction) */
+    /* Rows of w floats (row_stride) after the struct, laid out for the cloth of the call: */
+    float *ring[3]; /* owned-spring forces of rows j, j-1, j-2 (slot j mod 3); component row
+                       q = 3 t + c at q w, column i at RING_PAD + i */
+    float *f[3];    /* resultant on the vertices of the current row */
+    float *ro[3];   /* non-contact resultant Ro (resultant friction) */
+    int32_t w;
+    size_t bytes;   /* allocated, with the rows */
     float contrib[6][CS_CHUNK];       /* one rock's reaction from the touching vertices of a chunk */
     float col[6][CS_CHUNK + 4];       /* surface contact: the rows j-1 .. j+1 of each column (min
                                          x y z, max x y z; column_bounds) */
@@ -147,26 +159,50 @@ static void scratch_give(thread_buf **b, int t)
     free(b);
 }
 
-/* Buffers for a call's t threads (thread k uses the k-th), from the pool or new; NULL when out of
- * memory. */
-static thread_buf **scratch_take(int t)
+/* Buffer b laid out for a cloth nx wide, or in its place (b freed) a new one where b is NULL or
+ * too small; NULL when out of memory (b kept). */
+static thread_buf *buf_fit(thread_buf *b, int32_t nx)
+{
+    const int32_t w = row_stride(nx);
+    const size_t head = (sizeof *b + 63) / 64 * 64;
+    const size_t bytes = head + sizeof(float) * (size_t)w * (3 * RING_ROWS + 6); /* a multiple of 64 */
+    if (!b || b->bytes < bytes) {
+        thread_buf *n = aligned_alloc(64, bytes);
+        if (!n) return NULL;
+        free(b);
+        b = memset(n, 0, bytes);
+        b->bytes = bytes;
+    }
+    float *rows = (float *)((char *)b + head);
+    b->w = w;
+    for (int k = 0; k < 3; k++) {
+        b->ring[k] = rows + (size_t)k * RING_ROWS * (size_t)w;
+        b->f[k] = rows + (size_t)(3 * RING_ROWS + k) * (size_t)w;
+        b->ro[k] = rows + (size_t)(3 * RING_ROWS + 3 + k) * (size_t)w;
+    }
+    return b;
+}
+
+/* Buffers for a call's t threads (thread k uses the k-th) stepping a cloth nx wide, from the pool
+ * or new; NULL when out of memory. */
+static thread_buf **scratch_take(int t, int32_t nx)
 {
     thread_buf **b = malloc(sizeof *b * (size_t)t);
     if (!b) return NULL;
-    int k = 0;
+    int got = 0;
     pthread_mutex_lock(&pool.lock);
-    for (; k < t && pool.free; k++) {
-        b[k] = pool.free;
-        pool.free = b[k]->next;
+    for (; got < t && pool.free; got++) {
+        b[got] = pool.free;
+        pool.free = b[got]->next;
     }
     pthread_mutex_unlock(&pool.lock);
-    for (; k < t; k++) {
-        b[k] = aligned_alloc(64, (sizeof *b[k] + 63) / 64 * 64);
-        if (!b[k]) {
-            scratch_give(b, k);
+    for (int k = 0; k < t; k++) {
+        thread_buf *f = buf_fit(k < got ? b[k] : NULL, nx);
+        if (!f) {
+            scratch_give(b, k > got ? k : got);
             return NULL;
         }
-        memset(b[k], 0, sizeof *b[k]);
+        b[k] = f;
     }
     return b;
 }
@@ -198,15 +234,16 @@ static cs_status cpu_download(void *ctx, const cs_model *m, cs_state *s, unsigne
 /* ---- the force pass ---- */
 
 /* The springs owned by cnt consecutive vertices from v0, each reaching v + off[t] (0 where the
- * grid has no such spring): forces into out (component row 3 t + c, stride RING_W), and with
+ * grid has no such spring): forces into out (component row 3 t + c, stride w), and with
  * strain the new rest lengths into n0..n5. Returns springs torn. The arrays are restrict
- * parameters, which gcc honours, so the loop vectorizes. */
+ * parameters, which gcc honours, and out's rows (stride w > cnt) never overlap, so the loop
+ * vectorizes. */
 static CS_ALWAYS_INLINE int owned_body(const cs_phys *pp, int32_t v0, int32_t cnt, const int32_t *off,
                                       const float *restrict X, const float *restrict Y, const float *restrict Z,
                                       const float *restrict VX, const float *restrict VY, const float *restrict VZ,
                                       const float *restrict L0, float *restrict out, float *restrict n0,
                                       float *restrict n1, float *restrict n2, float *restrict n3,
-                                      float *restrict n4, float *restrict n5, const int strain)
+                                      float *restrict n4, float *restrict n5, const int32_t w, const int strain)
 {
     const cs_phys P = *pp; /* a local copy: the stores cannot alias it */
     const cs_phys *p = &P;
@@ -214,7 +251,7 @@ static CS_ALWAYS_INLINE int owned_body(const cs_phys *pp, int32_t v0, int32_t cn
     int32_t o[CS_NTYPES];
     for (int t = 0; t < CS_NTYPES; t++) o[t] = off[t];
     int torn = 0;
-    for (int32_t k = 0; k < cnt; k++) {
+    CS_IVDEP for (int32_t k = 0; k < cnt; k++) {
         const int32_t v = v0 + k;
         const cs_vec3 xi = LOADX(v), vi = LOADV(v);
         float len;
@@ -224,9 +261,9 @@ static CS_ALWAYS_INLINE int owned_body(const cs_phys *pp, int32_t v0, int32_t cn
         const int32_t j_ = v + o[t];                                                                   \
         const float l0 = L0[(t) * n + v];                                                              \
         const cs_vec3 F = cs_spring_force(xi, vi, LOADX(j_), LOADV(j_), l0, p->k[t], p->c_spring, &len); \
-        out[(3 * (t) + 0) * RING_W + k] = F.x;                                                         \
-        out[(3 * (t) + 1) * RING_W + k] = F.y;                                                         \
-        out[(3 * (t) + 2) * RING_W + k] = F.z;                                                         \
+        out[(3 * (t) + 0) * w + k] = F.x;                                                              \
+        out[(3 * (t) + 1) * w + k] = F.y;                                                              \
+        out[(3 * (t) + 2) * w + k] = F.z;                                                              \
         if (strain) {                                                                                  \
             const float nl = cs_strain_update(len, l0, p);                                             \
             NEXT_OF(t)[v] = nl;                                                                        \
@@ -240,18 +277,20 @@ static CS_ALWAYS_INLINE int owned_body(const cs_phys *pp, int32_t v0, int32_t cn
     return torn;
 }
 
-static int owned_plain(const cs_phys *p, const cs_state *s, int32_t v0, int32_t cnt, const int32_t *off, float *out)
+static int owned_plain(const cs_phys *p, const cs_state *s, int32_t v0, int32_t cnt, const int32_t *off, float *out,
+                       int32_t w)
 {
     return owned_body(p, v0, cnt, off, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->L0, out, NULL, NULL, NULL, NULL,
-                      NULL, NULL, 0);
+                      NULL, NULL, w, 0);
 }
 
-static int owned_strain(const cs_phys *p, const cs_state *s, int32_t v0, int32_t cnt, const int32_t *off, float *out)
+static int owned_strain(const cs_phys *p, const cs_state *s, int32_t v0, int32_t cnt, const int32_t *off, float *out,
+                        int32_t w)
 {
     float *L = s->L0_next;
     const size_t n = (size_t)p->n;
     return owned_body(p, v0, cnt, off, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->L0, out, L, L + n, L + 2 * n,
-                      L + 3 * n, L + 4 * n, L + 5 * n, 1);
+                      L + 3 * n, L + 4 * n, L + 5 * n, w, 1);
 }
 
 /* Offsets of the springs vertex (i, r) owns; 0 where the far end is off the grid. */
@@ -262,13 +301,13 @@ static void owned_offsets(const cs_phys *p, int32_t i, int32_t r, int32_t off[CS
     }
 }
 
-/* Forces of the springs owned by row r into a ring row (zeros for rows above the grid).
- * strain: also their new rest lengths (only for rows this thread owns). */
-static int owned_row(const cs_phys *p, const cs_state *s, int32_t r, float *R, int strain)
+/* Forces of the springs owned by row r into a ring row of stride w (zeros for rows above the
+ * grid). strain: also their new rest lengths (only for rows this thread owns). */
+static int owned_row(const cs_phys *p, const cs_state *s, int32_t r, float *R, int32_t w, int strain)
 {
     const int32_t nx = p->nx;
     for (int q = 0; q < RING_ROWS; q++) {
-        float *row = R + (size_t)q * RING_W;
+        float *row = R + (size_t)q * (size_t)w;
         if (r < 0) {
             memset(row, 0, sizeof(float) * (size_t)(nx + 2 * RING_PAD));
         } else {
@@ -276,26 +315,26 @@ static int owned_row(const cs_phys *p, const cs_state *s, int32_t r, float *R, i
         }
     }
     if (r < 0) return 0;
-    int (*const run)(const cs_phys *, const cs_state *, int32_t, int32_t, const int32_t *, float *) =
+    int (*const run)(const cs_phys *, const cs_state *, int32_t, int32_t, const int32_t *, float *, int32_t) =
         strain ? owned_strain : owned_plain;
     int torn = 0;
     int32_t off[CS_NTYPES];
     /* Columns 1 .. nx-3 have every horizontal neighbour: one run. */
     if (nx > 3) {
         owned_offsets(p, 1, r, off);
-        torn += run(p, s, r * nx + 1, nx - 3, off, R + RING_PAD + 1);
+        torn += run(p, s, r * nx + 1, nx - 3, off, R + RING_PAD + 1, w);
     }
     for (int32_t i = 0; i < nx; i = (i == 0 && nx > 3) ? nx - 2 : i + 1) {
         owned_offsets(p, i, r, off);
-        torn += run(p, s, r * nx + i, 1, off, R + RING_PAD + i);
+        torn += run(p, s, r * nx + i, 1, off, R + RING_PAD + i, w);
     }
     return torn;
 }
 
-/* The 12 springs of row j's vertices from the ring rows of j, j-1, j-2, plus air and gravity,
- * into f (and a copy into ro). */
+/* The 12 springs of row j's vertices from the ring rows of j, j-1, j-2 (stride w), plus air and
+ * gravity, into f (and a copy into ro). */
 static void gather_row(const cs_phys *pp, int32_t v0, int32_t cnt, const float *restrict R0,
-                       const float *restrict R1, const float *restrict R2, const float *restrict VX,
+                       const float *restrict R1, const float *restrict R2, const int32_t w, const float *restrict VX,
                        const float *restrict VY, const float *restrict VZ, float *restrict fx, float *restrict fy,
                        float *restrict fz)
 {
@@ -310,8 +349,8 @@ static void gather_row(const cs_phys *pp, int32_t v0, int32_t cnt, const float *
     {                                                                                                  \
         const float *rr = (fwd) ? R0 : (dj) == 0 ? R0 : (dj) == -1 ? R1 : R2;                          \
         const int32_t col = (fwd) ? c : c + (di);                                                      \
-        const cs_vec3 F = cs_v3(rr[(3 * (t) + 0) * RING_W + col], rr[(3 * (t) + 1) * RING_W + col],      \
-                                rr[(3 * (t) + 2) * RING_W + col]);                                     \
+        const cs_vec3 F = cs_v3(rr[(3 * (t) + 0) * w + col], rr[(3 * (t) + 1) * w + col],                \
+                                rr[(3 * (t) + 2) * w + col]);                                          \
         f = cs_add(f, (fwd) ? F : cs_neg(F));                                                          \
     }
         CS_SPRING_SLOTS(CS_GATHER)
@@ -733,13 +772,13 @@ static int spring_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, 
     const int32_t nx = p->nx, v0 = j * nx;
     if (tb->last_row != j - 1) {
         /* The first row of this thread's block: the two rows above, without owning them. */
-        owned_row(p, s, j - 2, tb->ring[(j + 1) % 3], 0);
-        owned_row(p, s, j - 1, tb->ring[(j + 2) % 3], 0);
+        owned_row(p, s, j - 2, tb->ring[(j + 1) % 3], tb->w, 0);
+        owned_row(p, s, j - 1, tb->ring[(j + 2) % 3], tb->w, 0);
     }
     tb->last_row = j;
-    const int torn = owned_row(p, s, j, tb->ring[j % 3], strain);
-    gather_row(p, v0, nx, tb->ring[j % 3], tb->ring[(j + 2) % 3], tb->ring[(j + 1) % 3], s->vx, s->vy, s->vz,
-               tb->f[0], tb->f[1], tb->f[2]);
+    const int torn = owned_row(p, s, j, tb->ring[j % 3], tb->w, strain);
+    gather_row(p, v0, nx, tb->ring[j % 3], tb->ring[(j + 2) % 3], tb->ring[(j + 1) % 3], tb->w, s->vx, s->vy,
+               s->vz, tb->f[0], tb->f[1], tb->f[2]);
     return torn;
 }
 
@@ -922,7 +961,7 @@ static cs_status cpu_refresh(void *ctx, const cs_model *m, cs_state *s)
     cpu_ctx *c = ctx;
     const cs_phys *p = &m->phys;
     const int threads = threads_of(m);
-    thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(threads) : NULL;
+    thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(threads, m->phys.nx) : NULL;
     if (!tb) return CS_E_NOMEM;
 #pragma omp parallel num_threads(threads)
     force_pass(c, tb[thread_id()], p, s, 0, 0);
@@ -997,7 +1036,7 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
 {
     cpu_ctx *c = ctx;
     const int threads = threads_of(m);
-    thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(threads) : NULL;
+    thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(threads, m->phys.nx) : NULL;
     if (!tb) return CS_E_NOMEM;
     if (threads == 1) {
         step_team(c, tb[0], m, s, substeps, 1);
@@ -1093,9 +1132,11 @@ static cs_status cpu_step_batch(cs_batch_item *items, int n)
 {
     if (n <= 0) return CS_OK;
     int t = 1;
+    int32_t nx = 0; /* the widest cloth */
     for (int i = 0; i < n; i++) {
         const int ti = threads_of(items[i].m);
         t = ti > t ? ti : t;
+        nx = items[i].m->phys.nx > nx ? items[i].m->phys.nx : nx;
     }
     batch_job *jobs = malloc(sizeof *jobs * (size_t)n);
     double *load = malloc(sizeof *load * (size_t)t);
@@ -1111,13 +1152,13 @@ static cs_status cpu_step_batch(cs_batch_item *items, int n)
     }
     qsort(jobs, (size_t)nj, sizeof *jobs, by_work_desc);
     const int team = plan_batch(jobs, nj, t, load);
-    /* A simulation that cannot have its partials fails alone; the t thread buffers serve every
-     * simulation of the batch (a thread steps one at a time). */
+    /* A simulation that cannot have its partials fails alone; the t thread buffers, for the widest
+     * cloth, serve every simulation of the batch (a thread steps one at a time). */
     for (int i = 0; i < nj; i++) {
         cs_batch_item *it = jobs[i].it;
         if (reserve(it->ctx, it->m, it->s) != CS_OK) it->status = CS_E_NOMEM;
     }
-    thread_buf **tb = scratch_take(t);
+    thread_buf **tb = scratch_take(t, nx);
     if (!tb) {
         free(jobs);
         free(load);
