@@ -18,6 +18,7 @@
  * than a thread's fair share is stepped by all of them together, as step() does; the rest each
  * whole by one thread (the same code with its work-sharing constructs run plainly: no barrier that
  * waits on another thread), largest first as threads come free. */
+#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -32,19 +33,31 @@
 #else
 #define CS_ALWAYS_INLINE inline
 #endif
+/* A loop whose iterations store nothing another reads or overwrites (gcc would otherwise check
+ * at run time that rows of a runtime stride do not overlap, and gives up past ten checks). */
+#if defined(__GNUC__) && !defined(__clang__)
+#define CS_IVDEP _Pragma("GCC ivdep")
+#else
+#define CS_IVDEP
+#endif
 
-/* Columns -2 .. 4097 of the widest row, rounded up: a ring row has this fixed stride so the
- * compiler can tell its component rows apart. */
-#define RING_W 4104
-#define RING_PAD 2
+#define RING_PAD 2                /* columns -2 .. nx + 1 of a ring row: the bending springs' reach */
 #define RING_ROWS (3 * CS_NTYPES) /* x, y, z of each owned spring type */
 #define CS_MAX_SEG ((4096 + CS_CHUNK - 1) / CS_CHUNK) /* chunks in the widest row */
 
+/* The stride (floats) of the rows of a thread buffer for a cloth nx wide: columns -RING_PAD ..
+ * nx + RING_PAD - 1, in whole 64-byte lines, an odd number of them (so the 18 rows a loop writes
+ * fall in different cache sets). */
+static int32_t row_stride(int32_t nx) { return 16 * (((nx + 2 * RING_PAD + 15) / 16) | 1); }
+
 typedef struct thread_buf {
-    float ring[3][RING_ROWS * RING_W]; /* owned-spring forces of rows j, j-1, j-2 (slot j mod 3);
-                                          component row q = 3 t + c at q RING_W, column i at RING_PAD + i */
-    float f[3][RING_W];               /* resultant on the vertices of the current row */
-    float ro[3][RING_W];              /* non-contact resultant Ro (resultant friction) */
+    /* Rows of w floats (row_stride) after the struct, laid out for the cloth of the call: */
+    float *ring[3]; /* owned-spring forces of rows j, j-1, j-2 (slot j mod 3); component row
+                       q = 3 t + c at q w, column i at RING_PAD + i */
+    float *f[3];    /* resultant on the vertices of the current row */
+    float *ro[3];   /* non-contact resultant Ro (resultant friction) */
+    int32_t w;
+    size_t bytes;   /* allocated, with the rows */
     float contrib[6][CS_CHUNK];       /* one rock's reaction from the touching vertices of a chunk */
     float col[6][CS_CHUNK + 4];       /* surface contact: the rows j-1 .. j+1 of each column (min
                                          x y z, max x y z; column_bounds) */
@@ -57,17 +70,26 @@ typedef struct thread_buf {
     uint8_t cand[CS_CHUNK];           /* surface contact: the vertices of a chunk to gather for a rock */
     uint8_t rhit[CS_MAX_ROCKS];       /* rocks that may reach a chunk */
     uint8_t idx[CS_CHUNK];            /* vertices of a chunk touching a rock */
-    int64_t torn;
     int32_t last_row;
+    struct thread_buf *next;          /* the pool's free list */
 } thread_buf;
 
 typedef struct cpu_ctx {
     float *partials;      /* nchunks x rocks x 6: each chunk's force and torque on each rock */
     size_t partials_cap;  /* floats */
-    thread_buf **tb;
-    int n_tb;
+    int64_t torn;         /* springs torn since the last report (atomic adds from the team) */
     char device[160];
 } cpu_ctx;
+
+/* The thread buffers, shared by every CPU simulation of the process. Nothing in one outlives the
+ * pass that fills it, so a step call takes a buffer for each thread it runs before its parallel
+ * region and gives them back after: there are as many as threads have stepped at once, not one
+ * per thread per simulation. The last context destroyed frees them. */
+static struct {
+    pthread_mutex_t lock;
+    thread_buf *free; /* buffers no call holds */
+    int contexts;     /* CPU contexts alive */
+} pool = {PTHREAD_MUTEX_INITIALIZER, NULL, 0};
 
 static int cpu_available(char *why, size_t why_len)
 {
@@ -102,6 +124,9 @@ static cs_status cpu_create(void **out, char *err, size_t err_len)
         snprintf(err, err_len, "out of memory");
         return CS_E_NOMEM;
     }
+    pthread_mutex_lock(&pool.lock);
+    pool.contexts++;
+    pthread_mutex_unlock(&pool.lock);
     *out = c;
     return CS_OK;
 }
@@ -110,14 +135,80 @@ static void cpu_destroy(void *ctx)
 {
     cpu_ctx *c = ctx;
     if (!c) return;
-    for (int i = 0; i < c->n_tb; i++) free(c->tb[i]);
-    free(c->tb);
+    pthread_mutex_lock(&pool.lock);
+    if (--pool.contexts == 0) /* no call can hold a buffer: every one is free */
+        while (pool.free) {
+            thread_buf *b = pool.free;
+            pool.free = b->next;
+            free(b);
+        }
+    pthread_mutex_unlock(&pool.lock);
     free(c->partials);
     free(c);
 }
 
-/* Makes room for this scene and rock count, and for a team of t threads. */
-static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s, int t)
+/* Gives the t buffers of b[] back to the pool, and frees b. */
+static void scratch_give(thread_buf **b, int t)
+{
+    pthread_mutex_lock(&pool.lock);
+    for (int i = 0; i < t; i++) {
+        b[i]->next = pool.free;
+        pool.free = b[i];
+    }
+    pthread_mutex_unlock(&pool.lock);
+    free(b);
+}
+
+/* Buffer b laid out for a cloth nx wide, or in its place (b freed) a new one where b is NULL or
+ * too small; NULL when out of memory (b kept). */
+static thread_buf *buf_fit(thread_buf *b, int32_t nx)
+{
+    const int32_t w = row_stride(nx);
+    const size_t head = (sizeof *b + 63) / 64 * 64;
+    const size_t bytes = head + sizeof(float) * (size_t)w * (3 * RING_ROWS + 6); /* a multiple of 64 */
+    if (!b || b->bytes < bytes) {
+        thread_buf *n = aligned_alloc(64, bytes);
+        if (!n) return NULL;
+        free(b);
+        b = memset(n, 0, bytes);
+        b->bytes = bytes;
+    }
+    float *rows = (float *)((char *)b + head);
+    b->w = w;
+    for (int k = 0; k < 3; k++) {
+        b->ring[k] = rows + (size_t)k * RING_ROWS * (size_t)w;
+        b->f[k] = rows + (size_t)(3 * RING_ROWS + k) * (size_t)w;
+        b->ro[k] = rows + (size_t)(3 * RING_ROWS + 3 + k) * (size_t)w;
+    }
+    return b;
+}
+
+/* Buffers for a call's t threads (thread k uses the k-th) stepping a cloth nx wide, from the pool
+ * or new; NULL when out of memory. */
+static thread_buf **scratch_take(int t, int32_t nx)
+{
+    thread_buf **b = malloc(sizeof *b * (size_t)t);
+    if (!b) return NULL;
+    int got = 0;
+    pthread_mutex_lock(&pool.lock);
+    for (; got < t && pool.free; got++) {
+        b[got] = pool.free;
+        pool.free = b[got]->next;
+    }
+    pthread_mutex_unlock(&pool.lock);
+    for (int k = 0; k < t; k++) {
+        thread_buf *f = buf_fit(k < got ? b[k] : NULL, nx);
+        if (!f) {
+            scratch_give(b, k > got ? k : got);
+            return NULL;
+        }
+        b[k] = f;
+    }
+    return b;
+}
+
+/* Makes room for this scene's rock partials. */
+static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s)
 {
     const size_t need = (size_t)m->phys.nchunks * (size_t)(s->n_rocks > 0 ? s->n_rocks : 1) * 6;
     if (need > c->partials_cap) {
@@ -126,21 +217,10 @@ static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s, int t
         c->partials = p;
         c->partials_cap = need;
     }
-    if (t > c->n_tb) {
-        thread_buf **tb = realloc(c->tb, sizeof *tb * (size_t)t);
-        if (!tb) return CS_E_NOMEM;
-        c->tb = tb;
-        for (; c->n_tb < t; c->n_tb++) {
-            thread_buf *b = aligned_alloc(64, (sizeof *b + 63) / 64 * 64);
-            if (!b) return CS_E_NOMEM;
-            memset(b, 0, sizeof *b);
-            c->tb[c->n_tb] = b;
-        }
-    }
     return CS_OK;
 }
 
-static cs_status cpu_upload(void *ctx, const cs_model *m, cs_state *s) { return reserve(ctx, m, s, threads_of(m)); }
+static cs_status cpu_upload(void *ctx, const cs_model *m, cs_state *s) { return reserve(ctx, m, s); }
 
 static cs_status cpu_download(void *ctx, const cs_model *m, cs_state *s, unsigned what)
 {
@@ -154,15 +234,16 @@ static cs_status cpu_download(void *ctx, const cs_model *m, cs_state *s, unsigne
 /* ---- the force pass ---- */
 
 /* The springs owned by cnt consecutive vertices from v0, each reaching v + off[t] (0 where the
- * grid has no such spring): forces into out (component row 3 t + c, stride RING_W), and with
+ * grid has no such spring): forces into out (component row 3 t + c, stride w), and with
  * strain the new rest lengths into n0..n5. Returns springs torn. The arrays are restrict
- * parameters, which gcc honours, so the loop vectorizes. */
+ * parameters, which gcc honours, and out's rows (stride w > cnt) never overlap, so the loop
+ * vectorizes. */
 static CS_ALWAYS_INLINE int owned_body(const cs_phys *pp, int32_t v0, int32_t cnt, const int32_t *off,
                                       const float *restrict X, const float *restrict Y, const float *restrict Z,
                                       const float *restrict VX, const float *restrict VY, const float *restrict VZ,
                                       const float *restrict L0, float *restrict out, float *restrict n0,
                                       float *restrict n1, float *restrict n2, float *restrict n3,
-                                      float *restrict n4, float *restrict n5, const int strain)
+                                      float *restrict n4, float *restrict n5, const int32_t w, const int strain)
 {
     const cs_phys P = *pp; /* a local copy: the stores cannot alias it */
     const cs_phys *p = &P;
@@ -170,7 +251,7 @@ static CS_ALWAYS_INLINE int owned_body(const cs_phys *pp, int32_t v0, int32_t cn
     int32_t o[CS_NTYPES];
     for (int t = 0; t < CS_NTYPES; t++) o[t] = off[t];
     int torn = 0;
-    for (int32_t k = 0; k < cnt; k++) {
+    CS_IVDEP for (int32_t k = 0; k < cnt; k++) {
         const int32_t v = v0 + k;
         const cs_vec3 xi = LOADX(v), vi = LOADV(v);
         float len;
@@ -180,9 +261,9 @@ static CS_ALWAYS_INLINE int owned_body(const cs_phys *pp, int32_t v0, int32_t cn
         const int32_t j_ = v + o[t];                                                                   \
         const float l0 = L0[(t) * n + v];                                                              \
         const cs_vec3 F = cs_spring_force(xi, vi, LOADX(j_), LOADV(j_), l0, p->k[t], p->c_spring, &len); \
-        out[(3 * (t) + 0) * RING_W + k] = F.x;                                                         \
-        out[(3 * (t) + 1) * RING_W + k] = F.y;                                                         \
-        out[(3 * (t) + 2) * RING_W + k] = F.z;                                                         \
+        out[(3 * (t) + 0) * w + k] = F.x;                                                              \
+        out[(3 * (t) + 1) * w + k] = F.y;                                                              \
+        out[(3 * (t) + 2) * w + k] = F.z;                                                              \
         if (strain) {                                                                                  \
             const float nl = cs_strain_update(len, l0, p);                                             \
             NEXT_OF(t)[v] = nl;                                                                        \
@@ -196,18 +277,20 @@ static CS_ALWAYS_INLINE int owned_body(const cs_phys *pp, int32_t v0, int32_t cn
     return torn;
 }
 
-static int owned_plain(const cs_phys *p, const cs_state *s, int32_t v0, int32_t cnt, const int32_t *off, float *out)
+static int owned_plain(const cs_phys *p, const cs_state *s, int32_t v0, int32_t cnt, const int32_t *off, float *out,
+                       int32_t w)
 {
     return owned_body(p, v0, cnt, off, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->L0, out, NULL, NULL, NULL, NULL,
-                      NULL, NULL, 0);
+                      NULL, NULL, w, 0);
 }
 
-static int owned_strain(const cs_phys *p, const cs_state *s, int32_t v0, int32_t cnt, const int32_t *off, float *out)
+static int owned_strain(const cs_phys *p, const cs_state *s, int32_t v0, int32_t cnt, const int32_t *off, float *out,
+                        int32_t w)
 {
     float *L = s->L0_next;
     const size_t n = (size_t)p->n;
     return owned_body(p, v0, cnt, off, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->L0, out, L, L + n, L + 2 * n,
-                      L + 3 * n, L + 4 * n, L + 5 * n, 1);
+                      L + 3 * n, L + 4 * n, L + 5 * n, w, 1);
 }
 
 /* Offsets of the springs vertex (i, r) owns; 0 where the far end is off the grid. */
@@ -218,13 +301,13 @@ static void owned_offsets(const cs_phys *p, int32_t i, int32_t r, int32_t off[CS
     }
 }
 
-/* Forces of the springs owned by row r into a ring row (zeros for rows above the grid).
- * strain: also their new rest lengths (only for rows this thread owns). */
-static int owned_row(const cs_phys *p, const cs_state *s, int32_t r, float *R, int strain)
+/* Forces of the springs owned by row r into a ring row of stride w (zeros for rows above the
+ * grid). strain: also their new rest lengths (only for rows this thread owns). */
+static int owned_row(const cs_phys *p, const cs_state *s, int32_t r, float *R, int32_t w, int strain)
 {
     const int32_t nx = p->nx;
     for (int q = 0; q < RING_ROWS; q++) {
-        float *row = R + (size_t)q * RING_W;
+        float *row = R + (size_t)q * (size_t)w;
         if (r < 0) {
             memset(row, 0, sizeof(float) * (size_t)(nx + 2 * RING_PAD));
         } else {
@@ -232,26 +315,26 @@ static int owned_row(const cs_phys *p, const cs_state *s, int32_t r, float *R, i
         }
     }
     if (r < 0) return 0;
-    int (*const run)(const cs_phys *, const cs_state *, int32_t, int32_t, const int32_t *, float *) =
+    int (*const run)(const cs_phys *, const cs_state *, int32_t, int32_t, const int32_t *, float *, int32_t) =
         strain ? owned_strain : owned_plain;
     int torn = 0;
     int32_t off[CS_NTYPES];
     /* Columns 1 .. nx-3 have every horizontal neighbour: one run. */
     if (nx > 3) {
         owned_offsets(p, 1, r, off);
-        torn += run(p, s, r * nx + 1, nx - 3, off, R + RING_PAD + 1);
+        torn += run(p, s, r * nx + 1, nx - 3, off, R + RING_PAD + 1, w);
     }
     for (int32_t i = 0; i < nx; i = (i == 0 && nx > 3) ? nx - 2 : i + 1) {
         owned_offsets(p, i, r, off);
-        torn += run(p, s, r * nx + i, 1, off, R + RING_PAD + i);
+        torn += run(p, s, r * nx + i, 1, off, R + RING_PAD + i, w);
     }
     return torn;
 }
 
-/* The 12 springs of row j's vertices from the ring rows of j, j-1, j-2, plus air and gravity,
- * into f (and a copy into ro). */
+/* The 12 springs of row j's vertices from the ring rows of j, j-1, j-2 (stride w), plus air and
+ * gravity, into f (and a copy into ro). */
 static void gather_row(const cs_phys *pp, int32_t v0, int32_t cnt, const float *restrict R0,
-                       const float *restrict R1, const float *restrict R2, const float *restrict VX,
+                       const float *restrict R1, const float *restrict R2, const int32_t w, const float *restrict VX,
                        const float *restrict VY, const float *restrict VZ, float *restrict fx, float *restrict fy,
                        float *restrict fz)
 {
@@ -266,8 +349,8 @@ static void gather_row(const cs_phys *pp, int32_t v0, int32_t cnt, const float *
     {                                                                                                  \
         const float *rr = (fwd) ? R0 : (dj) == 0 ? R0 : (dj) == -1 ? R1 : R2;                          \
         const int32_t col = (fwd) ? c : c + (di);                                                      \
-        const cs_vec3 F = cs_v3(rr[(3 * (t) + 0) * RING_W + col], rr[(3 * (t) + 1) * RING_W + col],      \
-                                rr[(3 * (t) + 2) * RING_W + col]);                                     \
+        const cs_vec3 F = cs_v3(rr[(3 * (t) + 0) * w + col], rr[(3 * (t) + 1) * w + col],                \
+                                rr[(3 * (t) + 2) * w + col]);                                          \
         f = cs_add(f, (fwd) ? F : cs_neg(F));                                                          \
     }
         CS_SPRING_SLOTS(CS_GATHER)
@@ -682,19 +765,21 @@ static void accel(int32_t cnt, float inv_mass, const float *restrict W, const fl
 }
 
 /* The non-contact forces of row j (springs, air, gravity) into tb->f, and strain updates of its
- * springs. Rows j-2 and j-1 must already be in the ring (this thread's previous rows). */
-static void spring_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, int strain)
+ * springs; returns the springs torn. Rows j-2 and j-1 must already be in the ring (this thread's
+ * previous rows). */
+static int spring_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j, int strain)
 {
     const int32_t nx = p->nx, v0 = j * nx;
     if (tb->last_row != j - 1) {
         /* The first row of this thread's block: the two rows above, without owning them. */
-        owned_row(p, s, j - 2, tb->ring[(j + 1) % 3], 0);
-        owned_row(p, s, j - 1, tb->ring[(j + 2) % 3], 0);
+        owned_row(p, s, j - 2, tb->ring[(j + 1) % 3], tb->w, 0);
+        owned_row(p, s, j - 1, tb->ring[(j + 2) % 3], tb->w, 0);
     }
     tb->last_row = j;
-    tb->torn += owned_row(p, s, j, tb->ring[j % 3], strain);
-    gather_row(p, v0, nx, tb->ring[j % 3], tb->ring[(j + 2) % 3], tb->ring[(j + 1) % 3], s->vx, s->vy, s->vz,
-               tb->f[0], tb->f[1], tb->f[2]);
+    const int torn = owned_row(p, s, j, tb->ring[j % 3], tb->w, strain);
+    gather_row(p, v0, nx, tb->ring[j % 3], tb->ring[(j + 2) % 3], tb->ring[(j + 1) % 3], tb->w, s->vx, s->vy,
+               s->vz, tb->f[0], tb->f[1], tb->f[2]);
+    return torn;
 }
 
 /* Row j's contacts onto tb->f, its chunks' partials, then a for its vertices. */
@@ -837,13 +922,19 @@ static void swap_rest(cs_state *s)
         }                                                                                         \
     } while (0)
 
-/* This thread's buffer: a solo thread uses the first. */
-static thread_buf *my_buf(cpu_ctx *c, int solo) { return c->tb[solo ? 0 : thread_id()]; }
-
-/* The force pass over every row, by the team of the innermost parallel region (or solo). */
-static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain, int solo)
+/* Counts springs torn (rare: no atomic at all where none tore). */
+static void count_torn(cpu_ctx *c, int torn)
 {
-    thread_buf *tb = my_buf(c, solo);
+    if (torn) {
+#pragma omp atomic
+        c->torn += torn;
+    }
+}
+
+/* The force pass over every row, by the team of the innermost parallel region (or solo), each
+ * thread with its buffer tb. */
+static void force_pass(cpu_ctx *c, thread_buf *tb, const cs_phys *p, cs_state *s, int strain, int solo)
+{
     tb->last_row = -3;
     for (int k = 0; k < 3; k++)
         for (int g = 0; g < CS_MAX_SEG; g++) tb->rowbox_row[k][g] = -1;
@@ -852,20 +943,16 @@ static void force_pass(cpu_ctx *c, const cs_phys *p, cs_state *s, int strain, in
         tb->rk[3][r] = s->rocks[r].radius + p->contact_offset;
     }
     TEAM_ROWS(solo, "omp for schedule(dynamic, ROW_BLOCK)", j, p->ny, {
-        spring_row(p, s, tb, j, strain);
+        count_torn(c, spring_row(p, s, tb, j, strain));
         contact_row(p, s, tb, j, c->partials);
     });
 }
 
-/* The springs torn since the last call, summed over every thread buffer (a team may have used
- * fewer than there are). */
+/* The springs torn since the last call. */
 static int64_t take_torn(cpu_ctx *c)
 {
-    int64_t t = 0;
-    for (int i = 0; i < c->n_tb; i++) {
-        t += c->tb[i]->torn;
-        c->tb[i]->torn = 0;
-    }
+    const int64_t t = c->torn;
+    c->torn = 0;
     return t;
 }
 
@@ -874,9 +961,11 @@ static cs_status cpu_refresh(void *ctx, const cs_model *m, cs_state *s)
     cpu_ctx *c = ctx;
     const cs_phys *p = &m->phys;
     const int threads = threads_of(m);
-    if (reserve(c, m, s, threads) != CS_OK) return CS_E_NOMEM;
+    thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(threads, m->phys.nx) : NULL;
+    if (!tb) return CS_E_NOMEM;
 #pragma omp parallel num_threads(threads)
-    force_pass(c, p, s, 0, 0);
+    force_pass(c, tb[thread_id()], p, s, 0, 0);
+    scratch_give(tb, threads);
     rocks_forces(p, s, c->partials, 0.0f);
     take_torn(c);
     return CS_OK;
@@ -901,8 +990,8 @@ static int state_finite(const cs_state *s)
 }
 
 /* One step call's substeps, run by the team of the innermost parallel region (every thread of it
- * calls this, with the same arguments), or by one thread alone (solo). */
-static void step_team(cpu_ctx *c, const cs_model *m, cs_state *s, int32_t substeps, int solo)
+ * calls this, with the same arguments but its own buffer tb), or by one thread alone (solo). */
+static void step_team(cpu_ctx *c, thread_buf *tb, const cs_model *m, cs_state *s, int32_t substeps, int solo)
 {
     const cs_phys *p = &m->phys;
     const int verlet = p->integrator == CS_VELOCITY_VERLET, strain = p->strain_on != 0;
@@ -914,7 +1003,7 @@ static void step_team(cpu_ctx *c, const cs_model *m, cs_state *s, int32_t subste
     for (int32_t it = 0; it < substeps; it++) {
         if (verlet) {
             TEAM_ROWS(solo, "omp for schedule(dynamic, ROW_BLOCK)", j, ny, move_row(s, p, j, it > 0, p->hdt, p->dt));
-            force_pass(c, p, s, strain, solo);
+            force_pass(c, tb, p, s, strain, solo);
             TEAM_ONE(solo, {
                 rocks_forces(p, s, c->partials, p->hdt);
                 if (strain) swap_rest(s);
@@ -924,12 +1013,11 @@ static void step_team(cpu_ctx *c, const cs_model *m, cs_state *s, int32_t subste
                 }
             });
         } else {
-            force_pass(c, p, s, 0, solo);
+            force_pass(c, tb, p, s, 0, solo);
             TEAM_ONE(solo, rocks_forces(p, s, c->partials, 0.0f), rocks_move(s, p->dt, p->dt), grab_motion(p, s));
             TEAM_ROWS(solo, "omp for schedule(static)", j, ny, move_row(s, p, j, 0, p->dt, p->dt));
             if (strain) {
-                thread_buf *tb = my_buf(c, solo);
-                TEAM_ROWS(solo, "omp for schedule(static)", j, ny, tb->torn += strain_row(p, s, j));
+                TEAM_ROWS(solo, "omp for schedule(static)", j, ny, count_torn(c, strain_row(p, s, j)));
                 TEAM_ONE(solo, swap_rest(s));
             }
         }
@@ -948,13 +1036,15 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
 {
     cpu_ctx *c = ctx;
     const int threads = threads_of(m);
-    if (reserve(c, m, s, threads) != CS_OK) return CS_E_NOMEM;
+    thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(threads, m->phys.nx) : NULL;
+    if (!tb) return CS_E_NOMEM;
     if (threads == 1) {
-        step_team(c, m, s, substeps, 1);
+        step_team(c, tb[0], m, s, substeps, 1);
     } else {
 #pragma omp parallel num_threads(threads)
-        step_team(c, m, s, substeps, 0);
+        step_team(c, tb[thread_id()], m, s, substeps, 0);
     }
+    scratch_give(tb, threads);
     step_report(c, s, rep);
     return CS_OK;
 }
@@ -1042,9 +1132,11 @@ static cs_status cpu_step_batch(cs_batch_item *items, int n)
 {
     if (n <= 0) return CS_OK;
     int t = 1;
+    int32_t nx = 0; /* the widest cloth */
     for (int i = 0; i < n; i++) {
         const int ti = threads_of(items[i].m);
         t = ti > t ? ti : t;
+        nx = items[i].m->phys.nx > nx ? items[i].m->phys.nx : nx;
     }
     batch_job *jobs = malloc(sizeof *jobs * (size_t)n);
     double *load = malloc(sizeof *load * (size_t)t);
@@ -1060,19 +1152,26 @@ static cs_status cpu_step_batch(cs_batch_item *items, int n)
     }
     qsort(jobs, (size_t)nj, sizeof *jobs, by_work_desc);
     const int team = plan_batch(jobs, nj, t, load);
-    /* Scratch for the team (t thread buffers) or for one thread; a simulation that cannot have
-     * it fails alone. */
+    /* A simulation that cannot have its partials fails alone; the t thread buffers, for the widest
+     * cloth, serve every simulation of the batch (a thread steps one at a time). */
     for (int i = 0; i < nj; i++) {
         cs_batch_item *it = jobs[i].it;
-        if (reserve(it->ctx, it->m, it->s, i < team ? t : 1) != CS_OK) it->status = CS_E_NOMEM;
+        if (reserve(it->ctx, it->m, it->s) != CS_OK) it->status = CS_E_NOMEM;
+    }
+    thread_buf **tb = scratch_take(t, nx);
+    if (!tb) {
+        free(jobs);
+        free(load);
+        return CS_E_NOMEM;
     }
     int next = team;
 #pragma omp parallel num_threads(t)
     {
+        thread_buf *mine = tb[thread_id()];
         for (int i = 0; i < team; i++) {
             cs_batch_item *it = jobs[i].it;
             if (it->status != CS_OK) continue;
-            step_team(it->ctx, it->m, it->s, it->substeps, 0);
+            step_team(it->ctx, mine, it->m, it->s, it->substeps, 0);
 #pragma omp single nowait
             step_report(it->ctx, it->s, &it->rep);
         }
@@ -1083,10 +1182,11 @@ static cs_status cpu_step_batch(cs_batch_item *items, int n)
             if (k >= nj) break;
             cs_batch_item *it = jobs[k].it;
             if (it->status != CS_OK) continue;
-            step_team(it->ctx, it->m, it->s, it->substeps, 1);
+            step_team(it->ctx, mine, it->m, it->s, it->substeps, 1);
             step_report(it->ctx, it->s, &it->rep);
         }
     }
+    scratch_give(tb, t);
     free(jobs);
     free(load);
     return CS_OK;
