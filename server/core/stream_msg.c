@@ -43,7 +43,7 @@ static stream_msg_kind subscribe(stream_msg *m, const json_t *o)
         return refuse(m, "subscribe", 1);
     }
     if (id && !stream_scene_id_ok(json_string_value(id))) {
-        problem_set(&m->pr, 400, "invalid-id", "scene",
+        problem_set(&m->pr, 400, "bad-scene-id", "scene",
                     "a scene id is 1 to 63 of a-z, 0-9, _ and -, starting with a letter or digit (got '%.80s')",
                     json_string_value(id));
         return refuse(m, "subscribe", 1);

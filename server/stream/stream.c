@@ -1141,7 +1141,7 @@ static int admit(stream *st, struct lws *wsi, session *s)
     const char *id = lws_get_urlarg_by_name(wsi, "scene=", want, sizeof want);
     if (!id) id = SCENE_DEFAULT;
     if (!stream_scene_id_ok(id)) {
-        refuse(st, wsi, REFUSED_SCENE, 400, "invalid-id", NULL,
+        refuse(st, wsi, REFUSED_SCENE, 400, "bad-scene-id", NULL,
                "a scene id is 1 to 63 of a-z, 0-9, _ and -, starting with a letter or digit (got '%.80s')", id);
         return 0;
     }
