@@ -658,6 +658,7 @@ static void reap_feeds(stream *st)
             if (s->f != fd) continue;
             leave_feed(st, s);
             s->gone = 1;
+            atomic_fetch_add(&st->scene_closed, 1);
             lws_callback_on_writable(s->wsi);
         }
         feed_free_buffers(fd);
@@ -936,7 +937,6 @@ static int writeable(stream *st, session *s)
     if (s->dead) return -1;
     if (s->gone) {
         lws_close_reason(s->wsi, LWS_CLOSE_STATUS_GOINGAWAY, (unsigned char *)CLOSE_SCENE_DELETED, strlen(CLOSE_SCENE_DELETED));
-        atomic_fetch_add(&st->scene_closed, 1);
         return -1;
     }
     if (!s->f) return 0;
