@@ -14,11 +14,13 @@
  * it), load again (the same bytes) and step, and the daemon's reading of it after
  * PUT /v1/snapshot works.
  *
- * The same input is also read as a state file (statefile.c: a snapshot and its trailer), as the
- * daemon does at start: a layout it accepts names a snapshot within the input, which is loaded,
- * and a trailer it writes reads back the same. */
+ * The same input is also read as a state file (statefile.c: snapshots and their trailer), as the
+ * daemon does at start: a layout it accepts names its scenes' snapshots one after another within
+ * the input (the first few are loaded), with valid ids none of which comes twice, and the trailers
+ * it writes - every scene (format 4), the first alone (format 3) - read back the same. */
 #include <stdint.h>
 
+#include "core/json_read.h"
 #include "core/statefile.h"
 #include "fuzz_common.h"
 
@@ -136,6 +138,50 @@ static void load(const unsigned char *buf, size_t len)
 }
 
 /* The input as a state file. */
+/* The layout written back - format 4 with every scene, or format 3 with the first one alone -
+ * reads back as it was read. */
+static void reads_back(const uint8_t *data, size_t at, const statefile *f, int one)
+{
+    const int n = one ? 1 : f->n_scenes;
+    const char **ids = malloc(sizeof *ids * (size_t)(n ? n : 1));
+    int *paused = malloc(sizeof *paused * (size_t)(n ? n : 1));
+    const loop_settings **loops = malloc(sizeof *loops * (size_t)(n ? n : 1));
+    if (!ids || !paused || !loops) fuzz_fail("out of memory");
+    for (int k = 0; k < n; k++) {
+        ids[k] = f->scenes[k].id;
+        paused[k] = f->scenes[k].paused;
+        loops[k] = &f->scenes[k].loop;
+    }
+    size_t tlen = 0;
+    char *t = one ? statefile_trailer(paused[0], loops[0], &tlen) : statefile_trailer_scenes(n, ids, paused, loops, &tlen);
+    const size_t body = one ? f->scenes[0].snapshot_len : at;
+    unsigned char *file = t ? malloc(body + tlen) : NULL;
+    if (!file) fuzz_fail("out of memory");
+    memcpy(file, data, body);
+    memcpy(file + body, t, tlen);
+    statefile again;
+    char why[300] = "";
+    clothd_config defaults;
+    settings_default(&defaults);
+    loop_settings back = defaults.scene.loop;
+    if (statefile_parse(file, body + tlen, &again, &back, why, sizeof why) != STATEFILE_OK)
+        fuzz_fail("a state file written with its trailer (format %d) does not read back: %s", one ? 3 : 4, why);
+    if (again.n_scenes != n || again.format != (one ? STATEFILE_FORMAT_ONE : STATEFILE_FORMAT))
+        fuzz_fail("a state file of %d scenes reads back with %d (format %d)", n, again.n_scenes, again.format);
+    for (int k = 0; k < n; k++) {
+        const statefile_scene *x = &f->scenes[k], *y = &again.scenes[k];
+        if (strcmp(x->id, y->id) != 0 || x->paused != y->paused || x->offset != y->offset ||
+            x->snapshot_len != y->snapshot_len || memcmp(&x->loop, &y->loop, sizeof x->loop) != 0)
+            fuzz_fail("the scene %d of a state file does not read back as written", k);
+    }
+    statefile_free(&again);
+    free(file);
+    free(t);
+    free(ids);
+    free(paused);
+    free(loops);
+}
+
 static void state_file(const uint8_t *data, size_t size)
 {
     statefile layout;
@@ -147,23 +193,27 @@ static void state_file(const uint8_t *data, size_t size)
         if (!why[0]) fuzz_fail("a state file refused without a reason");
         return;
     }
-    if (layout.snapshot_len == 0 || layout.snapshot_len > size) fuzz_fail("a snapshot of %zu bytes in %zu", layout.snapshot_len, size);
-    if (layout.snapshot_len < size) load(data, layout.snapshot_len);
-    size_t tlen = 0;
-    char *t = statefile_trailer(layout.paused, &loop, &tlen);
-    if (!t) fuzz_fail("out of memory");
-    unsigned char *file = malloc(layout.snapshot_len + tlen);
-    if (!file) fuzz_fail("out of memory");
-    memcpy(file, data, layout.snapshot_len);
-    memcpy(file + layout.snapshot_len, t, tlen);
-    statefile again;
-    loop_settings back = defaults.scene.loop;
-    if (statefile_parse(file, layout.snapshot_len + tlen, &again, &back, why, sizeof why) != STATEFILE_OK ||
-        again.paused != layout.paused || again.snapshot_len != layout.snapshot_len || again.format != STATEFILE_FORMAT ||
-        memcmp(&back, &loop, sizeof loop) != 0)
-        fuzz_fail("a state file written with its trailer does not read back: %s", why);
-    free(file);
-    free(t);
+    /* Each scene's snapshot lies within the input, one after another from its start; each id is a
+     * scene id, none twice; the first scene's settings are the ones handed back. */
+    size_t at = 0;
+    for (int k = 0; k < layout.n_scenes; k++) {
+        const statefile_scene *e = &layout.scenes[k];
+        if (e->offset != at || e->snapshot_len == 0 || e->snapshot_len > size - at)
+            fuzz_fail("the scene %d's snapshot (%zu bytes at %zu) does not follow the one before in %zu", k,
+                      e->snapshot_len, e->offset, size);
+        at += e->snapshot_len;
+        if (!scene_id_valid(e->id)) fuzz_fail("a scene id '%s' read from a state file", e->id);
+        for (int j = 0; j < k; j++)
+            if (strcmp(layout.scenes[j].id, e->id) == 0) fuzz_fail("the scene id '%s' read twice", e->id);
+        if (k < 4 && e->snapshot_len < size) load(data + e->offset, e->snapshot_len);
+    }
+    if (layout.n_scenes && memcmp(&loop, &layout.scenes[0].loop, sizeof loop) != 0)
+        fuzz_fail("the daemon-loop settings handed back are not the first scene's");
+    if (layout.snapshot_len != (layout.n_scenes ? layout.scenes[0].snapshot_len : 0))
+        fuzz_fail("snapshot_len is not the first scene's");
+    reads_back(data, at, &layout, 0);
+    if (layout.n_scenes) reads_back(data, at, &layout, 1);
+    statefile_free(&layout);
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)

@@ -142,36 +142,73 @@ static int write_atomic(const char *path, const void *data, size_t len, char *wh
     return 0;
 }
 
-/* Saves the engine's state, or the last checkpoint when the engine cannot be read any more (a
- * lost device), as a state file (statefile.h) with the run state. */
-static int save_state(cs_sim *sim, const unsigned char *fallback, size_t fallback_len, int paused,
-                      const loop_settings *loop, const char *path, char *why, size_t why_len)
+/* Appends a scene's state to buf - its engine's snapshot, or its last checkpoint when the engine
+ * cannot be read any more (a lost device): 0, or -1 with the reason. */
+static int append_state(scene *sc, unsigned char **buf, size_t *len, char *why, size_t why_len)
 {
-    size_t tlen = 0, len = cs_snapshot_size(sim);
-    char *trailer = statefile_trailer(paused, loop, &tlen);
-    unsigned char *buf = trailer ? malloc(len + tlen) : NULL;
-    int rc = -1;
-    if (!buf) {
-        snprintf(why, why_len, "out of memory");
-    } else if (cs_snapshot_save(sim, buf, len, &len) == CS_OK) {
-        memcpy(buf + len, trailer, tlen);
-        rc = write_atomic(path, buf, len + tlen, why, why_len);
-    } else if (fallback && fallback_len) {
-        log_msg("state file: the engine could not be read (%s); saving the last checkpoint", cs_sim_error(sim));
-        unsigned char *cp = realloc(buf, fallback_len + tlen);
-        if (cp) {
-            buf = cp;
-            memcpy(buf, fallback, fallback_len);
-            memcpy(buf + fallback_len, trailer, tlen);
-            rc = write_atomic(path, buf, fallback_len + tlen, why, why_len);
-        } else {
-            snprintf(why, why_len, "out of memory");
-        }
-    } else {
-        snprintf(why, why_len, "the engine could not be read (%s) and there is no checkpoint", cs_sim_error(sim));
+    cs_sim *sim = scene_engine(sc);
+    size_t cl = 0, n = cs_snapshot_size(sim);
+    const unsigned char *cp = scene_last_checkpoint(sc, &cl);
+    unsigned char *g = realloc(*buf, *len + (n > cl ? n : cl));
+    if (!g) return snprintf(why, why_len, "out of memory"), -1;
+    *buf = g;
+    if (cs_snapshot_save(sim, g + *len, n, &n) == CS_OK) {
+        *len += n;
+        return 0;
     }
-    free(buf);
+    if (!cp || !cl) {
+        snprintf(why, why_len, "the engine of the scene '%s' could not be read (%s) and there is no checkpoint", sc->id,
+                 cs_sim_error(sim));
+        return -1;
+    }
+    log_msg("state file: the engine could not be read (%s); saving the last checkpoint%s%s%s", cs_sim_error(sim),
+            strcmp(sc->id, SCENE_DEFAULT) ? " of the scene '" : "", strcmp(sc->id, SCENE_DEFAULT) ? sc->id : "",
+            strcmp(sc->id, SCENE_DEFAULT) ? "'" : "");
+    memcpy(g + *len, cp, cl);
+    *len += cl;
+    return 0;
+}
+
+/* Saves every scene of the table as a state file (statefile.h): format 3 when the one scene is
+ * "default", else format 4. *paused gets how many were saved paused. 0, or -1 with the reason. */
+static int save_state(scenes *table, const char *path, int *n, int *paused, char *why, size_t why_len)
+{
+    const int max = scenes_max(table);
+    scene **all = malloc(sizeof *all * (size_t)max);
+    const char **ids = malloc(sizeof *ids * (size_t)max);
+    int *run = malloc(sizeof *run * (size_t)max);
+    const loop_settings **loops = malloc(sizeof *loops * (size_t)max);
+    *n = all && ids && run && loops ? scenes_list(table, all, max) : 0;
+    *paused = 0;
+    unsigned char *buf = NULL;
+    size_t len = 0, tlen = 0;
+    int rc = all && ids && run && loops ? 0 : (snprintf(why, why_len, "out of memory"), -1);
+    for (int k = 0; k < *n && rc == 0; k++) {
+        ids[k] = all[k]->id;
+        run[k] = scene_paused_for_save(all[k]);
+        loops[k] = scene_loop(all[k]);
+        *paused += run[k];
+        rc = append_state(all[k], &buf, &len, why, why_len);
+    }
+    char *trailer = NULL;
+    if (rc == 0) {
+        trailer = *n == 1 && strcmp(ids[0], SCENE_DEFAULT) == 0 ? statefile_trailer(run[0], loops[0], &tlen)
+                                                                : statefile_trailer_scenes(*n, ids, run, loops, &tlen);
+        unsigned char *g = trailer ? realloc(buf, len + tlen) : NULL;
+        if (!g) rc = (snprintf(why, why_len, "out of memory"), -1);
+        else {
+            buf = g;
+            memcpy(buf + len, trailer, tlen);
+            rc = write_atomic(path, buf, len + tlen, why, why_len);
+        }
+    }
+    for (int k = 0; k < *n; k++) scene_release(all[k]);
     free(trailer);
+    free(buf);
+    free(all);
+    free(ids);
+    free(run);
+    free(loops);
     return rc;
 }
 
@@ -229,15 +266,47 @@ static int move_aside(const char *path, char *to, size_t to_len)
     return -1;
 }
 
-/* Resumes from the state file when there is one. Returns 0 (resumed, or nothing to resume), or
- * -1 when the start must stop (logged); *paused says whether the state was saved paused, and the
- * daemon-loop settings it holds are set in *loop. A file
- * that is corrupt, foreign or from another version stops it too, unless state_file_invalid is
- * fresh: then it is moved aside and the start goes on with the configured scene. */
-static int resume(cs_sim *sim, const clothd_settings *set, int *paused, loop_settings *loop)
+static cs_sim *make_engine_on(const clothd_config *cfg, const char *backend);
+
+/* Makes the scenes a state file holds (formats 1 to 3: one, "default"), each on an engine of the
+ * backend with its snapshot, paused as it was saved or when --paused; CS_OK, or the status of the
+ * snapshot refused with the scenes made so far released: the engine's reason in why (naming the
+ * scene unless it is the one "default"), the parameter it names in param. */
+static cs_status scenes_of(const unsigned char *buf, const statefile *f, const clothd_config *cfg, const char *backend,
+                           scene **out, char *why, size_t why_len, char *param, size_t param_len)
 {
+    cs_status st = CS_OK;
+    int k = 0;
+    for (; k < f->n_scenes && st == CS_OK; k++) {
+        const statefile_scene *e = &f->scenes[k];
+        cs_sim *sim = make_engine_on(cfg, backend);
+        st = sim ? cs_snapshot_load(sim, buf + e->offset, e->snapshot_len) : CS_E_NOMEM;
+        if (st != CS_OK) {
+            const int named = f->n_scenes > 1 || strcmp(e->id, SCENE_DEFAULT) != 0;
+            snprintf(why, why_len, "%s%s%s%s", named ? "the scene '" : "", named ? e->id : "", named ? "': " : "",
+                     sim ? cs_sim_error(sim) : "out of memory");
+            snprintf(param, param_len, "%s", sim ? cs_sim_error_param(sim) : "");
+            cs_sim_destroy(sim);
+            break;
+        }
+        out[k] = scene_new(e->id, sim, &e->loop, e->paused || cfg->set.paused, &cfg->set);
+        if (!out[k]) st = CS_E_NOMEM;
+    }
+    if (st != CS_OK)
+        for (int j = 0; j < k; j++) scene_release(out[j]);
+    return st;
+}
+
+/* Resumes the table's scenes from the state file when there is one. Returns 1 (resumed), 0
+ * (nothing to resume: the configured scene starts), or -1 when the start must stop (logged). A
+ * file that is corrupt, foreign or from another version stops it too, unless state_file_invalid
+ * is fresh: then it is moved aside and the start goes on with the configured scene. A file of
+ * more scenes than max_scenes, or of scenes that need more than max_state_mb together, or a
+ * snapshot the engine cannot take for want of memory or rocks, stops it and is kept. */
+static int resume(scenes *table, const clothd_config *cfg, const char *backend)
+{
+    const clothd_settings *set = &cfg->set;
     const char *path = set->state_file;
-    *paused = 0;
     if (!path[0]) return 0;
     remove_stale_temps(path);
     struct stat sb;
@@ -257,37 +326,66 @@ static int resume(cs_sim *sim, const clothd_settings *set, int *paused, loop_set
         return -1;
     }
     statefile layout;
-    loop_settings saved = *loop;
+    loop_settings saved = cfg->scene.loop;
     const statefile_error fe = statefile_parse(buf, len, &layout, &saved, why, sizeof why);
-    const cs_status st = fe == STATEFILE_OK ? cs_snapshot_load(sim, buf, layout.snapshot_len) : CS_E_FORMAT;
+    if (fe == STATEFILE_OK && layout.n_scenes > scenes_max(table)) {
+        log_msg("cannot resume from the state file %s: it holds %d scenes, more than max_scenes (%d): raise max_scenes "
+                "to resume from it", path, layout.n_scenes, scenes_max(table));
+        statefile_free(&layout);
+        free(buf);
+        return -1;
+    }
+    scene **made = fe == STATEFILE_OK ? calloc((size_t)(layout.n_scenes ? layout.n_scenes : 1), sizeof *made) : NULL;
+    char loaded[400] = "out of memory", param[64] = "";
+    const cs_status st = fe != STATEFILE_OK ? CS_E_FORMAT
+                         : made             ? scenes_of(buf, &layout, cfg, backend, made, loaded, sizeof loaded, param, sizeof param)
+                                            : CS_E_NOMEM;
+    free(buf);
     const char *bad = fe == STATEFILE_FOREIGN  ? "is not a clothd state file"
                       : fe == STATEFILE_NEWER  ? "was written by a newer clothd"
                       : fe != STATEFILE_OK     ? "is damaged"
                       : st == CS_OK            ? NULL
                                                : invalid_because(st);
-    const char *reason = fe != STATEFILE_OK ? why : cs_sim_error(sim);
-    free(buf);
     if (st == CS_OK) {
-        cs_info info;
-        cs_sim_info(sim, &info);
-        char hex[17];
-        cs_hash_hex(cs_state_hash(sim), hex);
-        *paused = layout.paused;
-        *loop = saved;
-        log_msg("resumed from %s at step %llu, state hash %s, %s as it was saved%s%s", path,
-                (unsigned long long)info.step, hex, layout.paused ? "paused" : "running",
-                layout.format == 1 ? " (a state file of format 1, which kept no run state)" : "",
-                layout.format < 3 && layout.loop_given ? "; its daemon-loop settings from its snapshot" : "");
-        return 0;
+        int rc = 1;
+        for (int k = 0; k < layout.n_scenes; k++) {
+            scene *sc = made[k];
+            const int added = rc == 1 ? scenes_add(table, sc) : 0;
+            if (added != 0) {
+                log_msg("cannot resume from the state file %s: %s", path,
+                        added == SCENES_NO_ROOM ? "its scenes need more than max_state_mb together (raise it to resume from it)"
+                                                : "it names a scene twice");
+                rc = -1;
+            } else if (rc == 1) {
+                cs_info info;
+                cs_sim_info(scene_engine(sc), &info);
+                char hex[17];
+                cs_hash_hex(cs_state_hash(scene_engine(sc)), hex);
+                char what[96] = "";
+                if (layout.n_scenes > 1 || strcmp(sc->id, SCENE_DEFAULT) != 0) snprintf(what, sizeof what, " the scene '%s'", sc->id);
+                log_msg("resumed%s from %s at step %llu, state hash %s, %s as it was saved%s%s", what, path,
+                        (unsigned long long)info.step, hex, layout.scenes[k].paused ? "paused" : "running",
+                        layout.format == 1 ? " (a state file of format 1, which kept no run state)" : "",
+                        layout.format < 3 && layout.loop_given ? "; its daemon-loop settings from its snapshot" : "");
+            }
+            scene_release(sc);
+        }
+        if (layout.n_scenes == 0) log_msg("resumed from %s: it holds no scene", path);
+        free(made);
+        statefile_free(&layout);
+        return rc;
     }
+    free(made);
+    const char *reason = fe != STATEFILE_OK ? why : loaded;
     if (!bad) { /* the file is kept whatever state_file_invalid says */
-        const char *param = cs_sim_error_param(sim);
         log_msg("cannot resume from the state file %s: %s%s", path, reason,
                 st != CS_E_LIMIT                  ? ""
                 : strcmp(param, "max_rocks") == 0 ? " (raise max_rocks to resume from it)"
                                                   : " (raise max_state_mb to resume from it)");
+        statefile_free(&layout);
         return -1;
     }
+    statefile_free(&layout);
     if (set->state_file_invalid != STATE_INVALID_FRESH) {
         log_msg("cannot resume from the state file %s: it %s (%s). Refusing to start: fix or remove it, or set "
                 "--state-file-invalid fresh (CLOTHD_STATE_FILE_INVALID=fresh) to move it aside and start afresh",
@@ -305,28 +403,17 @@ static int resume(cs_sim *sim, const clothd_settings *set, int *paused, loop_set
     return 0;
 }
 
-static cs_sim *make_engine(const clothd_config *cfg)
+static cs_sim *make_engine_on(const clothd_config *cfg, const char *backend)
 {
     char err[300];
-    cs_sim *sim = NULL;
-    const uint64_t limit = (uint64_t)cfg->set.max_state_mb << 20;
-    uint64_t bytes;
+    cs_status st;
     void *sink = (void *)&stream_sink_ops; /* what the stream holds is part of a scene's cost */
-    if (scene_cost(&cfg->scene.fields, cfg->set.max_rocks, sink, &bytes) != CS_OK || bytes > limit) {
-        log_msg("cannot start the simulation: a %d x %d cloth needs more than max_state_mb (%d MiB)", (int)cfg->scene.fields.nx,
-                (int)cfg->scene.fields.ny, (int)cfg->set.max_state_mb);
-        return NULL;
-    }
-    const cs_status st = cs_sim_create(&cfg->scene.fields, &cfg->scene.params, backend_names[cfg->set.backend], &sim, err, sizeof err);
-    if (st != CS_OK) {
-        log_msg("cannot start the simulation: %s", err);
-        return NULL;
-    }
-    cs_sim_set_threads(sim, cfg->set.threads);
-    cs_sim_set_rock_limit(sim, cfg->set.max_rocks);
-    cs_sim_set_memory_limit(sim, limit, scene_cost, sink);
+    cs_sim *sim = scene_engine_new(&cfg->scene, &cfg->set, backend, sink, &st, err, sizeof err);
+    if (!sim) log_msg("cannot start the simulation: %s", err);
     return sim;
 }
+
+static cs_sim *make_engine(const clothd_config *cfg) { return make_engine_on(cfg, backend_names[cfg->set.backend]); }
 
 /* ---- replay ---- */
 
@@ -399,50 +486,61 @@ static int replay(const char *file, const clothd_config *cfg)
 
 /* ---- serve ---- */
 
-/* Saves a scene's state file (when one is set) once the sim thread has stopped: 0, or -1 (logged;
- * the previous file is left as it was). */
-static int save_on_exit(scene *sc, const char *path)
+/* Saves the state file (when one is set) once the sim thread has stopped: 0, or -1 (logged; the
+ * previous file is left as it was). */
+static int save_on_exit(scenes *table, const char *path)
 {
     if (!path[0]) return 0;
-    size_t cl = 0;
-    const unsigned char *cp = scene_last_checkpoint(sc, &cl);
     char why[1400];
-    if (save_state(scene_engine(sc), cp, cl, scene_paused_for_save(sc), scene_loop(sc), path, why, sizeof why) != 0) {
+    int n = 0, paused = 0;
+    if (save_state(table, path, &n, &paused, why, sizeof why) != 0) {
         log_msg("could not save the state to %s: %s; the previous state file, if any, is unchanged", path, why);
         return -1;
     }
-    log_msg("state saved to %s (%s)", path, scene_paused_for_save(sc) ? "paused" : "running");
+    scene *only = n == 1 ? scenes_get(table, SCENE_DEFAULT) : NULL;
+    if (only) log_msg("state saved to %s (%s)", path, paused ? "paused" : "running");
+    else log_msg("state saved to %s (%d scenes: %d paused, %d running)", path, n, paused, n - paused);
+    scene_release(only);
     return 0;
 }
 
-/* The daemon's table with its one scene, "default": the engine (taken), resumed from the state
- * file when there is one. NULL when the start must stop (logged). */
-static scenes *default_table(cs_sim *sim, clothd_config *cfg)
+/* The daemon's table: the scenes of the state file when there is one, else the scene "default" on
+ * the engine sim (taken either way). NULL when the start must stop (logged). */
+static scenes *first_table(cs_sim *sim, const clothd_config *cfg, const char *backend)
 {
-    int was_paused = 0;
-    if (resume(sim, &cfg->set, &was_paused, &cfg->scene.loop) != 0) {
+    scenes *table = scenes_new(cfg->set.max_scenes);
+    if (!table) {
+        log_msg("out of memory");
         cs_sim_destroy(sim);
         return NULL;
     }
-    cfg->set.paused |= was_paused; /* --paused pauses a state saved running too */
-    scenes *table = scenes_new(1);
-    scene *sc = table ? scene_new(SCENE_DEFAULT, sim, &cfg->scene.loop, cfg->set.paused, &cfg->set) : NULL;
-    if (!table) cs_sim_destroy(sim);
+    scenes_set_budget(table, (uint64_t)cfg->set.max_state_mb << 20, cfg->set.max_rocks, (void *)&stream_sink_ops);
+    const int r = resume(table, cfg, backend);
+    if (r != 0) {
+        cs_sim_destroy(sim);
+        if (r < 0) scenes_free(table);
+        return r < 0 ? NULL : table;
+    }
+    scene *sc = scene_new(SCENE_DEFAULT, sim, &cfg->scene.loop, cfg->set.paused, &cfg->set);
     if (!sc || scenes_add(table, sc) != 0) {
         log_msg("out of memory");
         scene_release(sc);
         scenes_free(table);
         return NULL;
     }
-#ifdef CLOTHD_TEST_HOOKS
-    scene_set_frame_hook(sc, testhooks_before_frame);
-#endif
     scene_release(sc); /* the table's from now on */
     return table;
 }
 
-/* The table's hooks: a scene that joins gets its sink; one that leaves closes its streams. */
-static void stream_added(void *ctx, scene *sc) { scene_set_sink(sc, stream_scene_sink(ctx, sc)); }
+/* The table's hooks: a scene that joins gets its sink (and the test daemon's frame hook); one that
+ * leaves closes its streams. */
+static void stream_added(void *ctx, scene *sc)
+{
+    scene_set_sink(sc, stream_scene_sink(ctx, sc));
+#ifdef CLOTHD_TEST_HOOKS
+    scene_set_frame_hook(sc, testhooks_before_frame);
+#endif
+}
 static void stream_removed(void *ctx, scene *sc) { stream_scene_removed(ctx, sc); }
 
 static int serve_with(clothd_config *cfg, const access_policy *acc)
@@ -466,10 +564,14 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
         if (cs_sim_set_scene(sim, &sc) == CS_OK) cfg->scene.fields = sc;
     }
     log_msg("backend: %s on %s (%s)", cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim));
-    const http_info about = {cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim), CLOTHD_VERSION, NULL, 0, acc};
-    scenes *table = default_table(sim, cfg);
+    static char backend[16], device[256], note[256]; /* the engine sim may not be kept */
+    snprintf(backend, sizeof backend, "%s", cs_sim_backend(sim));
+    snprintf(device, sizeof device, "%s", cs_sim_device(sim));
+    snprintf(note, sizeof note, "%s", cs_sim_backend_note(sim));
+    const http_info about = {backend, device, note, CLOTHD_VERSION, NULL, 0, acc};
+    scenes *table = first_table(sim, cfg, backend);
     if (!table) return EXIT_START;
-    scene *sc = scenes_get(table, SCENE_DEFAULT);
+    scenes_set_factory(table, &cfg->scene, &cfg->set, backend);
     metrics *m = metrics_new();
     simloop *sl = m ? simloop_new(table, m) : NULL;
     stream *st = sl ? stream_start(&cfg->set, table, acc, err, sizeof err) : NULL;
@@ -477,7 +579,13 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     info.stream = st;
     info.stream_port = st ? stream_port(st) : 0;
     if (st) {
-        scene_set_sink(sc, stream_scene_sink(st, sc));
+        scene **all = malloc(sizeof *all * (size_t)cfg->set.max_scenes);
+        const int n = all ? scenes_list(table, all, cfg->set.max_scenes) : 0;
+        for (int k = 0; k < n; k++) {
+            stream_added(st, all[k]);
+            scene_release(all[k]);
+        }
+        free(all);
         scenes_set_hooks(table, (scenes_hooks){stream_added, stream_removed, st});
     }
     http_server *http = st ? http_start(&cfg->set, table, m, &info, err, sizeof err) : NULL;
@@ -487,7 +595,6 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
         http_stop(http);
         stream_stop(st);
         simloop_free(sl);
-        scene_release(sc);
         scenes_free(table);
         metrics_free(m);
         return EXIT_START;
@@ -510,7 +617,7 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
          * they were - so that a supervisor and an operator see why the daemon goes. */
         log_msg("backend failed: saving the state and exiting for a restart");
         simloop_stop(sl);
-        rc = save_on_exit(sc, cfg->set.state_file) == 0 ? EXIT_BACKEND : EXIT_SAVE;
+        rc = save_on_exit(table, cfg->set.state_file) == 0 ? EXIT_BACKEND : EXIT_SAVE;
         http_quiesce(http);
         http_stop(http);
         stream_stop(st);
@@ -520,10 +627,9 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
         simloop_stop(sl);
         http_stop(http);
         stream_stop(st);
-        rc = save_on_exit(sc, cfg->set.state_file) == 0 ? 0 : EXIT_SAVE;
+        rc = save_on_exit(table, cfg->set.state_file) == 0 ? 0 : EXIT_SAVE;
     }
     simloop_free(sl);
-    scene_release(sc);
     scenes_free(table);
     metrics_free(m);
     return rc;

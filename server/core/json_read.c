@@ -85,3 +85,14 @@ int request_body_object(const char *body, size_t len, int required, json_t **out
     return 0;
 }
 
+int scene_id_valid(const char *id)
+{
+    const size_t n = id ? strlen(id) : 0;
+    if (n == 0 || n > 63) return 0;
+    for (size_t k = 0; k < n; k++) {
+        const char c = id[k];
+        const int ok = (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || (k > 0 && (c == '_' || c == '-'));
+        if (!ok) return 0;
+    }
+    return 1;
+}

@@ -20,6 +20,8 @@ int vec3_from_json(const json_t *v, float out[3], const char *name, problem *pr)
 int int_from_json(const json_t *v, double lo, double hi, const char *name, long long *out, problem *pr);
 /* Members of obj must all be in `allowed` (NULL-terminated); else 400 naming the first other. */
 int only_fields(const json_t *obj, const char *const *allowed, problem *pr);
+/* Whether id is a scene id: [a-z0-9][a-z0-9_-]{0,62} (so 63 characters at most). */
+int scene_id_valid(const char *id);
 /* "an object", "a number", ...: what a value is, for a reason. */
 const char *json_type_word(const json_t *v);
 

@@ -136,7 +136,7 @@ static void put_label(sbuf *b, const char *v)
     }
 }
 
-char *metrics_render(metrics *m, const metrics_gauges *g, const char *extra, size_t *len)
+char *metrics_render(metrics *m, const metrics_scene *scenes, int n, const char *extra, size_t *len)
 {
     sbuf b = {NULL, 0, 0};
     pthread_mutex_lock(&m->lock);
@@ -163,18 +163,33 @@ char *metrics_render(metrics *m, const metrics_gauges *g, const char *extra, siz
         put(&b, "\",status=\"%d\"} %llu\n", m->http[i].status, (unsigned long long)m->http[i].count);
     }
     pthread_mutex_unlock(&m->lock);
-    put(&b, "# HELP clothd_realtime_factor Simulated seconds per wall-clock second.\n"
-            "# TYPE clothd_realtime_factor gauge\nclothd_realtime_factor %.6g\n", g->realtime_factor);
-    put(&b, "# HELP clothd_rocks Rocks in the simulation.\n# TYPE clothd_rocks gauge\nclothd_rocks %lld\n",
-        (long long)g->rocks);
-    put(&b, "# HELP clothd_vertices Cloth vertices.\n# TYPE clothd_vertices gauge\nclothd_vertices %lld\n",
-        (long long)g->vertices);
-    put(&b, "# HELP clothd_torn_springs Springs torn.\n# TYPE clothd_torn_springs gauge\nclothd_torn_springs %lld\n",
-        (long long)g->torn);
-    put(&b, "# HELP clothd_paused 1 while the simulation is paused.\n# TYPE clothd_paused gauge\nclothd_paused %d\n",
-        g->paused);
-    put(&b, "# HELP clothd_healthy 0 once the backend has failed.\n# TYPE clothd_healthy gauge\nclothd_healthy %d\n",
-        g->healthy);
+    static const struct {
+        const char *name, *help;
+    } gauges[] = {
+        {"clothd_realtime_factor", "Simulated seconds per wall-clock second."},
+        {"clothd_rocks", "Rocks in the scene."},
+        {"clothd_vertices", "Cloth vertices."},
+        {"clothd_torn_springs", "Springs torn."},
+        {"clothd_paused", "1 while the scene is paused."},
+        {"clothd_healthy", "0 once the backend has failed."},
+    };
+    for (size_t k = 0; k < sizeof gauges / sizeof gauges[0]; k++) {
+        put(&b, "# HELP %s %s\n# TYPE %s gauge\n", gauges[k].name, gauges[k].help, gauges[k].name);
+        for (int i = 0; i < n; i++) {
+            const metrics_gauges *g = &scenes[i].g;
+            put(&b, "%s{scene=\"", gauges[k].name);
+            put_label(&b, scenes[i].id);
+            put(&b, "\"} ");
+            switch (k) {
+            case 0: put(&b, "%.6g\n", g->realtime_factor); break;
+            case 1: put(&b, "%lld\n", (long long)g->rocks); break;
+            case 2: put(&b, "%lld\n", (long long)g->vertices); break;
+            case 3: put(&b, "%lld\n", (long long)g->torn); break;
+            case 4: put(&b, "%d\n", g->paused); break;
+            default: put(&b, "%d\n", g->healthy); break;
+            }
+        }
+    }
     if (extra) put(&b, "%s", extra);
     *len = b.len;
     return b.p;

@@ -23,7 +23,14 @@ void metrics_frame(metrics *m, int32_t substeps, double seconds);
 void metrics_http(metrics *m, const char *route, const char *method, int status);
 /* The label a request method gets: itself when HTTP defines it, else "other". */
 const char *metrics_method_label(const char *method);
-/* The exposition text (malloc'd); `extra` (may be NULL) is appended as is. */
-char *metrics_render(metrics *m, const metrics_gauges *g, const char *extra, size_t *len);
+/* One scene's gauges, labelled with its id. */
+typedef struct metrics_scene {
+    const char *id;
+    metrics_gauges g;
+} metrics_scene;
+
+/* The exposition text (malloc'd): the counters, and the gauges of n scenes, each series labelled
+ * scene="ID"; `extra` (may be NULL) is appended as is. */
+char *metrics_render(metrics *m, const metrics_scene *scenes, int n, const char *extra, size_t *len);
 
 #endif

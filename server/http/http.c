@@ -133,6 +133,7 @@ static MHD_Result send_reply(req *r, reply *rep)
         snprintf(v, sizeof v, "%d", a->retry_after);
         MHD_add_response_header(resp, MHD_HTTP_HEADER_RETRY_AFTER, v);
     }
+    if (a->location[0]) MHD_add_response_header(resp, MHD_HTTP_HEADER_LOCATION, a->location);
     if (rep->authenticate) MHD_add_response_header(resp, MHD_HTTP_HEADER_WWW_AUTHENTICATE, "Bearer realm=\"clothd\"");
     if (rep->close) MHD_add_response_header(resp, MHD_HTTP_HEADER_CONNECTION, "close");
     if (r->request_id[0]) MHD_add_response_header(resp, "X-Request-Id", r->request_id);
@@ -314,13 +315,20 @@ static MHD_Result dispatch(req *r)
         }
         return send_reply(r, &rep);
     }
+    if (m.scene && !scene_id_valid(m.scene)) {
+        reply_error(&rep, 400, "bad-scene-id", "scene",
+                    "a scene id is 1 to 63 characters of a-z, 0-9, '_' and '-', starting with a letter or digit");
+        return send_reply(r, &rep);
+    }
     if (m.def->scope == SCOPE_SCENE && !(r->sc = scenes_get(s->table, m.scene))) {
-        reply_error(&rep, 404, "not-found", "scene", "no such scene");
+        problem pr;
+        problem_set(&pr, 404, "not-found", "scene", "no scene '%s'", m.scene);
+        api_problem(&rep.a, &pr);
         return send_reply(r, &rep);
     }
     const char *h = query(r, "hash");
     const api_request rq = {m.def, r->sc, r->body, r->len, NULL, m.id, wants_binary(r),
-                            h && (strcmp(h, "1") == 0 || strcmp(h, "true") == 0), &s->daemon};
+                            h && (strcmp(h, "1") == 0 || strcmp(h, "true") == 0), &s->daemon, m.scene};
     if (command_request(&rq, &rep.a, &r->cmd) == API_NOW) return send_reply(r, &rep);
     r->phase = 1;
     memcpy(r->cmd.request_id, r->request_id, sizeof r->cmd.request_id);

@@ -141,15 +141,103 @@ static int rq_metrics(const api_request *rq, api_reply *out, scene_cmd *later)
 {
     (void)later;
     const api_daemon *d = rq->daemon;
-    metrics_gauges g = {0};
-    scene *sc = scenes_get(d->scenes, SCENE_DEFAULT);
-    if (sc) scene_gauges(sc, &g);
-    scene_release(sc);
+    const int max = scenes_max(d->scenes);
+    scene **all = malloc(sizeof *all * (size_t)max);
+    metrics_scene *each = malloc(sizeof *each * (size_t)max);
+    const int n = all && each ? scenes_list(d->scenes, all, max) : 0;
+    for (int k = 0; k < n; k++) {
+        each[k].id = all[k]->id;
+        scene_gauges(all[k], &each[k].g);
+    }
     char *extra = d->more_metrics ? d->more_metrics(d->more_ctx) : NULL;
     size_t len = 0;
-    char *text = metrics_render(d->m, &g, extra, &len);
+    char *text = metrics_render(d->m, each, n, extra, &len);
     free(extra);
+    for (int k = 0; k < n; k++) scene_release(all[k]);
+    free(all);
+    free(each);
     return reply_text(out, 200, "text/plain; version=0.0.4; charset=utf-8", text, len);
+}
+
+/* ---- the daemon's scenes ---- */
+
+/* A scene as GET /v1/scenes lists it, from what it published. */
+static json_t *scene_entry(scene *sc)
+{
+    size_t len = 0;
+    char *doc = scene_doc_copy(sc, DOC_SIM, &len);
+    json_t *sim = doc ? json_loadb(doc, len, 0, NULL) : NULL;
+    free(doc);
+    json_t *e = json_pack("{s:s}", "id", sc->id);
+    static const char *const keep[] = {"state", "step", "sim_time", "n_vertices", "n_rocks", "realtime_factor", NULL};
+    for (int k = 0; keep[k]; k++) {
+        json_t *v = json_object_get(sim, keep[k]);
+        if (v) json_object_set(e, keep[k], v);
+    }
+    json_decref(sim);
+    return e;
+}
+
+static int rq_scenes(const api_request *rq, api_reply *out, scene_cmd *later)
+{
+    (void)later;
+    scenes *t = rq->daemon->scenes;
+    const int max = scenes_max(t);
+    scene **all = malloc(sizeof *all * (size_t)(max > 0 ? max : 1));
+    const int n = all ? scenes_list(t, all, max) : 0;
+    json_t *list = json_array();
+    for (int k = 0; k < n; k++) {
+        json_array_append_new(list, scene_entry(all[k]));
+        scene_release(all[k]);
+    }
+    free(all);
+    uint64_t cap;
+    const uint64_t bytes = scenes_bytes(t, &cap);
+    return reply_json(out, 200,
+                      json_pack("{s:o, s:i, s:f, s:f}", "scenes", list, "max_scenes", max, "state_mb",
+                                (double)bytes / 1048576.0, "max_state_mb", (double)cap / 1048576.0));
+}
+
+static int rq_scene_create(const api_request *rq, api_reply *out, scene_cmd *later)
+{
+    (void)later;
+    static const char *const fields[] = {"id", "scene", "params", NULL};
+    problem pr;
+    const json_t *o = rq->object, *id = json_object_get(o, "id"), *sf = json_object_get(o, "scene"),
+                 *pf = json_object_get(o, "params");
+    if (only_fields(o, fields, &pr) != 0) return reply_problem(out, &pr);
+    if (id && !json_is_string(id)) {
+        problem_set(&pr, 400, "wrong-type", "id", "id must be a string, not %s", json_type_word(id));
+        return reply_problem(out, &pr);
+    }
+    if ((sf && !json_is_object(sf)) || (pf && !json_is_object(pf))) {
+        const char *which = sf && !json_is_object(sf) ? "scene" : "params";
+        problem_set(&pr, 400, "wrong-type", which, "%s must be an object of %s", which,
+                    sf && !json_is_object(sf) ? "scene fields" : "live parameters");
+        return reply_problem(out, &pr);
+    }
+    scene *sc;
+    if (scenes_create(rq->daemon->scenes, json_string_value(id), sf, pf, &sc, &pr) != 0) return reply_problem(out, &pr);
+    size_t len = 0;
+    char *doc = scene_doc_copy(sc, DOC_SIM, &len);
+    json_t *sim = doc ? json_loadb(doc, len, 0, NULL) : NULL;
+    free(doc);
+    if (!sim) sim = json_object();
+    json_object_set_new(sim, "id", json_string(sc->id));
+    snprintf(out->location, sizeof out->location, "%s%s", SCENES_PREFIX, sc->id);
+    scene_release(sc);
+    return reply_json(out, 201, sim);
+}
+
+static int rq_scene_delete(const api_request *rq, api_reply *out, scene_cmd *later)
+{
+    (void)later;
+    problem pr;
+    if (scenes_remove(rq->daemon->scenes, rq->scene_id) != 0) {
+        problem_set(&pr, 404, "not-found", "scene", "no scene '%s'", rq->scene_id);
+        return reply_problem(out, &pr);
+    }
+    return reply_json(out, 200, json_pack("{s:s, s:b}", "id", rq->scene_id, "deleted", 1));
 }
 
 /* ---- the rows' request functions: commands for the sim thread ---- */
@@ -258,6 +346,9 @@ static const command table[] = {
     {"snapshot_put", "PUT",   S, "/snapshot",      BODY_BYTES,   CONTROL, CMD_CHANGES,                     NULL,   "command",  NULL,   rq_snapshot_put, NULL,               control_snapshot_put},
     {"journal",     GET,      S, "/journal",       BODY_IGNORED, VIEW,   0,                                NULL,   NULL,       NULL,   rq_journal,      NULL,               NULL},
     {"metrics",     GET,      D, "/metrics",       BODY_IGNORED, VIEW,   0,                                NULL,   NULL,       NULL,   rq_metrics,      NULL,               NULL},
+    {"scenes",      GET,      D, "/v1/scenes",     BODY_IGNORED, VIEW,   0,                                NULL,   NULL,       NULL,   rq_scenes,       NULL,               NULL},
+    {"scene_create", "POST",  D, "/v1/scenes",     BODY_OBJECT,  CONTROL, CMD_CREATED,                     NULL,   NULL,       NULL,   rq_scene_create, NULL,               NULL},
+    {"scene_delete", "DELETE", D, "/v1/scenes/{scene}", BODY_NONE, CONTROL, 0,                             NULL,   NULL,       NULL,   rq_scene_delete, NULL,               NULL},
     /* Not routes: queued by another row's request (GET /v1/sim?hash=1, GET /v1/journal as bytes)
      * or by the stream (a client that wants a pose now). */
     {"hash",        NULL,     S, NULL,             BODY_IGNORED, VIEW,   CMD_ANSWER_SIM | CMD_HASH | CMD_AFTER_FAILURE, NULL, NULL, JSON_TYPE, NULL, NULL,     control_publish},
@@ -277,15 +368,19 @@ const command *command_find(const char *op)
     return NULL;
 }
 
-/* The routes' whole patterns, made once. */
-static char patterns[N_COMMANDS][48];
+/* The routes' whole patterns, made once: as they address "default", and under the prefix that
+ * names their scene. */
+static char patterns[N_COMMANDS][48], scene_patterns[N_COMMANDS][64];
 static pthread_once_t patterns_once = PTHREAD_ONCE_INIT;
 
 static void make_patterns(void)
 {
-    for (size_t i = 0; i < N_COMMANDS; i++)
-        if (table[i].path)
-            snprintf(patterns[i], sizeof patterns[i], "%s%s", table[i].scope == SCOPE_SCENE ? API_PREFIX : "", table[i].path);
+    for (size_t i = 0; i < N_COMMANDS; i++) {
+        if (!table[i].path) continue;
+        const int scoped = table[i].scope == SCOPE_SCENE;
+        snprintf(patterns[i], sizeof patterns[i], "%s%s", scoped ? API_PREFIX : "", table[i].path);
+        snprintf(scene_patterns[i], sizeof scene_patterns[i], "%s%s", scoped ? SCENES_PREFIX "{scene}" : "", table[i].path);
+    }
 }
 
 const char *command_pattern(const command *c)
@@ -294,25 +389,40 @@ const char *command_pattern(const command *c)
     return c && c->path ? patterns[c - table] : NULL;
 }
 
+const char *command_scene_pattern(const command *c)
+{
+    pthread_once(&patterns_once, make_patterns);
+    return c && c->path ? scene_patterns[c - table] : NULL;
+}
+
 void command_print_routes(FILE *out)
 {
     for (size_t i = 0; i < N_COMMANDS; i++)
         if (table[i].method) fprintf(out, "%s %s\n", table[i].method, command_pattern(&table[i]));
+    for (size_t i = 0; i < N_COMMANDS; i++)
+        if (table[i].method && table[i].scope == SCOPE_SCENE)
+            fprintf(out, "%s %s\n", table[i].method, command_scene_pattern(&table[i]));
 }
 
 /* ---- routes ---- */
 
-/* Whether path matches pattern; {id} takes one segment of digits (into *id, -1 if not digits). */
-static int path_matches(const char *pattern, const char *path, long long *id)
+/* Whether path matches pattern; {id} takes one segment of digits (into *id, -1 if not digits),
+ * {scene} one segment of text (into scene, SCENE_ID_MAX + 1 bytes: cut short, it stays invalid). */
+static int path_matches(const char *pattern, const char *path, long long *id, char *scene)
 {
-    const char *brace = strstr(pattern, "{id}");
+    const char *brace = strchr(pattern, '{');
     if (!brace) return strcmp(pattern, path) == 0;
-    const size_t pre = (size_t)(brace - pattern);
+    const int text = strncmp(brace, "{scene}", 7) == 0;
+    const size_t pre = (size_t)(brace - pattern), plen = text ? 7 : 4;
     if (strncmp(pattern, path, pre) != 0) return 0;
     const char *seg = path + pre;
     const char *slash = strchr(seg, '/');
     const size_t seglen = slash ? (size_t)(slash - seg) : strlen(seg);
-    if (seglen == 0 || strcmp(slash ? slash : "", brace + 4) != 0) return 0;
+    if (seglen == 0 || strcmp(slash ? slash : "", brace + plen) != 0) return 0;
+    if (text) {
+        snprintf(scene, SCENE_ID_MAX + 1, "%.*s", (int)(seglen < SCENE_ID_MAX ? seglen : SCENE_ID_MAX), seg);
+        return 1;
+    }
     *id = -1;
     if (seglen <= 10) {
         long long v = 0;
@@ -323,14 +433,25 @@ static int path_matches(const char *pattern, const char *path, long long *id)
     return 1;
 }
 
-/* Whether a row's route takes path, with what it addresses. */
-static int route_of(const command *c, const char *path, long long *id, const char **scene)
+/* Whether a row's route takes path, with what it addresses: the scene named (into scene) or NULL
+ * for the routes of "default"; *prefixed when the path names it. */
+static int route_of(const command *c, const char *path, long long *id, char *scene, int *prefixed)
 {
+    *prefixed = 0;
     if (!c->method) return 0;
-    if (c->scope == SCOPE_DAEMON) return path_matches(c->path, path, id);
-    const size_t n = strlen(API_PREFIX);
-    if (strncmp(path, API_PREFIX, n) != 0 || !path_matches(c->path, path + n, id)) return 0;
-    *scene = SCENE_DEFAULT;
+    if (c->scope == SCOPE_DAEMON) return path_matches(c->path, path, id, scene);
+    const size_t n = strlen(SCENES_PREFIX);
+    if (strncmp(path, SCENES_PREFIX, n) == 0) {
+        const char *slash = strchr(path + n, '/');
+        if (!slash || slash == path + n || !path_matches(c->path, slash, id, scene)) return 0;
+        const size_t len = (size_t)(slash - (path + n));
+        snprintf(scene, SCENE_ID_MAX + 1, "%.*s", (int)(len < SCENE_ID_MAX ? len : SCENE_ID_MAX), path + n);
+        *prefixed = 1;
+        return 1;
+    }
+    const size_t p = strlen(API_PREFIX);
+    if (strncmp(path, API_PREFIX, p) != 0 || !path_matches(c->path, path + p, id, scene)) return 0;
+    snprintf(scene, SCENE_ID_MAX + 1, "%s", SCENE_DEFAULT);
     return 1;
 }
 
@@ -342,14 +463,16 @@ void command_route(const char *method, const char *path, route_match *m)
     const char *want = strcmp(method, "HEAD") == 0 ? "GET" : method;
     for (size_t i = 0; i < N_COMMANDS; i++) {
         long long id = -1;
-        const char *scene = NULL;
-        if (!route_of(&table[i], path, &id, &scene)) continue;
+        char scene[SCENE_ID_MAX + 1] = "";
+        int prefixed;
+        if (!route_of(&table[i], path, &id, scene, &prefixed)) continue;
         m->path_known = 1;
-        m->label = command_pattern(&table[i]);
+        m->label = prefixed ? command_scene_pattern(&table[i]) : command_pattern(&table[i]);
         if (strcmp(table[i].method, want) == 0) {
             m->def = &table[i];
             m->id = id;
-            m->scene = scene;
+            memcpy(m->scene_buf, scene, sizeof m->scene_buf);
+            m->scene = scene[0] ? m->scene_buf : NULL;
             m->allow[0] = '\0';
             m->path_known = 0;
             return;
@@ -381,8 +504,9 @@ access_level command_access(const char *method, const char *path)
     if (m.def) return m.def->access;
     for (size_t i = 0; m.path_known && i < N_COMMANDS; i++) {
         long long id;
-        const char *scene;
-        if (route_of(&table[i], path, &id, &scene) && table[i].access == ACCESS_NONE) return ACCESS_NONE;
+        char scene[SCENE_ID_MAX + 1];
+        int prefixed;
+        if (route_of(&table[i], path, &id, scene, &prefixed) && table[i].access == ACCESS_NONE) return ACCESS_NONE;
     }
     return command_method_changes(method) ? ACCESS_CONTROL : ACCESS_VIEW;
 }
@@ -513,11 +637,14 @@ int command_run(scene *sc, scene_cmd *c)
         return 0;
     }
     if (d->change || (d->flags & CMD_CHANGES)) sc->changes++;
+    int kept = 0;
     if (d->change) {
         if (command_change(sc, c->body, c->request_id, &c->result, &c->pr) != 0) c->failed = 1;
-        return 0;
+    } else {
+        kept = d->control(sc, c);
     }
-    return d->control(sc, c);
+    if (d->flags & (CMD_REBUILDS | CMD_CHANGES)) scenes_resized(sc->table, sc); /* it may have been resized */
+    return kept;
 }
 
 int command_wants_hash(const scene_cmd *c) { return (c->def->flags & CMD_HASH) != 0; }

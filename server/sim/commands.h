@@ -2,9 +2,10 @@
  * runs, one row each, as Redis keeps its commands. A row says
  *
  *   op          the command's name (a journaled command's "op")
- *   method, path  its route: the path below the scene's prefix (SCOPE_SCENE: "/v1" today; the
- *               prefix, not the row, is what names a scene), or whole (SCOPE_DAEMON); no method:
- *               not a route (queued by another request or by the stream)
+ *   method, path  its route: the path below a scene's prefix (SCOPE_SCENE: "/v1/scenes/{scene}"
+ *               names a scene, "/v1" the scene "default"; the prefix, not the row, is what names
+ *               a scene), or whole (SCOPE_DAEMON); no method: not a route (queued by another
+ *               request or by the stream)
  *   body        what its body must be: ignored, none (empty or {}), a JSON object, bytes
  *   access      what the request's token must grant: anyone, view, control
  *   flags       a rock {id} in the path, only while paused, 201, rebuilds the cloth, ...
@@ -32,8 +33,10 @@
 
 struct scenes;
 
-/* The prefix of a scene's routes (SCOPE_SCENE), which address the scene "default". */
+/* The prefix of a scene's routes (SCOPE_SCENE) that address the scene "default", and the one
+ * before a scene's id in the routes that name their scene. */
 #define API_PREFIX "/v1"
+#define SCENES_PREFIX "/v1/scenes/"
 
 typedef enum command_scope { SCOPE_DAEMON, SCOPE_SCENE } command_scope;
 
@@ -80,15 +83,18 @@ struct api_request {
     int binary;                /* the client accepts application/octet-stream */
     int hash;                  /* ?hash=1 or ?hash=true */
     const api_daemon *daemon;
+    const char *scene_id;      /* the path's {scene} (a daemon-wide row's), or NULL */
 };
 
-/* An answer: status, body (malloc'd, the receiver's), its content type, Retry-After (0: none). */
+/* An answer: status, body (malloc'd, the receiver's), its content type, Retry-After (0: none),
+ * Location (empty: none). */
 typedef struct api_reply {
     int status;
     char *body;
     size_t len;
     const char *ctype;
     int retry_after;
+    char location[SCENE_ID_MAX + 16];
 } api_reply;
 
 /* What a row's request function did: answered (*now), or made the command (*later) for the sim
@@ -117,9 +123,12 @@ size_t command_count(void);
 const command *command_at(size_t i);
 /* The row of an op, or NULL. */
 const command *command_find(const char *op);
-/* A route's whole pattern ("/v1/rocks/{id}", "/metrics"), for metrics and `clothd routes`. */
+/* A route's whole pattern ("/v1/rocks/{id}", "/metrics"), for metrics and `clothd routes`; a
+ * scene's route under the prefix that names its scene ("/v1/scenes/{scene}/rocks/{id}"). */
 const char *command_pattern(const command *c);
-/* Writes the routes, "METHOD PATTERN" per line (clothd routes; the spec test reads it). */
+const char *command_scene_pattern(const command *c);
+/* Writes the routes, "METHOD PATTERN" per line, a scene's both with and without the prefix that
+ * names its scene (clothd routes; the spec test reads it). */
 void command_print_routes(FILE *out);
 
 /* ---- the HTTP side ---- */
@@ -130,7 +139,9 @@ typedef struct route_match {
     char allow[64];
     long long id;       /* the path's {id}: -1 when it is not a number */
     const char *label;  /* the route's pattern, "unknown" when the path is none (metrics) */
-    const char *scene;  /* SCOPE_SCENE: the scene it addresses */
+    const char *scene;  /* the scene it addresses (SCOPE_SCENE) or names (a daemon-wide row's
+                         * {scene}), maybe not a valid id (scene_id_valid); NULL when none */
+    char scene_buf[SCENE_ID_MAX + 1];
 } route_match;
 
 /* Finds the row of a method (HEAD takes a GET row) and a request's path. */

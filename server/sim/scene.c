@@ -75,20 +75,29 @@ void scene_release(scene *sc)
 
 /* ---- the queue ---- */
 
-static void refuse(scene_cmd *c, const char *slug, const char *detail)
+static void refuse_as(scene_cmd *c, int status, const char *slug, const char *param, const char *detail)
 {
     c->failed = 1;
     c->result = NULL;
     c->blob = NULL;
-    problem_set(&c->pr, 503, slug, NULL, "%s", detail);
+    problem_set(&c->pr, status, slug, param, "%s", detail);
     c->done(c, c->done_arg);
+}
+
+static void refuse(scene_cmd *c, const char *slug, const char *detail) { refuse_as(c, 503, slug, NULL, detail); }
+
+static void refuse_deleted(scene *sc, scene_cmd *c)
+{
+    char detail[128];
+    snprintf(detail, sizeof detail, "the scene '%s' was deleted", sc->id);
+    refuse_as(c, 404, "not-found", "scene", detail);
 }
 
 void scene_submit(scene *sc, scene_cmd *cmd)
 {
     cmd->next = NULL;
     pthread_mutex_lock(&sc->qlock);
-    const int closed = sc->closed, full = sc->queued >= sc->queue_max;
+    const int deleted = sc->deleted, closed = sc->closed || deleted, full = sc->queued >= sc->queue_max;
     if (!closed && !full) {
         if (sc->tail) sc->tail->next = cmd;
         else sc->head = cmd;
@@ -100,6 +109,10 @@ void scene_submit(scene *sc, scene_cmd *cmd)
     pthread_mutex_unlock(&sc->qlock);
     if (!closed && !full) {
         if (wake) wake(ctx);
+        return;
+    }
+    if (deleted) {
+        refuse_deleted(sc, cmd);
         return;
     }
     if (closed) {
@@ -142,6 +155,23 @@ void scene_refuse_queued(scene *sc)
     for (scene_cmd *c = scene_take_queue(sc), *next; c; c = next) {
         next = c->next;
         refuse(c, "unavailable", "clothd is shutting down");
+    }
+}
+
+void scene_mark_deleted(scene *sc)
+{
+    pthread_mutex_lock(&sc->qlock);
+    sc->deleted = 1;
+    pthread_mutex_unlock(&sc->qlock);
+}
+
+void scene_drop_deleted(scene *sc)
+{
+    sc->sink = (frame_sink){NULL, NULL}; /* its streams are closed */
+    scene_end_step(sc, "deleted");
+    for (scene_cmd *c = scene_take_queue(sc), *next; c; c = next) {
+        next = c->next;
+        refuse_deleted(sc, c);
     }
 }
 
@@ -484,10 +514,14 @@ static void step_limit(scene *sc)
 
 cs_status scene_run_substeps(scene *sc, int64_t n)
 {
-    sc->changes++;
     const double t0 = clock_mono();
     const cs_status st = cs_sim_step(sc->engine, n);
-    const double took = clock_mono() - t0;
+    return scene_ran_substeps(sc, n, st, clock_mono() - t0);
+}
+
+cs_status scene_ran_substeps(scene *sc, int64_t n, cs_status st, double took)
+{
+    sc->changes++;
     cs_info info;
     cs_sim_info(sc->engine, &info);
     if (st == CS_OK && info.n_vertices > 0) {
@@ -602,6 +636,26 @@ cs_status scene_cost(const cs_scene *fields, int32_t rocks, void *ctx, uint64_t 
 }
 
 uint64_t scene_cloth_json_cap(uint64_t n) { return cloth_json_cap(n); }
+
+cs_sim *scene_engine_new(const scene_config *cfg, const clothd_settings *set, const char *backend, void *cost_ctx,
+                         cs_status *st, char *err, size_t err_len)
+{
+    cs_sim *sim = NULL;
+    const uint64_t limit = (uint64_t)set->max_state_mb << 20;
+    uint64_t bytes;
+    if (scene_cost(&cfg->fields, set->max_rocks, cost_ctx, &bytes) != CS_OK || bytes > limit) {
+        snprintf(err, err_len, "a %d x %d cloth needs more than max_state_mb (%d MiB)", (int)cfg->fields.nx,
+                 (int)cfg->fields.ny, (int)set->max_state_mb);
+        *st = CS_E_LIMIT;
+        return NULL;
+    }
+    *st = cs_sim_create(&cfg->fields, &cfg->params, backend, &sim, err, err_len);
+    if (*st != CS_OK) return NULL;
+    cs_sim_set_threads(sim, set->threads);
+    cs_sim_set_rock_limit(sim, set->max_rocks);
+    cs_sim_set_memory_limit(sim, limit, scene_cost, cost_ctx);
+    return sim;
+}
 
 /* ---- for the state file ---- */
 

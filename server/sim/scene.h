@@ -77,12 +77,15 @@ typedef enum scene_doc {
 struct scene {
     char id[SCENE_ID_MAX];
     atomic_int refs;
+    struct scenes *table;  /* the table it joined (its memory is counted there), or NULL */
+    uint64_t bytes;        /* what it costs (scene_cost), as the table counts it (under the table's lock) */
 
     /* the queue (any thread, under qlock) */
     pthread_mutex_t qlock;
     scene_cmd *head, *tail;
     int queued, queue_max; /* commands in the queue, and the most it takes */
     int closed;            /* the daemon is stopping: commands are refused at once */
+    int deleted;           /* it left the table: commands are refused at once (404) */
     void (*wake)(void *ctx); /* tells the sim thread a command came */
     void *wake_ctx;
 
@@ -103,6 +106,7 @@ struct scene {
     frame_sink sink;
     void (*before_frame)(cs_sim *engine, uint64_t frame); /* the test daemon's hook, or NULL */
     int paused, paused_before_failure;
+    int was_running;       /* running at the sim thread's last look (it starts its frame clock when it starts) */
     int lost;              /* the backend failed and the sim thread has not said so yet */
     uint64_t frame;        /* frames since the cloth was built */
     int32_t frame_sub;     /* substeps run of the frame in progress (a frame stepped in parts) */
@@ -167,6 +171,11 @@ int scene_healthy(scene *sc);
 cs_status scene_cost(const cs_scene *fields, int32_t rocks, void *ctx, uint64_t *bytes);
 /* Bytes GET /v1/cloth/state's JSON may take for n vertices (part of scene_cost). */
 uint64_t scene_cloth_json_cap(uint64_t n);
+/* An engine of a scene configuration on a backend, with the limits of the settings: threads,
+ * max_rocks and max_state_mb (through scene_cost with cost_ctx, the sink's ops). NULL with the
+ * status in *st and the reason in err. */
+cs_sim *scene_engine_new(const scene_config *cfg, const clothd_settings *set, const char *backend, void *cost_ctx,
+                         cs_status *st, char *err, size_t err_len);
 
 /* ---- the sim thread's ---- */
 
@@ -177,6 +186,12 @@ scene_cmd *scene_take_queue(scene *sc);
 void scene_close(scene *sc);
 /* Answers what is still queued with 503 (once the sim thread has stopped). */
 void scene_refuse_queued(scene *sc);
+/* The scene left the table (any thread): commands are refused from now on (404), and what is still
+ * queued, the sim thread answers so with scene_drop_deleted. */
+void scene_mark_deleted(scene *sc);
+/* The sim thread's last look at a deleted scene: a step in progress ends ("deleted"), what is
+ * queued is refused (404), and it hands nothing more to its sink. */
+void scene_drop_deleted(scene *sc);
 
 /* The scene's fields, the engine's parameters and the daemon-loop settings as they are now. */
 void scene_config_of(const scene *sc, scene_config *out);
@@ -197,6 +212,9 @@ void scene_reseed(scene *sc);
  * to the last checkpoint and paused (instability), paused at the step limit, or the backend lost
  * (unhealthy; sc->lost is set for the sim thread to tell the daemon). */
 cs_status scene_run_substeps(scene *sc, int64_t n);
+/* What scene_run_substeps does after the engine ran: n substeps that took `took` seconds of
+ * compute (the scene's share of a batched call) and ended with st. Returns st. */
+cs_status scene_ran_substeps(scene *sc, int64_t n, cs_status st, double took);
 /* The body of POST /v1/sim/step: {"frames": N} or {"substeps": N}, N from 1 to 100000. 0 with
  * *frames (1 for frames, 0 for substeps) and *n, or -1 with the problem. */
 int step_from_json(const json_t *body, int *frames, long long *n, problem *pr);

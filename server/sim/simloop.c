@@ -17,11 +17,16 @@
 #define MAX_LAG 0.25        /* s of wall time a scene may fall behind before it stops catching up */
 #define COST_PRIOR 2e-8     /* s per vertex and substep assumed before the first measurement */
 #define WHOLE_WORK 1e6      /* vertex-substeps run in one call whatever the clock says (a few ms) */
-#define MAX_TURN 64         /* scenes stepped in one turn of the loop */
 
 struct simloop {
     scenes *table;
     metrics *m;
+    int cap;             /* scenes in one turn: the table's most */
+    scene **turn;        /* the scenes of a turn */
+    scene **batch;       /* those whose frames are stepped together */
+    cs_sim **engines;
+    int64_t *substeps;
+    cs_status *each;
     pthread_t thread;
     int started;
     pthread_mutex_t lock;
@@ -65,6 +70,16 @@ static int64_t fitting(const scene *sc, double budget, int64_t most)
     return fit >= (double)most ? most : (fit >= 1 ? (int64_t)fit : 1);
 }
 
+/* What follows a complete frame: the frame count, metrics, automatic drops, checkpoints. */
+static void frame_done(simloop *sl, scene *sc, int32_t substeps)
+{
+    sc->frame_sub = 0;
+    metrics_frame(sl->m, substeps, sc->frame_wall);
+    sc->frame++;
+    autodrop_after_frame(sc);
+    if (++sc->frames_since_checkpoint >= (uint64_t)sc->loop.checkpoint_interval) scene_take_checkpoint(sc);
+}
+
 /* Steps the frame in progress on, by about `budget` seconds of compute at most (a whole frame
  * when it fits, else at least one substep), and when it is complete does what follows a frame:
  * the frame count, automatic drops, checkpoints. 1 when the frame completed, 0 when it is not
@@ -85,11 +100,7 @@ static int advance_frame(simloop *sl, scene *sc, double budget)
     }
     sc->frame_sub += (int32_t)n;
     if (sc->frame_sub < info.substeps) return 0;
-    sc->frame_sub = 0;
-    metrics_frame(sl->m, info.substeps, sc->frame_wall);
-    sc->frame++;
-    autodrop_after_frame(sc);
-    if (++sc->frames_since_checkpoint >= (uint64_t)sc->loop.checkpoint_interval) scene_take_checkpoint(sc);
+    frame_done(sl, sc, info.substeps);
     return 1;
 }
 
@@ -150,24 +161,147 @@ static void update_rtf(scene *sc, double t)
     sc->rtf_sim = info.time;
 }
 
-/* A frame of a running scene whose frame is due (or that runs at max_speed), and its pacing. */
-static void run_due_frame(simloop *sl, scene *sc)
+/* Wall seconds between a scene's frames. */
+static double period_of(const scene *sc)
 {
     cs_params p;
     cs_sim_params(sc->engine, &p);
-    const loop_settings *loop = &sc->loop;
-    if (sc->job.cmd || sc->paused || (!loop->max_speed && clock_mono() < sc->due)) return;
-    const int r = run_frame(sl, sc);
+    return 1.0 / ((double)p.frame_rate * (double)sc->loop.time_scale);
+}
+
+/* Whether a running scene's frame is due (or it runs at max_speed). */
+static int frame_due(const scene *sc, double now)
+{
+    return !sc->job.cmd && !sc->paused && (sc->loop.max_speed || now >= sc->due);
+}
+
+/* After a frame of a running scene (r: run_frame's): its pacing, and what it publishes. */
+static void paced(scene *sc, int r)
+{
     if (r == 0) return; /* stopping part way through a long frame: the next look says so */
     if (r < 0) {
         scene_publish(sc, 1);
         return;
     }
     const double after = clock_mono();
-    sc->due += 1.0 / ((double)p.frame_rate * (double)loop->time_scale);
+    sc->due += period_of(sc);
     if (after - sc->due > MAX_LAG) sc->due = after; /* too slow to keep up: do not try to catch up */
     update_rtf(sc, after);
-    if (!loop->max_speed || after - sc->last_publish >= PUBLISH_EVERY) scene_publish(sc, 0);
+    if (!sc->loop.max_speed || after - sc->last_publish >= PUBLISH_EVERY) scene_publish(sc, 0);
+}
+
+/* Whether a scene's whole frame is little work: such frames are stepped together in one call. */
+static int steps_whole(const scene *sc)
+{
+    cs_info info;
+    cs_sim_info(sc->engine, &info);
+    return sc->frame_sub == 0 && (double)info.substeps * (double)info.n_vertices <= WHOLE_WORK;
+}
+
+/* Puts a scene's next whole frame in the batch, at slot nb. */
+static void batch_add(simloop *sl, int nb, scene *sc)
+{
+    cs_info info;
+    cs_sim_info(sc->engine, &info);
+    if (sc->before_frame) sc->before_frame(sc->engine, sc->frame);
+    sc->frame_wall = 0;
+    sl->batch[nb] = sc;
+    sl->engines[nb] = sc->engine;
+    sl->substeps[nb] = info.substeps;
+}
+
+/* Steps the batch's nb frames in one call (each ends bitwise as alone: cs_sims_step). The call's
+ * compute time is shared among the scenes by their work; a failure is dealt with as
+ * scene_run_substeps does, and a complete frame as advance_frame does. sl->each[k]: how each fared. */
+static void batch_run(simloop *sl, int nb)
+{
+    double work = 0;
+    for (int k = 0; k < nb; k++) {
+        cs_info info;
+        cs_sim_info(sl->batch[k]->engine, &info);
+        work += (double)sl->substeps[k] * (double)info.n_vertices;
+    }
+    const double t0 = clock_mono();
+    const cs_status st = cs_sims_step(sl->engines, (size_t)nb, sl->substeps, sl->each);
+    const double took = clock_mono() - t0;
+    for (int k = 0; k < nb; k++) {
+        scene *sc = sl->batch[k];
+        cs_info info;
+        cs_sim_info(sc->engine, &info);
+        const double share = work > 0 ? (double)sl->substeps[k] * (double)info.n_vertices / work : 0;
+        if (st != CS_OK) sl->each[k] = st;
+        scene_ran_substeps(sc, sl->substeps[k], sl->each[k], took * share);
+        if (sc->lost) {
+            sc->lost = 0;
+            kill(getpid(), SIGUSR1);
+        }
+        if (sl->each[k] == CS_OK) frame_done(sl, sc, (int32_t)sl->substeps[k]);
+    }
+}
+
+/* Whether a step in progress goes by whole frames stepped together with other scenes'. */
+static int batched_step(const scene *sc) { return sc->job.cmd && sc->job.frames && steps_whole(sc); }
+
+/* The steps in progress, for about one slice of compute: those of frames of small scenes frame by
+ * frame together in batched calls, the others one by one (step_slice). */
+static void step_slices(simloop *sl, int n)
+{
+    const double t0 = clock_mono();
+    for (int nb = -1; nb != 0 && clock_mono() - t0 < SIMLOOP_SLICE;) {
+        nb = 0;
+        for (int k = 0; k < n; k++)
+            if (batched_step(sl->turn[k])) batch_add(sl, nb++, sl->turn[k]);
+        if (nb == 0) break;
+        batch_run(sl, nb);
+        for (int k = 0; k < nb; k++) {
+            scene *sc = sl->batch[k];
+            if (sl->each[k] != CS_OK) scene_end_step(sc, sc->failed_as);
+            else if (++sc->job.frames_run == sc->job.want) scene_end_step(sc, NULL);
+        }
+    }
+    for (int k = 0; k < n; k++) {
+        scene *sc = sl->turn[k];
+        if (sc->job.cmd && !batched_step(sc)) step_slice(sl, sc);
+        else if (sc->job.cmd && clock_mono() - sc->last_publish >= PUBLISH_EVERY) scene_publish(sc, 0);
+    }
+}
+
+/* The due frames of the running scenes: the small ones together, in one batched call, the large
+ * ones one by one, in parts when they are long. */
+static void run_due_frames(simloop *sl, int n)
+{
+    const double now = clock_mono();
+    int nb = 0;
+    for (int k = 0; k < n; k++)
+        if (frame_due(sl->turn[k], now) && steps_whole(sl->turn[k])) batch_add(sl, nb++, sl->turn[k]);
+    if (nb > 0) batch_run(sl, nb);
+    for (int k = 0; k < nb; k++) paced(sl->batch[k], sl->each[k] == CS_OK ? 1 : -1);
+    for (int k = 0; k < n && !atomic_load(&sl->stopping); k++) {
+        scene *sc = sl->turn[k];
+        int in_batch = 0;
+        for (int b = 0; b < nb && !in_batch; b++) in_batch = sl->batch[b] == sc;
+        if (in_batch || !frame_due(sc, clock_mono())) continue;
+        paced(sc, run_frame(sl, sc));
+    }
+}
+
+/* A scene that starts running (created, resumed, restarted from the state file) joins the frame
+ * clock: its first frame is due with the next frame of a running scene of the same frame period,
+ * so that scenes of one period are stepped together, or now when there is none. */
+static void join_clock(simloop *sl, int n, scene *sc)
+{
+    const double now = clock_mono(), period = period_of(sc);
+    sc->due = now;
+    for (int k = 0; k < n; k++) {
+        const scene *o = sl->turn[k];
+        if (o == sc || !o->was_running || o->paused || o->due > now + period || period_of(o) != period) continue;
+        sc->due = o->due;
+        break;
+    }
+    cs_info info;
+    cs_sim_info(sc->engine, &info);
+    sc->rtf_wall = now;
+    sc->rtf_sim = info.time;
 }
 
 /* ---- commands ---- */
@@ -224,25 +358,31 @@ static int wait_for_work(simloop *sl, int wait, double until)
     return stop;
 }
 
+/* A scene that stopped running leaves the frame clock; one that started joins it. */
+static void clock_in(simloop *sl, int n, scene *sc)
+{
+    if (sc->paused) sc->was_running = 0;
+    else if (!sc->was_running) {
+        join_clock(sl, n, sc);
+        sc->was_running = 1;
+    }
+}
+
 static void *run(void *arg)
 {
     simloop *sl = arg;
     sigset_t all;
     sigfillset(&all);
     pthread_sigmask(SIG_BLOCK, &all, NULL);
-    scene *turn[MAX_TURN];
-    int n = scenes_list(sl->table, turn, MAX_TURN);
-    for (int k = 0; k < n; k++) {
-        turn[k]->due = turn[k]->rtf_wall = clock_mono();
-        scene_release(turn[k]);
-    }
+    scene **turn = sl->turn;
     for (int stop = 0; !stop;) {
-        n = scenes_list(sl->table, turn, MAX_TURN);
+        const int n = scenes_list(sl->table, turn, sl->cap);
         int stepping = 0, running = 0, fast = 0;
         double due = 0;
         for (int k = 0; k < n; k++) {
             scene *sc = turn[k];
             stepping |= sc->job.cmd != NULL;
+            clock_in(sl, n, sc);
             if (sc->paused) continue;
             running = 1;
             fast |= sc->loop.max_speed;
@@ -252,10 +392,14 @@ static void *run(void *arg)
          * while paused, or until the next frame is due. */
         const int wait = !stepping && (!running || (!fast && clock_mono() < due));
         stop = wait_for_work(sl, wait, running ? due : 0);
-        for (int k = 0; k < n; k++) run_commands(turn[k]);
-        for (int k = 0; k < n && !stop; k++) {
-            if (turn[k]->job.cmd) step_slice(sl, turn[k]);
-            else run_due_frame(sl, turn[k]);
+        scenes_drop_gone(sl->table);
+        for (int k = 0; k < n; k++) {
+            run_commands(turn[k]);
+            clock_in(sl, n, turn[k]);
+        }
+        if (!stop) {
+            step_slices(sl, n);
+            run_due_frames(sl, n);
         }
         for (int k = 0; k < n; k++) {
             if (stop) scene_end_step(turn[k], "shutdown"); /* a step in progress (or one that came with the stop) */
@@ -267,12 +411,34 @@ static void *run(void *arg)
 
 /* ---- lifecycle ---- */
 
+/* The turn's arrays, and the loop itself. */
+static void free_turn(simloop *sl)
+{
+    free(sl->turn);
+    free(sl->batch);
+    free(sl->engines);
+    free(sl->substeps);
+    free(sl->each);
+    free(sl);
+}
+
 simloop *simloop_new(scenes *table, metrics *m)
 {
     simloop *sl = calloc(1, sizeof *sl);
     if (!sl) return NULL;
     sl->table = table;
     sl->m = m;
+    sl->cap = scenes_max(table) > 0 ? scenes_max(table) : 1;
+    const size_t c = (size_t)sl->cap;
+    sl->turn = calloc(c, sizeof *sl->turn);
+    sl->batch = calloc(c, sizeof *sl->batch);
+    sl->engines = calloc(c, sizeof *sl->engines);
+    sl->substeps = calloc(c, sizeof *sl->substeps);
+    sl->each = calloc(c, sizeof *sl->each);
+    if (!sl->turn || !sl->batch || !sl->engines || !sl->substeps || !sl->each) {
+        free_turn(sl);
+        return NULL;
+    }
     pthread_mutex_init(&sl->lock, NULL);
     pthread_condattr_t ca;
     pthread_condattr_init(&ca);
@@ -293,8 +459,9 @@ int simloop_start(simloop *sl)
 void simloop_stop(simloop *sl)
 {
     /* Commands that come from now on are refused at once; the thread runs those queued before. */
-    scene *all[MAX_TURN];
-    const int n = scenes_list(sl->table, all, MAX_TURN);
+    scenes_close(sl->table);
+    scene **all = malloc(sizeof *all * (size_t)sl->cap);
+    const int n = all ? scenes_list(sl->table, all, sl->cap) : 0;
     for (int k = 0; k < n; k++) scene_close(all[k]);
     pthread_mutex_lock(&sl->lock);
     sl->stop = 1;
@@ -307,6 +474,8 @@ void simloop_stop(simloop *sl)
         scene_refuse_queued(all[k]); /* what the thread did not take before it stopped */
         scene_release(all[k]);
     }
+    free(all);
+    scenes_drop_gone(sl->table);
 }
 
 void simloop_free(simloop *sl)
@@ -316,5 +485,5 @@ void simloop_free(simloop *sl)
     scenes_set_wake(sl->table, NULL, NULL);
     pthread_mutex_destroy(&sl->lock);
     pthread_cond_destroy(&sl->cond);
-    free(sl);
+    free_turn(sl);
 }

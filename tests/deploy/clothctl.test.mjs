@@ -5,7 +5,7 @@ import assert from 'node:assert/strict';
 import { execFile } from 'node:child_process';
 import { readFileSync } from 'node:fs';
 import { join } from 'node:path';
-import { start, stop, ok, tempDir } from '../server/harness.mjs';
+import { start, stop, ok, call, tempDir } from '../server/harness.mjs';
 import { SOURCE, cleanEnv, tokenFile } from './support.mjs';
 
 const TOKEN = 'clothctl-t0ken-0123456789abcdef';
@@ -92,6 +92,42 @@ test('clothctl: the tour, each command checked through the API', async () => {
     assert.equal(r.code, 1);
     assert.match(r.stdout, /k_bend/);
     assert.equal((await api('GET', '/v1/params')).k_bend, params.k_bend);
+  } finally {
+    await stop(d);
+  }
+});
+
+test('clothctl: scenes (list, create, delete) and --scene, each checked through the API', async () => {
+  const d = await start(['--paused', '--nx', '8', '--ny', '8']);
+  const env = { CLOTHD_URL: d.url };
+  const ctl = async (...args) => {
+    const r = await clothctl(env, ...args);
+    assert.equal(r.code, 0, `clothctl ${args.join(' ')}: ${r.stderr}`);
+    return JSON.parse(r.stdout);
+  };
+  try {
+    assert.equal((await ctl('scenes', 'create', 'small', 'nx=6', 'ny=5')).id, 'small');
+    assert.equal((await ok(d, 'GET', '/v1/scenes/small/sim')).n_vertices, 30);
+    assert.match((await ctl('scenes', 'create')).id, /^scene-\d+$/);
+    assert.deepEqual((await ctl('scenes')).scenes.map((s) => s.id).slice(0, 2), ['default', 'small']);
+    await ctl('--scene', 'small', 'pause');
+    const step = (await ok(d, 'GET', '/v1/scenes/small/sim')).step;
+    await ctl('--scene', 'small', 'step', '2');
+    assert.equal((await ok(d, 'GET', '/v1/scenes/small/sim')).step, step + 2 * 30);
+    await ctl('--scene', 'small', 'params', 'seed=9');
+    assert.equal((await ok(d, 'GET', '/v1/scenes/small/params')).seed, 9);
+    assert.equal((await ok(d, 'GET', '/v1/params')).seed, 1); // default untouched
+    const viaEnv = await clothctl({ ...env, CLOTHD_SCENE: 'small' }, 'rock', '0', '0', '3', '0.1');
+    assert.equal(viaEnv.code, 0, viaEnv.stderr);
+    assert.equal((await ok(d, 'GET', '/v1/scenes/small/rocks')).rocks.length, 1);
+    // A bad id never reaches the server (exit 2); an unknown one is the server's 404 (exit 1).
+    let r = await clothctl(env, '--scene', 'Bad', 'sim');
+    assert.equal(r.code, 2);
+    r = await clothctl(env, '--scene', 'nope', 'sim');
+    assert.equal(r.code, 1);
+    assert.match(r.stderr, /HTTP 404/);
+    assert.deepEqual(await ctl('scenes', 'delete', 'small'), { id: 'small', deleted: true });
+    assert.equal((await call(d, 'GET', '/v1/scenes/small/sim')).status, 404);
   } finally {
     await stop(d);
   }

@@ -270,7 +270,7 @@ test('metrics in Prometheus text format', async () => {
   assert.match(r.text, /^clothd_steps_total \d+$/m);
   assert.match(r.text, /^clothd_substep_seconds_bucket\{le="\+Inf"\} \d+$/m);
   assert.match(r.text, /^clothd_http_requests_total\{route="\/v1\/sim",method="GET",status="200"\} \d+$/m);
-  assert.match(r.text, /^clothd_realtime_factor [0-9.e+-]+$/m);
+  assert.match(r.text, /^clothd_realtime_factor\{scene="default"\} [0-9.e+-]+$/m);
 });
 
 test('X-Request-Id is echoed, on success and on error', async () => {

@@ -142,6 +142,16 @@ const pointer = (...parts) => parts.map((p) => `/${String(p).replaceAll('~', '~0
 // Statuses any operation may answer (PROTOCOL.md "Conventions"; the spec's description).
 const ANY_OPERATION = ['405', '414', '501'];
 
+// A path item of the spec ([template, item] of SPEC.paths) as [its location, the item itself],
+// through its $ref when it has one.
+export function specPathItem(entry) {
+  if (!entry) return [[], undefined];
+  const ref = entry[1].$ref;
+  if (!ref) return [['paths', entry[0]], entry[1]];
+  const parts = ref.slice(2).split('/');
+  return [parts, parts.reduce((o, k) => o[k], SPEC)];
+}
+
 export function checkAnswer(method, path, status, type, json) {
   const route = path.split('?')[0];
   if (!route.startsWith('/v1/') && route !== '/metrics') return; // the viewer's files
@@ -154,8 +164,11 @@ export function checkAnswer(method, path, status, type, json) {
   };
   const problemPointer = pointer('components', 'responses', 'Problem', 'content', 'application/problem+json', 'schema');
   const entry = Object.entries(SPEC.paths).find(([tpl]) => new RegExp(`^${tpl.replace(/\{[^}]+\}/g, '[^/]+')}$`).test(route));
-  const op = entry?.[1][method === 'HEAD' ? 'get' : method.toLowerCase()];
-  let response = op?.responses[String(status)], at = op && pointer('paths', entry[0], method === 'HEAD' ? 'get' : method.toLowerCase(),
+  // A path item may be a reference to one of components/pathItems (a scene's routes, with and
+  // without the prefix that names the scene, share theirs).
+  const [where, item] = specPathItem(entry);
+  const op = item?.[method === 'HEAD' ? 'get' : method.toLowerCase()];
+  let response = op?.responses[String(status)], at = op && pointer(...where, method === 'HEAD' ? 'get' : method.toLowerCase(),
     'responses', String(status));
   if (!op || (!response && ANY_OPERATION.includes(String(status)))) {
     // An unknown route or method: refused before routing (400, 401, 403, 429) or 404 / 405.

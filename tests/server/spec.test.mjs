@@ -7,23 +7,18 @@ import { execFile } from 'node:child_process';
 import { readFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { promisify } from 'node:util';
-import { start, stop, ok, execChecked, checkAnswer, CLOTHD, PROBLEM } from './harness.mjs';
+import { start, stop, ok, execChecked, checkAnswer, specPathItem, SPEC, CLOTHD, PROBLEM } from './harness.mjs';
 
 const execFileP = promisify(execFile);
 
 const spec = readFileSync(join(process.env.CLOTHD_SOURCE, 'proto', 'openapi.yaml'), 'utf8').split('\n');
 
-// The routes under `paths:` (two-space keys) and their methods (four-space keys).
+// The routes under `paths:` and their methods (a path item may be a $ref to components/pathItems).
 function specRoutes() {
   const out = [];
-  let inPaths = false, path = null;
-  for (const line of spec) {
-    if (/^\S/.test(line)) inPaths = line.startsWith('paths:');
-    if (!inPaths) continue;
-    let m = /^ {2}(\/\S*):\s*$/.exec(line);
-    if (m) path = m[1];
-    m = /^ {4}(get|put|post|patch|delete):/.exec(line);
-    if (m && path) out.push(`${m[1].toUpperCase()} ${path}`);
+  for (const entry of Object.entries(SPEC.paths)) {
+    const [, item] = specPathItem(entry);
+    for (const m of ['get', 'put', 'post', 'patch', 'delete']) if (item[m]) out.push(`${m.toUpperCase()} ${entry[0]}`);
   }
   return out.sort();
 }

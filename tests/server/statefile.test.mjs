@@ -81,7 +81,7 @@ test('a state file of format 2 or 1 (the bare snapshot) still resumes; a newer f
   assert.equal((await ok(b3, 'GET', '/v1/params')).time_scale, 3);
   await stop(b3, 'SIGKILL');
   const cases = [
-    ['a newer format', '{"clothd_state":4,"run":"paused","params":{}}', /it was written by a newer clothd \(state file format 4; this build reads formats 1 to 3\)/],
+    ['a newer format', '{"clothd_state":5,"run":"paused","params":{}}', /it was written by a newer clothd \(state file format 5; this build reads formats 1 to 4\)/],
     ['an unknown run state', '{"clothd_state":2,"run":"sleeping"}', /it is damaged \(has a trailer that is not/],
     ['a trailer cut short', '{"clothd_state":2,"ru', /it is damaged \(has 21 bytes after its snapshot that are not a state file's trailer/],
     ['another member', '{"clothd_state":2,"run":"paused","x":1}', /it is damaged/],

@@ -17,9 +17,23 @@ from conftest import SOURCE, until, write_token
 
 def spec_operations():
     """(METHOD, path) of every operation in proto/openapi.yaml (its paths are 2-space keys,
-    their methods 4-space keys)."""
-    ops, path = [], None
-    for line in (SOURCE / "proto" / "openapi.yaml").read_text().splitlines():
+    their methods 4-space keys; a path that is a $ref to components/pathItems has the methods of
+    that item, 6-space keys under its 4-space name; the paths that share an item - a scene's
+    routes with and without the prefix /v1/scenes/{scene} - are one client method each, counted
+    at the first)."""
+    lines = (SOURCE / "proto" / "openapi.yaml").read_text().splitlines()
+    items, item, section = {}, None, None
+    for line in lines:
+        if re.match(r"^  \S", line):
+            section = line.strip()
+        m = re.match(r"^    ([A-Za-z_]+):\s*$", line)
+        if section == "pathItems:" and m:
+            item = items.setdefault(m.group(1), [])
+        m = re.match(r"^      (get|put|post|patch|delete):", line)
+        if section == "pathItems:" and m and item is not None:
+            item.append(m.group(1).upper())
+    ops, path, shared = [], None, set()
+    for line in lines:
         m = re.match(r"^  (/\S*):\s*$", line)
         if m:
             path = m.group(1)
@@ -28,6 +42,10 @@ def spec_operations():
         m = re.match(r"^    (get|put|post|patch|delete):", line)
         if m and path:
             ops.append((m.group(1).upper(), path))
+        m = re.match(r"^    \$ref: '#/components/pathItems/(\w+)'", line)
+        if m and path and m.group(1) not in shared:
+            shared.add(m.group(1))
+            ops += [(method, path) for method in items[m.group(1)]]
     return ops
 
 
@@ -88,6 +106,9 @@ def test_every_operation_is_a_method_and_the_answers_hold_what_the_protocol_says
     assert c.restore_snapshot(snap)["state_hash"] == h
     assert c.journal_bundle()[:8] == snap[:8]  # the bundle starts with its base snapshot
 
+    assert [e["id"] for e in c.scenes()["scenes"]] == ["default"]  # the daemon's scenes: list, create, delete
+    assert c.create_scene(id="made", scene={"nx": 4, "ny": 4})["n_vertices"] == 16
+    assert c.delete_scene("made") == {"id": "made", "deleted": True}
     c.cloth_state_binary()
     c.metrics()
     seen = answered(c)
@@ -237,8 +258,8 @@ def test_scene_handles(client):
             c.scene(bad)
     other = c.scene("other")
     assert other.prefix == "/v1/scenes/other"
-    # This daemon has one scene and no scene routes: the server's 404 speaks for each.
-    for call in (other.sim, lambda: other.add_rock([0, 0, 1], 0.1), c.scenes, lambda: c.create_scene(id="other"),
-                 lambda: c.delete_scene("other"), c.recordings.list, lambda: default.record(1)):
+    # No scene "other" (and no recordings on this server): the server's 404 speaks for each.
+    for call in (other.sim, lambda: other.add_rock([0, 0, 1], 0.1), lambda: c.delete_scene("other"),
+                 c.recordings.list, lambda: default.record(1)):
         assert type(refusal(call)) is clothd.NotFound
     assert c.rocks()["rocks"] == []  # nothing reached the default scene

@@ -2,6 +2,7 @@
  * token each needs, the API's paths, the commands requests make of their bodies, the checks made
  * from the columns before a row's function runs, journaled changes by op, and answers. */
 #include "sim/commands.h"
+#include "sim/scenes.h"
 #include "unitkit.h"
 
 static void test_routes(void **unused)
@@ -38,6 +39,35 @@ static void test_routes(void **unused)
     assert_null(m.def);
     command_route("GET", "/sim", &m); /* a scene's path without the prefix is none */
     assert_null(m.def);
+    /* A scene named by the prefix; the daemon's routes of scenes. */
+    command_route("PATCH", "/v1/scenes/b-2/rocks/7", &m);
+    assert_string_equal(m.def->op, "rock_set");
+    assert_int_equal(m.id, 7);
+    assert_string_equal(m.scene, "b-2");
+    assert_string_equal(m.label, "/v1/scenes/{scene}/rocks/{id}");
+    command_route("GET", "/v1/scenes/Bad!/sim", &m); /* routed; the id is checked by who answers */
+    assert_string_equal(m.def->op, "sim");
+    assert_string_equal(m.scene, "Bad!");
+    command_route("DELETE", "/v1/scenes/x", &m);
+    assert_string_equal(m.def->op, "scene_delete");
+    assert_string_equal(m.scene, "x");
+    command_route("GET", "/v1/scenes", &m);
+    assert_string_equal(m.def->op, "scenes");
+    assert_null(m.scene);
+    command_route("GET", "/v1/scenes/x", &m);
+    assert_null(m.def);
+    assert_string_equal(m.allow, "DELETE");
+    command_route("GET", "/v1/scenes//sim", &m); /* an empty id names nothing */
+    assert_null(m.def);
+    command_route("GET", "/v1/scenes/x/metrics", &m); /* daemon-wide routes have no scene prefix */
+    assert_null(m.def);
+    assert_true(scene_id_valid("a") && scene_id_valid("0_a-b") && !scene_id_valid("-a") && !scene_id_valid("A") &&
+                !scene_id_valid("") && !scene_id_valid("a.b"));
+    char id[70];
+    memset(id, 'a', 63), id[63] = '\0';
+    assert_true(scene_id_valid(id));
+    memset(id, 'a', 64), id[64] = '\0';
+    assert_false(scene_id_valid(id));
 }
 
 static void test_api_paths_and_access(void **unused)
@@ -85,7 +115,7 @@ static void test_table(void **unused)
     }
     assert_int_equal(changes, 10);
     for (int k = 0; k < 10; k++) assert_non_null(command_find(journaled[k])->change);
-    assert_int_equal(routes, 26);
+    assert_int_equal(routes, 29);
     char *out = NULL;
     size_t len = 0;
     FILE *f = open_memstream(&out, &len);
@@ -93,8 +123,11 @@ static void test_table(void **unused)
     fclose(f);
     int lines = 0;
     for (char *p = out; *p; p++) lines += *p == '\n';
-    assert_int_equal(lines, 26);
+    assert_int_equal(lines, 29 + 24); /* each of the 24 routes of a scene also under /v1/scenes/{scene} */
     assert_non_null(strstr(out, "GET /v1/health\n"));
+    assert_non_null(strstr(out, "DELETE /v1/scenes/{scene}\n"));
+    assert_non_null(strstr(out, "PATCH /v1/scenes/{scene}/rocks/{id}\n"));
+    assert_null(strstr(out, "/v1/scenes/{scene}/metrics"));
     assert_non_null(strstr(out, "PATCH /v1/rocks/{id}\n"));
     assert_non_null(strstr(out, "GET /metrics\n"));
     assert_null(strstr(out, "hash"));
@@ -155,7 +188,7 @@ static void test_central_checks(void **unused)
     (void)unused;
     api_reply now;
     scene_cmd later;
-    api_request rq = {command_find("rock_get"), NULL, "", 0, NULL, 0, 0, 0, NULL};
+    api_request rq = {command_find("rock_get"), NULL, "", 0, NULL, 0, 0, 0, NULL, NULL};
     assert_int_equal(command_request(&rq, &now, &later), API_NOW);
     assert_int_equal(now.status, 404);
     assert_non_null(strstr(now.body, "no rock with that id"));
@@ -164,28 +197,28 @@ static void test_central_checks(void **unused)
     assert_int_equal(command_request(&rq, &now, &later), API_NOW);
     assert_int_equal(now.status, 404);
     free(now.body);
-    rq = (api_request){command_find("snapshot_put"), NULL, "", 0, NULL, -1, 0, 0, NULL};
+    rq = (api_request){command_find("snapshot_put"), NULL, "", 0, NULL, -1, 0, 0, NULL, NULL};
     assert_int_equal(command_request(&rq, &now, &later), API_NOW);
     assert_int_equal(now.status, 400);
     assert_non_null(strstr(now.body, "urn:clothd:problem:bad-snapshot"));
     free(now.body);
-    rq = (api_request){command_find("step"), NULL, "{\"frames\": 0}", 13, NULL, -1, 0, 0, NULL};
+    rq = (api_request){command_find("step"), NULL, "{\"frames\": 0}", 13, NULL, -1, 0, 0, NULL, NULL};
     assert_int_equal(command_request(&rq, &now, &later), API_NOW);
     assert_int_equal(now.status, 422);
     free(now.body);
-    rq = (api_request){command_find("pause"), NULL, "{\"now\": true}", 13, NULL, -1, 0, 0, NULL};
+    rq = (api_request){command_find("pause"), NULL, "{\"now\": true}", 13, NULL, -1, 0, 0, NULL, NULL};
     assert_int_equal(command_request(&rq, &now, &later), API_NOW);
     assert_int_equal(now.status, 400);
     free(now.body);
     /* Accepted: the command for the sim thread, with its row. */
-    rq = (api_request){command_find("step"), NULL, "{\"frames\": 2}", 13, NULL, -1, 0, 0, NULL};
+    rq = (api_request){command_find("step"), NULL, "{\"frames\": 2}", 13, NULL, -1, 0, 0, NULL, NULL};
     assert_int_equal(command_request(&rq, &now, &later), API_LATER);
     assert_ptr_equal(later.def, command_find("step"));
     char *text = uk_dump(later.body);
     uk_assert_json(text, "{\"frames\":2}");
     free(text);
     json_decref(later.body);
-    rq = (api_request){command_find("rock_set"), NULL, "{\"radius\": 0.3}", 15, NULL, 5, 0, 0, NULL};
+    rq = (api_request){command_find("rock_set"), NULL, "{\"radius\": 0.3}", 15, NULL, 5, 0, 0, NULL, NULL};
     assert_int_equal(command_request(&rq, &now, &later), API_LATER);
     text = uk_dump(later.body);
     uk_assert_json(text, "{\"op\":\"rock_set\",\"id\":5,\"rock\":{\"radius\":0.3}}");

@@ -252,7 +252,10 @@ static void test_table_and_handles(void **unused)
     assert_int_equal(scenes_add(t, a), 0);
     assert_int_equal(scenes_add(t, dup), -1); /* the id is taken */
     assert_int_equal(scenes_add(t, b), 0);
-    assert_int_equal(scenes_add(t, dup), -1); /* full */
+    assert_int_equal(scenes_add(t, dup), SCENES_TAKEN); /* taken (and full) */
+    scene *third = scene_new("third", uk_engine(3, 3), &cfg.scene.loop, 1, &cfg.set);
+    assert_int_equal(scenes_add(t, third), SCENES_FULL);
+    scene_release(third);
     scene_release(dup);
     assert_int_equal(scenes_count(t), 2);
     scene *h = scenes_get(t, SCENE_DEFAULT);
