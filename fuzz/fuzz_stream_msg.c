@@ -10,6 +10,7 @@
 #include <jansson.h>
 
 #include "core/delta.h"
+#include "core/json_read.h"
 #include "core/stream_msg.h"
 #include "fuzz_common.h"
 #include "sim/commands.h"
@@ -54,7 +55,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             fuzz_fail("subscribe to encoding %d, scalar %d, max_fps %d", m.encoding, m.scalar, m.max_fps);
         if (m.quantum != -1 && !delta_quantum_ok(m.quantum)) fuzz_fail("subscribe with quantum %g", m.quantum);
         if (m.max_kbps < -1 || m.max_kbps > STREAM_MAX_KBPS) fuzz_fail("subscribe with max_kbps %lld", m.max_kbps);
-        if (m.scene[0] && !stream_scene_id_ok(m.scene)) fuzz_fail("subscribe to scene '%s'", m.scene);
+        if (m.scene[0] && !scene_id_valid(m.scene)) fuzz_fail("subscribe to scene '%s'", m.scene);
         break;
     case STREAM_MSG_KEYFRAME: break;
     case STREAM_MSG_COMMAND: {

@@ -24,15 +24,6 @@ static int name_index(const json_t *v, const char *const *names, int n)
     return -1;
 }
 
-int stream_scene_id_ok(const char *id)
-{
-    if (!id || !((id[0] >= 'a' && id[0] <= 'z') || (id[0] >= '0' && id[0] <= '9'))) return 0;
-    size_t n = 1;
-    for (; id[n]; n++)
-        if (!((id[n] >= 'a' && id[n] <= 'z') || (id[n] >= '0' && id[n] <= '9') || id[n] == '_' || id[n] == '-')) return 0;
-    return n < STREAM_SCENE_ID_MAX;
-}
-
 static stream_msg_kind subscribe(stream_msg *m, const json_t *o)
 {
     static const char *const fields[] = {"type", "scene", "encoding", "max_fps", "scalar", "quantum", "max_kbps", NULL};
@@ -42,7 +33,7 @@ static stream_msg_kind subscribe(stream_msg *m, const json_t *o)
         problem_set(&m->pr, 400, "wrong-type", "scene", "scene must be a scene id, a string (got %s)", json_type_word(id));
         return refuse(m, "subscribe", 1);
     }
-    if (id && !stream_scene_id_ok(json_string_value(id))) {
+    if (id && !scene_id_valid(json_string_value(id))) {
         problem_set(&m->pr, 400, "bad-scene-id", "scene",
                     "a scene id is 1 to 63 of a-z, 0-9, _ and -, starting with a letter or digit (got '%.80s')",
                     json_string_value(id));

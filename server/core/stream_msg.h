@@ -48,9 +48,6 @@ typedef struct stream_msg {
     json_t *root; /* the parsed message: `about` may point into it */
 } stream_msg;
 
-/* Whether id is a scene id: [a-z0-9][a-z0-9_-]{0,62}. */
-int stream_scene_id_ok(const char *id);
-
 /* Parses one text message of len bytes (not NUL-terminated); returns m->kind. */
 stream_msg_kind stream_msg_parse(const char *text, size_t len, stream_msg *m);
 /* Releases what m holds (cmd, unless the caller took it and set it to NULL). */

@@ -11,10 +11,10 @@
  * fills, the newest, one the service thread encodes), then lws_cancel_service, whose
  * LWS_CALLBACK_EVENT_WAIT_CANCELLED wakes every client with lws_callback_on_writable_all_protocol;
  * each client is written to in LWS_CALLBACK_SERVER_WRITEABLE, one message per callback. HTTP
- * threads add feeds (under feeds_lock) and close them: a closed feed takes no more poses or
- * events, and the service thread then closes its clients (1001, "scene deleted") and frees its
- * buffers. The small struct itself stays until stream_stop, since the scene, which may outlive
- * its removal in whoever still holds it, keeps calling its sink until it is freed.
+ * threads add feeds (under feeds_lock); the sim thread closes one once it has let its deleted
+ * scene go, after which the scene hands its sink nothing (scenes.h, the removed hook): a closed
+ * feed takes no more poses or events, and the service thread then closes its clients (1001,
+ * "scene deleted") and frees it.
  *
  * Memory per client is bounded: it holds no frame of its own (the encoded frame is shared and
  * replaced by the next one), lws keeps at most the unsent rest of one message, and pending text is
@@ -104,7 +104,6 @@ struct feed {
     char id[SCENE_ID_MAX];
     feed *next;          /* st->feeds, under feeds_lock */
     atomic_int closed;   /* the scene left: no more poses or events */
-    int reaped;          /* the service thread's: its clients are closed and its buffers freed */
 
     /* frame handover (flock) */
     pthread_mutex_t flock;
@@ -646,14 +645,26 @@ static void feed_free_buffers(feed *fd)
     free(ring);
 }
 
+static void feed_free(feed *fd)
+{
+    feed_free_buffers(fd);
+    pthread_mutex_destroy(&fd->flock);
+    pthread_mutex_destroy(&fd->elock);
+    free(fd);
+}
+
 /* The service thread closes the clients of the feeds closed since it last looked (1001, "scene
- * deleted", at their next write) and frees those feeds' buffers. */
+ * deleted", at their next write) and frees those feeds. */
 static void reap_feeds(stream *st)
 {
     if (!atomic_exchange(&st->to_reap, 0)) return;
     pthread_mutex_lock(&st->feeds_lock);
-    for (feed *fd = st->feeds; fd; fd = fd->next) {
-        if (!atomic_load(&fd->closed) || fd->reaped) continue;
+    for (feed **p = &st->feeds; *p;) {
+        feed *fd = *p;
+        if (!atomic_load(&fd->closed)) {
+            p = &fd->next;
+            continue;
+        }
         for (session *s = st->sessions; s; s = s->next) {
             if (s->f != fd) continue;
             leave_feed(st, s);
@@ -661,8 +672,8 @@ static void reap_feeds(stream *st)
             atomic_fetch_add(&st->scene_closed, 1);
             lws_callback_on_writable(s->wsi);
         }
-        feed_free_buffers(fd);
-        fd->reaped = 1;
+        *p = fd->next;
+        feed_free(fd);
     }
     pthread_mutex_unlock(&st->feeds_lock);
 }
@@ -875,7 +886,6 @@ static void take_newest(stream *st)
     int any = 0;
     pthread_mutex_lock(&st->feeds_lock);
     for (feed *fd = st->feeds; fd; fd = fd->next) {
-        if (fd->reaped) continue;
         pthread_mutex_lock(&fd->flock);
         if (fd->latest && fd->seq != fd->taken) {
             pose *f = fd->latest;
@@ -1140,7 +1150,7 @@ static int admit(stream *st, struct lws *wsi, session *s)
     char want[SCENE_ID_MAX + 8];
     const char *id = lws_get_urlarg_by_name(wsi, "scene=", want, sizeof want);
     if (!id) id = SCENE_DEFAULT;
-    if (!stream_scene_id_ok(id)) {
+    if (!scene_id_valid(id)) {
         refuse(st, wsi, REFUSED_SCENE, 400, "bad-scene-id", NULL,
                "a scene id is 1 to 63 of a-z, 0-9, _ and -, starting with a letter or digit (got '%.80s')", id);
         return 0;
@@ -1352,10 +1362,7 @@ void stream_stop(stream *st)
     take_answers(st);
     for (feed *fd = st->feeds, *next; fd; fd = next) {
         next = fd->next;
-        feed_free_buffers(fd);
-        pthread_mutex_destroy(&fd->flock);
-        pthread_mutex_destroy(&fd->elock);
-        free(fd);
+        feed_free(fd);
     }
     pthread_mutex_destroy(&st->feeds_lock);
     pthread_mutex_destroy(&st->glock);

@@ -32,8 +32,8 @@ stream *stream_start(const clothd_settings *set, scenes *table, const access_pol
 /* A new channel for a scene that joins the daemon: the sink its poses and events go to (no sink
  * when out of memory). Any thread; call it once per scene. */
 frame_sink stream_scene_sink(stream *st, scene *sc);
-/* A scene left the daemon: its channel takes nothing more and the clients streaming it are closed
- * (1001, "scene deleted"). Any thread; the scene may go on calling its sink (it does nothing). */
+/* A scene left the daemon and hands its sink nothing more (scenes.h's removed hook): the clients
+ * streaming it are closed (1001, "scene deleted") and its channel is freed. Any thread. */
 void stream_scene_removed(stream *st, scene *sc);
 int stream_port(stream *st);
 /* The HTTP port the viewer is served on (a page's Origin must name it); 0 until set. */

@@ -52,23 +52,6 @@ static void test_subscribe(void **unused)
     stream_msg_free(&m);
 }
 
-static void test_scene_ids(void **unused)
-{
-    (void)unused;
-    /* [a-z0-9][a-z0-9_-]{0,62}, by hand */
-    static const char *const good[] = {"default", "a", "0", "9-_", "scene-01_x", NULL};
-    static const char *const bad[] = {"", "-a", "_a", "A", "a.b", "a/b", "a b", "caf\xc3\xa9", "default\n", NULL};
-    for (int k = 0; good[k]; k++) assert_true(stream_scene_id_ok(good[k]));
-    for (int k = 0; bad[k]; k++) assert_false(stream_scene_id_ok(bad[k]));
-    char id[65];
-    memset(id, 'a', 64);
-    id[63] = '\0';
-    assert_true(stream_scene_id_ok(id)); /* 63 */
-    id[63] = 'a';
-    id[64] = '\0';
-    assert_false(stream_scene_id_ok(id)); /* 64 */
-}
-
 static void expect_refused(const char *text, int status, const char *about, const char *param)
 {
     stream_msg m;
@@ -158,7 +141,6 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_subscribe),
         cmocka_unit_test(test_refusals),
-        cmocka_unit_test(test_scene_ids),
         cmocka_unit_test(test_commands),
         cmocka_unit_test(test_error_text),
     };
