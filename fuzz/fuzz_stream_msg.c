@@ -4,12 +4,13 @@
  *
  * Besides what ASan and UBSan catch, it checks what stream_msg.h promises: a refusal says what
  * about, with a status and an error message that can be sent (valid JSON); a subscribe holds
- * only known encodings, scalars, rates, quanta and budgets; a command is a grab or a release. */
+ * only known encodings, scalars, rates, quanta, budgets and scene ids; a command is a grab or a release. */
 #include <stdint.h>
 
 #include <jansson.h>
 
 #include "core/delta.h"
+#include "core/json_read.h"
 #include "core/stream_msg.h"
 #include "fuzz_common.h"
 #include "sim/commands.h"
@@ -54,6 +55,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             fuzz_fail("subscribe to encoding %d, scalar %d, max_fps %d", m.encoding, m.scalar, m.max_fps);
         if (m.quantum != -1 && !delta_quantum_ok(m.quantum)) fuzz_fail("subscribe with quantum %g", m.quantum);
         if (m.max_kbps < -1 || m.max_kbps > STREAM_MAX_KBPS) fuzz_fail("subscribe with max_kbps %lld", m.max_kbps);
+        if (m.scene[0] && !scene_id_valid(m.scene)) fuzz_fail("subscribe to scene '%s'", m.scene);
         break;
     case STREAM_MSG_KEYFRAME: break;
     case STREAM_MSG_COMMAND: {

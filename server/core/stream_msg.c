@@ -26,8 +26,20 @@ static int name_index(const json_t *v, const char *const *names, int n)
 
 static stream_msg_kind subscribe(stream_msg *m, const json_t *o)
 {
-    static const char *const fields[] = {"type", "encoding", "max_fps", "scalar", "quantum", "max_kbps", NULL};
+    static const char *const fields[] = {"type", "scene", "encoding", "max_fps", "scalar", "quantum", "max_kbps", NULL};
     if (only_fields(o, fields, &m->pr) != 0) return refuse(m, "subscribe", 1);
+    const json_t *id = json_object_get(o, "scene");
+    if (id && !json_is_string(id)) {
+        problem_set(&m->pr, 400, "wrong-type", "scene", "scene must be a scene id, a string (got %s)", json_type_word(id));
+        return refuse(m, "subscribe", 1);
+    }
+    if (id && !scene_id_valid(json_string_value(id))) {
+        problem_set(&m->pr, 400, "bad-scene-id", "scene",
+                    "a scene id is 1 to 63 of a-z, 0-9, _ and -, starting with a letter or digit (got '%.80s')",
+                    json_string_value(id));
+        return refuse(m, "subscribe", 1);
+    }
+    if (id) snprintf(m->scene, sizeof m->scene, "%s", json_string_value(id));
     const json_t *e = json_object_get(o, "encoding"), *f = json_object_get(o, "max_fps"), *c = json_object_get(o, "scalar");
     if (e && (m->encoding = name_index(e, stream_encoding_names, STREAM_ENCODINGS)) < 0) {
         problem_set(&m->pr, 422, "out-of-range", "encoding", "encoding must be f32, q16, meshopt or delta");

@@ -1,5 +1,5 @@
 /* stream_msg.h - a stream client's text message, parsed and checked (PROTOCOL.md, Client messages):
- * subscribe, keyframe, grab and release. Pure: no session and no socket; stream.c acts on the result, so
+ * subscribe (which may name a scene), keyframe, grab and release. Pure: no session and no socket; stream.c acts on the result, so
  * the parser can be tested and fuzzed on its own. */
 #ifndef CLOTHD_STREAM_MSG_H
 #define CLOTHD_STREAM_MSG_H
@@ -16,6 +16,8 @@
 #define STREAM_PROTOCOL "clothd.v1"
 
 #define STREAM_ENCODINGS 4
+/* Longest scene id, its NUL included (ids match [a-z0-9][a-z0-9_-]{0,62}). */
+#define STREAM_SCENE_ID_MAX 64
 /* The largest max_kbps a client may ask for (10 Gbit/s). */
 #define STREAM_MAX_KBPS 10000000
 /* Names in the order of proto/clothd_frame.h's encodings and of pose.h's scalars. */
@@ -24,7 +26,7 @@ extern const char *const stream_scalar_names[SCALAR_KINDS];
 
 typedef enum stream_msg_kind {
     STREAM_MSG_REFUSED,   /* an error goes back to the client: about, pr, has_param */
-    STREAM_MSG_SUBSCRIBE, /* encoding, max_fps, scalar, quantum, max_kbps */
+    STREAM_MSG_SUBSCRIBE, /* scene, encoding, max_fps, scalar, quantum, max_kbps */
     STREAM_MSG_COMMAND,   /* cmd: a grab or release for the sim thread */
     STREAM_MSG_KEYFRAME   /* a delta client asks for a keyframe */
 } stream_msg_kind;
@@ -35,6 +37,7 @@ typedef struct stream_msg {
     int encoding, max_fps, scalar;
     double quantum; /* delta's grid (m), within DELTA_QUANTUM_MIN..MAX; -1 when not given */
     long long max_kbps; /* 1..STREAM_MAX_KBPS; 0 for null (no limit); -1 when not given */
+    char scene[STREAM_SCENE_ID_MAX]; /* the scene to switch to (a valid id); "" when not given */
     /* STREAM_MSG_COMMAND: {"op": "grab", "vertex", "target"} or {"op": "release"} (owned) */
     json_t *cmd;
     /* STREAM_MSG_REFUSED: what the message was about ("message", "subscribe", "grab", "release",

@@ -1,22 +1,31 @@
 /* stream.c - the WebSocket stream (see stream.h).
  *
- * Threads: the sim thread calls the sink's begin/publish/discard and event; libwebsockets runs
- * in its own service thread, which alone touches the sessions and the encoded frames. Handing a
- * frame over is a pointer swap under a mutex among three buffers (one the sim thread fills, the
- * newest, one the service thread encodes), then lws_cancel_service, whose
+ * Channels: each scene of the daemon has one, a `feed` - its newest pose, its encodings in use
+ * (one wire message per encoding and scalar, its delta encoders), its events - made when the
+ * scene joins (stream_scene_sink: the feed is the scene's sink) and closed when it leaves
+ * (stream_scene_removed). A client streams one feed at a time and holds a handle on its scene.
+ *
+ * Threads: the sim thread calls a feed's begin/publish/discard and event; libwebsockets runs in
+ * its own service thread, which alone touches the sessions and the encoded frames. Handing a
+ * frame over is a pointer swap under the feed's mutex among three buffers (one the sim thread
+ * fills, the newest, one the service thread encodes), then lws_cancel_service, whose
  * LWS_CALLBACK_EVENT_WAIT_CANCELLED wakes every client with lws_callback_on_writable_all_protocol;
- * each client is written to in LWS_CALLBACK_SERVER_WRITEABLE, one message per callback.
+ * each client is written to in LWS_CALLBACK_SERVER_WRITEABLE, one message per callback. HTTP
+ * threads add feeds (under feeds_lock); the sim thread closes one once it has let its deleted
+ * scene go, after which the scene hands its sink nothing (scenes.h, the removed hook): a closed
+ * feed takes no more poses or events, and the service thread then closes its clients (1001,
+ * "scene deleted") and frees it.
  *
  * Memory per client is bounded: it holds no frame of its own (the encoded frame is shared and
  * replaced by the next one), lws keeps at most the unsent rest of one message, and pending text is
- * limited (errors and acks to 8; events are read from a shared ring, and a client that falls further behind
- * than the ring is disconnected). A client whose newest frame has been waiting longer than
- * stream_stall_timeout is disconnected. The ring keeps at most EVENT_RING events and
- * stream_events_mb of their text (the oldest go first; the newest always stays).
+ * limited (errors and acks to 8; events are read from the feed's ring, and a client that falls
+ * further behind than the ring is disconnected). A client whose newest frame has been waiting
+ * longer than stream_stall_timeout is disconnected. Each feed's ring keeps at most EVENT_RING
+ * events and stream_events_mb of their text (the oldest go first; the newest always stays).
  *
  * What clients make the sim thread do is bounded too: a grab or release is in flight at most
  * once per client (the newest waiting one replaces the others), and a request for a publication
- * (a client joins, or subscribes to a scalar the newest frame lacks) at most once for them all.
+ * (a client joins, or subscribes to a scalar the newest frame lacks) at most once per feed.
  *
  * LWS_CALLBACK_HTTP_CONFIRM_UPGRADE is deliberately not handled (CVE-2025-11677 in 4.1.6):
  * connections are checked in LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION instead. */
@@ -51,13 +60,15 @@
 #define EVENT_RING 1024
 #define MAX_TEXTS 8 /* queued text messages (errors, acks) per client */
 #define N_ENC STREAM_ENCODINGS
-/* Different quanta the delta clients may use at once: one encoder (and one encoding of each
- * frame) per quantum. */
+/* Different quanta the delta clients of one scene may use at once: one encoder (and one encoding
+ * of each frame) per quantum. */
 #define DELTA_CHANNELS 4
+/* The close reason of a client whose scene was deleted (with 1001, going away). */
+#define CLOSE_SCENE_DELETED "scene deleted"
 
 /* Why a connection was refused before the upgrade: the `reason` of clothd_stream_refused_total. */
-enum { REFUSED_PATH, REFUSED_VERSION, REFUSED_HOST, REFUSED_ORIGIN, REFUSED_TOKEN, REFUSED_CLIENTS, N_REFUSED };
-static const char *const refused_names[N_REFUSED] = {"path", "version", "host", "origin", "token", "clients"};
+enum { REFUSED_PATH, REFUSED_VERSION, REFUSED_HOST, REFUSED_ORIGIN, REFUSED_TOKEN, REFUSED_CLIENTS, REFUSED_SCENE, N_REFUSED };
+static const char *const refused_names[N_REFUSED] = {"path", "version", "host", "origin", "token", "clients", "scene"};
 
 typedef struct wire {
     unsigned char *buf; /* LWS_PRE bytes of headroom, then the frame */
@@ -80,6 +91,44 @@ typedef struct delta_chan {
     wire key;
 } delta_chan;
 
+typedef struct event_slot {
+    char *text;
+    size_t len;
+} event_slot;
+
+/* One scene's channel: the sink its scene hands poses and events to. */
+typedef struct feed feed;
+struct feed {
+    stream *st;
+    const scene *sc;     /* not held (the scene holds its sink): only compared, and its id copied */
+    char id[SCENE_ID_MAX];
+    feed *next;          /* st->feeds, under feeds_lock */
+    atomic_int closed;   /* the scene left: no more poses or events */
+
+    /* frame handover (flock) */
+    pthread_mutex_t flock;
+    pose *latest, *spare[2];
+    uint64_t seq, taken;
+
+    /* events (elock) */
+    pthread_mutex_t elock;
+    event_slot *ring;     /* EVENT_RING; NULL once closed */
+    uint64_t event_seq;   /* of the next event; event k is ring[k % EVENT_RING] */
+    uint64_t event_first; /* of the oldest event still in the ring */
+    size_t ring_bytes;
+
+    atomic_int clients;
+    atomic_uint scalars_wanted;
+    atomic_int publish_asked; /* a "publish" command is on its way to the sim thread */
+    atomic_int publish_again; /* and someone asked again meanwhile (it may come too late for them) */
+
+    /* the service thread's own */
+    wire wires[N_ENC][SCALAR_KINDS];
+    delta_chan chans[DELTA_CHANNELS];
+    pose *current;     /* the newest frame taken over, kept to encode for a new subscription */
+    uint64_t current_seq;
+};
+
 /* What /metrics shows of one connected client: a slot per client (stream_max_clients of them),
  * written by the service thread, read by the metrics' thread. */
 typedef struct client_slot {
@@ -94,12 +143,14 @@ struct session {
     struct lws *wsi;
     uint64_t id;
     scene *sc;            /* the scene it streams: a held handle */
+    feed *f;              /* that scene's feed; NULL once the scene is deleted (it is closing) */
+    char want[SCENE_ID_MAX]; /* admit(): the scene it asked for */
     session *next;
     int encoding, scalar, max_fps;
     long long max_kbps;  /* 0: no limit */
     double next_send;    /* with max_kbps: no frame before this (clock_mono) */
     float quantum;       /* delta's grid */
-    int chan;            /* delta: its channel (st->chans), else -1 */
+    int chan;            /* delta: its channel (f->chans), else -1 */
     uint32_t key_have;   /* delta: the id of the last keyframe it was sent (0: none) */
     uint64_t last_frame; /* seq of the last frame sent */
     double last_send, behind_since;
@@ -113,6 +164,7 @@ struct session {
     int grab_in_flight;
     json_t *grab_pending; /* the newest grab or release asked while one was in flight */
     int dead;
+    int gone;             /* its scene was deleted: closed with 1001 at its next write */
     access_level access;  /* from the token it connected with */
     int established;      /* counted in clients (a refused connection is closed too, never counted) */
     client_slot *slot;    /* its /metrics slot (NULL when none was free) */
@@ -138,128 +190,139 @@ struct stream {
     int port;
     int max_clients, max_message;
     double stall_timeout;
+    size_t ring_cap;
     const access_policy *acc;
     atomic_int http_port;
 
-    /* frame handover */
-    pthread_mutex_t flock;
-    pose *latest, *spare[2];
-    uint64_t seq, taken;
-
-    /* events */
-    pthread_mutex_t elock;
-    char *ring[EVENT_RING];
-    size_t ring_len[EVENT_RING];
-    uint64_t event_seq;   /* of the next event; event k is ring[k % EVENT_RING] */
-    uint64_t event_first; /* of the oldest event still in the ring */
-    size_t ring_bytes, ring_cap;
+    /* the feeds, closed ones too (HTTP threads add, the service thread reads) */
+    pthread_mutex_t feeds_lock;
+    feed *feeds;
+    atomic_int to_reap; /* a feed was closed: the service thread closes its clients */
 
     /* answers to grabs */
     pthread_mutex_t glock;
     grab_req *answered;
 
     atomic_int clients;
-    atomic_uint scalars_wanted;
-    atomic_int publish_asked; /* a "publish" command is on its way to the sim thread */
-    atomic_int publish_again; /* and someone asked again meanwhile (it may come too late for them) */
 
     /* the service thread's own */
     session *sessions;
     uint64_t next_id;
-    wire wires[N_ENC][SCALAR_KINDS];
-    delta_chan chans[DELTA_CHANNELS];
     float default_quantum;
-    pose *current;     /* the newest frame taken over, kept to encode for a new subscription */
-    uint64_t current_seq;
 
     /* metrics */
     atomic_ullong encoded[N_ENC], sent[N_ENC], skipped[N_ENC], bytes_sent, stalled, refused[N_REFUSED];
-    atomic_ullong encode_ns[N_ENC];
-    client_slot *slots; /* max_clients */ /* time spent encoding (delta: each pose's positions section and its messages) */
+    atomic_ullong encode_ns[N_ENC]; /* time spent encoding (delta: each pose's positions section and its messages) */
+    atomic_ullong scene_closed;     /* clients closed because their scene was deleted */
+    client_slot *slots; /* max_clients */
 };
-
-
 
 /* ---- from the sim thread ---- */
 
-static pose *sink_begin(void *ctx, unsigned *scalars)
+static void pose_drop(pose *f)
 {
-    stream *st = ctx;
-    if (atomic_load(&st->clients) == 0) return NULL;
-    pthread_mutex_lock(&st->flock);
-    pose *f = NULL;
-    for (int k = 0; k < 2 && !f; k++) {
-        if (st->spare[k]) {
-            f = st->spare[k];
-            st->spare[k] = NULL;
-        }
-    }
-    pthread_mutex_unlock(&st->flock);
-    if (!f) f = calloc(1, sizeof *f);
-    *scalars = atomic_load(&st->scalars_wanted);
-    return f;
-}
-
-static void give_back(stream *st, pose *f)
-{
-    /* Caller holds flock. */
-    for (int k = 0; k < 2; k++) {
-        if (!st->spare[k]) {
-            st->spare[k] = f;
-            return;
-        }
-    }
+    if (!f) return;
     pose_free(f);
     free(f);
 }
 
+static pose *sink_begin(void *ctx, unsigned *scalars)
+{
+    feed *fd = ctx;
+    if (atomic_load(&fd->clients) == 0 || atomic_load(&fd->closed)) return NULL;
+    pthread_mutex_lock(&fd->flock);
+    pose *f = NULL;
+    for (int k = 0; k < 2 && !f; k++) {
+        if (fd->spare[k]) {
+            f = fd->spare[k];
+            fd->spare[k] = NULL;
+        }
+    }
+    pthread_mutex_unlock(&fd->flock);
+    if (!f) f = calloc(1, sizeof *f);
+    *scalars = atomic_load(&fd->scalars_wanted);
+    return f;
+}
+
+static void give_back(feed *fd, pose *f)
+{
+    /* Caller holds flock. */
+    for (int k = 0; k < 2 && !atomic_load(&fd->closed); k++) {
+        if (!fd->spare[k]) {
+            fd->spare[k] = f;
+            return;
+        }
+    }
+    pose_drop(f);
+}
+
 static void sink_publish(void *ctx, pose *f)
 {
-    stream *st = ctx;
-    pthread_mutex_lock(&st->flock);
-    if (atomic_load(&st->clients) == 0) {
+    feed *fd = ctx;
+    pthread_mutex_lock(&fd->flock);
+    if (atomic_load(&fd->clients) == 0 || atomic_load(&fd->closed)) {
         /* The last client left since begin: kept, this pose could be shown to the next one after
          * changes it does not hold (see forget_frames). */
-        give_back(st, f);
-        pthread_mutex_unlock(&st->flock);
+        give_back(fd, f);
+        pthread_mutex_unlock(&fd->flock);
         return;
     }
-    if (st->latest) give_back(st, st->latest);
-    st->latest = f;
-    st->seq++;
-    pthread_mutex_unlock(&st->flock);
-    lws_cancel_service(st->ctx);
+    if (fd->latest) give_back(fd, fd->latest);
+    fd->latest = f;
+    fd->seq++;
+    pthread_mutex_unlock(&fd->flock);
+    lws_cancel_service(fd->st->ctx);
 }
 
 static void sink_discard(void *ctx, pose *f)
 {
-    stream *st = ctx;
-    pthread_mutex_lock(&st->flock);
-    give_back(st, f);
-    pthread_mutex_unlock(&st->flock);
+    feed *fd = ctx;
+    pthread_mutex_lock(&fd->flock);
+    give_back(fd, f);
+    pthread_mutex_unlock(&fd->flock);
+}
+
+/* The event's text with its scene's id added ("scene_id"): malloc'd, NULL when it is no object. */
+static char *named_event(const feed *fd, const char *json)
+{
+    json_t *o = json_loads(json, 0, NULL);
+    if (!json_is_object(o)) {
+        json_decref(o);
+        return NULL;
+    }
+    json_object_set_new(o, "scene_id", json_string(fd->id));
+    char *text = json_dumps(o, JSON_DUMP_FLAGS);
+    json_decref(o);
+    return text;
 }
 
 static void sink_event(void *ctx, const char *json)
 {
-    stream *st = ctx;
-    const size_t len = strlen(json);
-    char *copy = strdup(json);
+    feed *fd = ctx;
+    if (atomic_load(&fd->closed)) return;
+    char *copy = named_event(fd, json);
     if (!copy) return;
-    pthread_mutex_lock(&st->elock);
-    /* Room for it: the oldest events go, within both caps (the newest is kept whatever its size). */
-    while (st->event_first < st->event_seq &&
-           (st->event_seq - st->event_first >= EVENT_RING || st->ring_bytes + len > st->ring_cap)) {
-        const size_t k = st->event_first++ % EVENT_RING;
-        st->ring_bytes -= st->ring_len[k];
-        free(st->ring[k]);
-        st->ring[k] = NULL;
+    const size_t len = strlen(copy);
+    pthread_mutex_lock(&fd->elock);
+    if (!fd->ring) { /* closed meanwhile */
+        pthread_mutex_unlock(&fd->elock);
+        free(copy);
+        return;
     }
-    const size_t k = st->event_seq++ % EVENT_RING;
-    st->ring[k] = copy;
-    st->ring_len[k] = len;
-    st->ring_bytes += len;
-    pthread_mutex_unlock(&st->elock);
-    lws_cancel_service(st->ctx);
+    /* Room for it: the oldest events go, within both caps (the newest is kept whatever its size). */
+    while (fd->event_first < fd->event_seq &&
+           (fd->event_seq - fd->event_first >= EVENT_RING || fd->ring_bytes + len > fd->st->ring_cap)) {
+        event_slot *e = &fd->ring[fd->event_first++ % EVENT_RING];
+        fd->ring_bytes -= e->len;
+        free(e->text);
+        e->text = NULL;
+    }
+    event_slot *e = &fd->ring[fd->event_seq++ % EVENT_RING];
+    e->text = copy;
+    e->len = len;
+    fd->ring_bytes += len;
+    pthread_mutex_unlock(&fd->elock);
+    lws_cancel_service(fd->st->ctx);
 }
 
 /* ---- messages to one client ---- */
@@ -277,32 +340,48 @@ static int send_text(struct lws *wsi, const char *text, stream *st)
     return 0;
 }
 
-/* Queues an error for the client; a client that lets 8 pile up is closed. */
-static void client_error(stream *st, session *s, const char *about, int status, const char *param, const char *fmt, ...)
-    __attribute__((format(printf, 6, 7)));
-static void client_error(stream *st, session *s, const char *about, int status, const char *param, const char *fmt, ...)
+/* Queues a text for the client; a client that lets MAX_TEXTS pile up is closed (with `close`)
+ * or the text is dropped. */
+static void queue_text(session *s, char *text, int close)
 {
-    (void)st;
-    char detail[256];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(detail, sizeof detail, fmt, ap);
-    va_end(ap);
-    char *text = stream_msg_error(about, status, param, detail);
     if (!text) return; /* out of memory: no message rather than a NULL in the queue */
     if (s->n_texts == MAX_TEXTS) {
         free(text);
-        s->dead = 1;
-        lws_set_timeout(s->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
+        if (close) {
+            s->dead = 1;
+            lws_set_timeout(s->wsi, PENDING_TIMEOUT_USER_OK, LWS_TO_KILL_ASYNC);
+        }
         return;
     }
     s->texts[s->n_texts++] = text;
     lws_callback_on_writable(s->wsi);
 }
 
-static char *hello_text(scene *sc, float quantum)
+/* Queues an error for the client; a client that lets 8 pile up is closed. */
+static void client_error(session *s, const char *about, int status, const char *param, const char *fmt, ...)
+    __attribute__((format(printf, 5, 6)));
+static void client_error(session *s, const char *about, int status, const char *param, const char *fmt, ...)
+{
+    char detail[256];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(detail, sizeof detail, fmt, ap);
+    va_end(ap);
+    queue_text(s, stream_msg_error(about, status, param, detail), 1);
+}
+
+/* The client's subscription as hello and the ack show it. */
+static json_t *subscription_json(const session *s)
+{
+    return json_pack("{s:s, s:s, s:i, s:s, s:o, s:o}", "scene", s->f ? s->f->id : "", "encoding",
+                     stream_encoding_names[s->encoding], "max_fps", s->max_fps, "scalar", stream_scalar_names[s->scalar],
+                     "quantum", json_float(s->quantum), "max_kbps", s->max_kbps ? json_integer(s->max_kbps) : json_null());
+}
+
+static char *hello_text(const session *s)
 {
     size_t len;
+    scene *sc = s->sc;
     char *scene = scene_doc_copy(sc, DOC_FIELDS, &len), *params = scene_doc_copy(sc, DOC_PARAMS, &len);
     char *sim = scene_doc_copy(sc, DOC_SIM, &len), *torn = scene_doc_copy(sc, DOC_TORN, &len);
     cs_rock *rocks;
@@ -310,13 +389,12 @@ static char *hello_text(scene *sc, float quantum)
     json_t *list = rocks_to_json(rocks, n);
     free(rocks);
     json_t *sj = sim ? json_loads(sim, 0, NULL) : NULL;
-    json_t *o = json_pack("{s:s, s:s, s:o, s:o, s:o, s:o, s:o, s:o, s:o}", "type", "hello", "protocol", PROTOCOL_NAME,
-                          "scene", scene ? json_loads(scene, 0, NULL) : json_null(), "params",
+    json_t *o = json_pack("{s:s, s:s, s:s, s:o, s:o, s:o, s:o, s:o, s:o, s:o}", "type", "hello", "protocol", PROTOCOL_NAME,
+                          "scene_id", s->f->id, "scene", scene ? json_loads(scene, 0, NULL) : json_null(), "params",
                           params ? json_loads(params, 0, NULL) : json_null(), "rocks", list, "torn",
                           torn ? json_loads(torn, 0, NULL) : json_array(), "state",
                           json_incref(json_object_get(sj, "state")), "step", json_incref(json_object_get(sj, "step")),
-                          "subscription", json_pack("{s:s, s:i, s:s, s:o, s:n}", "encoding", "f32", "max_fps", 60, "scalar", "none",
-                                                    "quantum", json_float(quantum), "max_kbps"));
+                          "subscription", subscription_json(s));
     json_decref(sj);
     free(scene);
     free(params);
@@ -342,11 +420,12 @@ static void answered_cb(scene_cmd *cmd, void *arg)
     lws_cancel_service(st->ctx);
 }
 
+/* A grab goes to the scene the client streams. */
 static void submit_grab(stream *st, session *s, json_t *body)
 {
     if (s->access < ACCESS_CONTROL) {
         const char *op = json_string_value(json_object_get(body, "op"));
-        client_error(st, s, op, 403, NULL, "%s needs the control token (this connection has the view token)", op);
+        client_error(s, op, 403, NULL, "%s needs the control token (this connection has the view token)", op);
         json_decref(body);
         return;
     }
@@ -372,43 +451,46 @@ static void submit_grab(stream *st, session *s, json_t *body)
     scene_submit(g->sc, &g->cmd);
 }
 
-static void request_frame(stream *st, scene *sc);
+static void request_frame(feed *fd, scene *sc);
 
-/* A publication asked for, with the scene it was asked of. */
+/* A publication asked for, with the scene it was asked of and its feed. */
 typedef struct publish_req {
     scene_cmd cmd;
     scene *sc; /* held while it is on its way */
+    feed *fd;
 } publish_req;
 
 static void published_cb(scene_cmd *cmd, void *arg)
 {
-    stream *st = arg;
+    (void)arg;
     publish_req *p = (publish_req *)cmd; /* cmd is the first member */
     scene *sc = p->sc;
+    feed *fd = p->fd;
     free(p);
-    atomic_store(&st->publish_asked, 0);
-    if (atomic_exchange(&st->publish_again, 0)) request_frame(st, sc);
+    atomic_store(&fd->publish_asked, 0);
+    if (atomic_exchange(&fd->publish_again, 0)) request_frame(fd, sc);
     scene_release(sc);
 }
 
 /* Asks the sim thread to publish a scene now (a paused scene publishes only after commands).
- * One request at a time: asks that come while one is on its way make one more after it, however
- * many they are. */
-static void request_frame(stream *st, scene *sc)
+ * One request at a time per feed: asks that come while one is on its way make one more after it,
+ * however many they are. */
+static void request_frame(feed *fd, scene *sc)
 {
-    if (atomic_exchange(&st->publish_asked, 1)) {
-        atomic_store(&st->publish_again, 1);
+    if (atomic_exchange(&fd->publish_asked, 1)) {
+        atomic_store(&fd->publish_again, 1);
         return;
     }
     publish_req *p = calloc(1, sizeof *p);
     if (!p) {
-        atomic_store(&st->publish_asked, 0);
+        atomic_store(&fd->publish_asked, 0);
         return;
     }
     p->sc = scene_hold(sc);
+    p->fd = fd;
     p->cmd.def = command_find("publish");
     p->cmd.done = published_cb;
-    p->cmd.done_arg = st;
+    p->cmd.done_arg = fd->st;
     scene_submit(p->sc, &p->cmd);
 }
 
@@ -432,12 +514,13 @@ static void take_answers(stream *st)
         if (s) {
             s->grab_in_flight = 0;
             if (g->cmd.failed)
-                client_error(st, s, json_string_value(json_object_get(g->body, "op")), g->cmd.pr.status,
+                client_error(s, json_string_value(json_object_get(g->body, "op")), g->cmd.pr.status,
                              g->cmd.pr.param[0] ? g->cmd.pr.param : NULL, "%s", g->cmd.pr.detail);
             if (s->grab_pending) {
                 json_t *next = s->grab_pending;
                 s->grab_pending = NULL;
-                submit_grab(st, s, next);
+                if (s->f) submit_grab(st, s, next);
+                else json_decref(next);
             }
         }
         json_decref(g->body);
@@ -448,13 +531,23 @@ static void take_answers(stream *st)
     }
 }
 
-/* ---- client messages ---- */
+/* ---- feeds ---- */
+
+/* The open feed of a scene, or NULL. */
+static feed *feed_of(stream *st, const scene *sc)
+{
+    pthread_mutex_lock(&st->feeds_lock);
+    feed *fd = st->feeds;
+    while (fd && (fd->sc != sc || atomic_load(&fd->closed))) fd = fd->next;
+    pthread_mutex_unlock(&st->feeds_lock);
+    return fd;
+}
 
 /* A session leaves its delta channel; the last to leave frees it. */
-static void leave_chan(stream *st, session *s)
+static void leave_chan(feed *fd, session *s)
 {
     if (s->chan < 0) return;
-    delta_chan *ch = &st->chans[s->chan];
+    delta_chan *ch = &fd->chans[s->chan];
     s->chan = -1;
     if (--ch->users > 0) return;
     delta_free(&ch->enc);
@@ -464,44 +557,195 @@ static void leave_chan(stream *st, session *s)
     memset(ch, 0, sizeof *ch);
 }
 
-/* The channel of quantum q: the one in use, else a free one (initialised); -1 when all are taken
- * by other quanta (or out of memory). */
-static int find_chan(stream *st, float q)
+/* The last client of a feed has left: it forgets its frames. With nobody listening the sim
+ * thread makes none (begin answers NULL), so a pose kept from now on could miss any change that
+ * follows (a new scene, a reset, a rock while paused); the next client to join would get that
+ * stale pose before the one its join asks for. Without one, a joiner waits for the pose its join
+ * asks for. */
+static void forget_frames(feed *fd)
+{
+    pthread_mutex_lock(&fd->flock);
+    if (fd->latest) give_back(fd, fd->latest);
+    if (fd->current) give_back(fd, fd->current);
+    fd->latest = fd->current = NULL;
+    fd->taken = fd->seq;
+    pthread_mutex_unlock(&fd->flock);
+    for (int e = 0; e < N_ENC; e++)
+        for (int k = 0; k < SCALAR_KINDS; k++) fd->wires[e][k].len = 0, fd->wires[e][k].seq = 0;
+    for (int c = 0; c < DELTA_CHANNELS; c++) {
+        delta_chan *ch = &fd->chans[c];
+        ch->seq = ch->key.seq = 0;
+        ch->key.len = 0;
+        for (int k = 0; k < SCALAR_KINDS; k++) ch->wires[k].len = 0, ch->wires[k].seq = 0;
+    }
+}
+
+/* The scalars the clients of a feed want, for the sim thread. */
+static void update_scalars(stream *st, feed *fd)
+{
+    unsigned want = 0;
+    for (session *o = st->sessions; o; o = o->next)
+        if (o->f == fd && o->scalar) want |= 1u << o->scalar;
+    atomic_store(&fd->scalars_wanted, want);
+}
+
+/* A session starts streaming a feed (sc: its scene, a handle the session takes over): from its
+ * events on, with a hello that shows the scene as it is. */
+static void join_feed(stream *st, session *s, feed *fd, scene *sc)
+{
+    s->f = fd;
+    s->sc = sc;
+    s->last_frame = 0;
+    s->key_have = 0;
+    pthread_mutex_lock(&fd->elock);
+    s->next_event = fd->event_seq; /* events from here on; hello shows the state before */
+    pthread_mutex_unlock(&fd->elock);
+    free(s->hello);
+    s->hello = hello_text(s);
+    update_scalars(st, fd);
+    if (atomic_fetch_add(&fd->clients, 1) == 0 || !fd->current) request_frame(fd, sc);
+    lws_callback_on_writable(s->wsi);
+}
+
+/* A session stops streaming its feed (its delta channel left already); its scene's handle is
+ * the caller's to release. */
+static void leave_feed(stream *st, session *s)
+{
+    feed *fd = s->f;
+    if (!fd) return;
+    leave_chan(fd, s);
+    s->f = NULL;
+    if (atomic_fetch_sub(&fd->clients, 1) == 1) forget_frames(fd);
+    update_scalars(st, fd);
+}
+
+/* Frees what a closed feed's service side holds (no session streams it any more). */
+static void feed_free_buffers(feed *fd)
+{
+    for (int e = 0; e < N_ENC; e++)
+        for (int k = 0; k < SCALAR_KINDS; k++) {
+            free(fd->wires[e][k].buf);
+            memset(&fd->wires[e][k], 0, sizeof fd->wires[e][k]);
+        }
+    for (int c = 0; c < DELTA_CHANNELS; c++) {
+        fd->chans[c].users = 1;
+        session none = {.chan = c};
+        leave_chan(fd, &none);
+    }
+    pthread_mutex_lock(&fd->flock);
+    pose *frames[4] = {fd->latest, fd->spare[0], fd->spare[1], fd->current};
+    fd->latest = fd->spare[0] = fd->spare[1] = fd->current = NULL;
+    pthread_mutex_unlock(&fd->flock);
+    for (int k = 0; k < 4; k++) pose_drop(frames[k]);
+    pthread_mutex_lock(&fd->elock);
+    event_slot *ring = fd->ring;
+    fd->ring = NULL;
+    pthread_mutex_unlock(&fd->elock);
+    for (int k = 0; ring && k < EVENT_RING; k++) free(ring[k].text);
+    free(ring);
+}
+
+static void feed_free(feed *fd)
+{
+    feed_free_buffers(fd);
+    pthread_mutex_destroy(&fd->flock);
+    pthread_mutex_destroy(&fd->elock);
+    free(fd);
+}
+
+/* The service thread closes the clients of the feeds closed since it last looked (1001, "scene
+ * deleted", at their next write) and frees those feeds. */
+static void reap_feeds(stream *st)
+{
+    if (!atomic_exchange(&st->to_reap, 0)) return;
+    pthread_mutex_lock(&st->feeds_lock);
+    for (feed **p = &st->feeds; *p;) {
+        feed *fd = *p;
+        if (!atomic_load(&fd->closed)) {
+            p = &fd->next;
+            continue;
+        }
+        for (session *s = st->sessions; s; s = s->next) {
+            if (s->f != fd) continue;
+            leave_feed(st, s);
+            s->gone = 1;
+            atomic_fetch_add(&st->scene_closed, 1);
+            lws_callback_on_writable(s->wsi);
+        }
+        *p = fd->next;
+        feed_free(fd);
+    }
+    pthread_mutex_unlock(&st->feeds_lock);
+}
+
+/* ---- client messages ---- */
+
+/* The channel of quantum q in a feed: the one in use, else a free one (initialised); -1 when all
+ * are taken by other quanta (or out of memory). */
+static int find_chan(feed *fd, float q)
 {
     int free_one = -1;
     for (int c = 0; c < DELTA_CHANNELS; c++) {
-        if (st->chans[c].users > 0 && st->chans[c].quantum == q) return c;
-        if (st->chans[c].users == 0 && free_one < 0) free_one = c;
+        if (fd->chans[c].users > 0 && fd->chans[c].quantum == q) return c;
+        if (fd->chans[c].users == 0 && free_one < 0) free_one = c;
     }
-    if (free_one < 0 || delta_init(&st->chans[free_one].enc, (double)q) != 0) return -1;
-    st->chans[free_one].quantum = q;
+    if (free_one < 0 || delta_init(&fd->chans[free_one].enc, (double)q) != 0) return -1;
+    fd->chans[free_one].quantum = q;
     return free_one;
+}
+
+/* The feed a subscribe names (a held handle on its scene in *sc), or the session's own (*sc
+ * NULL); NULL after an error to the client when the daemon has no such scene. */
+static feed *subscribe_target(stream *st, session *s, const stream_msg *m, scene **sc)
+{
+    *sc = NULL;
+    if (!m->scene[0] || strcmp(m->scene, s->f->id) == 0) return s->f;
+    scene *to = scenes_get(st->table, m->scene);
+    feed *fd = to ? feed_of(st, to) : NULL;
+    if (!fd) {
+        scene_release(to);
+        client_error(s, "subscribe", 404, "scene", "this clothd has no scene '%s' (GET /v1/scenes lists them)", m->scene);
+        return NULL;
+    }
+    *sc = to;
+    return fd;
 }
 
 static void handle_subscribe(stream *st, session *s, const stream_msg *m)
 {
+    scene *to_sc;
+    feed *to = subscribe_target(st, s, m, &to_sc);
+    if (!to) return; /* the subscription stays as it was */
     const int enc = m->encoding >= 0 ? m->encoding : s->encoding, sc = m->scalar >= 0 ? m->scalar : s->scalar;
     const int fps = m->max_fps >= 0 ? m->max_fps : s->max_fps;
     const long long kbps = m->max_kbps >= 0 ? m->max_kbps : s->max_kbps;
     const float q = m->quantum >= 0 ? (float)m->quantum : s->quantum;
-    if (enc == CLF_DELTA && (s->chan < 0 || st->chans[s->chan].quantum != q)) {
-        int c = find_chan(st, q);
-        if (c < 0 && s->chan >= 0 && st->chans[s->chan].users == 1) {
-            leave_chan(st, s); /* its own channel alone: it takes the new quantum */
-            c = find_chan(st, q);
+    const int switching = to != s->f;
+    const int new_chan = enc == CLF_DELTA && (switching || s->chan < 0 || s->f->chans[s->chan].quantum != q);
+    int c = s->chan;
+    if (new_chan) {
+        c = find_chan(to, q);
+        if (c < 0 && !switching && s->chan >= 0 && to->chans[s->chan].users == 1) {
+            leave_chan(to, s); /* its own channel alone: it takes the new quantum */
+            c = find_chan(to, q);
         }
         if (c < 0) {
-            client_error(st, s, "subscribe", 422, "quantum",
-                         "at most %d different quanta are in use at once, by all clients together; subscribe with "
-                         "one of theirs (or without one, for the default %g)", DELTA_CHANNELS, (double)st->default_quantum);
+            scene_release(to_sc);
+            client_error(s, "subscribe", 422, "quantum",
+                         "at most %d different quanta are in use at once in a scene, by all its clients together; "
+                         "subscribe with one of theirs (or without one, for the default %g)", DELTA_CHANNELS,
+                         (double)st->default_quantum);
             return; /* the subscription stays as it was */
         }
-        st->chans[c].users++;
-        leave_chan(st, s);
-        s->chan = c;
-    } else if (enc != CLF_DELTA) {
-        leave_chan(st, s);
+        to->chans[c].users++;
     }
+    if (new_chan || enc != CLF_DELTA) leave_chan(s->f, s);
+    if (switching) {
+        leave_feed(st, s);
+        scene_release(s->sc);
+        s->sc = NULL;
+    }
+    s->chan = new_chan ? c : s->chan;
     s->quantum = q;
     s->key_have = 0; /* a delta subscriber gets the keyframe first */
     s->encoding = enc;
@@ -509,26 +753,21 @@ static void handle_subscribe(stream *st, session *s, const stream_msg *m)
     s->max_fps = fps;
     s->max_kbps = kbps;
     s->next_send = 0;
-    unsigned want = 0;
-    for (session *o = st->sessions; o; o = o->next)
-        if (o->scalar) want |= 1u << o->scalar;
-    atomic_store(&st->scalars_wanted, want);
     s->last_frame = 0; /* the next frame in the new encoding at once */
-    if (sc != SCALAR_NONE && (!st->current || !st->current->has[sc])) request_frame(st, s->sc); /* poses lack it */
-    json_t *ack = json_pack("{s:s, s:s, s:i, s:s, s:o, s:o}", "type", "subscribed", "encoding", stream_encoding_names[enc],
-                            "max_fps", fps, "scalar", stream_scalar_names[sc], "quantum", json_float(q), "max_kbps",
-                            kbps ? json_integer(kbps) : json_null());
-    char *text = json_dumps(ack, JSON_DUMP_FLAGS);
+    if (switching) join_feed(st, s, to, to_sc); /* a hello of the new scene, then the ack */
+    else update_scalars(st, to);
+    if (sc != SCALAR_NONE && (!to->current || !to->current->has[sc])) request_frame(to, s->sc); /* poses lack it */
+    json_t *ack = subscription_json(s);
+    json_object_set_new(ack, "type", json_string("subscribed"));
+    queue_text(s, json_dumps(ack, JSON_DUMP_FLAGS), 0); /* the same queue, in order */
     json_decref(ack);
-    if (text && s->n_texts < MAX_TEXTS) s->texts[s->n_texts++] = text; /* the same queue, in order */
-    else free(text);
-    lws_callback_on_writable(s->wsi);
 }
 
 static void handle_message(stream *st, session *s)
 {
+    if (!s->f) return; /* its scene was deleted: it is closing */
     if (s->rx_bad) {
-        client_error(st, s, "message", s->rx_bad == 1 ? 413 : 400, NULL,
+        client_error(s, "message", s->rx_bad == 1 ? 413 : 400, NULL,
                      s->rx_bad == 1 ? "a message may hold at most %d bytes" : "binary messages are not understood (%d)",
                      st->max_message);
         return;
@@ -536,15 +775,15 @@ static void handle_message(stream *st, session *s)
     stream_msg m;
     switch (stream_msg_parse(s->rx, s->rx_len, &m)) {
     case STREAM_MSG_REFUSED:
-        client_error(st, s, m.about, m.pr.status, m.has_param ? m.pr.param : NULL, "%s", m.pr.detail);
+        client_error(s, m.about, m.pr.status, m.has_param ? m.pr.param : NULL, "%s", m.pr.detail);
         break;
     case STREAM_MSG_SUBSCRIBE: handle_subscribe(st, s, &m); break;
     case STREAM_MSG_KEYFRAME:
         if (s->chan < 0) {
-            client_error(st, s, "keyframe", 422, NULL, "keyframes are for delta clients: subscribe with \"encoding\": \"delta\" first");
+            client_error(s, "keyframe", 422, NULL, "keyframes are for delta clients: subscribe with \"encoding\": \"delta\" first");
             break;
         }
-        delta_want_key(&st->chans[s->chan].enc); /* the encoder keeps them at most 4 a second */
+        delta_want_key(&s->f->chans[s->chan].enc); /* the encoder keeps them at most 4 a second */
         break;
     case STREAM_MSG_COMMAND:
         submit_grab(st, s, m.cmd);
@@ -556,13 +795,13 @@ static void handle_message(stream *st, session *s)
 
 /* ---- frames ---- */
 
-/* Makes sure the wire frame of (encoding, scalar) holds the current frame: encoded once per
- * frame, whoever asks first. */
-static const wire *wire_for(stream *st, int e, int k)
+/* Makes sure the wire frame of (encoding, scalar) holds the feed's current frame: encoded once
+ * per frame, whoever asks first. */
+static const wire *wire_for(stream *st, feed *fd, int e, int k)
 {
-    wire *w = &st->wires[e][k];
-    pose *f = st->current;
-    if (!f || w->seq == st->current_seq || f->n == 0) return w;
+    wire *w = &fd->wires[e][k];
+    pose *f = fd->current;
+    if (!f || w->seq == fd->current_seq || f->n == 0) return w;
     const size_t need = LWS_PRE + wire_bound(f, e, k);
     if (need > w->cap) {
         unsigned char *b = realloc(w->buf, need);
@@ -572,7 +811,7 @@ static const wire *wire_for(stream *st, int e, int k)
     }
     const double t0 = clock_mono();
     w->len = wire_encode(f, e, k, w->buf + LWS_PRE);
-    w->seq = st->current_seq;
+    w->seq = fd->current_seq;
     atomic_fetch_add(&st->encoded[e], 1);
     atomic_fetch_add(&st->encode_ns[e], (unsigned long long)((clock_mono() - t0) * 1e9));
     return w;
@@ -590,15 +829,15 @@ static int wire_room(wire *w, size_t need)
     return 0;
 }
 
-/* The delta channel's message of scalar k for the current pose: its positions section encoded
- * once per pose (a keyframe or a delta, as the encoder decides), then wrapped per scalar. */
-static const wire *delta_wire(stream *st, delta_chan *ch, int k)
+/* The delta channel's message of scalar k for the feed's current pose: its positions section
+ * encoded once per pose (a keyframe or a delta, as the encoder decides), then wrapped per scalar. */
+static const wire *delta_wire(stream *st, feed *fd, delta_chan *ch, int k)
 {
     wire *w = &ch->wires[k];
-    pose *f = st->current;
-    if (!f || w->seq == st->current_seq || f->n == 0) return w;
+    pose *f = fd->current;
+    if (!f || w->seq == fd->current_seq || f->n == 0) return w;
     const double t0 = clock_mono();
-    if (ch->seq != st->current_seq) {
+    if (ch->seq != fd->current_seq) {
         int key = 0;
         const size_t cap = delta_bound(f->n);
         if (cap > ch->section_cap) {
@@ -610,17 +849,17 @@ static const wire *delta_wire(stream *st, delta_chan *ch, int k)
         const size_t len = delta_encode(&ch->enc, f->xyz, f->n, f->nx > 0 ? f->nx : f->n, f->frame, f->wall_ns, ch->section, &key);
         if (!len) return w;
         ch->section_len = len;
-        ch->seq = st->current_seq;
+        ch->seq = fd->current_seq;
         atomic_fetch_add(&st->encoded[CLF_DELTA], 1);
         if (key && wire_room(&ch->key, wire_bound(f, CLF_DELTA, SCALAR_NONE)) == 0) {
             ch->key.len = wire_encode_delta(f, SCALAR_NONE, ch->section, len, ch->key.buf + LWS_PRE);
-            ch->key.seq = st->current_seq;
+            ch->key.seq = fd->current_seq;
             ch->key.key_id = ch->enc.key_id;
         }
     }
     if (wire_room(w, wire_bound(f, CLF_DELTA, k)) != 0) return w;
     w->len = wire_encode_delta(f, k, ch->section, ch->section_len, w->buf + LWS_PRE);
-    w->seq = st->current_seq;
+    w->seq = fd->current_seq;
     w->key_id = ch->enc.key_id;
     atomic_fetch_add(&st->encode_ns[CLF_DELTA], (unsigned long long)((clock_mono() - t0) * 1e9));
     return w;
@@ -629,56 +868,40 @@ static const wire *delta_wire(stream *st, delta_chan *ch, int k)
 /* The message a session is due (encoded when it is not yet). */
 static const wire *wire_of(stream *st, session *s)
 {
-    if (s->encoding == CLF_DELTA && s->chan >= 0) return delta_wire(st, &st->chans[s->chan], s->scalar);
-    return wire_for(st, s->encoding, s->scalar);
+    if (s->encoding == CLF_DELTA && s->chan >= 0) return delta_wire(st, s->f, &s->f->chans[s->chan], s->scalar);
+    return wire_for(st, s->f, s->encoding, s->scalar);
 }
 
 /* ... without encoding it. */
-static const wire *wire_now(stream *st, const session *s)
+static const wire *wire_now(const session *s)
 {
-    if (s->encoding == CLF_DELTA && s->chan >= 0) return &st->chans[s->chan].wires[s->scalar];
-    return &st->wires[s->encoding][s->scalar];
+    if (s->encoding == CLF_DELTA && s->chan >= 0) return &s->f->chans[s->chan].wires[s->scalar];
+    return &s->f->wires[s->encoding][s->scalar];
 }
 
-/* Takes over the newest raw frame the sim thread published, and encodes it for every encoding
- * and scalar some client uses. */
+/* Takes over the newest raw frame each feed's scene published, and encodes it for every encoding
+ * and scalar some client of it uses. */
 static void take_newest(stream *st)
 {
-    pthread_mutex_lock(&st->flock);
-    pose *f = NULL;
-    if (st->latest && st->seq != st->taken) {
-        f = st->latest;
-        st->latest = NULL;
-        st->taken = st->seq;
-        if (st->current) give_back(st, st->current);
-        st->current = f;
-        st->current_seq = st->seq;
+    int any = 0;
+    pthread_mutex_lock(&st->feeds_lock);
+    for (feed *fd = st->feeds; fd; fd = fd->next) {
+        pthread_mutex_lock(&fd->flock);
+        if (fd->latest && fd->seq != fd->taken) {
+            pose *f = fd->latest;
+            fd->latest = NULL;
+            fd->taken = fd->seq;
+            if (fd->current) give_back(fd, fd->current);
+            fd->current = f;
+            fd->current_seq = fd->seq;
+            any = 1;
+        }
+        pthread_mutex_unlock(&fd->flock);
     }
-    pthread_mutex_unlock(&st->flock);
-    if (!f) return;
-    for (session *s = st->sessions; s; s = s->next) wire_of(st, s);
-}
-
-/* The last client has left: the stream forgets its frames. With nobody listening the sim thread
- * makes none (begin answers NULL), so a pose kept from now on could miss any change that follows
- * (a new scene, a reset, a rock while paused); the next client to join would get that stale pose
- * before the one its join asks for. Without one, a joiner waits for the pose its join asks for. */
-static void forget_frames(stream *st)
-{
-    pthread_mutex_lock(&st->flock);
-    if (st->latest) give_back(st, st->latest);
-    if (st->current) give_back(st, st->current);
-    st->latest = st->current = NULL;
-    st->taken = st->seq;
-    pthread_mutex_unlock(&st->flock);
-    for (int e = 0; e < N_ENC; e++)
-        for (int k = 0; k < SCALAR_KINDS; k++) st->wires[e][k].len = 0, st->wires[e][k].seq = 0;
-    for (int c = 0; c < DELTA_CHANNELS; c++) {
-        delta_chan *ch = &st->chans[c];
-        ch->seq = ch->key.seq = 0;
-        ch->key.len = 0;
-        for (int k = 0; k < SCALAR_KINDS; k++) ch->wires[k].len = 0, ch->wires[k].seq = 0;
-    }
+    pthread_mutex_unlock(&st->feeds_lock);
+    if (!any) return;
+    for (session *s = st->sessions; s; s = s->next)
+        if (s->f) wire_of(st, s);
 }
 
 /* Stalled clients (their newest frame waiting too long) are closed. */
@@ -686,6 +909,7 @@ static void sweep(stream *st)
 {
     const double t = clock_mono();
     for (session *s = st->sessions; s; s = s->next) {
+        if (!s->f) continue;
         if (s->slot && t - s->fps_at >= 1.0) { /* the achieved frame rate, about once a second */
             const uint64_t frames = atomic_load(&s->slot->frames);
             atomic_store(&s->slot->fps_milli, (unsigned)((double)(frames - s->fps_frames) / (t - s->fps_at) * 1000.0));
@@ -693,7 +917,7 @@ static void sweep(stream *st)
             s->fps_frames = frames;
             s->fps_at = t;
         }
-        const wire *w = wire_now(st, s);
+        const wire *w = wire_now(s);
         if (s->dead || w->seq <= s->last_frame || t < s->next_send) { /* up to date, or waiting on its own budget */
             s->behind_since = 0;
             continue;
@@ -717,10 +941,15 @@ static void spend(session *s, size_t len, double t)
 }
 
 /* One message to a client that can take it: hello, errors and acks, events, then the newest
- * frame (when its rate allows). */
+ * frame (when its rate allows). A client whose scene was deleted is closed instead. */
 static int writeable(stream *st, session *s)
 {
     if (s->dead) return -1;
+    if (s->gone) {
+        lws_close_reason(s->wsi, LWS_CLOSE_STATUS_GOINGAWAY, (unsigned char *)CLOSE_SCENE_DELETED, strlen(CLOSE_SCENE_DELETED));
+        return -1;
+    }
+    if (!s->f) return 0;
     if (lws_send_pipe_choked(s->wsi)) {
         lws_callback_on_writable(s->wsi);
         return 0;
@@ -739,21 +968,22 @@ static int writeable(stream *st, session *s)
         lws_callback_on_writable(s->wsi);
         return rc;
     }
-    pthread_mutex_lock(&st->elock);
+    feed *fd = s->f;
+    pthread_mutex_lock(&fd->elock);
     char *event = NULL;
-    if (s->next_event < st->event_seq) {
-        if (s->next_event < st->event_first) {
-            const unsigned long long behind = (unsigned long long)(st->event_seq - s->next_event);
-            pthread_mutex_unlock(&st->elock);
+    if (fd->ring && s->next_event < fd->event_seq) {
+        if (s->next_event < fd->event_first) {
+            const unsigned long long behind = (unsigned long long)(fd->event_seq - s->next_event);
+            pthread_mutex_unlock(&fd->elock);
             log_msg("stream: client %llu fell %llu events behind, past what the event ring keeps: disconnected",
                     (unsigned long long)s->id, behind);
             atomic_fetch_add(&st->stalled, 1);
             return -1;
         }
-        event = strdup(st->ring[s->next_event % EVENT_RING]);
+        event = strdup(fd->ring[s->next_event % EVENT_RING].text);
         s->next_event++;
     }
-    pthread_mutex_unlock(&st->elock);
+    pthread_mutex_unlock(&fd->elock);
     if (event) {
         const int rc = send_text(s->wsi, event, st);
         free(event);
@@ -771,7 +1001,7 @@ static int writeable(stream *st, session *s)
         }
         if (s->chan >= 0 && s->encoding == CLF_DELTA && w->key_id != s->key_have) {
             /* It lacks the keyframe this frame refers to: that first (unless this is it). */
-            const wire *key = &st->chans[s->chan].key;
+            const wire *key = &fd->chans[s->chan].key;
             if (key->len && key->key_id == w->key_id && key->seq != w->seq) {
                 const int n = lws_write(s->wsi, key->buf + LWS_PRE, key->len, LWS_WRITE_BINARY);
                 if (n < (int)key->len) return -1;
@@ -877,7 +1107,7 @@ static void refuse(stream *st, struct lws *wsi, int why, int status, const char 
 }
 
 /* Before the upgrade completes: the path, the version (RFC 6455's 13 only), Host and the page's
- * Origin, the token, the client limit. A refused request gets its status and a problem+json
+ * Origin, the token, the scene (?scene=), the client limit. A refused request gets its status and a problem+json
  * body, then libwebsockets closes the connection. (A subprotocol list without clothd.v1 is
  * refused by libwebsockets itself, before this, by closing the connection.) */
 static int admit(stream *st, struct lws *wsi, session *s)
@@ -916,6 +1146,23 @@ static int admit(stream *st, struct lws *wsi, session *s)
                "this stream needs the control or view token: a 'bearer.<token>' subprotocol or ?token=<token>");
         return 0;
     }
+    /* The scene: ?scene=ID, "default" without one. */
+    char want[SCENE_ID_MAX + 8];
+    const char *id = lws_get_urlarg_by_name(wsi, "scene=", want, sizeof want);
+    if (!id) id = SCENE_DEFAULT;
+    if (!scene_id_valid(id)) {
+        refuse(st, wsi, REFUSED_SCENE, 400, "bad-scene-id", NULL,
+               "a scene id is 1 to 63 of a-z, 0-9, _ and -, starting with a letter or digit (got '%.80s')", id);
+        return 0;
+    }
+    scene *sc = scenes_get(st->table, id);
+    const feed *fd = sc ? feed_of(st, sc) : NULL;
+    scene_release(sc);
+    if (!fd) {
+        refuse(st, wsi, REFUSED_SCENE, 404, "not-found", NULL, "this clothd has no scene '%s' (GET /v1/scenes lists them)", id);
+        return 0;
+    }
+    snprintf(s->want, sizeof s->want, "%s", id);
     if (atomic_load(&st->clients) >= st->max_clients) {
         refuse(st, wsi, REFUSED_CLIENTS, 503, "too-many-clients", NULL,
                "the stream has stream_max_clients (%d) clients already", st->max_clients);
@@ -933,10 +1180,16 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         return admit(st, wsi, s) ? 0 : -1;
     case LWS_CALLBACK_ESTABLISHED: {
         const access_level granted = s->access; /* set by admit() in this same allocation */
+        char want[SCENE_ID_MAX];
+        memcpy(want, s->want, sizeof want);
         memset(s, 0, sizeof *s);
         s->access = granted;
-        s->sc = scenes_get(st->table, SCENE_DEFAULT);
-        if (!s->sc) return -1; /* no scene to stream (never so today: "default" is never deleted) */
+        scene *sc = scenes_get(st->table, want);
+        feed *fd = sc ? feed_of(st, sc) : NULL;
+        if (!fd) { /* deleted since admit() */
+            scene_release(sc);
+            return -1;
+        }
         s->established = 1;
         s->wsi = wsi;
         s->id = ++st->next_id;
@@ -956,14 +1209,10 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
                 atomic_store(&s->slot->id, s->id);
             }
         }
-        pthread_mutex_lock(&st->elock);
-        s->next_event = st->event_seq; /* events from here on; hello shows the state before */
-        pthread_mutex_unlock(&st->elock);
-        s->hello = hello_text(s->sc, st->default_quantum);
         s->next = st->sessions;
         st->sessions = s;
-        if (atomic_fetch_add(&st->clients, 1) == 0 || !st->current) request_frame(st, s->sc);
-        lws_callback_on_writable(wsi);
+        atomic_fetch_add(&st->clients, 1);
+        join_feed(st, s, fd, sc);
         return 0;
     }
     case LWS_CALLBACK_CLOSED:
@@ -975,10 +1224,10 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
                 break;
             }
         }
-        leave_chan(st, s);
+        leave_feed(st, s);
         if (s->slot) atomic_store(&s->slot->id, 0);
         s->slot = NULL;
-        if (atomic_fetch_sub(&st->clients, 1) == 1) forget_frames(st);
+        atomic_fetch_sub(&st->clients, 1);
         free(s->hello);
         for (int k = 0; k < s->n_texts; k++) free(s->texts[k]);
         free(s->rx);
@@ -1009,6 +1258,7 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
     case LWS_CALLBACK_TIMER: lws_callback_on_writable(wsi); return 0;
     case LWS_CALLBACK_EVENT_WAIT_CANCELLED:
         take_answers(st);
+        reap_feeds(st);
         take_newest(st);
         sweep(st);
         lws_callback_on_writable_all_protocol(lws_get_context(wsi), st->protocol);
@@ -1066,8 +1316,7 @@ stream *stream_start(const clothd_settings *set, scenes *table, const access_pol
     st->stall_timeout = set->stream_stall_timeout;
     st->default_quantum = set->stream_delta_quantum;
     st->ring_cap = (size_t)set->stream_events_mb << 20;
-    pthread_mutex_init(&st->flock, NULL);
-    pthread_mutex_init(&st->elock, NULL);
+    pthread_mutex_init(&st->feeds_lock, NULL);
     pthread_mutex_init(&st->glock, NULL);
     lws_set_log_level(LLL_ERR | LLL_WARN, lws_log);
     struct lws_context_creation_info info;
@@ -1111,23 +1360,11 @@ void stream_stop(stream *st)
     pthread_join(st->thread, NULL);
     lws_context_destroy(st->ctx);
     take_answers(st);
-    for (int e = 0; e < N_ENC; e++)
-        for (int k = 0; k < SCALAR_KINDS; k++) free(st->wires[e][k].buf);
-    for (int c = 0; c < DELTA_CHANNELS; c++) {
-        st->chans[c].users = 1;
-        session none = {.chan = c};
-        leave_chan(st, &none);
+    for (feed *fd = st->feeds, *next; fd; fd = next) {
+        next = fd->next;
+        feed_free(fd);
     }
-    pose *frames[4] = {st->latest, st->spare[0], st->spare[1], st->current};
-    for (int k = 0; k < 4; k++) {
-        if (frames[k]) {
-            pose_free(frames[k]);
-            free(frames[k]);
-        }
-    }
-    for (int k = 0; k < EVENT_RING; k++) free(st->ring[k]);
-    pthread_mutex_destroy(&st->flock);
-    pthread_mutex_destroy(&st->elock);
+    pthread_mutex_destroy(&st->feeds_lock);
     pthread_mutex_destroy(&st->glock);
     free(st->slots);
     free(st);
@@ -1192,6 +1429,15 @@ char *stream_metrics(stream *st)
             fprintf(f, "clothd_stream_client_fps{client=\"%llu\",encoding=\"%s\"} %.3f\n", id,
                     stream_encoding_names[e >= 0 && e < N_ENC ? e : 0], atomic_load(&st->slots[k].fps_milli) / 1000.0);
     }
+    fprintf(f, "# HELP clothd_stream_scene_clients WebSocket clients streaming each scene (at most max_scenes series).\n"
+               "# TYPE clothd_stream_scene_clients gauge\n");
+    pthread_mutex_lock(&st->feeds_lock);
+    for (const feed *fd = st->feeds; fd; fd = fd->next)
+        if (!atomic_load(&fd->closed)) fprintf(f, "clothd_stream_scene_clients{scene=\"%s\"} %d\n", fd->id, atomic_load(&fd->clients));
+    pthread_mutex_unlock(&st->feeds_lock);
+    fprintf(f, "# HELP clothd_stream_scene_closed_total Clients closed because the scene they streamed was deleted.\n"
+               "# TYPE clothd_stream_scene_closed_total counter\nclothd_stream_scene_closed_total %llu\n",
+            (unsigned long long)atomic_load(&st->scene_closed));
     fprintf(f, "# HELP clothd_stream_bytes_sent_total Bytes written to stream clients.\n"
                "# TYPE clothd_stream_bytes_sent_total counter\nclothd_stream_bytes_sent_total %llu\n",
             (unsigned long long)atomic_load(&st->bytes_sent));
@@ -1199,7 +1445,7 @@ char *stream_metrics(stream *st)
                "# TYPE clothd_stream_disconnected_total counter\nclothd_stream_disconnected_total %llu\n",
             (unsigned long long)atomic_load(&st->stalled));
     fprintf(f, "# HELP clothd_stream_refused_total Connections refused before the upgrade, by reason: path, version, "
-               "host, origin, token, clients (stream_max_clients).\n# TYPE clothd_stream_refused_total counter\n");
+               "host, origin, token, scene (an invalid or unknown ?scene=), clients (stream_max_clients).\n# TYPE clothd_stream_refused_total counter\n");
     for (int k = 0; k < N_REFUSED; k++)
         fprintf(f, "clothd_stream_refused_total{reason=\"%s\"} %llu\n", refused_names[k],
                 (unsigned long long)atomic_load(&st->refused[k]));
@@ -1209,13 +1455,33 @@ char *stream_metrics(stream *st)
 
 const frame_sink_ops stream_sink_ops = {sink_begin, sink_publish, sink_discard, sink_event, sink_bytes};
 
-frame_sink stream_sink(stream *st) { return (frame_sink){&stream_sink_ops, st}; }
-
-/* One scene today: the default's clients are the stream's. */
 frame_sink stream_scene_sink(stream *st, scene *sc)
 {
-    if (strcmp(sc->id, SCENE_DEFAULT) == 0) return stream_sink(st);
-    return (frame_sink){NULL, NULL};
+    feed *fd = calloc(1, sizeof *fd);
+    event_slot *ring = fd ? calloc(EVENT_RING, sizeof *ring) : NULL;
+    if (!ring) {
+        free(fd);
+        log_msg("stream: out of memory: scene %s streams nothing", sc->id);
+        return (frame_sink){NULL, NULL};
+    }
+    fd->st = st;
+    fd->sc = sc;
+    snprintf(fd->id, sizeof fd->id, "%s", sc->id);
+    fd->ring = ring;
+    pthread_mutex_init(&fd->flock, NULL);
+    pthread_mutex_init(&fd->elock, NULL);
+    pthread_mutex_lock(&st->feeds_lock);
+    fd->next = st->feeds;
+    st->feeds = fd;
+    pthread_mutex_unlock(&st->feeds_lock);
+    return (frame_sink){&stream_sink_ops, fd};
 }
 
-void stream_scene_removed(stream *st, scene *sc) { (void)st, (void)sc; }
+void stream_scene_removed(stream *st, scene *sc)
+{
+    feed *fd = feed_of(st, sc);
+    if (!fd) return;
+    atomic_store(&fd->closed, 1);
+    atomic_store(&st->to_reap, 1);
+    lws_cancel_service(st->ctx);
+}

@@ -4,10 +4,11 @@
  * It is a scene's frame sink (sim/sink.h): the sim thread hands it poses and event messages
  * without waiting, and the service thread encodes each pose once per encoding in use and writes
  * the newest one to each client when its socket can take it (latest pose wins: a slow client
- * skips frames and never grows a queue). A client streams one scene (today "default"), reached
- * through a handle it holds from the scene table while connected; it subscribes to an encoding, a
- * frame rate and a scalar, and may grab and release a vertex (queued to the scene, coalesced per
- * client). */
+ * skips frames and never grows a queue). Each scene has its own channel (its newest pose, its
+ * encodings in use, its events). A client streams one scene at a time (?scene=ID, "default"
+ * without one; a subscribe naming another switches), reached through a handle it holds from the
+ * scene table; it subscribes to an encoding, a frame rate and a scalar, and may grab and release
+ * a vertex of its scene (queued to the scene, coalesced per client). */
 #ifndef CLOTHD_STREAM_H
 #define CLOTHD_STREAM_H
 
@@ -28,12 +29,11 @@ extern const frame_sink_ops stream_sink_ops;
  * stream_stall_timeout, stream_events_mb); NULL and the reason in err on failure. Connections are
  * checked against the access policy (token, Origin) before the upgrade completes. */
 stream *stream_start(const clothd_settings *set, scenes *table, const access_policy *acc, char *err, size_t err_len);
-/* The sink a scene hands its poses and events to. */
-frame_sink stream_sink(stream *st);
-/* The sink of one scene's poses and events: the clients streaming that scene get them (no sink
- * for a scene the stream does not serve yet). */
+/* A new channel for a scene that joins the daemon: the sink its poses and events go to (no sink
+ * when out of memory). Any thread; call it once per scene. */
 frame_sink stream_scene_sink(stream *st, scene *sc);
-/* A scene left the daemon: the clients streaming it are closed (1001, "scene deleted"). */
+/* A scene left the daemon and hands its sink nothing more (scenes.h's removed hook): the clients
+ * streaming it are closed (1001, "scene deleted") and its channel is freed. Any thread. */
 void stream_scene_removed(stream *st, scene *sc);
 int stream_port(stream *st);
 /* The HTTP port the viewer is served on (a page's Origin must name it); 0 until set. */

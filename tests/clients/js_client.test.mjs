@@ -4,7 +4,7 @@
 // against analytic values and against each other: the binary cloth state against the JSON one, a
 // restored snapshot against the hash it was taken at), every refusal is the error class of its
 // status with the problem's slug, detail and param and changes nothing, tokens (given, asked for,
-// view-only), X-Request-Id, timeouts, an unreachable server, and scene handles.
+// view-only), X-Request-Id, timeouts, an unreachable server, and scenes (list, create, delete, handles).
 import { before, test } from 'node:test';
 import assert from 'node:assert/strict';
 import { writeFileSync } from 'node:fs';
@@ -227,20 +227,30 @@ test('timeouts, an unreachable server, X-Request-Id checks', async () => {
   assert.equal(e.requestId, 'tagged-request.1');
 });
 
-test('scene handles: default is the routes without a prefix, others are asked of the server', async () => {
+test('scenes: list, create, delete; a handle reaches its own scene, default the routes without a prefix', async () => {
   const def = client.scene('default');
   assert.equal(def.prefix, '/v1');
   await client.pause();
   assert.equal((await def.sim()).step, (await client.sim()).step);
   assert.throws(() => client.scene('Not A Scene'), TypeError);
   assert.throws(() => client.scene(''), TypeError);
-  // No scene "other" (and no recordings on this server): the server's 404 speaks for each.
+  assert.throws(() => client.createScene({ id: 'Bad Id' }), TypeError);
+  // A scene of its own size and parameters, made and listed by the server.
+  const made = await client.createScene({ id: 'other', scene: { nx: 7, ny: 5 }, params: { k_bend: 0.02 } });
+  assert.deepEqual([made.id, made.n_vertices], ['other', 35]);
   const other = client.scene('other');
   assert.equal(other.prefix, '/v1/scenes/other');
-  for (const call of [() => other.sim(), () => other.addRock({ position: [0, 0, 1], radius: 0.1 }),
-    () => client.deleteScene('other'), () => client.recordings.list(), () => def.record({ seconds: 1 })]) {
+  assert.deepEqual((await client.scenes()).scenes.map((x) => x.id).sort(), ['default', 'other']);
+  assert.equal((await other.params()).k_bend, 0.02);
+  await other.addRock({ position: [0, 0, 1.5], radius: 0.1 });
+  assert.equal((await other.rocks()).rocks.length, 1);
+  assert.equal((await client.rocks()).rocks.length, 0); // nothing reached the default scene
+  // The server's refusals come through as their classes: an id taken 409, an unknown one 404.
+  assert.ok((await client.createScene({ id: 'other' }).catch((x) => x)) instanceof clothd.Conflict);
+  await client.deleteScene('other');
+  for (const call of [() => other.sim(), () => client.deleteScene('other'), () => client.recordings.list()]) {
     const e = await call().catch((x) => x);
     assert.ok(e instanceof clothd.NotFound, `${call}: ${e}`);
   }
-  assert.equal((await client.rocks()).rocks.length, 0); // nothing reached the default scene
+  assert.deepEqual((await client.scenes()).scenes.map((x) => x.id), ['default']);
 });

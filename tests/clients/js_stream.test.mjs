@@ -170,6 +170,29 @@ test('a scene this clothd does not have ends the stream with a problem, no retri
   assert.equal(stream.ws, null);
 });
 
+test('switchScene moves the stream to another scene; a deleted scene ends it with a problem', async () => {
+  await client.createScene({ id: 'two', scene: { nx: 6, ny: 4 } });
+  const problems = [];
+  const stream = client.stream({ onProblem: (p) => problems.push(p) }).start();
+  const own = (await client.sim()).n_vertices;
+  assert.equal((await stream.waitFor('frame')).nVertices, own);
+  const hello = stream.waitFor('hello', (h) => h.scene_id === 'two');
+  assert.equal(stream.switchScene('two'), true);
+  assert.equal((await hello).scene.nx, 6);
+  assert.equal((await stream.waitFor('frame')).nVertices, 24);
+  assert.throws(() => stream.switchScene('Two'), TypeError);
+  // A scene the server lacks: a problem, and the stream stays on two.
+  stream.switchScene('nowhere');
+  await until('refused', () => problems.some((p) => /cannot stream scene "nowhere"/.test(p)));
+  assert.equal(stream.scene, 'two');
+  // Deleting two closes the stream (1001, "scene deleted"): a problem, no retries.
+  const closed = stream.waitFor('status', (s) => s === 'closed');
+  await client.deleteScene('two');
+  await closed;
+  assert.ok(problems.some((p) => p === 'scene "two" was deleted'), problems.join('; '));
+  assert.equal(stream.stats.reconnects, 0);
+});
+
 test('with a token the stream opens with it; bad input from a server is reported and the stream goes on', async () => {
   const dir = tempDir();
   writeFileSync(join(dir, 'token'), 'stream-token-0123456789');

@@ -249,7 +249,7 @@ function k8sDocs() {
 }
 const byKind = (docs, kind) => docs.filter((d) => d.kind === kind);
 
-test('Kubernetes: a StatefulSet of scenes, one GPU each, a volume each for the state file, probes on /v1/health, a grace period longer than a save', () => {
+test('Kubernetes: a StatefulSet of clothd pods, one GPU and many scenes each, a volume each for the state file, probes on /v1/health, a grace period longer than a save', () => {
   const docs = k8sDocs();
   const [sts] = byKind(docs, 'StatefulSet');
   assert.ok(sts, 'a StatefulSet');
@@ -261,6 +261,9 @@ test('Kubernetes: a StatefulSet of scenes, one GPU each, a volume each for the s
   assert.equal(ports.stream, code.streamPort);
   assert.equal(code.health.stream.path, '/stream');
   assert.equal(String(c.resources.limits['nvidia.com/gpu']), '1');
+  // Many scenes share the pod's GPU: max_scenes is set, above one and within the setting's range.
+  const maxScenes = Number(c.env.find((e) => e.name === 'CLOTHD_MAX_SCENES')?.value);
+  assert.ok(maxScenes > 1 && maxScenes <= code.settings.max_scenes.max, `CLOTHD_MAX_SCENES ${maxScenes}`);
   routeExists('GET', '/v1/health');
   for (const probe of ['readinessProbe', 'livenessProbe', 'startupProbe']) {
     assert.equal(c[probe].httpGet.path, '/v1/health', probe);
@@ -296,7 +299,7 @@ test('Kubernetes: a StatefulSet of scenes, one GPU each, a volume each for the s
   for (const f of kust.resources) assert.ok(existsSync(docker(`k8s/${f}`)), f);
 });
 
-test('Kubernetes: a headless Service gives each scene a stable name the API answers to; metrics are scraped with the view token', () => {
+test('Kubernetes: a headless Service gives each pod a stable name the API answers to; metrics are scraped with the view token', () => {
   const docs = k8sDocs();
   const [sts] = byKind(docs, 'StatefulSet');
   const [svc] = byKind(docs, 'Service');
@@ -308,7 +311,7 @@ test('Kubernetes: a headless Service gives each scene a stable name the API answ
   const c = sts.spec.template.spec.containers[0];
   const containerPorts = Object.fromEntries(c.ports.map((p) => [p.name, p.containerPort]));
   for (const p of svc.spec.ports) assert.equal(p.port, containerPorts[p.targetPort], p.name);
-  // scene-N.<service>.<namespace>.svc: the Host clothd must answer to (allowed_hosts).
+  // clothd-N.<service>.<namespace>.svc: the Host clothd must answer to (allowed_hosts).
   const hosts = c.env.find((e) => e.name === 'CLOTHD_ALLOWED_HOSTS').value.split(',');
   assert.ok(hosts.includes(`$(POD_NAME).${svc.metadata.name}.$(POD_NAMESPACE).svc`), hosts.join(','));
   assert.deepEqual(c.env.find((e) => e.name === 'POD_NAME').valueFrom.fieldRef, { fieldPath: 'metadata.name' });

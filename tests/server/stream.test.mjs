@@ -32,7 +32,7 @@ test('a late joiner gets hello, then frames that match the scene', async () => {
   assert.equal(hello.params.tear_strain, 0.05);
   assert.ok(hello.rocks.length >= 2);
   assert.ok(hello.torn.length > 0 && hello.torn.every(Number.isInteger));
-  assert.deepEqual(hello.subscription, { encoding: 'f32', max_fps: 60, scalar: 'none', quantum: 0.0001, max_kbps: null });
+  assert.deepEqual(hello.subscription, { scene: 'default', encoding: 'f32', max_fps: 60, scalar: 'none', quantum: 0.0001, max_kbps: null });
   const f = await next(c, 'frame');
   assert.equal(c.texts[0].type, 'hello'); // hello came first
   assert.equal(f.encoding, 'f32');
@@ -322,7 +322,7 @@ test('delta: every coordinate within quantum/2 of the f32 frame of the same step
   delta.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', max_fps: 240 }));
   slow.ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta', max_fps: 5, quantum: 0.0001 }));
   const ack = await next(delta, 'text', (m) => m.type === 'subscribed');
-  assert.deepEqual(ack, { type: 'subscribed', encoding: 'delta', max_fps: 60 * 4, scalar: 'none', quantum: 0.0001, max_kbps: null });
+  assert.deepEqual(ack, { type: 'subscribed', scene: 'default', encoding: 'delta', max_fps: 60 * 4, scalar: 'none', quantum: 0.0001, max_kbps: null });
   await next(delta, 'frame', (f) => f.encoding === 'delta' && f.simTime > 3.5, 30000);
   const deltas = delta.frames.filter((f) => f.encoding === 'delta');
   const byStep = new Map(f32.frames.filter((f) => f.encoding === 'f32').map((f) => [`${f.step}:${f.wallNs}`, f]));

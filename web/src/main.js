@@ -2,7 +2,12 @@
 // stream), the 3D view (view.js), the mouse (interact.js), the panel (panel.js), the chart
 // (chart.js) and the HUD. Everything goes through the public API and stream of PROTOCOL.md; no
 // physics here.
-import { Client } from 'clothd/client';
+//
+// Scenes: the page shows one scene of the daemon, the one its URL names (#scene=ID; `default`
+// without one), so a link opens that scene and back/forward move between the scenes shown. The
+// scene picker (scenes.js) lists, creates and deletes scenes; overview.html shows them all.
+import { Client, SCENE_ID, DEFAULT_SCENE } from 'clothd/client';
+import { ScenePicker } from './scenes.js';
 import { View, MODES } from './view.js';
 import { Interaction } from './interact.js';
 import { Panel } from './panel.js';
@@ -53,6 +58,13 @@ const api = new Client({
 });
 const refused = (what) => (e) => problem(`${what} refused: ${e.message}`);
 
+// The scene of the URL, and its routes (every per-scene call goes through `cur`).
+function sceneOfUrl() {
+  const id = new URLSearchParams(location.hash.slice(1)).get('scene');
+  return id && SCENE_ID.test(id) ? id : DEFAULT_SCENE;
+}
+let cur = api.scene(sceneOfUrl());
+
 // ---- state mirrored from the server ----
 const state = { framed: false, scene: null, params: {}, torn: new Set(), running: true, health: null, sim: null, subscribed: null };
 const rockSpeed = { id: null, last: null, speed: null };
@@ -91,6 +103,15 @@ function applyScene(scene, torn, rocks) {
   panel?.setScene(state.scene);
 }
 
+// The shown scene's live parameters (a new scene starts from them): the schema's live rows.
+let liveNames = null;
+function liveParams() {
+  if (!liveNames) return undefined;
+  const out = {};
+  for (const k of liveNames) if (state.params[k] !== undefined) out[k] = state.params[k];
+  return out;
+}
+
 function applyParams(params) {
   Object.assign(state.params, params);
   view.setGround(state.params.ground, state.params.ground_z);
@@ -114,11 +135,12 @@ function setViewValue(name, value) {
 }
 
 // ---- the stream ----
-const stream = api.stream({
+const stream = cur.stream({
   onStatus(s, detail) {
     status(s === 'open' ? '' : s === 'connecting' ? 'connecting to clothd…' : `disconnected: ${detail}`);
   },
   onHello(h) {
+    if (h.scene_id && h.scene_id !== cur.id) return; // the scene before a switch
     applyScene(h.scene, h.torn, h.rocks);
     applyParams(h.params);
     setRunning(h.state === 'running');
@@ -136,6 +158,7 @@ const stream = api.stream({
     }
   },
   onEvent(ev) {
+    if (ev.scene_id && ev.scene_id !== cur.id) return;
     const res = ev.result ?? {};
     switch (ev.event) {
       case 'params': applyParams(res.params ?? {}); break;
@@ -161,27 +184,30 @@ const stream = api.stream({
     if (m.type === 'subscribed') state.subscribed = m;
     else if (m.type === 'error') problem(`stream refused ${m.about ?? 'a message'}: ${m.detail}`);
   },
-  onProblem(text) { problem(text); },
+  onProblem(text) {
+    problem(text);
+    if (stream.scene !== cur.id) showScene(stream.scene, { replace: true }); // a switch refused
+  },
 }, { pull: true, subscription: { encoding: ENCODING, max_fps: 60, scalar: 'none' } });
 
 // ---- actions of the panel and the mouse ----
 const actions = {
   async playPause() {
-    const res = await (state.running ? api.pause() : api.resume()).catch(refused('pause/resume'));
+    const res = await (state.running ? cur.pause() : cur.resume()).catch(refused('pause/resume'));
     if (res) setRunning(res.state === 'running');
   },
   async step() {
     if (state.running) {
-      const res = await api.pause().catch(refused('pause'));
+      const res = await cur.pause().catch(refused('pause'));
       if (!res) return;
       setRunning(false);
     }
-    await api.step({ frames: 1 }).catch(refused('step'));
+    await cur.step({ frames: 1 }).catch(refused('step'));
   },
-  reset: () => api.reset().catch(refused('reset')),
-  clearRocks: () => api.clearRocks().catch(refused('remove rocks')),
+  reset: () => cur.reset().catch(refused('reset')),
+  clearRocks: () => cur.clearRocks().catch(refused('remove rocks')),
   async download() {
-    const bytes = await api.snapshot().catch(refused('snapshot'));
+    const bytes = await cur.snapshot().catch(refused('snapshot'));
     if (!bytes) return;
     const a = document.createElement('a');
     a.href = URL.createObjectURL(new Blob([bytes]));
@@ -194,7 +220,7 @@ const actions = {
     input.value = '';
     input.onchange = async () => {
       const file = input.files[0];
-      if (file) await api.restoreSnapshot(await file.arrayBuffer()).catch(refused('snapshot upload'));
+      if (file) await cur.restoreSnapshot(await file.arrayBuffer()).catch(refused('snapshot upload'));
     };
     input.click();
   },
@@ -218,7 +244,7 @@ const mouse = {
     for (let k = 0; k < 40 && view.clearance(at(lift)) < r + margin; k++) lift += r / 2;
     for (let tries = 0; ; tries++) {
       try {
-        return await api.addRock({ position: at(lift), radius: r, density: viewValues.dropDensity });
+        return await cur.addRock({ position: at(lift), radius: r, density: viewValues.dropDensity });
       } catch (e) {
         if (e.status !== 409 || tries >= 4) return refused('rock')(e);
         lift += 2 * r;
@@ -237,12 +263,33 @@ const mouse = {
     if (rockMove?.busy) { rockMove.next = position; return; }
     rockMove = { busy: true, next: null };
     for (let p = position; p; p = rockMove.next, rockMove.next = null)
-      await api.setRock(id, { position: p }).catch(refused('rock move'));
+      await cur.setRock(id, { position: p }).catch(refused('rock move'));
     rockMove = null;
   },
   groundZ: () => (state.params.ground ? state.params.ground_z : null),
 };
 const interaction = new Interaction(view, $('view'), mouse);
+
+// ---- the scene shown: the URL's, switched on the same stream ----
+function showScene(id, { replace = false } = {}) {
+  if (id !== sceneOfUrl()) {
+    const url = `${location.pathname}${location.search}#scene=${id}`;
+    if (replace) history.replaceState(null, '', url);
+    else history.pushState(null, '', url);
+  }
+  if (id === cur.id) return;
+  cur = api.scene(id);
+  state.scene = null; // the new scene's hello rebuilds the cloth and frames it
+  state.sim = null;
+  rockSpeed.id = null;
+  chart?.clear();
+  if (!stream.switchScene(id)) stream.start(); // not open (its scene deleted): it opens this one
+  picker?.setCurrent(id);
+  document.title = id === DEFAULT_SCENE ? 'clothd' : `clothd: ${id}`;
+}
+window.addEventListener('hashchange', () => showScene(sceneOfUrl(), { replace: true }));
+window.addEventListener('popstate', () => showScene(sceneOfUrl(), { replace: true }));
+let picker = null;
 
 // ---- HUD and chart: the received and drawn rates, GET /v1/sim four times a second ----
 const rates = { at: performance.now(), frames: 0, bytes: 0, drawn: 0, received: 0, drawnRate: 0, bytesRate: 0 };
@@ -259,6 +306,7 @@ function hud() {
     `frames  ${rates.received.toFixed(1)}/s received, ${rates.drawnRate.toFixed(1)}/s drawn`,
     `sim     ${sim ? `${sim.state}, step ${sim.step}, ${sim.realtime_factor != null ? `${sim.realtime_factor.toFixed(2)}x real time` : ''}` : '-'}`,
     `backend ${h ? `${h.backend}: ${h.device}` : '-'}`,
+    `scene   ${cur.id}`,
     `cloth   ${sim ? `${sim.n_vertices} vertices, ${sim.n_torn} torn springs, ${sim.n_rocks} rocks` : '-'}`,
     `stream  ${kb >= 1024 ? `${(kb / 1024).toFixed(2)} MB/s` : `${kb.toFixed(0)} kB/s`}, ${state.subscribed?.encoding ?? stream.subscription.encoding}`,
   ].join('\n');
@@ -266,7 +314,7 @@ function hud() {
 
 async function pollSim() {
   try {
-    state.sim = await api.sim();
+    state.sim = await cur.sim();
     if (state.sim.state === 'running' !== state.running) setRunning(state.sim.state === 'running');
     if (viewValues.chart && chart) chart.push(state.sim.sim_time, state.sim.energy, rockSpeed.speed);
   } catch {
@@ -285,20 +333,29 @@ async function start() {
   let schema;
   for (let wait = 500; ; wait = Math.min(wait * 2, 8000)) {
     try {
-      [schema, state.health] = await Promise.all([api.paramsSchema(), api.health()]);
+      [schema, state.health] = await Promise.all([cur.paramsSchema(), api.health()]);
       break;
     } catch (e) {
       status(`cannot reach clothd (${e.message}); trying again`);
       await new Promise((r) => setTimeout(r, wait));
     }
   }
+  liveNames = (schema.params ?? []).filter((p) => p.kind === 'live').map((p) => p.name);
   panel = new Panel($('panel'), schema, {
-    patchParams: (p) => api.setParams(p),
-    putScene: (s) => api.setScene(s),
+    patchParams: (p) => cur.setParams(p),
+    putScene: (s) => cur.setScene(s),
     actions,
     view: { values: viewValues, onChange: setViewValue },
   });
   chart = new EnergyChart($('chart'));
+  picker = new ScenePicker($('scenes'), api, {
+    current: () => cur.id,
+    show: (id) => showScene(id),
+    // A new scene takes the shown one's scene fields and live parameters.
+    settings: () => ({ scene: state.scene ? { ...state.scene } : undefined, params: liveParams() }),
+    problem,
+  });
+  picker.setCurrent(cur.id);
   if (state.scene) panel.setScene(state.scene);
   panel.setParams(state.params);
   panel.setRunning(state.running);
@@ -306,13 +363,14 @@ async function start() {
   setInterval(pollSim, 250);
   setInterval(() => api.health().then((h) => (state.health = h), () => {}), 5000);
   window.__clothd.panel = panel;
+  window.__clothd.picker = picker;
   window.__clothd.ready = true;
 }
 
 // Hooks for the tests and the benchmark (tests/web/e2e.test.mjs): read-only views of the page's
 // own state, and inject() to feed the stream a message as if the server had sent it.
 window.__clothd = {
-  ready: false, api, stream, view, interaction, state, rates, problems,
+  ready: false, api, scene: () => cur.id, stream, view, interaction, state, rates, problems,
   inject: (data) => stream.inject(data),
   setView: setViewValue,
 };

@@ -10,20 +10,14 @@
 // (NotFound), as it answers scenes(), createScene() and deleteScene(): the server decides, so a
 // server that has scenes needs no new client.
 import { errorFromAnswer, ConnectionError, ProtocolError, TimeoutError } from './errors.js';
-import { Stream, DEFAULT_SCENE } from './stream.js';
+import { Stream, DEFAULT_SCENE, SCENE_ID, checkSceneId } from './stream.js';
 
-/** Scene ids the server takes (checked here, before any request). */
-export const SCENE_ID = /^[a-z0-9][a-z0-9_-]{0,62}$/;
+export { SCENE_ID };
 /** X-Request-Id values the server echoes. */
 export const REQUEST_ID = /^[A-Za-z0-9._:/+=-]{1,128}$/;
 export const DEFAULT_TIMEOUT_MS = 30000;
 
 const LITTLE_ENDIAN = new Uint8Array(new Uint16Array([1]).buffer)[0] === 1;
-
-function checkSceneId(id) {
-  if (typeof id !== 'string' || !SCENE_ID.test(id))
-    throw new TypeError(`scene id ${JSON.stringify(id)} is not one clothd takes ([a-z0-9][a-z0-9_-]{0,62})`);
-}
 
 function checkRequestId(id) {
   if (typeof id !== 'string' || !REQUEST_ID.test(id))

@@ -20,6 +20,15 @@ import { createDecoder, DELTA_HEAD, HEADER_SIZE } from '../../../proto/frame.mjs
 
 export const PROTOCOL = 'clothd.v1';
 export const DEFAULT_SCENE = 'default';
+/** Scene ids the server takes (checked here, before any request). */
+export const SCENE_ID = /^[a-z0-9][a-z0-9_-]{0,62}$/;
+/** Throws a TypeError for an id the server would refuse. */
+export function checkSceneId(id) {
+  if (typeof id !== 'string' || !SCENE_ID.test(id))
+    throw new TypeError(`scene id ${JSON.stringify(id)} is not one clothd takes ([a-z0-9][a-z0-9_-]{0,62})`);
+}
+/** The close reason (with code 1001) of a stream whose scene was deleted. */
+export const SCENE_DELETED = 'scene deleted';
 export const BACKOFF_MIN_MS = 250;
 export const BACKOFF_MAX_MS = 8000;
 const OPEN = 1; // WebSocket.OPEN, the same in the browser and in ws
@@ -88,6 +97,8 @@ export class Stream {
     this.client = client;
     this.h = handlers;
     this.scene = options.scene ?? DEFAULT_SCENE;
+    /** {from, to} while a switchScene() waits for the new scene's hello. */
+    this.switching = null;
     this.pull = options.pull ?? false;
     this.subscription = { ...options.subscription };
     /** {positions, scalar, scratch}: arrays frames decode into when they are large enough. */
@@ -249,7 +260,10 @@ export class Stream {
     ws.onclose = (e) => {
       if (this.ws !== ws) return;
       this.ws = null;
-      if (!this.closedByUs) this.retry(e.reason || `stream closed (${e.code})`);
+      const switched = this.switching; // on its way to another scene already: that one opens
+      this.switching = null;
+      if (e.code === 1001 && e.reason === SCENE_DELETED && !switched) this.fail(`scene ${JSON.stringify(this.scene)} was deleted`);
+      else if (!this.closedByUs) this.retry(e.reason || `stream closed (${e.code})`);
       else this.emit('status', 'closed', 'stopped');
     };
   }
@@ -285,6 +299,23 @@ export class Stream {
     Object.assign(this.subscription, change);
     if (CODEC_OF[change.encoding]) this.loadCodec(CODEC_OF[change.encoding]);
     return this.send({ type: 'subscribe', ...change });
+  }
+
+  /**
+   * Streams another scene on the same connection (`{"type": "subscribe", "scene": id}`), keeping
+   * the subscription; reconnects open that scene's stream. Frames that still come from the scene
+   * before are dropped until the new scene's hello. A server without that scene answers an error
+   * (404): the stream stays on the scene it had, and onProblem says so.
+   */
+  switchScene(id) {
+    checkSceneId(id);
+    if (id === this.scene && !this.switching) return true;
+    this.switching = { from: this.switching?.from ?? this.scene, to: id };
+    this.scene = id;
+    this.pending = null;
+    if (this.send({ type: 'subscribe', scene: id })) return true;
+    this.switching = null; // not open: the next connection opens it
+    return false;
   }
 
   /** Asks for a delta keyframe now (the server sends at most a few a second). */
@@ -329,6 +360,7 @@ export class Stream {
     }
     switch (m.type) {
       case 'hello':
+        if (this.switching && m.scene_id === this.switching.to) this.switching = null;
         if (m.protocol !== PROTOCOL) {
           this.emit('problem', `clothd speaks ${m.protocol}, this client ${PROTOCOL}: reload the page after an upgrade`);
           this.ws?.close(4000, 'protocol mismatch');
@@ -344,6 +376,11 @@ export class Stream {
         this.subscribed = m;
         return this.emit('message', m);
       case 'error':
+        if (this.switching && m.about === 'subscribe' && m.param === 'scene') {
+          this.emit('problem', `cannot stream scene ${JSON.stringify(this.switching.to)}: ${m.detail}`);
+          this.scene = this.switching.from;
+          this.switching = null;
+        }
         return this.emit('message', m);
       default:
         this.stats.badMessages++;
@@ -353,6 +390,7 @@ export class Stream {
 
   /** @private */
   onBinary(data) {
+    if (this.switching) return; // the scene before's, sent before the server switched
     this.lastData = data;
     this.stats.frames++;
     this.stats.bytes += data.byteLength;

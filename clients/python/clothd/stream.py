@@ -33,6 +33,8 @@ DEFAULT_SCENE = "default"
 BACKOFF_MIN = 0.25
 BACKOFF_MAX = 8.0
 TEXT_TYPES = ("hello", "event", "subscribed", "error")
+#: The close reason (with code 1001) of a stream whose scene was deleted.
+SCENE_DELETED = "scene deleted"
 
 
 def websocket_available():
@@ -185,7 +187,13 @@ class Stream:
             if opcode == _websocket.ABNF.OPCODE_CLOSE:
                 if self.closed:
                     return None
-                raise ConnectionFailed("the stream closed (the server sent a close)")
+                code = int.from_bytes(data[:2], "big") if len(data) >= 2 else None
+                if code == 1001 and bytes(data[2:]).decode("utf-8", "replace") == SCENE_DELETED:
+                    self._close_socket()
+                    raise NotFound("scene %r was deleted (the stream closed: 1001, %s)" % (self.scene, SCENE_DELETED),
+                                   status=404)
+                raise ConnectionFailed("the stream closed (the server sent a close%s)" % (
+                    "" if code is None else ": %d" % code))
             if opcode not in (_websocket.ABNF.OPCODE_BINARY, _websocket.ABNF.OPCODE_TEXT):
                 continue  # ping, pong: not messages
             m = self._message(data, opcode == _websocket.ABNF.OPCODE_BINARY)
@@ -310,6 +318,38 @@ class Stream:
         if m["type"] == "error":
             raise StreamRefused("the stream refused the subscription: %s" % m.get("detail"), m)
         return m
+
+    def switch_scene(self, scene_id, timeout=15.0):
+        """Streams another scene on this connection (``{"type": "subscribe", "scene": id}``),
+        keeping the subscription; reconnections open that scene. Returns the server's
+        ``subscribed`` answer; the new scene's hello is then ``stream.hello``, and what the scene
+        before sent until then is dropped. A scene the server lacks (or an id it refuses) raises
+        StreamRefused with the server's ``error``, and the stream stays on its scene."""
+        from .client import _check_scene_id  # here: client.py imports this module
+        _check_scene_id(scene_id)
+        self.send({"type": "subscribe", "scene": scene_id})
+        deadline = time.monotonic() + timeout
+        before, after, hello = [], [], None
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self._waiting[:0] = before + after
+                raise Timeout("no answer to the switch to scene %r within %s s" % (scene_id, timeout))
+            m = self.receive(left)
+            kind = m.get("type") if isinstance(m, dict) else None
+            if kind == "error" and m.get("about") == "subscribe" and hello is None:
+                self._waiting[:0] = before
+                raise StreamRefused("the stream refused scene %r: %s" % (scene_id, m.get("detail")), m)
+            if kind == "hello" and m.get("scene_id") == scene_id:
+                hello = m
+            elif kind == "subscribed" and hello is not None:
+                self.hello, self.scene = hello, scene_id
+                self._waiting[:0] = after
+                return m
+            elif hello is None:
+                before.append(m)
+            else:
+                after.append(m)
 
     def keyframe(self):
         """Asks for a delta keyframe (the server sends at most four a second)."""

@@ -249,17 +249,25 @@ def test_a_step_answers_interrupted_when_cancelled_from_another_thread(client):
     assert answer["interrupted"] is True and answer["interrupted_by"] == "cancel"
 
 
-def test_scene_handles(client):
+def test_scenes(client):
     c = client
     default = c.scene("default")
     assert default.prefix == "/v1" and default.sim()["step"] == c.sim()["step"]
     for bad in ("Not A Scene", "", "-x", "x" * 64):
         with pytest.raises(ValueError):
             c.scene(bad)
+    # A scene of its own size and parameters, made and listed by the server.
+    made = c.create_scene(id="other", scene={"nx": 7, "ny": 5}, params={"k_bend": 0.02})
+    assert (made["id"], made["n_vertices"]) == ("other", 35)
     other = c.scene("other")
     assert other.prefix == "/v1/scenes/other"
-    # No scene "other" (and no recordings on this server): the server's 404 speaks for each.
-    for call in (other.sim, lambda: other.add_rock([0, 0, 1], 0.1), lambda: c.delete_scene("other"),
-                 c.recordings.list, lambda: default.record(1)):
-        assert type(refusal(call)) is clothd.NotFound
+    assert sorted(s["id"] for s in c.scenes()["scenes"]) == ["default", "other"]
+    assert other.params()["k_bend"] == 0.02
+    other.add_rock([0, 0, 1.5], 0.1)
+    assert len(other.rocks()["rocks"]) == 1
     assert c.rocks()["rocks"] == []  # nothing reached the default scene
+    assert type(refusal(lambda: c.create_scene(id="other"))) is clothd.Conflict
+    c.delete_scene("other")
+    for call in (other.sim, lambda: c.delete_scene("other"), c.recordings.list):
+        assert type(refusal(call)) is clothd.NotFound
+    assert [s["id"] for s in c.scenes()["scenes"]] == ["default"]

@@ -2,7 +2,7 @@
 /v1/cloth/state gives (exactly for f32, within half a quantization step for q16 and meshopt);
 events carry the X-Request-Id of their request; grab and release go through the stream into the
 journal; a refused subscription; reconnection with waits of 0.25 s doubling to 8 s, and from
-0.25 s again once back; a scene the server lacks; a token; bad input; no websocket-client.
+0.25 s again once back; a scene the server lacks; switching scenes and a deleted scene; a token; bad input; no websocket-client.
 """
 
 import struct
@@ -172,6 +172,31 @@ def test_without_reconnect_a_lost_stream_raises(start_daemon):
 def test_a_scene_this_clothd_does_not_have(client):
     with pytest.raises(clothd.NotFound):
         client.scene("elsewhere").stream()
+
+
+def test_switch_scene_and_a_deleted_scene(client):
+    client.create_scene(id="two", scene={"nx": 6, "ny": 4})
+    try:
+        with client.stream() as s:
+            own = client.sim()["n_vertices"]
+            assert s.next_frame().n_vertices == own
+            ack = s.switch_scene("two")
+            assert ack["scene"] == "two" and s.scene == "two"
+            assert s.hello["scene_id"] == "two" and s.hello["scene"]["nx"] == 6
+            assert s.next_frame().n_vertices == 24  # two's own, none of default's after the switch
+            with pytest.raises(clothd.StreamRefused):
+                s.switch_scene("nowhere")
+            assert s.scene == "two"
+            with pytest.raises(ValueError):
+                s.switch_scene("Two")
+            # Deleting two closes the stream with 1001 "scene deleted": NotFound, no reconnection.
+            client.delete_scene("two")
+            with pytest.raises(clothd.NotFound, match="was deleted"):
+                while True:
+                    s.receive(timeout=15)  # Timeout, not a hang, if the close never came
+    finally:
+        if any(x["id"] == "two" for x in client.scenes()["scenes"]):
+            client.delete_scene("two")
 
 
 def test_a_token_and_bad_input(start_daemon, tmp_path):

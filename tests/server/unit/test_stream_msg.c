@@ -38,6 +38,18 @@ static void test_subscribe(void **unused)
     stream_msg_free(&m);
     assert_int_equal(parse("{\"type\":\"keyframe\"}", &m), STREAM_MSG_KEYFRAME);
     stream_msg_free(&m);
+    /* A scene to switch to: the id as given (63 characters at most); none given is "". */
+    assert_int_equal(parse("{\"type\":\"subscribe\",\"scene\":\"lab-2_b\"}", &m), STREAM_MSG_SUBSCRIBE);
+    assert_string_equal(m.scene, "lab-2_b");
+    assert_int_equal(m.encoding, -1);
+    stream_msg_free(&m);
+    assert_int_equal(parse("{\"type\":\"subscribe\",\"scene\":\"0123456789012345678901234567890123456789012345678901234567890ab\"}", &m),
+                     STREAM_MSG_SUBSCRIBE);
+    assert_int_equal(strlen(m.scene), 63);
+    stream_msg_free(&m);
+    assert_int_equal(parse("{\"type\":\"subscribe\",\"encoding\":\"q16\"}", &m), STREAM_MSG_SUBSCRIBE);
+    assert_string_equal(m.scene, "");
+    stream_msg_free(&m);
 }
 
 static void expect_refused(const char *text, int status, const char *about, const char *param)
@@ -71,6 +83,12 @@ static void test_refusals(void **unused)
         {"{\"type\":\"subscribe\",\"max_kbps\":10000001}", 422, "subscribe", "max_kbps"},
         {"{\"type\":\"subscribe\",\"max_kbps\":\"x\"}", 400, "subscribe", "max_kbps"},
         {"not json", 400, "message", NULL},
+        {"{\"type\":\"subscribe\",\"scene\":\"Lab\"}", 400, "subscribe", "scene"},
+        {"{\"type\":\"subscribe\",\"scene\":\"\"}", 400, "subscribe", "scene"},
+        {"{\"type\":\"subscribe\",\"scene\":\"a\\u0000b\"}", 400, "message", NULL}, /* jansson refuses NUL */
+        {"{\"type\":\"subscribe\",\"scene\":\"0123456789012345678901234567890123456789012345678901234567890abc\"}", 400, "subscribe", "scene"},
+        {"{\"type\":\"subscribe\",\"scene\":7}", 400, "subscribe", "scene"},
+        {"{\"type\":\"subscribe\",\"scene\":null}", 400, "subscribe", "scene"},
         {"[1, 2]", 400, "message", NULL},
         {"{\"type\": 3}", 400, "message", "type"},
         {"{\"type\": \"dance\"}", 400, "dance", "type"},
