@@ -353,7 +353,7 @@ static const command table[] = {
      * or by the stream (a client that wants a pose now). */
     {"hash",        NULL,     S, NULL,             BODY_IGNORED, VIEW,   CMD_ANSWER_SIM | CMD_HASH | CMD_AFTER_FAILURE, NULL, NULL, JSON_TYPE, NULL, NULL,     control_publish},
     {"bundle",      NULL,     S, NULL,             BODY_IGNORED, VIEW,   CMD_AFTER_FAILURE,                NULL,   NULL,       OCTETS, NULL,            NULL,               control_bundle},
-    {"publish",     NULL,     S, NULL,             BODY_IGNORED, VIEW,   CMD_AFTER_FAILURE,                NULL,   NULL,       NULL,   NULL,            NULL,               control_publish},
+    {"publish",     NULL,     S, NULL,             BODY_IGNORED, VIEW,   CMD_AFTER_FAILURE,                NULL,   NULL,       NULL,   NULL,            NULL,               control_pose},
 };
 #define N_COMMANDS (sizeof table / sizeof table[0])
 

@@ -167,3 +167,10 @@ int control_publish(scene *sc, scene_cmd *c)
     (void)sc, (void)c;
     return 0;
 }
+
+int control_pose(scene *sc, scene_cmd *c)
+{
+    (void)c;
+    sc->pose_asked = 1;
+    return 0;
+}

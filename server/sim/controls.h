@@ -19,5 +19,9 @@ int control_bundle(scene *sc, scene_cmd *c);      /* blob: the journal bundle fo
 /* Nothing but the publication that follows every command (GET /v1/sim?hash=1, a stream client
  * that wants a pose now). */
 int control_publish(scene *sc, scene_cmd *c);
+/* The same for a stream whose scene's feed has no pose (its first client joins): the publication
+ * that follows hands the sink a pose even when nothing changed since the last one it was handed
+ * (the feed forgot that one when its last client left). */
+int control_pose(scene *sc, scene_cmd *c);
 
 #endif

@@ -366,7 +366,7 @@ static void publish_pose(scene *sc, const cs_info *info, const cs_rock *rocks, i
     unsigned want = 0;
     pose *f = sc->sink.ops ? sc->sink.ops->begin(sc->sink.ctx, &want) : NULL;
     if (!f) return;
-    if (sc->changes == sc->framed_changes && (want & ~sc->framed_scalars) == 0) {
+    if (!sc->pose_asked && sc->changes == sc->framed_changes && (want & ~sc->framed_scalars) == 0) {
         sc->sink.ops->discard(sc->sink.ctx, f);
         return;
     }
@@ -395,6 +395,7 @@ static void publish_pose(scene *sc, const cs_info *info, const cs_rock *rocks, i
     fill_scalars(sc, f, want);
     sc->framed_changes = sc->changes;
     sc->framed_scalars = want;
+    sc->pose_asked = 0;
     sc->sink.ops->publish(sc->sink.ctx, f);
 }
 

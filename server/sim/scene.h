@@ -130,6 +130,7 @@ struct scene {
      * that change nothing (reads, pauses, a client joining) publish no duplicate pose. */
     uint64_t changes, framed_changes;
     unsigned framed_scalars;
+    int pose_asked; /* the stream asked for a pose, changed or not (control_pose) */
     uint32_t *torn;        /* ids of the torn springs, ascending */
     int64_t n_torn;
     float *scratch;        /* velocities or strains for the scalars */

@@ -243,6 +243,22 @@ test('a client joining a paused daemon after a change nobody watched gets the ch
   b.ws.close();
 });
 
+test('a client joining a paused daemon whose last client left gets a frame, though nothing changed since', async (t) => {
+  const d = await daemon(['--paused', '--nx', '12', '--ny', '10']);
+  t.after(() => stop(d));
+  const a = await connect(d);
+  await ok(d, 'POST', '/v1/sim/step', { frames: 2 });
+  await next(a, 'frame', (g) => g.frame === 2); // the last pose the scene handed out
+  a.ws.close();
+  const clients = async () => metric((await call(d, 'GET', '/metrics')).text, 'clothd_stream_clients');
+  await until('no stream client', async () => (await clients()) === 0);
+  // The stream forgot its frames with its last client; the joiner's ask must bring one anyway.
+  const b = await connect(d);
+  const first = await next(b, 'frame');
+  assert.deepEqual([first.nVertices, first.frame], [120, 2]);
+  b.ws.close();
+});
+
 // A 128 x 128 f32 frame is 197 kB: 120 frames queued for a client would be 24 MB, over the bound.
 const STALL_FRAMES = 120, STALL_BOUND_KIB = 16 * 1024;
 
