@@ -173,14 +173,19 @@ test('a scene this clothd does not have ends the stream with a problem, no retri
 test('switchScene moves the stream to another scene; a deleted scene ends it with a problem', async (t) => {
   await client.createScene({ id: 'two', scene: { nx: 6, ny: 4 } });
   const problems = [];
-  const stream = client.stream({ onProblem: (p) => problems.push(p) }).start();
+  // waitFor sees only what comes after it is called: each wait is set before what it waits for
+  // can come (a paused scene sends one frame).
+  const stream = client.stream({ onProblem: (p) => problems.push(p) });
+  const first = stream.waitFor('frame');
+  stream.start();
   t.after(() => stream.stop()); // a failure leaves no stream reconnecting (the process could not end)
   const own = (await client.sim()).n_vertices;
-  assert.equal((await stream.waitFor('frame')).nVertices, own);
+  assert.equal((await first).nVertices, own);
   const hello = stream.waitFor('hello', (h) => h.scene_id === 'two');
+  const twos = stream.waitFor('frame', (f) => f.nVertices !== own);
   assert.equal(stream.switchScene('two'), true);
   assert.equal((await hello).scene.nx, 6);
-  assert.equal((await stream.waitFor('frame')).nVertices, 24);
+  assert.equal((await twos).nVertices, 24);
   assert.throws(() => stream.switchScene('Two'), TypeError);
   // A scene the server lacks: a problem, and the stream stays on two.
   stream.switchScene('nowhere');
