@@ -171,6 +171,6 @@ int control_publish(scene *sc, scene_cmd *c)
 int control_pose(scene *sc, scene_cmd *c)
 {
     (void)c;
-    sc->pose_asked = 1;
+    sc->pose_asked = sc->paused; /* a running scene hands out a new pose with its next frame */
     return 0;
 }

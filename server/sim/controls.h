@@ -21,7 +21,8 @@ int control_bundle(scene *sc, scene_cmd *c);      /* blob: the journal bundle fo
 int control_publish(scene *sc, scene_cmd *c);
 /* The same for a stream whose scene's feed has no pose (its first client joins): the publication
  * that follows hands the sink a pose even when nothing changed since the last one it was handed
- * (the feed forgot that one when its last client left). */
+ * (the feed forgot that one when its last client left), when the scene is paused: running, its next
+ * frame brings one, and a forced one would repeat the frame just handed out. */
 int control_pose(scene *sc, scene_cmd *c);
 
 #endif
