@@ -165,6 +165,14 @@ void scene_mark_deleted(scene *sc)
     pthread_mutex_unlock(&sc->qlock);
 }
 
+int scene_is_deleted(scene *sc)
+{
+    pthread_mutex_lock(&sc->qlock);
+    const int deleted = sc->deleted;
+    pthread_mutex_unlock(&sc->qlock);
+    return deleted;
+}
+
 void scene_drop_deleted(scene *sc)
 {
     sc->sink = (frame_sink){NULL, NULL}; /* its streams are closed */

@@ -190,6 +190,8 @@ void scene_refuse_queued(scene *sc);
 /* The scene left the table (any thread): commands are refused from now on (404), and what is still
  * queued, the sim thread answers so with scene_drop_deleted. */
 void scene_mark_deleted(scene *sc);
+/* Whether it left the table (any thread). */
+int scene_is_deleted(scene *sc);
 /* The sim thread's last look at a deleted scene: a step in progress ends ("deleted"), what is
  * queued is refused (404), and it hands nothing more to its sink. */
 void scene_drop_deleted(scene *sc);

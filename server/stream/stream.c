@@ -100,7 +100,8 @@ typedef struct event_slot {
 typedef struct feed feed;
 struct feed {
     stream *st;
-    const scene *sc;     /* not held (the scene holds its sink): only compared, and its id copied */
+    scene *sc;           /* not held (the scene holds its sink): compared, its id copied, and asked
+                          * whether it was deleted while the feed is open (stream_scene_removed) */
     char id[SCENE_ID_MAX];
     feed *next;          /* st->feeds, under feeds_lock */
     atomic_int closed;   /* the scene left: no more poses or events */
@@ -533,12 +534,19 @@ static void take_answers(stream *st)
 
 /* ---- feeds ---- */
 
+/* The open feed of a scene, or NULL (the feeds' lock held). */
+static feed *find_feed(stream *st, const scene *sc)
+{
+    feed *fd = st->feeds;
+    while (fd && (fd->sc != sc || atomic_load(&fd->closed))) fd = fd->next;
+    return fd;
+}
+
 /* The open feed of a scene, or NULL. */
 static feed *feed_of(stream *st, const scene *sc)
 {
     pthread_mutex_lock(&st->feeds_lock);
-    feed *fd = st->feeds;
-    while (fd && (fd->sc != sc || atomic_load(&fd->closed))) fd = fd->next;
+    feed *fd = find_feed(st, sc);
     pthread_mutex_unlock(&st->feeds_lock);
     return fd;
 }
@@ -1432,8 +1440,10 @@ char *stream_metrics(stream *st)
     fprintf(f, "# HELP clothd_stream_scene_clients WebSocket clients streaming each scene (at most max_scenes series).\n"
                "# TYPE clothd_stream_scene_clients gauge\n");
     pthread_mutex_lock(&st->feeds_lock);
+    /* A scene deleted from the table has no series, though the sim thread has not closed its feed
+     * yet (it does so on its next turn): its scene is alive until then (stream_scene_removed). */
     for (const feed *fd = st->feeds; fd; fd = fd->next)
-        if (!atomic_load(&fd->closed)) fprintf(f, "clothd_stream_scene_clients{scene=\"%s\"} %d\n", fd->id, atomic_load(&fd->clients));
+        if (!atomic_load(&fd->closed) && !scene_is_deleted(fd->sc)) fprintf(f, "clothd_stream_scene_clients{scene=\"%s\"} %d\n", fd->id, atomic_load(&fd->clients));
     pthread_mutex_unlock(&st->feeds_lock);
     fprintf(f, "# HELP clothd_stream_scene_closed_total Clients closed because the scene they streamed was deleted.\n"
                "# TYPE clothd_stream_scene_closed_total counter\nclothd_stream_scene_closed_total %llu\n",
@@ -1479,9 +1489,13 @@ frame_sink stream_scene_sink(stream *st, scene *sc)
 
 void stream_scene_removed(stream *st, scene *sc)
 {
-    feed *fd = feed_of(st, sc);
+    /* Closed under the feeds' lock: a reader that holds it and sees the feed open may still read
+     * its scene (released only after this returns). */
+    pthread_mutex_lock(&st->feeds_lock);
+    feed *fd = find_feed(st, sc);
+    if (fd) atomic_store(&fd->closed, 1);
+    pthread_mutex_unlock(&st->feeds_lock);
     if (!fd) return;
-    atomic_store(&fd->closed, 1);
     atomic_store(&st->to_reap, 1);
     lws_cancel_service(st->ctx);
 }

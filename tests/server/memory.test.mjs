@@ -39,7 +39,8 @@ test('journal_max_mb and stream_events_mb cap the journal and the event ring: la
   const grew = rssKiB(d.proc.pid) - rss0;
   console.log(`RSS growth over 16 more PUT /v1/pins of 512 KiB: ${grew} KiB`);
   // Without the caps each keeps 512 KiB in the journal and 512 KiB in the event ring: 16 MiB.
-  assert.ok(grew < 8 * MiB, `RSS grew by ${grew} KiB`);
+  // (The sanitized build's RSS here swings by tens of MiB with its allocator's caches per thread.)
+  rssBound(grew, 8 * MiB, `RSS grew by ${grew} KiB`);
   // The journal started afresh at its cap: what it holds fits in 1 MiB.
   const j = await call(d, 'GET', '/v1/journal');
   assert.ok(j.json.entries.length <= 1 && j.buf.length < 1 << 20, `${j.json.entries.length} entries, ${j.buf.length} bytes`);
