@@ -85,7 +85,7 @@ test('buildRecording writes that same file byte for byte, and without an index t
 test('a file cut anywhere reads up to its last complete record', () => {
   for (let len = 16; len < FILE.length; len++) {
     const cut = FILE.subarray(0, len);
-    if (len < at.f0) {
+    if (len < at.hello + 8 + helloText.length) { // no whole hello (its padding may be cut)
       assert.throws(() => readRecording(cut), RecordingError, `cut at ${len}`);
       continue;
     }
