@@ -28,8 +28,9 @@
  *                            16  8  quantum (f64, m): the grid's spacing
  *                            24 12  grid origin (3 i32): the keyframe's per-axis minimum of g
  *                            36  4  row (u32): vertices per grid row (the cloth's nx)
- *                            40  4  byte count (u32) of the zstd frame that follows
- *                            44     a zstd frame of 12 n bytes (below)
+ *                            40  4  byte count (u32) of the zstd frames that follow
+ *                            44     zstd frames, concatenated, of 12 n bytes together
+ *                                   (below; clothd writes one per axis, 4 n bytes each)
  *                            g = round(x / quantum) clamped to int32 (round half away from 0);
  *                            a = g - origin (keyframe) or g - g of the keyframe (delta);
  *                            r = a - (a[i-1,j] + a[i,j-1] - a[i-1,j-1]), a neighbour missing

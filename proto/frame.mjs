@@ -141,7 +141,7 @@ function decode(data, options, state) {
   return out;
 }
 
-// The delta positions section at `at` (layout in clothd_frame.h): the zstd frame holds the byte
+// The delta positions section at `at` (layout in clothd_frame.h): the zstd frames hold the byte
 // planes of the zigzagged residuals of the parallelogram prediction of a = g - origin (keyframe)
 // or g - g of the keyframe (delta); all integer arithmetic is mod 2^32 (| 0).
 function decodeDelta(bytes, dv, at, n, positions, options, state) {

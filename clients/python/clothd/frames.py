@@ -373,7 +373,7 @@ _meshopt = _CLibrary("CLOTHD_MESHOPTIMIZER_LIB", ("meshoptimizer", "libmeshoptim
 _zstd = _CLibrary("CLOTHD_ZSTD_LIB", ("zstd", "libzstd.so.1", "libzstd.dylib", "zstd.dll"),
                   {"ZSTD_decompress": (ctypes.c_size_t, [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_char_p, ctypes.c_size_t]),
                    "ZSTD_isError": (ctypes.c_uint, [ctypes.c_size_t]),
-                   "ZSTD_getFrameContentSize": (ctypes.c_ulonglong, [ctypes.c_char_p, ctypes.c_size_t])})
+                   "ZSTD_findDecompressedSize": (ctypes.c_ulonglong, [ctypes.c_char_p, ctypes.c_size_t])})
 
 
 def meshopt_available():
@@ -404,7 +404,8 @@ def zstd_available():
 
 
 def zstd_decompress(compressed, size):
-    """ZSTD_decompress: exactly ``size`` bytes from the zstd frame ``compressed`` (FrameError otherwise)."""
+    """ZSTD_decompress: exactly ``size`` bytes from the zstd frames ``compressed`` (one or more,
+    concatenated; FrameError otherwise)."""
     lib = _zstd.get()
     if lib is None:
         raise MissingDependency(
@@ -412,7 +413,7 @@ def zstd_decompress(compressed, size):
             "CLOTHD_ZSTD_LIB to its path), which could not be loaded: %s; subscribe to q16 or f32 "
             "instead" % _zstd.why)
     fn, is_error, content_size = lib
-    if content_size(compressed, len(compressed)) != size:  # before allocating what a frame claims
+    if content_size(compressed, len(compressed)) != size:  # before allocating what the frames claim
         raise FrameError("the delta payload of %d bytes does not hold %d bytes" % (len(compressed), size))
     out = ctypes.create_string_buffer(size + 1)
     got = fn(out, size + 1, compressed, len(compressed))
