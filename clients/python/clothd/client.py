@@ -36,9 +36,10 @@ REQUEST_ID = re.compile(r"[A-Za-z0-9._:/+=-]{1,128}\Z")
 _UNSET = object()
 
 
-def _check_scene_id(scene_id):
+def _check_scene_id(scene_id, what="scene id"):
+    """Scene and recording ids are the same slug."""
     if not isinstance(scene_id, str) or not SCENE_ID.match(scene_id):
-        raise ValueError("scene id %r is not one clothd takes ([a-z0-9][a-z0-9_-]{0,62})" % (scene_id,))
+        raise ValueError("%s %r is not one clothd takes ([a-z0-9][a-z0-9_-]{0,62})" % (what, scene_id))
 
 
 def _check_request_id(request_id):
@@ -210,10 +211,17 @@ class SceneRoutes:
         return self._call("GET", "/journal", accept="application/octet-stream", as_="bytes")
 
     # ---- recordings and the stream ----
-    def record(self, seconds, encoding=None):
-        """Starts a recording of this scene: POST /v1/scenes/{id}/recordings (recordings are
-        always addressed by scene). A server without recordings answers NotFound."""
-        body = {"seconds": seconds} if encoding is None else {"seconds": seconds, "encoding": encoding}
+    def record(self, seconds, encoding=None, id=None):
+        """Starts a recording of this scene for ``seconds`` of simulated time: POST
+        /v1/scenes/{id}/recordings ``{seconds, encoding?, id?}`` (encoding: f32, q16, meshopt or
+        delta, the server's default delta; id: the recording's, generated when None). Returns
+        ``{id, scene, state, ...}``; ``client.recordings.read(rid)`` reads the file once done."""
+        body = {"seconds": seconds}
+        if encoding is not None:
+            body["encoding"] = encoding
+        if id is not None:
+            _check_scene_id(id, "recording id")
+            body["id"] = id
         return self._client.request("POST", "/v1/scenes/%s/recordings" % self.id, body)
 
     def stream(self, encoding=None, max_fps=None, scalar=None, **options):
@@ -247,8 +255,15 @@ class Recordings:
         return self._client.request("GET", "/v1/recordings/%s" % urllib.parse.quote(str(rid), safe=""),
                                     accept="application/octet-stream", as_="bytes")
 
+    def read(self, rid, numpy=None):
+        """The recording ``rid`` downloaded and parsed (clothd.recording.Recording): frames
+        decoded on demand, ``seek(t)``, events. A recording still running reads as far as it got
+        (``complete`` False)."""
+        from .recording import read_recording
+        return read_recording(self.get(rid), numpy=numpy)
+
     def delete(self, rid):
-        """DELETE /v1/recordings/{rid}."""
+        """DELETE /v1/recordings/{rid} (a running one stops first)."""
         return self._client.request("DELETE", "/v1/recordings/%s" % urllib.parse.quote(str(rid), safe=""))
 
 
@@ -355,7 +370,7 @@ class Client(SceneRoutes):
         """POST /v1/scenes ``{id?, scene?, params?}``."""
         body = {}
         if id is not None:
-            _check_scene_id(id)
+            _check_scene_id(id, "recording id")
             body["id"] = id
         if scene is not None:
             body["scene"] = scene
