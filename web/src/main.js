@@ -374,8 +374,8 @@ function hud() {
     `backend ${h ? `${h.backend}: ${h.device}` : '-'}`,
     `scene   ${cur.id}`,
     `cloth   ${sim ? `${sim.n_vertices} vertices, ${sim.n_torn} torn springs, ${sim.n_rocks} rocks` : '-'}`,
-    `stream  ${playback ? 'closed while a recording plays' : `${kb >= 1024 ? `${(kb / 1024).toFixed(2)} MB/s` : `${kb.toFixed(0)} kB/s`}, ${state.subscribed?.encoding ?? stream.subscription.encoding}`}`,
-    ...(playback ? [`playing ${playback.name}: frame ${playback.k + 1} of ${playback.count}, ${playback.info.encoding ?? ''}`] : []),
+    playback ? `stream  closed: playing ${playback.name} (${playback.info.encoding ?? '?'}), frame ${playback.k + 1} of ${playback.count}`
+      : `stream  ${kb >= 1024 ? `${(kb / 1024).toFixed(2)} MB/s` : `${kb.toFixed(0)} kB/s`}, ${state.subscribed?.encoding ?? stream.subscription.encoding}`,
   ].join('\n');
 }
 
