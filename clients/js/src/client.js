@@ -248,11 +248,11 @@ export class Client extends SceneRoutes {
    * ArrayBuffer; while it still records, the bytes so far (a file without its index).
    * @param {string} rid @returns {Promise<ArrayBuffer>}
    */
-  async recording(rid) {
-    checkRecordingId(rid);
-    const bytes = await this.request('GET', `/v1/recordings/${rid}`, undefined,
-      { accept: 'application/vnd.clothd.recording, application/octet-stream', as: 'bytes' });
-    return bytes.byteOffset === 0 && bytes.byteLength === bytes.buffer.byteLength ? bytes.buffer : bytes.slice().buffer;
+  recording(rid) {
+    checkRecordingId(rid); // thrown here, as every id check of the client: before any request
+    return this.request('GET', `/v1/recordings/${rid}`, undefined,
+      { accept: 'application/vnd.clothd.recording, application/octet-stream', as: 'bytes' })
+      .then((bytes) => (bytes.byteOffset === 0 && bytes.byteLength === bytes.buffer.byteLength ? bytes.buffer : bytes.slice().buffer));
   }
   /** DELETE /v1/recordings/{rid}: `{id, deleted: true}` (a running one stops first). */
   deleteRecording(rid) {
