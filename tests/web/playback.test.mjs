@@ -278,8 +278,23 @@ test('a range as animated glTF: the clip has the frames asked, each a morph targ
   assert.match(await page.textContent('#rec-cap'), /at most 600 frames/);
 });
 
+// Dropped on the page as a file dragged from the desktop would be: a drop event with a DataTransfer.
+async function dropFile(name, bytes) {
+  const before = (await bar()).message;
+  await page.evaluate(([name, b64]) => {
+    const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+    const dt = new DataTransfer();
+    dt.items.add(new File([bytes], name));
+    const view = document.getElementById('view');
+    for (const type of ['dragenter', 'dragover', 'drop'])
+      view.dispatchEvent(new DragEvent(type, { dataTransfer: dt, bubbles: true, cancelable: true }));
+  }, [name, Buffer.from(bytes).toString('base64')]);
+  await until('the bar to answer', async () => (await bar()).message !== before);
+}
+
 test('play moves the sim time forward at the speed chosen, and stops at the end', opts, async () => {
-  await openFile(file('playback-play.clr', buildRecording(captured.q16, { recording: recordingOf('q16') })));
+  await dropFile('playback-play.clr', buildRecording(captured.q16, { recording: recordingOf('q16') }));
+  assert.match((await bar()).message, new RegExp(`^playback-play\\.clr: ${FRAMES} frames`));
   await page.selectOption('#rec-speed', '0.5');
   await page.click('#rec-play');
   const seen = [];

@@ -14,7 +14,7 @@ import { vertexNormals } from './topology.js';
 /** The most frames one animated export holds (each is 12 bytes per vertex, twice: target and accessor). */
 export const MAX_ANIMATION_FRAMES = 600;
 /** The most bytes of morph targets one animated export holds (a large cloth gets fewer frames). */
-export const MAX_ANIMATION_BYTES = 256 * 1024 * 1024;
+export const MAX_ANIMATION_BYTES = 128 * 1024 * 1024;
 
 /** The most frames an animated export of a cloth of `nVertices` holds. */
 export function animationCap(nVertices) {
