@@ -38,8 +38,12 @@ const captured = {}; // encoding -> [hello text, event texts and frames in strea
 
 // One stream client per encoding, all at once: the hello, every event after it, and the frames
 // after the subscription's ack (a delta file from its first keyframe), as the bytes came.
+// `ready` resolves with the ack, `done` with the messages; `progress.frames` counts.
 function capture(streamPort, encoding, frames) {
-  return new Promise((resolve, reject) => {
+  let acknowledged;
+  const ready = new Promise((r) => { acknowledged = r; });
+  const progress = { frames: 0 };
+  const done = new Promise((resolve, reject) => {
     const ws = new WebSocket(`ws://127.0.0.1:${streamPort}/stream`, 'clothd.v1');
     const messages = [];
     let acked = false, count = 0;
@@ -49,7 +53,10 @@ function capture(streamPort, encoding, frames) {
         const text = data.toString();
         const m = JSON.parse(text);
         if (m.type === 'hello') messages.push(text);
-        else if (m.type === 'subscribed') acked = m.encoding === encoding;
+        else if (m.type === 'subscribed') {
+          acked = m.encoding === encoding;
+          if (acked) acknowledged();
+        }
         else if (m.type === 'event' && messages.length) messages.push(text);
         return;
       }
@@ -58,13 +65,15 @@ function capture(streamPort, encoding, frames) {
       const dv = new DataView(b.buffer);
       if (count === 0 && (dv.getUint16(6, true) & 3) === 3 && dv.getUint32(72, true) !== 0) return;
       messages.push(b);
-      if (++count === frames) {
+      progress.frames = ++count;
+      if (count === frames) {
         ws.close();
         resolve(messages);
       }
     });
     ws.on('error', reject);
   });
+  return { ready, done, progress };
 }
 
 /** Frame positions as decodeFrame gives them: each frame of the list decoded in order. */
@@ -144,12 +153,14 @@ before(async () => {
   daemon = await start(['--nx', String(NX), '--ny', String(NY), '--auto-drop-interval', '0'], { webRoot: WEB_ROOT });
   const { stream } = await ok(daemon, 'GET', '/v1/health');
   const runs = ENCODINGS.map((e) => capture(stream.port, e, FRAMES));
-  // Rocks drop while the four clients record (a placement the daemon finds taken is 409: skipped).
-  for (const [k, p] of [[0, [0.1, 0.05, 1.7]], [1, [-0.25, 0.2, 1.9]], [2, [0.3, -0.2, 2.1]]].values()) {
-    await new Promise((r) => setTimeout(r, 300 * k)); // spread over the capture; nothing waits on this
+  await Promise.all(runs.map((r) => r.ready));
+  // Rocks drop while the four clients record, after their hellos, spread over the frames (a
+  // placement the daemon finds taken is 409: skipped).
+  for (const [k, p] of [[0.1, 0.05, 1.7], [-0.25, 0.2, 1.9], [0.3, -0.2, 2.1]].entries()) {
+    await until(`frame ${10 * k} of the capture`, () => runs[0].progress.frames >= 10 * k, { timeout: 30000 });
     await call(daemon, 'POST', '/v1/rocks', { position: p, radius: 0.12, density: 600 });
   }
-  const results = await Promise.all(runs);
+  const results = await Promise.all(runs.map((r) => r.done));
   ENCODINGS.forEach((e, k) => { captured[e] = results[k]; });
   browser = await launch();
   page = await openViewer(browser.context, daemon.url + '/');
