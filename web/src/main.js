@@ -332,7 +332,6 @@ const bar = new RecordingBar($('rec'), api, {
     ? { positions: view.cloth.position.array, index: view.cloth.index, rocks: shownFrame.rocks, step: shownFrame.step, simTime: shownFrame.simTime }
     : null),
   scene: () => cur.id,
-  problem,
 });
 
 // ---- the scene shown: the URL's, switched on the same stream ----

@@ -23,9 +23,9 @@ export class RecordingBar {
   /**
    * @param {HTMLElement} container
    * @param {import('clothd/client').Client} api
-   * @param {{draw: object, enter(player), leave(), shown(): object|null, scene(): string,
-   *   problem(text: string)}} hooks draw: the page's drawing path for recorded records; enter and
-   *   leave: a recording starts, the page goes back to live; shown: the frame on the screen
+   * @param {{draw: object, enter(player), leave(), shown(): object|null, scene(): string}} hooks
+   *   draw: the page's drawing path for recorded records; enter and leave: a recording starts,
+   *   the page goes back to live; shown: the frame on the screen; scene: the live scene's id
    */
   constructor(container, api, hooks) {
     this.api = api;
