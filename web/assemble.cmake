@@ -12,6 +12,8 @@ set(vendor
   "three/build/three.module.js" "three.module.js"
   "three/build/three.core.js" "three.core.js"
   "three/examples/jsm/controls/OrbitControls.js" "OrbitControls.js"
+  "three/examples/jsm/exporters/GLTFExporter.js" "GLTFExporter.js"
+  "three/examples/jsm/exporters/PLYExporter.js" "PLYExporter.js"
   "lil-gui/dist/lil-gui.esm.js" "lil-gui.esm.js"
   "uplot/dist/uPlot.esm.js" "uPlot.esm.js"
   "uplot/dist/uPlot.min.css" "uPlot.min.css"
@@ -63,7 +65,9 @@ foreach(i RANGE 0 ${last} 2)
   list(GET vendor ${j} to)
   file(COPY_FILE "${SRC}/node_modules/${from}" "${OUT}/vendor/${to}" ONLY_IF_DIFFERENT)
 endforeach()
-file(COPY_FILE "${PROTO}/frame.mjs" "${OUT}/proto/frame.mjs" ONLY_IF_DIFFERENT)
+foreach(f frame.mjs recording.mjs)
+  file(COPY_FILE "${PROTO}/${f}" "${OUT}/proto/${f}" ONLY_IF_DIFFERENT)
+endforeach()
 file(GLOB client RELATIVE "${CLIENT}/src" "${CLIENT}/src/*.js")
 foreach(f ${client})
   file(COPY_FILE "${CLIENT}/src/${f}" "${OUT}/clients/js/src/${f}")

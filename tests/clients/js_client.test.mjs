@@ -248,7 +248,7 @@ test('scenes: list, create, delete; a handle reaches its own scene, default the 
   // The server's refusals come through as their classes: an id taken 409, an unknown one 404.
   assert.ok((await client.createScene({ id: 'other' }).catch((x) => x)) instanceof clothd.Conflict);
   await client.deleteScene('other');
-  for (const call of [() => other.sim(), () => client.deleteScene('other'), () => client.recordings.list()]) {
+  for (const call of [() => other.sim(), () => client.deleteScene('other'), () => client.recordings()]) {
     const e = await call().catch((x) => x);
     assert.ok(e instanceof clothd.NotFound, `${call}: ${e}`);
   }

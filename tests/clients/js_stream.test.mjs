@@ -3,12 +3,13 @@
 // within half a quantization step for q16 and meshopt); events carry the X-Request-Id of the
 // request that caused them; grab and release go through the stream into the journal; after the
 // daemon goes away the client reconnects with waits of 0.25 s doubling to 8 s and starts again
-// from 0.25 s once back; frames() and pull mode; a scene the server lacks, a token, bad input.
+// from 0.25 s once back; frames() and pull mode; a scene the server lacks, a token, bad input;
+// stop() and start() again while connecting open one connection.
 import { before, test } from 'node:test';
 import assert from 'node:assert/strict';
 import { writeFileSync } from 'node:fs';
 import { join } from 'node:path';
-import { start, stop, until, tempDir } from '../server/harness.mjs';
+import { start, stop, until, tempDir, metric } from '../server/harness.mjs';
 import { pausedDaemon } from './support.mjs';
 import { Client } from '../../clients/js/src/index.js';
 
@@ -219,6 +220,28 @@ test('with a token the stream opens with it; bad input from a server is reported
     assert.match(problems[3], /not JSON/);
     const decoded = stream.stats.decoded;
     await until('frames to go on', () => stream.stats.decoded > decoded + 2);
+  } finally {
+    stream.stop();
+    await stop(d);
+  }
+});
+
+test('stop() then start() while the first attempt is on its way opens one connection, not two', async () => {
+  const d = await start(['--auto-drop-interval', '0']);
+  const c = new Client({ base: d.url });
+  const gauge = async () => metric(await c.metrics(), 'clothd_stream_clients');
+  let hellos = 0;
+  const stream = c.stream({ onHello: () => hellos++ });
+  try {
+    stream.start(); // asking GET /v1/health for the port: no socket yet
+    stream.stop();
+    stream.start();
+    await stream.waitFor('frame');
+    await until('the daemon to count the connection', async () => (await gauge()) >= 1);
+    // A second socket, were there one, would be connected by the time this one's frames flow.
+    await stream.waitFor('frame');
+    assert.equal(await gauge(), 1);
+    assert.equal(hellos, 1);
   } finally {
     stream.stop();
     await stop(d);

@@ -6,12 +6,19 @@
 // Scenes: the page shows one scene of the daemon, the one its URL names (#scene=ID; `default`
 // without one), so a link opens that scene and back/forward move between the scenes shown. The
 // scene picker (scenes.js) lists, creates and deletes scenes; overview.html shows them all.
+//
+// Recordings (recordings.js, player.js): a recording from a dropped file or from the server plays
+// through the same drawing path as the live stream (`draw` below: hello, events, frames), with
+// the live stream closed meanwhile; "Back to live" opens it again, and its hello brings the scene
+// as it is now. Exports (export.js): the frame shown as PLY or glTF, a recording's range as
+// animated glTF.
 import { Client, SCENE_ID, DEFAULT_SCENE } from 'clothd/client';
 import { ScenePicker } from './scenes.js';
 import { View, MODES } from './view.js';
 import { Interaction } from './interact.js';
 import { Panel } from './panel.js';
 import { EnergyChart } from './chart.js';
+import { RecordingBar } from './recordings.js';
 
 const $ = (id) => document.getElementById(id);
 
@@ -76,8 +83,14 @@ const LOOPBACK = /^(localhost|127(\.\d{1,3}){3}|\[::1\])$/.test(location.hostnam
 const ENCODING = LOOPBACK ? 'q16' : 'delta';
 const viewValues = { mode: 'surface', camera: 'orbit', encoding: ENCODING, dropRadius: 0.1, dropDensity: 2500, chart: true };
 let chart = null, panel = null;
+/** The recording playing (a Player of player.js), or null: live. */
+let playback = null;
+/** The frame shown (decodeFrame's result): what the exports take, with the view's triangles. */
+let shownFrame = null;
 
-function applyScene(scene, torn, rocks) {
+// A live scene's layout reaches the stream's decode targets and the panel; a recording's only
+// the view.
+function applyScene(scene, torn, rocks, live = true) {
   const rebuild = !view.cloth || !state.scene || view.cloth.nx !== scene.nx || view.cloth.ny !== scene.ny;
   const reframe = !state.scene || ['nx', 'ny', 'size_x', 'size_y', 'height', 'orientation'].some((k) => state.scene[k] !== scene[k]);
   state.scene = { ...scene };
@@ -99,6 +112,7 @@ function applyScene(scene, torn, rocks) {
     }
     state.framed = true;
   }
+  if (!live) return;
   stream.targets = view.frameTargets();
   panel?.setScene(state.scene);
 }
@@ -112,7 +126,12 @@ function liveParams() {
   return out;
 }
 
-function applyParams(params) {
+// A recording's parameters are drawn (the ground) but not taken as the live scene's.
+function applyParams(params, live = true) {
+  if (!live) {
+    if ('ground' in params || 'ground_z' in params) view.setGround(params.ground, params.ground_z);
+    return;
+  }
   Object.assign(state.params, params);
   view.setGround(state.params.ground, state.params.ground_z);
   panel?.setParams(params);
@@ -134,20 +153,17 @@ function setViewValue(name, value) {
   panel?.gui.controllersRecursive().forEach((c) => c.object === viewValues && c.updateDisplay());
 }
 
-// ---- the stream ----
-const stream = cur.stream({
-  onStatus(s, detail) {
-    status(s === 'open' ? '' : s === 'connecting' ? 'connecting to clothd…' : `disconnected: ${detail}`);
+// ---- the drawing path: the live stream's messages and a recording's records both go here ----
+const draw = {
+  hello(h, live = true) {
+    applyScene(h.scene, h.torn, h.rocks, live);
+    applyParams(h.params ?? {}, live);
+    if (live) setRunning(h.state === 'running');
   },
-  onHello(h) {
-    if (h.scene_id && h.scene_id !== cur.id) return; // the scene before a switch
-    applyScene(h.scene, h.torn, h.rocks);
-    applyParams(h.params);
-    setRunning(h.state === 'running');
-  },
-  onFrame(f) {
+  frame(f, live = true) {
     if (!view.showFrame(f)) return;
-    if (rockSpeed.id !== null) {
+    shownFrame = f;
+    if (live && rockSpeed.id !== null) {
       const r = f.rocks.find((x) => x.id === rockSpeed.id);
       if (r && rockSpeed.last && f.simTime > rockSpeed.last.t) {
         const p = rockSpeed.last.p;
@@ -157,28 +173,48 @@ const stream = cur.stream({
       if (!r) rockSpeed.speed = null;
     }
   },
-  onEvent(ev) {
-    if (ev.scene_id && ev.scene_id !== cur.id) return;
+  event(ev, live = true) {
     const res = ev.result ?? {};
     switch (ev.event) {
-      case 'params': applyParams(res.params ?? {}); break;
-      case 'scene': applyScene(res, [], []); chart?.clear(); break;
-      case 'reset': applyScene(state.scene, [], []); chart?.clear(); break;
-      case 'snapshot_restored': applyScene(ev.scene, ev.torn, ev.rocks); applyParams(ev.params); chart?.clear(); break;
+      case 'params': applyParams(res.params ?? {}, live); break;
+      case 'scene': applyScene(res, [], [], live); if (live) chart?.clear(); break;
+      case 'reset': applyScene(state.scene, [], [], live); if (live) chart?.clear(); break;
+      case 'snapshot_restored': applyScene(ev.scene, ev.torn, ev.rocks, live); applyParams(ev.params ?? {}, live); if (live) chart?.clear(); break;
       case 'rock_add': case 'rock_set':
         if (res.rock) view.rockInfo.set(res.rock.id, { kinematic: res.rock.kinematic });
         break;
       case 'rock_remove': view.rockInfo.delete(res.id ?? ev.command?.id); break;
       case 'rocks_clear': view.rockInfo.clear(); break;
-      case 'paused': setRunning(false); break;
-      case 'resumed': setRunning(true); break;
+      case 'paused': if (live) setRunning(false); break;
+      case 'resumed': if (live) setRunning(true); break;
       case 'torn':
         for (const id of ev.springs ?? []) state.torn.add(id);
         view.setTorn(state.torn);
         break;
-      case 'instability': problem(`instability: ${typeof ev.detail === 'string' ? ev.detail : JSON.stringify(ev.detail)}`); break;
+      case 'instability': if (live) problem(`instability: ${typeof ev.detail === 'string' ? ev.detail : JSON.stringify(ev.detail)}`); break;
       default: break; // pins, grab, release, stepped: the frames show them
     }
+  },
+};
+/** The same path for a recording's records. */
+const drawRecorded = { hello: (h) => draw.hello(h, false), event: (e) => draw.event(e, false), frame: (f) => draw.frame(f, false) };
+
+// ---- the stream (closed while a recording plays) ----
+const stream = cur.stream({
+  onStatus(s, detail) {
+    if (playback) return status('');
+    status(s === 'open' ? '' : s === 'connecting' ? 'connecting to clothd…' : `disconnected: ${detail}`);
+  },
+  onHello(h) {
+    if (playback || (h.scene_id && h.scene_id !== cur.id)) return; // the scene before a switch
+    draw.hello(h);
+  },
+  onFrame(f) {
+    if (!playback) draw.frame(f);
+  },
+  onEvent(ev) {
+    if (playback || (ev.scene_id && ev.scene_id !== cur.id)) return;
+    draw.event(ev);
   },
   onMessage(m) {
     if (m.type === 'subscribed') state.subscribed = m;
@@ -232,6 +268,7 @@ const mouse = {
   // would overlap the cloth or a rock: the daemon refuses such a placement (409), so the drop
   // backs off until it is clear, and retries a few times more if the daemon still disagrees.
   async dropRock(point, dir) {
+    if (playback) return null; // a recording is shown: the live scene is not under the mouse
     const r = viewValues.dropRadius, sc = state.scene;
     const spacing = sc ? Math.max(sc.size_x / (sc.nx - 1), sc.size_y / (sc.ny - 1)) : 0.05;
     const margin = (state.params.contact_offset ?? 0.01) + spacing;
@@ -257,9 +294,10 @@ const mouse = {
     rockSpeed.speed = null;
     view.select(rockSpeed.id);
   },
-  grab: (vertex, target) => stream.grab(vertex, target),
+  grab: (vertex, target) => { if (!playback) stream.grab(vertex, target); },
   release: () => stream.release(),
   async moveRock(id, position) {
+    if (playback) return;
     if (rockMove?.busy) { rockMove.next = position; return; }
     rockMove = { busy: true, next: null };
     for (let p = position; p; p = rockMove.next, rockMove.next = null)
@@ -270,6 +308,32 @@ const mouse = {
 };
 const interaction = new Interaction(view, $('view'), mouse);
 
+// ---- recordings: playback and exports (recordings.js) ----
+const bar = new RecordingBar($('rec'), api, {
+  draw: drawRecorded,
+  // A recording starts: the live stream closes (its frames and events would draw over it) and
+  // decodes nowhere near the view's arrays.
+  enter(player) {
+    playback = player;
+    stream.targets = {};
+    stream.stop();
+    status('');
+  },
+  // Back to live: the stream opens again; its hello sets the scene, the torn springs and the
+  // rocks as they are now.
+  leave() {
+    playback = null;
+    shownFrame = null;
+    rockSpeed.last = null;
+    stream.start();
+  },
+  // The frame shown, for the exports: positions (the view's own array), triangles, rocks.
+  shown: () => (view.cloth?.hasFrame && shownFrame
+    ? { positions: view.cloth.position.array, index: view.cloth.index, rocks: shownFrame.rocks, step: shownFrame.step, simTime: shownFrame.simTime }
+    : null),
+  scene: () => cur.id,
+});
+
 // ---- the scene shown: the URL's, switched on the same stream ----
 function showScene(id, { replace = false } = {}) {
   if (id !== sceneOfUrl()) {
@@ -278,6 +342,7 @@ function showScene(id, { replace = false } = {}) {
     else history.pushState(null, '', url);
   }
   if (id === cur.id) return;
+  if (playback) bar.backToLive();
   cur = api.scene(id);
   state.scene = null; // the new scene's hello rebuilds the cloth and frames it
   state.sim = null;
@@ -308,7 +373,8 @@ function hud() {
     `backend ${h ? `${h.backend}: ${h.device}` : '-'}`,
     `scene   ${cur.id}`,
     `cloth   ${sim ? `${sim.n_vertices} vertices, ${sim.n_torn} torn springs, ${sim.n_rocks} rocks` : '-'}`,
-    `stream  ${kb >= 1024 ? `${(kb / 1024).toFixed(2)} MB/s` : `${kb.toFixed(0)} kB/s`}, ${state.subscribed?.encoding ?? stream.subscription.encoding}`,
+    playback ? `stream  closed: playing ${playback.name} (${playback.info.encoding ?? '?'}), frame ${playback.k + 1} of ${playback.count}`
+      : `stream  ${kb >= 1024 ? `${(kb / 1024).toFixed(2)} MB/s` : `${kb.toFixed(0)} kB/s`}, ${state.subscribed?.encoding ?? stream.subscription.encoding}`,
   ].join('\n');
 }
 
@@ -316,14 +382,18 @@ async function pollSim() {
   try {
     state.sim = await cur.sim();
     if (state.sim.state === 'running' !== state.running) setRunning(state.sim.state === 'running');
-    if (viewValues.chart && chart) chart.push(state.sim.sim_time, state.sim.energy, rockSpeed.speed);
+    if (viewValues.chart && chart && !playback) chart.push(state.sim.sim_time, state.sim.energy, rockSpeed.speed);
   } catch {
     state.sim = null; // the stream's status says why
   }
 }
 
+let lastLoop = performance.now();
 function loop() {
-  stream.takeFrame();
+  const now = performance.now();
+  if (playback) bar.tick(Math.min(0.25, (now - lastLoop) / 1000));
+  else stream.takeFrame();
+  lastLoop = now;
   view.draw();
   requestAnimationFrame(loop);
 }
@@ -372,6 +442,7 @@ async function start() {
 window.__clothd = {
   ready: false, api, scene: () => cur.id, stream, view, interaction, state, rates, problems,
   inject: (data) => stream.inject(data),
+  playback: () => playback, bar,
   setView: setViewValue,
 };
 

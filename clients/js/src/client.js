@@ -13,6 +13,13 @@ import { errorFromAnswer, ConnectionError, ProtocolError, TimeoutError } from '.
 import { Stream, DEFAULT_SCENE, SCENE_ID, checkSceneId } from './stream.js';
 
 export { SCENE_ID };
+/** Recording ids the server takes: the scene ids' slug. */
+export const RECORDING_ID = SCENE_ID;
+/** Throws a TypeError for a recording id the server would refuse (before any request). */
+function checkRecordingId(id) {
+  if (typeof id !== 'string' || !RECORDING_ID.test(id))
+    throw new TypeError(`recording id ${JSON.stringify(id)} is not one clothd takes ([a-z0-9][a-z0-9_-]{0,62})`);
+}
 /** X-Request-Id values the server echoes. */
 export const REQUEST_ID = /^[A-Za-z0-9._:/+=-]{1,128}$/;
 export const DEFAULT_TIMEOUT_MS = 30000;
@@ -128,11 +135,21 @@ export class SceneRoutes {
   journalBundle() { return this.call('GET', '/journal', undefined, { accept: 'application/octet-stream', as: 'bytes' }); }
 
   /**
-   * Starts a recording of this scene: POST /v1/scenes/{id}/recordings `{seconds, encoding?}`
-   * (recordings are always addressed by scene). A server without recordings answers NotFound.
+   * Starts a recording of this scene (PROTOCOL.md "Recordings"): POST /v1/recordings for
+   * `default`, POST /v1/scenes/{id}/recordings for any other; `scene` records that scene instead
+   * of this one. `seconds` of simulated time, `encoding` f32, q16, meshopt or delta (the server's
+   * default: delta), `id` the recording's (`[a-z0-9][a-z0-9_-]{0,62}`; generated when absent).
+   * Answers 201's `{id, scene, state: "recording", encoding, seconds, frames, bytes}`. A server
+   * without recordings answers NotFound; past `max_recordings_mb` Unprocessable.
+   * @param {{seconds: number, encoding?: 'f32'|'q16'|'meshopt'|'delta', id?: string, scene?: string}} spec
    */
-  record({ seconds, encoding } = {}) {
-    return this.client.request('POST', `/v1/scenes/${this.id}/recordings`, encoding === undefined ? { seconds } : { seconds, encoding });
+  record({ seconds, encoding, id, scene } = {}) {
+    if (id !== undefined) checkRecordingId(id);
+    const body = { seconds };
+    if (encoding !== undefined) body.encoding = encoding;
+    if (id !== undefined) body.id = id;
+    const routes = scene === undefined || scene === this.id ? this : new SceneRoutes(this.client, scene);
+    return routes.call('POST', '/recordings', body);
   }
 
   /**
@@ -147,18 +164,6 @@ export class SceneRoutes {
 
 /** A handle on one scene of the daemon (client.scene(id)). */
 export class Scene extends SceneRoutes {}
-
-/** The daemon's recordings (DESIGN's recordings; a server without them answers NotFound). */
-export class Recordings {
-  /** @param {Client} client */
-  constructor(client) { this.client = client; }
-  /** GET /v1/recordings: `{recordings: [{id, scene, state, frames, seconds, bytes}]}`. */
-  list() { return this.client.request('GET', '/v1/recordings'); }
-  /** GET /v1/recordings/{rid}: the file (Uint8Array). */
-  get(rid) { return this.client.request('GET', `/v1/recordings/${encodeURIComponent(rid)}`, undefined, { accept: 'application/octet-stream', as: 'bytes' }); }
-  /** DELETE /v1/recordings/{rid}. */
-  delete(rid) { return this.client.request('DELETE', `/v1/recordings/${encodeURIComponent(rid)}`); }
-}
 
 /**
  * @typedef {object} ClientOptions
@@ -189,8 +194,6 @@ export class Client extends SceneRoutes {
       requestId: null,
     };
     this.fetch = options.fetch ?? globalThis.fetch.bind(globalThis);
-    /** The recordings' routes. */
-    this.recordings = new Recordings(this);
   }
 
   /** The token requests carry (learnt from askToken too), or null. */
@@ -206,7 +209,6 @@ export class Client extends SceneRoutes {
     const c = Object.create(Client.prototype);
     Object.assign(c, this, { options: { ...this.options, ...changes } });
     c.client = c;
-    c.recordings = new Recordings(c);
     return c;
   }
 
@@ -233,6 +235,29 @@ export class Client extends SceneRoutes {
   deleteScene(id) {
     checkSceneId(id);
     return this.request('DELETE', `/v1/scenes/${id}`);
+  }
+
+  /**
+   * GET /v1/recordings: `{recordings: [{id, scene, state, encoding, frames, seconds, bytes}]}`
+   * (`state` recording, done or stopped; `seconds` the sim time its frames span so far). A
+   * server without recordings answers NotFound.
+   */
+  recordings() { return this.request('GET', '/v1/recordings'); }
+  /**
+   * GET /v1/recordings/{rid}: the recording's file (CLR1, proto/recording.mjs reads it) as an
+   * ArrayBuffer; while it still records, the bytes so far (a file without its index).
+   * @param {string} rid @returns {Promise<ArrayBuffer>}
+   */
+  recording(rid) {
+    checkRecordingId(rid); // thrown here, as every id check of the client: before any request
+    return this.request('GET', `/v1/recordings/${rid}`, undefined,
+      { accept: 'application/vnd.clothd.recording, application/octet-stream', as: 'bytes' })
+      .then((bytes) => (bytes.byteOffset === 0 && bytes.byteLength === bytes.buffer.byteLength ? bytes.buffer : bytes.slice().buffer));
+  }
+  /** DELETE /v1/recordings/{rid}: `{id, deleted: true}` (a running one stops first). */
+  deleteRecording(rid) {
+    checkRecordingId(rid);
+    return this.request('DELETE', `/v1/recordings/${rid}`);
   }
 
   /**

@@ -1,5 +1,5 @@
 // clothd-client: the HTTP API (client.js), the stream (stream.js) and the errors (errors.js) of
 // clothd, for pages and node. See clients/js/README.md.
 export * from './errors.js';
-export { Client, Scene, SceneRoutes, Recordings, SCENE_ID, REQUEST_ID, DEFAULT_TIMEOUT_MS } from './client.js';
+export { Client, Scene, SceneRoutes, SCENE_ID, RECORDING_ID, REQUEST_ID, DEFAULT_TIMEOUT_MS } from './client.js';
 export { Stream, PROTOCOL, DEFAULT_SCENE, SCENE_DELETED, BACKOFF_MIN_MS, BACKOFF_MAX_MS } from './stream.js';

@@ -179,9 +179,13 @@ export class Stream {
     }
   }
 
-  /** Connects, and keeps connecting until stop(). Started already: nothing more. */
+  /**
+   * Connects, and keeps connecting until stop(). Started already: nothing more. Stopped while an
+   * attempt was still on its way (stop() then start(), as the viewer does around a recording):
+   * that attempt goes on, and no second connection opens beside it.
+   */
   start() {
-    const started = !this.closedByUs && (this.ws || this.retryTimer || this.connecting);
+    const started = this.connecting || (!this.closedByUs && (this.ws || this.retryTimer));
     this.closedByUs = false;
     if (!started) this.connect();
     return this;
