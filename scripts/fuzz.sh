@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Builds the libFuzzer targets of fuzz/ in build-fuzz (clang, ASan + UBSan) and runs each for
-# SECONDS (default 60) from its committed corpus, copied to build-fuzz/work so that a run adds
-# nothing to the repository. Exits non-zero when any target crashes, leaks or hangs, after
-# naming the input that did it (libFuzzer's crash-/leak-/timeout- file) and how to rerun it.
+# SECONDS (default 60), as many at once as there are cores, from its committed corpus, copied to
+# build-fuzz/work so that a run adds nothing to the repository. Exits non-zero when any target
+# crashes, leaks or hangs, after naming the input that did it (libFuzzer's crash-/leak-/timeout- file) and how to rerun it.
 #
 #   scripts/fuzz.sh [SECONDS] [TARGET...]     TARGET: request snapshot config stream_msg
 set -euo pipefail
@@ -40,7 +40,14 @@ cmake --build "$build" -j "$(nproc)" --target fuzz >/dev/null
 export ASAN_OPTIONS="${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1:symbolize=1}"
 export UBSAN_OPTIONS="${UBSAN_OPTIONS:-halt_on_error=1:abort_on_error=1:print_stacktrace=1}"
 
-failed=()
+# Each target runs alone in its process: as many at once as there are cores, then each is
+# reported in order.
+run_target() {
+  local t=$1 bin="$build/fuzz/fuzz_$1" work="$build/work/$1" rc=0
+  (cd "$work" && "$bin" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
+    -dict="$root/fuzz/json.dict" -artifact_prefix="$work/found/" corpus >"$work/log" 2>&1) || rc=$?
+  echo "$rc" >"$work/rc"
+}
 for t in "${targets[@]}"; do
   bin="$build/fuzz/fuzz_$t"
   if [ ! -x "$bin" ] || [ ! -d "$root/fuzz/corpus/$t" ]; then
@@ -53,9 +60,24 @@ for t in "${targets[@]}"; do
   cp "$root/fuzz/corpus/$t"/* "$work/corpus/"
   # Snapshots of this build's parameter table, whatever the committed seeds were made with.
   if [ "$t" = snapshot ]; then "$build/fuzz/snapshot_seeds" "$work/corpus" 2>/dev/null || true; fi
-  rc=0
-  (cd "$work" && "$bin" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
-    -dict="$root/fuzz/json.dict" -artifact_prefix="$work/found/" corpus >"$work/log" 2>&1) || rc=$?
+done
+cores=$(nproc)
+running=0
+for t in "${targets[@]}"; do
+  run_target "$t" &
+  running=$((running + 1))
+  if ((running >= cores)); then
+    wait -n || true
+    running=$((running - 1))
+  fi
+done
+wait
+
+failed=()
+for t in "${targets[@]}"; do
+  bin="$build/fuzz/fuzz_$t"
+  work="$build/work/$t"
+  rc=$(cat "$work/rc")
   execs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$work/log")
   rate=$(sed -n 's/^stat::average_exec_per_sec: *//p' "$work/log")
   last=$(grep -E '^#[0-9]+' "$work/log" | tail -1 || true)
