@@ -24,6 +24,7 @@
 #include "core/pose.h"
 #include "core/problem.h"
 #include "core/settings.h"
+#include "sim/rectap.h"
 #include "sim/scene.h"
 
 /* Recordings held at once, whatever their state (POST is 422 beyond: delete one). */
@@ -60,18 +61,6 @@ int recordings_delete(recordings *r, const char *rid, problem *pr);
 /* Whether rid is a recording id (a scene id's shape). */
 int recording_id_valid(const char *rid);
 
-/* ---- the sim thread (scene.c) ---- */
-
-/* Whether a running recording of the scene wants the pose of now: one that has none yet, or any
- * when the scene changed since the last pose recorded (changed). */
-int recordings_want(scene *sc, int changed);
-/* Hands the pose to the scene's running recordings (copied): to all when the scene changed since
- * the last, else only to those that have none yet; with the scene's hello first for one that
- * starts (the scene's published reads, and these rocks). */
-void recordings_frame(scene *sc, const pose *p, const cs_rock *rocks, int n_rocks, int changed);
-/* Hands an event's text to the scene's running recordings that have their hello (copied). */
-void recordings_event(scene *sc, const char *text);
-/* The scene left the daemon: its recordings stop ("scene deleted"); none starts on it again. */
-void recordings_scene_gone(scene *sc);
+/* The sim thread's side (scene.c calls it): sim/rectap.h. */
 
 #endif

@@ -11,7 +11,7 @@
 #include "core/params_json.h"
 #include "core/rock_json.h"
 #include "core/stream_msg.h"
-#include "sim/recordings.h"
+#include "sim/rectap.h"
 #include "sim/scene.h"
 
 #define ENERGY_EVERY 0.1 /* s of wall time between energy evaluations while running */

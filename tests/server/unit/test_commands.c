@@ -115,7 +115,7 @@ static void test_table(void **unused)
     }
     assert_int_equal(changes, 10);
     for (int k = 0; k < 10; k++) assert_non_null(command_find(journaled[k])->change);
-    assert_int_equal(routes, 29);
+    assert_int_equal(routes, 33); /* 29, and the 4 of recordings */
     char *out = NULL;
     size_t len = 0;
     FILE *f = open_memstream(&out, &len);
@@ -123,7 +123,7 @@ static void test_table(void **unused)
     fclose(f);
     int lines = 0;
     for (char *p = out; *p; p++) lines += *p == '\n';
-    assert_int_equal(lines, 29 + 24); /* each of the 24 routes of a scene also under /v1/scenes/{scene} */
+    assert_int_equal(lines, 33 + 25); /* each of the 25 routes of a scene also under /v1/scenes/{scene} */
     assert_non_null(strstr(out, "GET /v1/health\n"));
     assert_non_null(strstr(out, "DELETE /v1/scenes/{scene}\n"));
     assert_non_null(strstr(out, "PATCH /v1/scenes/{scene}/rocks/{id}\n"));
@@ -131,6 +131,9 @@ static void test_table(void **unused)
     assert_non_null(strstr(out, "PATCH /v1/rocks/{id}\n"));
     assert_non_null(strstr(out, "GET /metrics\n"));
     assert_null(strstr(out, "hash"));
+    assert_non_null(strstr(out, "POST /v1/scenes/{scene}/recordings\n"));
+    assert_non_null(strstr(out, "GET /v1/recordings/{rid}\n"));
+    assert_null(strstr(out, "GET /v1/scenes/{scene}/recordings")); /* the list is the daemon's */
     free(out);
 }
 
