@@ -839,8 +839,12 @@ static int adopt(recordings *r, const char *rid)
     k->seconds = json_number_value(json_object_get(m, "seconds"));
     k->frame_rate = json_number_value(json_object_get(m, "frame_rate"));
     k->started_ns = (uint64_t)json_integer_value(json_object_get(m, "started_ns"));
-    k->state = f.complete ? REC_DONE : REC_STOPPED;
-    if (!f.complete) snprintf(k->reason, sizeof k->reason, "cut");
+    /* Finished: done when its frames span what was asked (a quarter frame's leeway, as when it
+     * ran), else it was stopped (the file does not say why). */
+    const double span = f.ix.n_frames ? f.ix.frames[f.ix.n_frames - 1].sim_time - f.ix.frames[0].sim_time : 0;
+    const int whole = span >= k->seconds - 0.25 / (k->frame_rate > 0 ? k->frame_rate : 60.0);
+    k->state = f.complete && whole ? REC_DONE : REC_STOPPED;
+    if (k->state == REC_STOPPED) snprintf(k->reason, sizeof k->reason, "%s", f.complete ? "ended early" : "cut");
     k->frames = f.ix.n_frames;
     if (f.ix.n_frames) {
         k->t_first = f.ix.frames[0].sim_time;
