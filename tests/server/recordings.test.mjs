@@ -285,3 +285,28 @@ test('a deleted scene stops its recording, which stays downloadable; the daemon 
   assert.equal(other.complete, true);
   assert.ok(other.frames.length >= 1);
 });
+
+test('clothctl record, recordings, recording RID (the file), recording delete RID', async () => {
+  const { execFile } = await import('node:child_process');
+  const d = await start([...small, '--paused']);
+  const ctl = (...args) => new Promise((resolve) => {
+    execFile(join(process.env.CLOTHD_SOURCE, 'scripts', 'clothctl'), args, { env: { PATH: process.env.PATH, CLOTHD_URL: d.url }, encoding: 'buffer' },
+      (err, stdout, stderr) => resolve({ code: err ? err.code : 0, stdout, stderr: stderr.toString() }));
+  });
+  let r = await ctl('record', '0.05', 'f32', 'by-ctl');
+  assert.equal(r.code, 0, r.stderr);
+  assert.equal(JSON.parse(r.stdout).id, 'by-ctl');
+  await ok(d, 'POST', '/v1/sim/step', { frames: 5 });
+  await finished(d, 'by-ctl');
+  r = await ctl('recordings');
+  assert.deepEqual(JSON.parse(r.stdout).recordings.map((x) => [x.id, x.state]), [['by-ctl', 'done']]);
+  r = await ctl('recording', 'by-ctl');
+  assert.deepEqual(r.stdout, await download(d, 'by-ctl'));
+  assert.equal(readRecording(r.stdout).complete, true);
+  r = await ctl('record', '0', 'f32');
+  assert.equal(r.code, 1); // refused: 422
+  r = await ctl('recording', 'delete', 'by-ctl');
+  assert.equal(r.code, 0, r.stderr);
+  assert.equal((await ok(d, 'GET', '/v1/recordings')).recordings.length, 0);
+  await stop(d);
+});
