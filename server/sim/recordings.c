@@ -80,7 +80,8 @@ struct recording {
 
     /* the bytes (dlock) */
     pthread_mutex_t dlock;
-    int fd;                /* recordings_dir: its file, else -1 */
+    int on_disk;           /* in recordings_dir (<dir>/<id>.clr), else in memory */
+    int fd;                /* on disk and written to: its file, else -1 */
     unsigned char *mem;    /* in memory */
     size_t mem_len, mem_cap;
 };
@@ -133,7 +134,7 @@ static int append(recording *k, const void *data, size_t len)
 {
     pthread_mutex_lock(&k->dlock);
     int rc = 0;
-    if (k->fd >= 0) {
+    if (k->on_disk) {
         const unsigned char *p = data;
         size_t done = 0;
         while (done < len) {
@@ -189,6 +190,16 @@ static void free_recording(recording *k)
 static void file_path(const recordings *r, const char *rid, char *out, size_t len)
 {
     snprintf(out, len, "%s/%s.clr", r->dir, rid);
+}
+
+/* Whether recordings_dir holds a file of that id (a recording it could not read, left alone). */
+static int file_exists(const recordings *r, const char *rid)
+{
+    if (!r->dir[0]) return 0;
+    char path[SETTING_TEXT_MAX + SCENE_ID_MAX + 8];
+    file_path(r, rid, path, sizeof path);
+    struct stat st;
+    return lstat(path, &st) == 0;
 }
 
 /* ---- the writer thread ---- */
@@ -322,7 +333,7 @@ static void finish(recordings *r, recording *k)
 static recording *next_work(recordings *r)
 {
     for (recording *k = r->list; k; k = k->next)
-        if (!k->busy && (k->deleting || k->count || (k->ending && k->state == REC_RECORDING))) return k;
+        if (!k->busy && ((k->deleting && !k->sc) || k->count || (k->ending && k->state == REC_RECORDING))) return k;
     return NULL;
 }
 
@@ -351,10 +362,10 @@ static void *writer(void *arg)
             pthread_cond_wait(&r->work, &r->lock);
             continue;
         }
-        if (k->deleting) {
+        if (k->deleting && !k->sc) { /* off its scene: nobody hands it anything more */
             unlink_locked(r, k);
             pthread_mutex_unlock(&r->lock);
-            if (k->fd >= 0) {
+            if (k->on_disk) {
                 char path[SETTING_TEXT_MAX + SCENE_ID_MAX + 8];
                 file_path(r, k->id, path, sizeof path);
                 if (unlink(path) != 0) log_msg("recording %s: could not remove %s: %s", k->id, path, strerror(errno));
@@ -635,7 +646,7 @@ int recordings_start(recordings *r, scene *sc, const json_t *body, json_t **answ
     if (ji) snprintf(k->id, sizeof k->id, "%s", json_string_value(ji));
     else
         do snprintf(k->id, sizeof k->id, "rec-%llu", (unsigned long long)++r->next_auto);
-        while (find(r, k->id));
+        while (find(r, k->id) || file_exists(r, k->id));
     if (find(r, k->id)) bad = problem_set(pr, 409, "exists", "id", "a recording '%s' exists already", k->id);
     else if (r->count >= RECORDINGS_MAX)
         bad = problem_set(pr, 422, "limit", "max_recordings", "clothd holds at most %d recordings: delete one first", RECORDINGS_MAX);
@@ -661,10 +672,16 @@ int recordings_start(recordings *r, scene *sc, const json_t *body, json_t **answ
     if (r->dir[0]) {
         char path[SETTING_TEXT_MAX + SCENE_ID_MAX + 8];
         file_path(r, k->id, path, sizeof path);
-        k->fd = open(path, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-        if (k->fd < 0) {
+        k->on_disk = 1;
+        k->fd = open(path, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC | O_NOFOLLOW, 0644);
+        if (k->fd < 0 && errno == EEXIST) { /* a file it did not list (not a recording it can read) */
+            problem_set(pr, 409, "exists", "id", "recordings_dir holds a file %s.clr already that is no recording of this clothd's list", k->id);
+            failed = 1;
+            k->on_disk = 0; /* not its own: left alone */
+        } else if (k->fd < 0) {
             problem_set(pr, 500, "internal", NULL, "could not create %s: %s", path, strerror(errno));
             failed = 1;
+            k->on_disk = 0;
         }
     }
     if (!failed && append(k, head, sizeof head) != 0) {
@@ -734,12 +751,12 @@ int recordings_bytes(recordings *r, const char *rid, unsigned char **out, size_t
     unsigned char *b = malloc(n ? n : 1);
     if (!b) {
         rc = problem_set(pr, 500, "internal", NULL, "out of memory");
-    } else if (k->fd < 0) {
+    } else if (!k->on_disk) {
         memcpy(b, k->mem, n);
     } else {
         char path[SETTING_TEXT_MAX + SCENE_ID_MAX + 8];
         file_path(r, k->id, path, sizeof path);
-        const int fd = open(path, O_RDONLY | O_CLOEXEC);
+        const int fd = open(path, O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
         size_t got = 0;
         while (fd >= 0 && got < n) {
             const ssize_t m = pread(fd, b + got, n - got, (off_t)got);
@@ -806,9 +823,9 @@ static int adopt(recordings *r, const char *rid)
 {
     char path[SETTING_TEXT_MAX + SCENE_ID_MAX + 8];
     file_path(r, rid, path, sizeof path);
-    const int fd = open(path, O_RDONLY | O_CLOEXEC);
+    const int fd = open(path, O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
     struct stat st;
-    if (fd < 0 || fstat(fd, &st) != 0 || st.st_size <= 0) {
+    if (fd < 0 || fstat(fd, &st) != 0 || !S_ISREG(st.st_mode) || st.st_size <= 0) {
         if (fd >= 0) close(fd);
         log_msg("recordings: %s cannot be read; left alone", path);
         return -1;
@@ -831,8 +848,8 @@ static int adopt(recordings *r, const char *rid)
     }
     const json_t *m = json_object_get(f.hello, "recording");
     k->owner = r;
-    k->fd = open(path, O_WRONLY | O_APPEND | O_CLOEXEC); /* kept: GET reads the path, DELETE unlinks it */
-    if (k->fd < 0) k->fd = open(path, O_RDONLY | O_CLOEXEC);
+    k->on_disk = 1; /* GET reads it, DELETE unlinks it; nothing writes to it */
+    k->fd = -1;
     snprintf(k->id, sizeof k->id, "%s", rid);
     snprintf(k->scene_id, sizeof k->scene_id, "%s", json_string_value(json_object_get(m, "scene")) ? json_string_value(json_object_get(m, "scene")) : "");
     k->encoding = f.encoding >= 0 ? f.encoding : CLF_DELTA;

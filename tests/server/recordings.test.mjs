@@ -248,8 +248,14 @@ test('recordings_dir: the file as it is written, listed after a restart; SIGKILL
   const last = scanned.frames.at(-1);
   const shorter = readRecording(cut.subarray(0, last.offset + 8 + Math.floor(last.length / 2)));
   assert.equal(shorter.frames.length, scanned.frames.length - 1);
-  // A restart lists both: the finished one done, the cut one stopped ("cut"); they count.
+  // A restart lists both: the finished one done, the cut one stopped ("cut"); they count. A file
+  // that is no recording is left alone, unlisted, and its name is not taken over.
+  writeFileSync(join(dir, 'junk.clr'), 'CLR1 but not really a recording');
   d = await start([...small, '--recordings-dir', dir]);
+  assert.match(d.log, /junk\.clr is not a recording clothd can read/);
+  const clash = await call(d, 'POST', '/v1/recordings', { seconds: 1, id: 'junk' });
+  assert.equal(clash.status, 409, clash.text);
+  assert.equal(readFileSync(join(dir, 'junk.clr'), 'utf8'), 'CLR1 but not really a recording');
   const all = (await ok(d, 'GET', '/v1/recordings'));
   const byId = Object.fromEntries(all.recordings.map((r) => [r.id, r]));
   assert.deepEqual([byId.kept.state, byId.kept.frames, byId.kept.bytes, byId.kept.encoding], ['done', 31, file.length, 'f32']);
@@ -259,7 +265,7 @@ test('recordings_dir: the file as it is written, listed after a restart; SIGKILL
   // Deleted: the file goes too; a new one takes the id.
   await ok(d, 'DELETE', '/v1/recordings/kept');
   assert.equal(existsSync(join(dir, 'kept.clr')), false);
-  assert.deepEqual(readdirSync(dir), ['cut.clr']);
+  assert.deepEqual(readdirSync(dir).sort(), ['cut.clr', 'junk.clr']);
   await stop(d);
 });
 
