@@ -52,8 +52,10 @@ struct recording {
     char reason[64];
     int ending;            /* no more items come: the writer ends it once its queue is empty */
     int deleting;          /* DELETE: the writer frees it */
+    int starting;          /* POST is setting it up: its id is taken, the routes do not see it yet */
     int busy;              /* the writer works on it outside the lock, or GET copies it */
     int capped;            /* stopped at max_recordings_mb: what is still queued goes unwritten */
+    int write_failed;      /* a write failed: no index is written after it */
     uint64_t frames, frames_dropped, events_dropped, bytes;
     double t_first, t_last; /* sim times of the first and last frames written */
     rec_item items[REC_QUEUE_ITEMS];
@@ -101,12 +103,15 @@ struct recordings {
 
 int recording_id_valid(const char *rid) { return scene_id_valid(rid); }
 
-static recording *find(recordings *r, const char *rid)
+/* The recording of an id (the table's lock held): one being started too when `starting`, else
+ * only those the routes see (not one a POST is still setting up, nor one being deleted). */
+static recording *find_as(recordings *r, const char *rid, int starting)
 {
     for (recording *k = r->list; k; k = k->next)
-        if (!k->deleting && strcmp(k->id, rid) == 0) return k;
+        if ((starting || !k->starting) && !k->deleting && strcmp(k->id, rid) == 0) return k;
     return NULL;
 }
+static recording *find(recordings *r, const char *rid) { return find_as(r, rid, 0); }
 
 /* What the recordings take together: the bytes written, and for a running one at least its estimate. */
 static uint64_t reserved(const recordings *r)
@@ -241,6 +246,8 @@ static uint64_t put_record(recordings *r, recording *k, uint32_t type, const uns
         log_msg("recording %s: write failed: %s; stopped", k->id, strerror(errno));
         pthread_mutex_lock(&r->lock);
         stop_locked(k, "write failed");
+        k->capped = 1;      /* what is still queued goes unwritten */
+        k->write_failed = 1; /* and no index after a record cut short: the file reads as cut */
         pthread_mutex_unlock(&r->lock);
         return 0;
     }
@@ -278,8 +285,16 @@ static void write_item(recordings *r, recording *k, rec_item *it)
     at = k->mem_len;
     pthread_mutex_unlock(&k->dlock);
     if (it->kind == REC_TEXT) {
+        /* In the index first (it may be full), so that no record is written that it lacks. */
+        if (rec_index_add_text(&k->ix, at) != 0) {
+            pthread_mutex_lock(&r->lock);
+            k->events_dropped++;
+            pthread_mutex_unlock(&r->lock);
+            return;
+        }
         const uint64_t size = put_record(r, k, REC_TEXT, (const unsigned char *)it->text, strlen(it->text));
-        if (size && rec_index_add_text(&k->ix, at) == 0) {
+        if (!size) k->ix.n_texts--;
+        if (size) {
             pthread_mutex_lock(&r->lock);
             k->bytes += size;
             r->total += size;
@@ -297,8 +312,17 @@ static void write_item(recordings *r, recording *k, rec_item *it)
     }
     if (key) k->last_key = k->ix.n_frames;
     const rec_frame f = {at, it->p->sim_time, key ? k->ix.n_frames : k->last_key, k->ix.n_texts};
+    if (rec_index_add_frame(&k->ix, &f) != 0) {
+        pthread_mutex_lock(&r->lock);
+        k->frames_dropped++;
+        pthread_mutex_unlock(&r->lock);
+        return;
+    }
     const uint64_t size = put_record(r, k, REC_FRAME, k->buf, len);
-    if (!size || rec_index_add_frame(&k->ix, &f) != 0) return;
+    if (!size) {
+        k->ix.n_frames--;
+        return;
+    }
     pthread_mutex_lock(&r->lock);
     if (k->frames == 0) k->t_first = f.sim_time;
     k->t_last = f.sim_time;
@@ -315,11 +339,11 @@ static void finish(recordings *r, recording *k)
     const uint64_t at = k->mem_len;
     pthread_mutex_unlock(&k->dlock);
     size_t len = 0;
-    unsigned char *tail = rec_index_finish(&k->ix, at, &len);
+    unsigned char *tail = k->write_failed ? NULL : rec_index_finish(&k->ix, at, &len);
     const int ok = tail && append(k, tail, len) == 0;
     free(tail);
     if (ok && k->fd >= 0 && fsync(k->fd) != 0) log_msg("recording %s: fsync: %s", k->id, strerror(errno));
-    if (!ok) log_msg("recording %s: its index could not be written: %s", k->id, strerror(errno));
+    if (!ok && !k->write_failed) log_msg("recording %s: its index could not be written: %s", k->id, strerror(errno));
     pthread_mutex_lock(&r->lock);
     if (ok) {
         k->bytes += len;
@@ -646,8 +670,8 @@ int recordings_start(recordings *r, scene *sc, const json_t *body, json_t **answ
     if (ji) snprintf(k->id, sizeof k->id, "%s", json_string_value(ji));
     else
         do snprintf(k->id, sizeof k->id, "rec-%llu", (unsigned long long)++r->next_auto);
-        while (find(r, k->id) || file_exists(r, k->id));
-    if (find(r, k->id)) bad = problem_set(pr, 409, "exists", "id", "a recording '%s' exists already", k->id);
+        while (find_as(r, k->id, 1) || file_exists(r, k->id));
+    if (find_as(r, k->id, 1)) bad = problem_set(pr, 409, "exists", "id", "a recording '%s' exists already", k->id);
     else if (r->count >= RECORDINGS_MAX)
         bad = problem_set(pr, 422, "limit", "max_recordings", "clothd holds at most %d recordings: delete one first", RECORDINGS_MAX);
     else if (r->cap && reserved(r) + estimate > r->cap)
@@ -656,6 +680,7 @@ int recordings_start(recordings *r, scene *sc, const json_t *body, json_t **answ
                           "another encoding, or delete recordings",
                           (double)estimate / 1048576.0, (double)(r->cap - (reserved(r) < r->cap ? reserved(r) : r->cap)) / 1048576.0);
     if (!bad) { /* in the list (its id taken) but nothing to write yet: the writer leaves it be */
+        k->starting = 1;
         k->next = r->list;
         r->list = k;
         r->count++;
@@ -703,6 +728,7 @@ int recordings_start(recordings *r, scene *sc, const json_t *body, json_t **answ
         pthread_mutex_unlock(&sc->rlock);
     }
     pthread_mutex_lock(&r->lock);
+    k->starting = 0;
     if (failed) {
         k->deleting = 1; /* the writer removes it (and its file) */
         pthread_cond_signal(&r->work);
@@ -721,7 +747,7 @@ json_t *recordings_list(recordings *r)
     json_t *list = json_array();
     pthread_mutex_lock(&r->lock);
     for (const recording *k = r->list; k; k = k->next)
-        if (!k->deleting) json_array_append_new(list, entry_json(k));
+        if (!k->deleting && !k->starting) json_array_append_new(list, entry_json(k));
     const uint64_t total = r->total, cap = r->cap;
     pthread_mutex_unlock(&r->lock);
     return json_pack("{s:o, s:i, s:f, s:f}", "recordings", list, "max_recordings", RECORDINGS_MAX, "recordings_mb",
