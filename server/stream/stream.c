@@ -369,7 +369,6 @@ static char *hello_text(const session *s)
 {
     json_t *o = scene_hello(s->sc, NULL, 0);
     if (!o) return NULL;
-    json_object_set_new(o, "scene_id", json_string(s->f->id));
     json_object_set_new(o, "subscription", subscription_json(s));
     char *text = json_dumps(o, JSON_DUMP_FLAGS);
     json_decref(o);

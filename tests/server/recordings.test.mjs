@@ -101,6 +101,7 @@ test('a running scene: frame_rate x seconds + 1 frames one period apart, the hel
   // The delta recording: the rock's event, the rock in the frames after it; keyframes.
   const dr = await finished(d, 'rec-1');
   assert.equal(dr.state, 'done');
+  assert.equal(dr.frames_dropped, 0);
   const drec = readRecording(await download(d, 'rec-1'));
   // 2.5 s x 60 + 1, and the pose the rock's command published between two frames (at the step
   // of the frame before it).
@@ -233,6 +234,7 @@ test('recordings_dir: the file as it is written, listed after a restart; SIGKILL
   await ok(d, 'POST', '/v1/recordings', { seconds: 0.5, encoding: 'f32', id: 'kept' });
   const done = await finished(d, 'kept');
   assert.equal(done.state, 'done');
+  assert.equal(done.frames_dropped, 0);
   const file = readFileSync(join(dir, 'kept.clr'));
   assert.deepEqual(file, await download(d, 'kept'));
   assert.equal(readRecording(file).frames.length, 31);
