@@ -576,6 +576,9 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     metrics *m = metrics_new();
     simloop *sl = m ? simloop_new(table, m) : NULL;
     recordings *recs = sl ? recordings_new(&cfg->set, err, sizeof err) : NULL;
+#ifdef CLOTHD_TEST_HOOKS
+    if (recs && testhooks_recording_slow()) recordings_set_write_hook(recs, testhooks_before_recording_write);
+#endif
     stream *st = recs ? stream_start(&cfg->set, table, acc, err, sizeof err) : NULL;
     http_info info = about;
     info.recordings = recs;

@@ -99,7 +99,10 @@ struct recordings {
     double quantum;
     pthread_t writer;
     int writer_started;
+    void (*before_write)(void); /* the test daemon's hook, or NULL */
 };
+
+void recordings_set_write_hook(recordings *r, void (*hook)(void)) { r->before_write = hook; }
 
 int recording_id_valid(const char *rid) { return scene_id_valid(rid); }
 
@@ -302,6 +305,7 @@ static void write_item(recordings *r, recording *k, rec_item *it)
         }
         return;
     }
+    if (r->before_write) r->before_write();
     int key = 1;
     const size_t len = encode(r, k, it->p, &key);
     if (!len) {

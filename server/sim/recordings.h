@@ -45,6 +45,9 @@ recordings *recordings_new(const clothd_settings *set, char *err, size_t err_len
  * index and tail; the writer thread ends. Then frees everything. */
 void recordings_free(recordings *r);
 
+/* The test daemon's hook (testhooks.h): called by the writer thread before it writes each frame. */
+void recordings_set_write_hook(recordings *r, void (*hook)(void));
+
 /* ---- HTTP threads ---- */
 
 /* POST /v1/scenes/{id}/recordings: checks the body ({seconds, encoding?, id?}) and the limits,

@@ -14,7 +14,7 @@ import { existsSync, readFileSync, readdirSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { MeshoptDecoder } from 'meshoptimizer';
 import { ZSTDDecoder } from 'zstddec';
-import { start, stop, call, ok, until, tempDir } from './harness.mjs';
+import { start, stop, call, ok, until, tempDir, TESTHOOKS } from './harness.mjs';
 
 const { readRecording } = await import(join(process.env.CLOTHD_SOURCE, 'proto', 'recording.mjs'));
 const { createDecoder } = await import(join(process.env.CLOTHD_SOURCE, 'proto', 'frame.mjs'));
@@ -292,6 +292,26 @@ test('a deleted scene stops its recording, which stays downloadable; the daemon 
   const other = readRecording(readFileSync(join(dir, 'of-default.clr')));
   assert.equal(other.complete, true);
   assert.ok(other.frames.length >= 1);
+});
+
+test('a writer that falls behind drops frames with a count, never waits the scene, and the file still decodes', async () => {
+  // The test daemon's writer waits 40 ms before each frame: 25 a second against the scene's 60.
+  const d = await start(small, { bin: TESTHOOKS, env: { CLOTHD_TEST_RECORDING_WRITE_MS: '40' } });
+  await ok(d, 'POST', '/v1/recordings', { seconds: 2, id: 'slow' }); // delta
+  const t0 = (await ok(d, 'GET', '/v1/sim')).sim_time, w0 = Date.now();
+  const r = await finished(d, 'slow');
+  assert.equal(r.state, 'done');
+  assert.ok(r.frames_dropped > 0, JSON.stringify(r));
+  // Every pose handed over is written or counted: 2 s x 60 + 1.
+  assert.equal(r.frames + r.frames_dropped, 121, JSON.stringify(r));
+  const rec = readRecording(await download(d, 'slow'));
+  assert.equal(rec.frames.length, r.frames);
+  assert.equal(decodeAll(rec).length, r.frames); // each delta has its keyframe before it
+  // The scene did not wait for the writer: about as much sim time as wall time passed meanwhile
+  // (the writer alone would have taken 121 x 40 ms = 4.8 s for the 2 s).
+  const t1 = (await ok(d, 'GET', '/v1/sim')).sim_time, w1 = Date.now();
+  assert.ok(t1 - t0 > 0.5 * (w1 - w0) / 1000, `${t1 - t0} s of sim time in ${(w1 - w0) / 1000} s`);
+  await stop(d);
 });
 
 test('clothctl record, recordings, recording RID (the file), recording delete RID', async () => {
