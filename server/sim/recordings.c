@@ -653,8 +653,11 @@ int recordings_start(recordings *r, scene *sc, const json_t *body, json_t **answ
     const double frame_rate = doc_number(sc, DOC_PARAMS, "frame_rate");
     const int32_t n = (int32_t)doc_number(sc, DOC_SIM, "n_vertices"), rocks = (int32_t)doc_number(sc, DOC_SIM, "n_rocks");
     const double frames = ceil(seconds * (frame_rate > 0 ? frame_rate : 60.0)) + 1;
+    /* and, while it runs, its working memory: its pose buffers, its encoder (36 bytes a vertex for
+     * delta's grids and planes) and encoding buffers (about 24 bytes a vertex) */
+    const uint64_t working = REC_QUEUE_FRAMES * (12 * (uint64_t)n + sizeof(pose_rock) * (uint64_t)rocks) + 60 * (uint64_t)n;
     const uint64_t estimate = REC_HEADER_SIZE + REC_TEXT_ALLOWANCE + (uint64_t)frames * frame_estimate(encoding, n, rocks) +
-                              rec_index_size(0, 0);
+                              rec_index_size(0, 0) + working;
 
     recording *k = calloc(1, sizeof *k);
     if (!k) return problem_set(pr, 500, "internal", NULL, "out of memory");
