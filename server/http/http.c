@@ -119,10 +119,12 @@ static MHD_Result send_reply(req *r, reply *rep)
 {
     api_reply *a = &rep->a;
     struct MHD_Response *resp =
-        MHD_create_response_from_buffer(a->body ? a->len : 0, a->body ? a->body : (void *)"",
-                                         a->body ? MHD_RESPMEM_MUST_FREE : MHD_RESPMEM_PERSISTENT);
+        a->body && a->release ? MHD_create_response_from_buffer_with_free_callback_cls(a->len, a->body, a->release, a->release_cls)
+                              : MHD_create_response_from_buffer(a->body ? a->len : 0, a->body ? a->body : (void *)"",
+                                                                a->body ? MHD_RESPMEM_MUST_FREE : MHD_RESPMEM_PERSISTENT);
     if (!resp) {
-        free(a->body);
+        if (a->body && a->release) a->release(a->release_cls);
+        else free(a->body);
         return MHD_NO;
     }
     if (a->ctype) MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, a->ctype);

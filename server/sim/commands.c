@@ -297,8 +297,15 @@ static int rq_recording_get(const api_request *rq, api_reply *out, scene_cmd *la
     problem pr;
     unsigned char *bytes;
     size_t len;
-    if (recordings_bytes(r, rq->rid, &bytes, &len, &pr) != 0) return reply_problem(out, &pr);
+    void *copy;
+    if (recordings_bytes(r, rq->rid, &bytes, &len, &copy, &pr) != 0) {
+        reply_problem(out, &pr);
+        if (pr.status == 503) out->retry_after = 1;
+        return API_NOW;
+    }
     snprintf(out->disposition, sizeof out->disposition, "attachment; filename=\"%s.clr\"", rq->rid);
+    out->release = recordings_release;
+    out->release_cls = copy;
     return reply_text(out, 200, RECORDING_TYPE, (char *)bytes, len);
 }
 

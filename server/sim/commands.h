@@ -98,6 +98,8 @@ typedef struct api_reply {
     int retry_after;
     char location[SCENE_ID_MAX + 24];
     char disposition[SCENE_ID_MAX + 40]; /* Content-Disposition (empty: none) */
+    void (*release)(void *cls);          /* frees body once it is sent (NULL: free(body)) */
+    void *release_cls;
 } api_reply;
 
 /* What a row's request function did: answered (*now), or made the command (*later) for the sim

@@ -94,6 +94,7 @@ struct recordings {
     recording *list;
     int count, stop;
     uint64_t cap, total; /* max_recordings_mb, and the bytes of every recording */
+    uint64_t copies;     /* bytes of the copies being sent to clients */
     uint64_t next_auto;
     char dir[SETTING_TEXT_MAX];
     double quantum;
@@ -766,15 +767,45 @@ static int not_found(const char *rid, problem *pr)
     return problem_set(pr, 404, "not-found", "id", "no recording '%.64s' (GET /v1/recordings lists them)", rid);
 }
 
-int recordings_bytes(recordings *r, const char *rid, unsigned char **out, size_t *len, problem *pr)
+/* A copy on its way to a client: what it counts in r->copies until it is handed back. */
+typedef struct rec_copy {
+    recordings *r;
+    size_t len;
+    unsigned char *bytes;
+} rec_copy;
+
+void recordings_release(void *copy)
+{
+    rec_copy *c = copy;
+    if (!c) return;
+    pthread_mutex_lock(&c->r->lock);
+    c->r->copies -= c->len;
+    pthread_mutex_unlock(&c->r->lock);
+    free(c->bytes);
+    free(c);
+}
+
+int recordings_bytes(recordings *r, const char *rid, unsigned char **out, size_t *len, void **copy, problem *pr)
 {
     *out = NULL;
     *len = 0;
+    *copy = NULL;
+    rec_copy *c = calloc(1, sizeof *c);
+    if (!c) return problem_set(pr, 500, "internal", NULL, "out of memory");
+    c->r = r;
     pthread_mutex_lock(&r->lock);
     recording *k = recording_id_valid(rid) ? find(r, rid) : NULL;
     if (!k) {
         pthread_mutex_unlock(&r->lock);
+        free(c);
         return not_found(rid, pr);
+    }
+    /* Copies being sent take at most max_recordings_mb besides the recordings (a slow client holds
+     * its copy until it has read it). */
+    if (r->cap && r->copies + k->bytes > r->cap && r->copies > 0) {
+        pthread_mutex_unlock(&r->lock);
+        free(c);
+        return problem_set(pr, 503, "busy", NULL, "downloads of recordings take max_recordings_mb already: try again");
     }
     k->busy++; /* the writer leaves it (and DELETE waits) while it is copied */
     pthread_mutex_unlock(&r->lock);
@@ -807,11 +838,18 @@ int recordings_bytes(recordings *r, const char *rid, unsigned char **out, size_t
     pthread_mutex_unlock(&k->dlock);
     pthread_mutex_lock(&r->lock);
     k->busy--;
+    if (!rc) r->copies += n;
     pthread_cond_broadcast(&r->work);
     pthread_mutex_unlock(&r->lock);
-    if (rc) return rc;
+    if (rc) {
+        free(c);
+        return rc;
+    }
+    c->bytes = b;
+    c->len = n;
     *out = b;
     *len = n;
+    *copy = c;
     return 0;
 }
 

@@ -57,8 +57,11 @@ void recordings_set_write_hook(recordings *r, void (*hook)(void));
 int recordings_start(recordings *r, scene *sc, const json_t *body, json_t **answer, char *rid, problem *pr);
 /* GET /v1/recordings's JSON. */
 json_t *recordings_list(recordings *r);
-/* The bytes of a recording so far (malloc'd, *len): 0, or -1 with the problem (404). */
-int recordings_bytes(recordings *r, const char *rid, unsigned char **out, size_t *len, problem *pr);
+/* A copy of the bytes of a recording so far (*out, *len), to be handed back with
+ * recordings_release(*copy) once sent: 0, or -1 with the problem (404; 503 busy while copies being
+ * sent already take max_recordings_mb). */
+int recordings_bytes(recordings *r, const char *rid, unsigned char **out, size_t *len, void **copy, problem *pr);
+void recordings_release(void *copy);
 /* Deletes one (a running one stops first): 0, or -1 with the problem (404). */
 int recordings_delete(recordings *r, const char *rid, problem *pr);
 /* Whether rid is a recording id (a scene id's shape). */

@@ -16,7 +16,7 @@ import { MeshoptDecoder } from 'meshoptimizer';
 import { ZSTDDecoder } from 'zstddec';
 import { start, stop, call, ok, until, tempDir, TESTHOOKS } from './harness.mjs';
 
-const { readRecording } = await import(join(process.env.CLOTHD_SOURCE, 'proto', 'recording.mjs'));
+const { readRecording, buildRecording } = await import(join(process.env.CLOTHD_SOURCE, 'proto', 'recording.mjs'));
 const { createDecoder } = await import(join(process.env.CLOTHD_SOURCE, 'proto', 'frame.mjs'));
 await MeshoptDecoder.ready;
 const zstd = new ZSTDDecoder();
@@ -225,6 +225,48 @@ test('max_recordings_mb: a recording whose estimate does not fit is refused; one
   assert.equal(rec.complete, true);
   assert.equal(rec.frames.length, r.frames);
   assert.equal(decodeAll(rec).at(-1).nRocks, 100);
+  await stop(d);
+});
+
+test('a file written by proto/recording.mjs is listed from recordings_dir; downloads not yet read count against max_recordings_mb', async () => {
+  // 20 f32 frames of a 256 x 256 cloth: 15.7 MB, built by the lead's writer, not the daemon's.
+  const n = 256 * 256, frames = [];
+  for (let k = 0; k < 20; k++) {
+    const f = new Uint8Array(72 + 12 * n), dv = new DataView(f.buffer);
+    f.set([0x43, 0x4c, 0x46, 0x31]); // CLF1
+    dv.setUint16(4, 72, true);
+    dv.setFloat64(24, k / 60, true);
+    dv.setUint32(40, n, true);
+    frames.push(f);
+  }
+  const file = buildRecording([{ type: 'hello', scene: { nx: 256, ny: 256 } }, ...frames],
+    { recording: { id: 'big', scene: 'elsewhere', encoding: 'f32', seconds: 19 / 60, started_ns: 0, frame_rate: 60 } });
+  const dir = tempDir();
+  writeFileSync(join(dir, 'big.clr'), file);
+  const d = await start([...small, '--recordings-dir', dir, '--max-recordings-mb', '24']);
+  const big = await listed(d, 'big');
+  assert.deepEqual([big.state, big.frames, big.bytes, big.scene, big.encoding], ['done', 20, file.length, 'elsewhere', 'f32']);
+  // A client that does not read its download holds its copy (the kernel's socket buffers take
+  // part of it): beside it, another copy would take the copies past max_recordings_mb, 503 busy
+  // with Retry-After, until that client goes.
+  const net = await import('node:net');
+  const sock = net.connect(Number(new URL(d.url).port), '127.0.0.1', () => {
+    sock.write('GET /v1/recordings/big HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n');
+    sock.pause();
+  });
+  sock.on('error', () => {});
+  const busy = await until('a busy download', async () => {
+    const b = await call(d, 'GET', '/v1/recordings/big');
+    return b.status === 503 ? b : null;
+  }, slow);
+  assert.equal(busy.json.type, 'urn:clothd:problem:busy');
+  assert.equal(busy.headers.get('retry-after'), '1');
+  sock.destroy();
+  const again = await until('the download again', async () => {
+    const b = await call(d, 'GET', '/v1/recordings/big');
+    return b.status === 200 ? b : null;
+  }, slow);
+  assert.ok(again.buf.equals(Buffer.from(file)));
   await stop(d);
 });
 
