@@ -4,13 +4,13 @@
 # build-fuzz/work so that a run adds nothing to the repository. Exits non-zero when any target
 # crashes, leaks or hangs, after naming the input that did it (libFuzzer's crash-/leak-/timeout- file) and how to rerun it.
 #
-#   scripts/fuzz.sh [SECONDS] [TARGET...]     TARGET: request snapshot config stream_msg
+#   scripts/fuzz.sh [SECONDS] [TARGET...]     TARGET: request snapshot config stream_msg recording
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 seconds=${1:-60}
 shift || true
 targets=("$@")
-((${#targets[@]})) || targets=(request snapshot config stream_msg)
+((${#targets[@]})) || targets=(request snapshot config stream_msg recording)
 if ! [[ $seconds =~ ^[0-9]+$ ]] || ((seconds < 1)); then
   echo "usage: scripts/fuzz.sh [SECONDS] [TARGET...]" >&2
   exit 2

@@ -33,6 +33,7 @@
 #include "core/statefile.h"
 #include "http/http.h"
 #include "sim/commands.h"
+#include "sim/recordings.h"
 #include "sim/scenes.h"
 #include "sim/simloop.h"
 #include "stream/stream.h"
@@ -568,14 +569,19 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     snprintf(backend, sizeof backend, "%s", cs_sim_backend(sim));
     snprintf(device, sizeof device, "%s", cs_sim_device(sim));
     snprintf(note, sizeof note, "%s", cs_sim_backend_note(sim));
-    const http_info about = {backend, device, note, CLOTHD_VERSION, NULL, 0, acc};
+    const http_info about = {backend, device, note, CLOTHD_VERSION, NULL, 0, acc, NULL};
     scenes *table = first_table(sim, cfg, backend);
     if (!table) return EXIT_START;
     scenes_set_factory(table, &cfg->scene, &cfg->set, backend);
     metrics *m = metrics_new();
     simloop *sl = m ? simloop_new(table, m) : NULL;
-    stream *st = sl ? stream_start(&cfg->set, table, acc, err, sizeof err) : NULL;
+    recordings *recs = sl ? recordings_new(&cfg->set, err, sizeof err) : NULL;
+#ifdef CLOTHD_TEST_HOOKS
+    if (recs && testhooks_recording_slow()) recordings_set_write_hook(recs, testhooks_before_recording_write);
+#endif
+    stream *st = recs ? stream_start(&cfg->set, table, acc, err, sizeof err) : NULL;
     http_info info = about;
+    info.recordings = recs;
     info.stream = st;
     info.stream_port = st ? stream_port(st) : 0;
     if (st) {
@@ -591,9 +597,10 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     http_server *http = st ? http_start(&cfg->set, table, m, &info, err, sizeof err) : NULL;
     const int started = http && simloop_start(sl) == 0;
     if (!started) {
-        log_msg("%s", !m || !sl ? "out of memory" : !st || !http ? err : "cannot start the sim thread");
+        log_msg("%s", !m || !sl ? "out of memory" : !recs || !st || !http ? err : "cannot start the sim thread");
         http_stop(http);
         stream_stop(st);
+        recordings_free(recs);
         simloop_free(sl);
         scenes_free(table);
         metrics_free(m);
@@ -621,12 +628,14 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
         http_quiesce(http);
         http_stop(http);
         stream_stop(st);
+        recordings_free(recs); /* running ones stop ("shutdown") with their index */
     } else {
         log_msg("signal %d: stopping", sig);
         http_quiesce(http);
         simloop_stop(sl);
         http_stop(http);
         stream_stop(st);
+        recordings_free(recs); /* running ones stop ("shutdown") with their index */
         rc = save_on_exit(table, cfg->set.state_file) == 0 ? 0 : EXIT_SAVE;
     }
     simloop_free(sl);

@@ -7,7 +7,7 @@
 #include "cs_testhooks.h"
 #include "testhooks.h"
 
-static long long nan_frame = -1, fail_frame = -1, save_pause_ms = -1;
+static long long nan_frame = -1, fail_frame = -1, save_pause_ms = -1, recording_write_ms = -1;
 
 static long long env_number(const char *name)
 {
@@ -29,6 +29,17 @@ void testhooks_init(void)
     nan_frame = env_number("CLOTHD_TEST_NAN_FRAME");
     fail_frame = env_number("CLOTHD_TEST_BACKEND_FAIL_FRAME");
     save_pause_ms = env_number("CLOTHD_TEST_SAVE_PAUSE_MS");
+    recording_write_ms = env_number("CLOTHD_TEST_RECORDING_WRITE_MS");
+    if (recording_write_ms >= 0) log_msg("test hook: the recordings' writer waits %lld ms before each frame", recording_write_ms);
+}
+
+int testhooks_recording_slow(void) { return recording_write_ms >= 0; }
+
+void testhooks_before_recording_write(void)
+{
+    struct timespec ts = {(time_t)(recording_write_ms / 1000), (long)(recording_write_ms % 1000) * 1000000L};
+    while (nanosleep(&ts, &ts) != 0 && errno == EINTR) {
+    }
 }
 
 void testhooks_before_frame(cs_sim *sim, uint64_t frame)

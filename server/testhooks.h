@@ -8,6 +8,8 @@
  *                                     next frame gets CS_E_DEVICE)
  *   CLOTHD_TEST_SAVE_PAUSE_MS=M       while saving the state file, wait M ms between writing the
  *                                     temp file and renaming it (a test kills the daemon there)
+ *   CLOTHD_TEST_RECORDING_WRITE_MS=M  the recordings' writer waits M ms before each frame it
+ *                                     writes (a slow disk: it falls behind the scene); not one-shot
  *
  * Frames count as GET /v1/sim's `frame`. Each hook logs what it does. */
 #ifndef CLOTHD_TESTHOOKS_H
@@ -27,5 +29,8 @@ void testhooks_init(void);
 void testhooks_before_frame(cs_sim *sim, uint64_t frame);
 /* From the state file writer, between writing `tmp` and renaming it. */
 void testhooks_before_rename(const char *tmp);
+/* Whether CLOTHD_TEST_RECORDING_WRITE_MS is set; and from the recordings' writer, before each frame. */
+int testhooks_recording_slow(void);
+void testhooks_before_recording_write(void);
 
 #endif

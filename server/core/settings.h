@@ -68,7 +68,9 @@ enum { STATE_INVALID_REFUSE, STATE_INVALID_FRESH };
     X(journal_max, INT, "-", 100000, 10, 10000000, NONE, "Journal entries kept before it restarts from a new base snapshot") \
     X(journal_max_mb, INT, "-", 64, 1, 65536, NONE, "MiB of journal entries kept before it restarts from a new base snapshot") \
     X(stream_events_mb, INT, "-", 16, 1, 65536, NONE, "MiB of recent events kept for stream clients to read; one that falls further behind is disconnected") \
-    X(queue_max, INT, "-", 1024, 1, 1000000, NONE, "Most commands waiting for the simulation thread (503 busy beyond)")
+    X(queue_max, INT, "-", 1024, 1, 1000000, NONE, "Most commands waiting for the simulation thread (503 busy beyond)") \
+    X(max_recordings_mb, INT, "-", 256, 1, 1048576, NONE, "MiB all recordings may take together, in memory or in recordings_dir (a recording whose estimate does not fit is 422; one that reaches it mid-way stops)") \
+    X(recordings_dir, STR, "-", "", 0, 0, NONE, "Directory recordings are written to as <id>.clr, sequentially as frames come (crash-safe), and listed from at start; empty = in memory")
 
 /* The daemon's own live parameters of a scene: how the sim thread paces it, drops rocks into it
  * and keeps its checkpoints. Changed with PATCH /v1/params like the engine's, kept by the daemon

@@ -119,10 +119,12 @@ static MHD_Result send_reply(req *r, reply *rep)
 {
     api_reply *a = &rep->a;
     struct MHD_Response *resp =
-        MHD_create_response_from_buffer(a->body ? a->len : 0, a->body ? a->body : (void *)"",
-                                         a->body ? MHD_RESPMEM_MUST_FREE : MHD_RESPMEM_PERSISTENT);
+        a->body && a->release ? MHD_create_response_from_buffer_with_free_callback_cls(a->len, a->body, a->release, a->release_cls)
+                              : MHD_create_response_from_buffer(a->body ? a->len : 0, a->body ? a->body : (void *)"",
+                                                                a->body ? MHD_RESPMEM_MUST_FREE : MHD_RESPMEM_PERSISTENT);
     if (!resp) {
-        free(a->body);
+        if (a->body && a->release) a->release(a->release_cls);
+        else free(a->body);
         return MHD_NO;
     }
     if (a->ctype) MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, a->ctype);
@@ -134,6 +136,7 @@ static MHD_Result send_reply(req *r, reply *rep)
         MHD_add_response_header(resp, MHD_HTTP_HEADER_RETRY_AFTER, v);
     }
     if (a->location[0]) MHD_add_response_header(resp, MHD_HTTP_HEADER_LOCATION, a->location);
+    if (a->disposition[0]) MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_DISPOSITION, a->disposition);
     if (rep->authenticate) MHD_add_response_header(resp, MHD_HTTP_HEADER_WWW_AUTHENTICATE, "Bearer realm=\"clothd\"");
     if (rep->close) MHD_add_response_header(resp, MHD_HTTP_HEADER_CONNECTION, "close");
     if (r->request_id[0]) MHD_add_response_header(resp, "X-Request-Id", r->request_id);
@@ -328,7 +331,7 @@ static MHD_Result dispatch(req *r)
     }
     const char *h = query(r, "hash");
     const api_request rq = {m.def, r->sc, r->body, r->len, NULL, m.id, wants_binary(r),
-                            h && (strcmp(h, "1") == 0 || strcmp(h, "true") == 0), &s->daemon, m.scene};
+                            h && (strcmp(h, "1") == 0 || strcmp(h, "true") == 0), &s->daemon, m.scene, m.rid};
     if (command_request(&rq, &rep.a, &r->cmd) == API_NOW) return send_reply(r, &rep);
     r->phase = 1;
     memcpy(r->cmd.request_id, r->request_id, sizeof r->cmd.request_id);
@@ -615,7 +618,7 @@ http_server *http_start(const clothd_settings *set, scenes *table, metrics *m, c
     s->info = *info;
     s->set = *set;
     s->daemon = (api_daemon){info->backend, info->device, info->backend_note, info->version,
-                             info->stream ? info->stream_port : 0, table, m, http_metrics, s};
+                             info->stream ? info->stream_port : 0, table, info->recordings, m, http_metrics, s};
     pthread_mutex_init(&s->stop_lock, NULL);
     pthread_cond_init(&s->stop_cond, NULL);
     s->rate = ratelimit_new(set->rate_limit, set->rate_burst);

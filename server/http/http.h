@@ -18,12 +18,14 @@
 typedef struct http_server http_server;
 
 struct stream;
+struct recordings;
 
 typedef struct http_info {
     const char *backend, *device, *backend_note, *version;
     struct stream *stream; /* NULL when there is none */
     int stream_port;
     const access_policy *access; /* tokens, allowed hosts */
+    struct recordings *recordings; /* NULL: none */
 } http_info;
 
 /* Starts listening (settings: listen, port, http_threads, http_nice, max_body, max_connections,

@@ -14,11 +14,22 @@
 #include "sim/changes.h"
 #include "sim/commands.h"
 #include "sim/controls.h"
+#include "sim/recordings.h"
 #include "sim/scenes.h"
 
 #define JSON_TYPE "application/json"
 #define PROBLEM_TYPE "application/problem+json"
 #define OCTETS "application/octet-stream"
+#define RECORDING_TYPE "application/vnd.clothd.recording"
+
+/* The answer of a "wake" nobody waits for: it is freed. */
+static void free_wake(scene_cmd *cmd, void *arg)
+{
+    (void)arg;
+    json_decref(cmd->result);
+    free(cmd->blob);
+    free(cmd);
+}
 
 /* ---- answers ---- */
 
@@ -240,6 +251,74 @@ static int rq_scene_delete(const api_request *rq, api_reply *out, scene_cmd *lat
     return reply_json(out, 200, json_pack("{s:s, s:b}", "id", rq->scene_id, "deleted", 1));
 }
 
+/* ---- recordings ---- */
+
+static int no_recordings(api_reply *out)
+{
+    problem pr;
+    problem_set(&pr, 503, "unavailable", NULL, "this clothd keeps no recordings");
+    return reply_problem(out, &pr);
+}
+
+static int rq_recording_start(const api_request *rq, api_reply *out, scene_cmd *later)
+{
+    (void)later;
+    recordings *r = rq->daemon->recordings;
+    if (!r) return no_recordings(out);
+    problem pr;
+    json_t *answer;
+    char rid[SCENE_ID_MAX];
+    if (recordings_start(r, rq->sc, rq->object, &answer, rid, &pr) != 0) return reply_problem(out, &pr);
+    /* A paused scene publishes only after a command: this one has it hand the recording its
+     * first pose now (a running one does with its next frame). */
+    scene_cmd *wake = calloc(1, sizeof *wake);
+    if (wake) {
+        wake->def = command_find("wake");
+        wake->done = free_wake;
+        scene_submit(rq->sc, wake);
+    }
+    snprintf(out->location, sizeof out->location, "/v1/recordings/%s", rid);
+    return reply_json(out, 201, answer);
+}
+
+static int rq_recordings(const api_request *rq, api_reply *out, scene_cmd *later)
+{
+    (void)later;
+    recordings *r = rq->daemon->recordings;
+    if (!r) return no_recordings(out);
+    return reply_json(out, 200, recordings_list(r));
+}
+
+static int rq_recording_get(const api_request *rq, api_reply *out, scene_cmd *later)
+{
+    (void)later;
+    recordings *r = rq->daemon->recordings;
+    if (!r) return no_recordings(out);
+    problem pr;
+    unsigned char *bytes;
+    size_t len;
+    void *copy;
+    if (recordings_bytes(r, rq->rid, &bytes, &len, &copy, &pr) != 0) {
+        reply_problem(out, &pr);
+        if (pr.status == 503) out->retry_after = 1;
+        return API_NOW;
+    }
+    snprintf(out->disposition, sizeof out->disposition, "attachment; filename=\"%s.clr\"", rq->rid);
+    out->release = recordings_release;
+    out->release_cls = copy;
+    return reply_text(out, 200, RECORDING_TYPE, (char *)bytes, len);
+}
+
+static int rq_recording_delete(const api_request *rq, api_reply *out, scene_cmd *later)
+{
+    (void)later;
+    recordings *r = rq->daemon->recordings;
+    if (!r) return no_recordings(out);
+    problem pr;
+    if (recordings_delete(r, rq->rid, &pr) != 0) return reply_problem(out, &pr);
+    return reply_json(out, 200, json_pack("{s:s, s:b}", "id", rq->rid, "deleted", 1));
+}
+
 /* ---- the rows' request functions: commands for the sim thread ---- */
 
 /* The row's own command, as it came (a control with no body, or its body as is). */
@@ -349,11 +428,17 @@ static const command table[] = {
     {"scenes",      GET,      D, "/v1/scenes",     BODY_IGNORED, VIEW,   0,                                NULL,   NULL,       NULL,   rq_scenes,       NULL,               NULL},
     {"scene_create", "POST",  D, "/v1/scenes",     BODY_OBJECT,  CONTROL, CMD_CREATED,                     NULL,   NULL,       NULL,   rq_scene_create, NULL,               NULL},
     {"scene_delete", "DELETE", D, "/v1/scenes/{scene}", BODY_NONE, CONTROL, 0,                             NULL,   NULL,       NULL,   rq_scene_delete, NULL,               NULL},
+    {"recording_start", "POST", S, "/recordings",  BODY_OBJECT,  CONTROL, CMD_CREATED,                     NULL,   NULL,       NULL,   rq_recording_start, NULL,            NULL},
+    {"recordings",  GET,      D, "/v1/recordings", BODY_IGNORED, VIEW,   0,                                NULL,   NULL,       NULL,   rq_recordings,   NULL,               NULL},
+    {"recording_get", GET,    D, "/v1/recordings/{rid}", BODY_IGNORED, VIEW, 0,                            NULL,   NULL,       RECORDING_TYPE, rq_recording_get, NULL,      NULL},
+    {"recording_delete", "DELETE", D, "/v1/recordings/{rid}", BODY_NONE, CONTROL, 0,                       NULL,   NULL,       NULL,   rq_recording_delete, NULL,           NULL},
     /* Not routes: queued by another row's request (GET /v1/sim?hash=1, GET /v1/journal as bytes)
      * or by the stream (a client that wants a pose now). */
     {"hash",        NULL,     S, NULL,             BODY_IGNORED, VIEW,   CMD_ANSWER_SIM | CMD_HASH | CMD_AFTER_FAILURE, NULL, NULL, JSON_TYPE, NULL, NULL,     control_publish},
     {"bundle",      NULL,     S, NULL,             BODY_IGNORED, VIEW,   CMD_AFTER_FAILURE,                NULL,   NULL,       OCTETS, NULL,            NULL,               control_bundle},
     {"publish",     NULL,     S, NULL,             BODY_IGNORED, VIEW,   CMD_AFTER_FAILURE,                NULL,   NULL,       NULL,   NULL,            NULL,               control_pose},
+    /* (a recording that starts: the publication after it hands the recording its first pose) */
+    {"wake",        NULL,     S, NULL,             BODY_IGNORED, VIEW,   0,                                NULL,   NULL,       NULL,   NULL,            NULL,               control_publish},
 };
 #define N_COMMANDS (sizeof table / sizeof table[0])
 
@@ -407,13 +492,14 @@ void command_print_routes(FILE *out)
 /* ---- routes ---- */
 
 /* Whether path matches pattern; {id} takes one segment of digits (into *id, -1 if not digits),
- * {scene} one segment of text (into scene, SCENE_ID_MAX + 1 bytes: cut short, it stays invalid). */
+ * {scene} and {rid} one segment of text (into scene, SCENE_ID_MAX + 1 bytes: cut short, it stays
+ * invalid). */
 static int path_matches(const char *pattern, const char *path, long long *id, char *scene)
 {
     const char *brace = strchr(pattern, '{');
     if (!brace) return strcmp(pattern, path) == 0;
-    const int text = strncmp(brace, "{scene}", 7) == 0;
-    const size_t pre = (size_t)(brace - pattern), plen = text ? 7 : 4;
+    const int text = strncmp(brace, "{scene}", 7) == 0 || strncmp(brace, "{rid}", 5) == 0;
+    const size_t pre = (size_t)(brace - pattern), plen = (size_t)(strchr(brace, '}') - brace) + 1;
     if (strncmp(pattern, path, pre) != 0) return 0;
     const char *seg = path + pre;
     const char *slash = strchr(seg, '/');
@@ -471,8 +557,13 @@ void command_route(const char *method, const char *path, route_match *m)
         if (strcmp(table[i].method, want) == 0) {
             m->def = &table[i];
             m->id = id;
-            memcpy(m->scene_buf, scene, sizeof m->scene_buf);
-            m->scene = scene[0] ? m->scene_buf : NULL;
+            if (table[i].path && strstr(table[i].path, "{rid}")) {
+                memcpy(m->rid_buf, scene, sizeof m->rid_buf);
+                m->rid = m->rid_buf;
+            } else {
+                memcpy(m->scene_buf, scene, sizeof m->scene_buf);
+                m->scene = scene[0] ? m->scene_buf : NULL;
+            }
             m->allow[0] = '\0';
             m->path_known = 0;
             return;

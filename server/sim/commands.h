@@ -67,6 +67,7 @@ typedef struct api_daemon {
     const char *backend, *device, *backend_note, *version;
     int stream_port;                  /* 0: no stream */
     struct scenes *scenes;
+    struct recordings *recordings;    /* NULL: none (a daemon without them answers 503) */
     metrics *m;
     char *(*more_metrics)(void *ctx); /* the HTTP server's and the stream's (malloc'd text), or NULL */
     void *more_ctx;
@@ -84,6 +85,7 @@ struct api_request {
     int hash;                  /* ?hash=1 or ?hash=true */
     const api_daemon *daemon;
     const char *scene_id;      /* the path's {scene} (a daemon-wide row's), or NULL */
+    const char *rid;           /* the path's {rid} (a recording's id, maybe not a valid one), or NULL */
 };
 
 /* An answer: status, body (malloc'd, the receiver's), its content type, Retry-After (0: none),
@@ -94,7 +96,10 @@ typedef struct api_reply {
     size_t len;
     const char *ctype;
     int retry_after;
-    char location[SCENE_ID_MAX + 16];
+    char location[SCENE_ID_MAX + 24];
+    char disposition[SCENE_ID_MAX + 40]; /* Content-Disposition (empty: none) */
+    void (*release)(void *cls);          /* frees body once it is sent (NULL: free(body)) */
+    void *release_cls;
 } api_reply;
 
 /* What a row's request function did: answered (*now), or made the command (*later) for the sim
@@ -142,6 +147,8 @@ typedef struct route_match {
     const char *scene;  /* the scene it addresses (SCOPE_SCENE) or names (a daemon-wide row's
                          * {scene}), maybe not a valid id (scene_id_valid); NULL when none */
     char scene_buf[SCENE_ID_MAX + 1];
+    const char *rid;    /* the path's {rid}: a recording's id, maybe not a valid one; NULL when none */
+    char rid_buf[SCENE_ID_MAX + 1];
 } route_match;
 
 /* Finds the row of a method (HEAD takes a GET row) and a request's path. */

@@ -9,6 +9,9 @@
 #include "core/json_write.h"
 #include "core/log.h"
 #include "core/params_json.h"
+#include "core/rock_json.h"
+#include "core/stream_msg.h"
+#include "sim/rectap.h"
 #include "sim/scene.h"
 
 #define ENERGY_EVERY 0.1 /* s of wall time between energy evaluations while running */
@@ -32,6 +35,7 @@ scene *scene_new(const char *id, cs_sim *engine, const loop_settings *loop, int 
     sc->paused = paused;
     pthread_mutex_init(&sc->qlock, NULL);
     pthread_mutex_init(&sc->plock, NULL);
+    pthread_mutex_init(&sc->rlock, NULL);
     sc->journal = journal_new((size_t)set->journal_max, (size_t)set->journal_max_mb << 20);
     if (!sc->journal) {
         scene_release(sc);
@@ -68,8 +72,10 @@ void scene_release(scene *sc)
     free(sc->torn);
     free(sc->scratch);
     free(sc->rocks);
+    pose_free(&sc->rec_pose);
     pthread_mutex_destroy(&sc->qlock);
     pthread_mutex_destroy(&sc->plock);
+    pthread_mutex_destroy(&sc->rlock);
     free(sc);
 }
 
@@ -176,6 +182,7 @@ int scene_is_deleted(scene *sc)
 void scene_drop_deleted(scene *sc)
 {
     sc->sink = (frame_sink){NULL, NULL}; /* its streams are closed */
+    recordings_scene_gone(sc);
     scene_end_step(sc, "deleted");
     for (scene_cmd *c = scene_take_queue(sc), *next; c; c = next) {
         next = c->next;
@@ -239,16 +246,46 @@ static void set_doc(scene *sc, scene_doc doc, char *text)
 
 void scene_emit(scene *sc, json_t *ev, const char *request_id)
 {
-    if (!sc->sink.ops) {
+    if (!sc->sink.ops && atomic_load(&sc->n_recs) == 0) {
         json_decref(ev);
         return;
     }
     json_object_set_new(ev, "type", json_string("event"));
     json_object_set_new(ev, "request_id", request_id && request_id[0] ? json_string(request_id) : json_null());
+    json_object_set_new(ev, "scene_id", json_string(sc->id));
     char *text = json_dumps(ev, JSON_DUMP_FLAGS);
     json_decref(ev);
-    if (text) sc->sink.ops->event(sc->sink.ctx, text);
+    if (text && sc->sink.ops) sc->sink.ops->event(sc->sink.ctx, text);
+    if (text) recordings_event(sc, text);
     free(text);
+}
+
+json_t *scene_hello(scene *sc, const cs_rock *rocks, int n_rocks)
+{
+    size_t len;
+    char *fields = scene_doc_copy(sc, DOC_FIELDS, &len), *params = scene_doc_copy(sc, DOC_PARAMS, &len);
+    char *sim = scene_doc_copy(sc, DOC_SIM, &len), *torn = scene_doc_copy(sc, DOC_TORN, &len);
+    json_t *list;
+    if (rocks) {
+        list = rocks_to_json(rocks, n_rocks);
+    } else {
+        cs_rock *copy;
+        const int n = scene_rocks(sc, &copy);
+        list = rocks_to_json(copy, n);
+        free(copy);
+    }
+    json_t *sj = sim ? json_loads(sim, 0, NULL) : NULL;
+    json_t *o = json_pack("{s:s, s:s, s:s, s:o, s:o, s:o, s:o, s:O*, s:O*}", "type", "hello", "protocol", STREAM_PROTOCOL,
+                          "scene_id", sc->id, "scene", fields ? json_loads(fields, 0, NULL) : json_null(), "params",
+                          params ? json_loads(params, 0, NULL) : json_null(), "rocks", list, "torn",
+                          torn ? json_loads(torn, 0, NULL) : json_array(), "state", json_object_get(sj, "state"), "step",
+                          json_object_get(sj, "step"));
+    json_decref(sj);
+    free(fields);
+    free(params);
+    free(sim);
+    free(torn);
+    return o;
 }
 
 void scene_set_event(scene *sc, json_t *ev)
@@ -368,38 +405,47 @@ static void fill_scalars(scene *sc, pose *f, unsigned want)
     }
 }
 
-/* Hands the current positions, rocks and scalars to the sink (when someone listens). */
+/* Hands the current positions, rocks and scalars to the sink (when someone listens and there is
+ * something new for it) and the positions and rocks to the recordings (when one runs and the scene
+ * changed since the last pose they were handed, or one has none yet). */
 static void publish_pose(scene *sc, const cs_info *info, const cs_rock *rocks, int n_rocks)
 {
     unsigned want = 0;
     pose *f = sc->sink.ops ? sc->sink.ops->begin(sc->sink.ctx, &want) : NULL;
-    if (!f) return;
-    if (!sc->pose_asked && sc->changes == sc->framed_changes && (want & ~sc->framed_scalars) == 0) {
+    if (f && !sc->pose_asked && sc->changes == sc->framed_changes && (want & ~sc->framed_scalars) == 0) {
         sc->sink.ops->discard(sc->sink.ctx, f);
+        f = NULL;
+    }
+    const int changed = sc->changes != sc->rec_framed_changes, rec = recordings_want(sc, changed);
+    if (!f && !rec) return;
+    pose *p = f ? f : &sc->rec_pose;
+    if (pose_reserve(p, info->n_vertices, n_rocks) != 0 ||
+        cs_read_positions(sc->engine, p->xyz, 3 * (size_t)info->n_vertices) != CS_OK) {
+        if (f) sc->sink.ops->discard(sc->sink.ctx, f); /* listeners keep the pose they have */
         return;
     }
-    if (pose_reserve(f, info->n_vertices, n_rocks) != 0 ||
-        cs_read_positions(sc->engine, f->xyz, 3 * (size_t)info->n_vertices) != CS_OK) {
-        sc->sink.ops->discard(sc->sink.ctx, f); /* listeners keep the pose they have */
-        return;
-    }
-    f->wall_ns = clock_wall_ns();
-    f->frame = sc->frame;
-    f->step = info->step;
-    f->sim_time = info->time;
-    f->n = info->n_vertices;
+    p->wall_ns = clock_wall_ns();
+    p->frame = sc->frame;
+    p->step = info->step;
+    p->sim_time = info->time;
+    p->n = info->n_vertices;
     cs_scene shape;
     cs_sim_scene(sc->engine, &shape);
-    f->nx = shape.nx;
-    f->n_rocks = n_rocks;
+    p->nx = shape.nx;
+    p->n_rocks = n_rocks;
     for (int r = 0; r < n_rocks; r++) {
-        pose_rock *k = &f->rocks[r];
+        pose_rock *k = &p->rocks[r];
         k->id = rocks[r].id;
         memcpy(k->position, rocks[r].def.position, sizeof k->position);
         k->radius = rocks[r].def.radius;
         memcpy(k->orientation, rocks[r].def.orientation, sizeof k->orientation);
     }
-    pose_bbox(f);
+    pose_bbox(p);
+    if (rec) {
+        recordings_frame(sc, p, rocks, n_rocks, changed);
+        sc->rec_framed_changes = sc->changes;
+    }
+    if (!f) return;
     fill_scalars(sc, f, want);
     sc->framed_changes = sc->changes;
     sc->framed_scalars = want;

@@ -26,6 +26,7 @@
 #include "core/journal.h"
 #include "core/metrics.h"
 #include "core/problem.h"
+#include "core/pose.h"
 #include "core/settings.h"
 #include "sim/sink.h"
 
@@ -100,6 +101,13 @@ struct scene {
 
     journal *journal;      /* the sim thread appends, readers copy (it has its own lock) */
 
+    /* its running recordings (sim/recordings.h), under rlock: the sim thread hands them poses and
+     * events, HTTP threads add and remove them */
+    pthread_mutex_t rlock;
+    struct recording *recs;
+    int recs_closed;       /* it left the daemon: no recording starts on it */
+    atomic_int n_recs;
+
     /* the sim thread's */
     cs_sim *engine;
     loop_settings loop;    /* the daemon-loop settings (PATCH /v1/params sets them) */
@@ -131,6 +139,8 @@ struct scene {
     uint64_t changes, framed_changes;
     unsigned framed_scalars;
     int pose_asked; /* the stream asked for a pose, changed or not (control_pose) */
+    uint64_t rec_framed_changes; /* ... and the recordings: the change of the last pose they were handed */
+    pose rec_pose;         /* the pose the recordings are handed when no stream client takes one */
     uint32_t *torn;        /* ids of the torn springs, ascending */
     int64_t n_torn;
     float *scratch;        /* velocities or strains for the scalars */
@@ -162,6 +172,10 @@ char *scene_doc_copy(scene *sc, scene_doc doc, size_t *len);
 int scene_rocks(scene *sc, cs_rock **out);
 void scene_gauges(scene *sc, metrics_gauges *g);
 int scene_healthy(scene *sc);
+/* The stream's hello of the scene (PROTOCOL.md, "hello"; without its subscription) from what it
+ * published: type, protocol, scene_id, scene, params, rocks (these, or the published ones when
+ * rocks is NULL), torn, state, step. A new reference, or NULL. */
+json_t *scene_hello(scene *sc, const cs_rock *rocks, int n_rocks);
 
 /* What a scene of these fields costs the daemon, in bytes, with up to `rocks` rocks: the engine's
  * part (cs_scene_memory), two snapshots (the last checkpoint and the journal's base), one answer

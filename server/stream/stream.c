@@ -50,7 +50,6 @@
 #include "core/json_write.h"
 #include "core/log.h"
 #include "core/problem.h"
-#include "core/rock_json.h"
 #include "core/stream_msg.h"
 #include "core/wire.h"
 #include "sim/commands.h"
@@ -283,25 +282,11 @@ static void sink_discard(void *ctx, pose *f)
     pthread_mutex_unlock(&fd->flock);
 }
 
-/* The event's text with its scene's id added ("scene_id"): malloc'd, NULL when it is no object. */
-static char *named_event(const feed *fd, const char *json)
-{
-    json_t *o = json_loads(json, 0, NULL);
-    if (!json_is_object(o)) {
-        json_decref(o);
-        return NULL;
-    }
-    json_object_set_new(o, "scene_id", json_string(fd->id));
-    char *text = json_dumps(o, JSON_DUMP_FLAGS);
-    json_decref(o);
-    return text;
-}
-
 static void sink_event(void *ctx, const char *json)
 {
     feed *fd = ctx;
     if (atomic_load(&fd->closed)) return;
-    char *copy = named_event(fd, json);
+    char *copy = strdup(json); /* scene_emit named its scene ("scene_id") */
     if (!copy) return;
     const size_t len = strlen(copy);
     pthread_mutex_lock(&fd->elock);
@@ -379,28 +364,12 @@ static json_t *subscription_json(const session *s)
                      "quantum", json_float(s->quantum), "max_kbps", s->max_kbps ? json_integer(s->max_kbps) : json_null());
 }
 
+/* The scene's hello (the same one a recording starts with: scene_hello) with the subscription. */
 static char *hello_text(const session *s)
 {
-    size_t len;
-    scene *sc = s->sc;
-    char *scene = scene_doc_copy(sc, DOC_FIELDS, &len), *params = scene_doc_copy(sc, DOC_PARAMS, &len);
-    char *sim = scene_doc_copy(sc, DOC_SIM, &len), *torn = scene_doc_copy(sc, DOC_TORN, &len);
-    cs_rock *rocks;
-    const int n = scene_rocks(sc, &rocks);
-    json_t *list = rocks_to_json(rocks, n);
-    free(rocks);
-    json_t *sj = sim ? json_loads(sim, 0, NULL) : NULL;
-    json_t *o = json_pack("{s:s, s:s, s:s, s:o, s:o, s:o, s:o, s:o, s:o, s:o}", "type", "hello", "protocol", PROTOCOL_NAME,
-                          "scene_id", s->f->id, "scene", scene ? json_loads(scene, 0, NULL) : json_null(), "params",
-                          params ? json_loads(params, 0, NULL) : json_null(), "rocks", list, "torn",
-                          torn ? json_loads(torn, 0, NULL) : json_array(), "state",
-                          json_incref(json_object_get(sj, "state")), "step", json_incref(json_object_get(sj, "step")),
-                          "subscription", subscription_json(s));
-    json_decref(sj);
-    free(scene);
-    free(params);
-    free(sim);
-    free(torn);
+    json_t *o = scene_hello(s->sc, NULL, 0);
+    if (!o) return NULL;
+    json_object_set_new(o, "subscription", subscription_json(s));
     char *text = json_dumps(o, JSON_DUMP_FLAGS);
     json_decref(o);
     return text;

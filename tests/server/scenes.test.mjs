@@ -84,7 +84,7 @@ test('scenes are created, listed and deleted; bad ids, unknown, existing, max_sc
 // on a paused scene of 8 x 8 at step 0. The test fails when a route of the table has none.
 const examples = [
   ['GET', '/sim'], ['GET', '/params'], ['GET', '/params/schema'], ['GET', '/scene'], ['GET', '/rocks'],
-  ['POST', '/rocks', { position: [0, 0, 3], radius: 0.1 }], ['GET', '/rocks/1'], ['PATCH', '/rocks/1', { radius: 0.2 }],
+  ['POST', '/recordings', { seconds: 0.1, encoding: 'f32' }], ['POST', '/rocks', { position: [0, 0, 3], radius: 0.1 }], ['GET', '/rocks/1'], ['PATCH', '/rocks/1', { radius: 0.2 }],
   ['DELETE', '/rocks/1'], ['DELETE', '/rocks'], ['PATCH', '/params', { seed: 5 }], ['PUT', '/pins', { preset: 'corners' }],
   ['PUT', '/grab', { vertex: 3, target: [0, 0, 1] }], ['POST', '/sim/step', { frames: 2 }], ['DELETE', '/grab'],
   ['DELETE', '/sim/step'], ['GET', '/cloth/state'], ['GET', '/snapshot'], ['PUT', '/snapshot'], ['GET', '/journal'],
@@ -112,6 +112,10 @@ test('every route of a scene answers under /v1/scenes/{scene}/ as it does withou
     assert.equal(b.type, a.type, what);
     if (method === 'GET' && path === '/snapshot') snapshot = a.buf;
     if (path === '/sim/resume' || path === '/sim/pause') assert.equal(b.json.state, a.json.state, what);
+    else if (path === '/recordings') { // a recording of each scene (ids made up: rec-1, rec-2)
+      assert.deepEqual([a.json.scene, b.json.scene], ['default', 'twin']);
+      assert.deepEqual({ ...b.json, id: 0, scene: 0 }, { ...a.json, id: 0, scene: 0 }, what);
+    }
     else if (a.json) assert.deepEqual(b.json, a.json, what);
     else assert.ok(b.buf.equals(a.buf), `${what}: the same bytes`);
   }

@@ -48,8 +48,10 @@ test('HEAD on every GET route, absolute-form targets', async () => {
   const d = await start(['--paused', '--auto-drop-interval', '0']);
   const port = Number(new URL(d.url).port);
   await call(d, 'POST', '/v1/rocks', { position: [0, 0, 2], radius: 0.1 });
+  await call(d, 'POST', '/v1/recordings', { seconds: 1, id: 'r' });
   const { stdout } = await execChecked(CLOTHD, ['routes']);
-  const gets = stdout.trim().split('\n').filter((l) => l.startsWith('GET ')).map((l) => l.slice(4).replace('{id}', '1').replace('{scene}', 'default'));
+  const gets = stdout.trim().split('\n').filter((l) => l.startsWith('GET ')).map((l) => l.slice(4).replace('{id}', '1').replace('{scene}', 'default')
+    .replace('{rid}', 'r'));
   assert.ok(gets.length >= 11);
   for (const path of [...gets, '/']) {
     const get = await raw(port, `GET ${path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n`);

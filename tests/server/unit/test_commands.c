@@ -115,7 +115,7 @@ static void test_table(void **unused)
     }
     assert_int_equal(changes, 10);
     for (int k = 0; k < 10; k++) assert_non_null(command_find(journaled[k])->change);
-    assert_int_equal(routes, 29);
+    assert_int_equal(routes, 33); /* 29, and the 4 of recordings */
     char *out = NULL;
     size_t len = 0;
     FILE *f = open_memstream(&out, &len);
@@ -123,7 +123,7 @@ static void test_table(void **unused)
     fclose(f);
     int lines = 0;
     for (char *p = out; *p; p++) lines += *p == '\n';
-    assert_int_equal(lines, 29 + 24); /* each of the 24 routes of a scene also under /v1/scenes/{scene} */
+    assert_int_equal(lines, 33 + 25); /* each of the 25 routes of a scene also under /v1/scenes/{scene} */
     assert_non_null(strstr(out, "GET /v1/health\n"));
     assert_non_null(strstr(out, "DELETE /v1/scenes/{scene}\n"));
     assert_non_null(strstr(out, "PATCH /v1/scenes/{scene}/rocks/{id}\n"));
@@ -131,6 +131,9 @@ static void test_table(void **unused)
     assert_non_null(strstr(out, "PATCH /v1/rocks/{id}\n"));
     assert_non_null(strstr(out, "GET /metrics\n"));
     assert_null(strstr(out, "hash"));
+    assert_non_null(strstr(out, "POST /v1/scenes/{scene}/recordings\n"));
+    assert_non_null(strstr(out, "GET /v1/recordings/{rid}\n"));
+    assert_null(strstr(out, "GET /v1/scenes/{scene}/recordings")); /* the list is the daemon's */
     free(out);
 }
 
@@ -188,7 +191,7 @@ static void test_central_checks(void **unused)
     (void)unused;
     api_reply now;
     scene_cmd later;
-    api_request rq = {command_find("rock_get"), NULL, "", 0, NULL, 0, 0, 0, NULL, NULL};
+    api_request rq = {command_find("rock_get"), NULL, "", 0, NULL, 0, 0, 0, NULL, NULL, NULL};
     assert_int_equal(command_request(&rq, &now, &later), API_NOW);
     assert_int_equal(now.status, 404);
     assert_non_null(strstr(now.body, "no rock with that id"));
@@ -197,28 +200,28 @@ static void test_central_checks(void **unused)
     assert_int_equal(command_request(&rq, &now, &later), API_NOW);
     assert_int_equal(now.status, 404);
     free(now.body);
-    rq = (api_request){command_find("snapshot_put"), NULL, "", 0, NULL, -1, 0, 0, NULL, NULL};
+    rq = (api_request){command_find("snapshot_put"), NULL, "", 0, NULL, -1, 0, 0, NULL, NULL, NULL};
     assert_int_equal(command_request(&rq, &now, &later), API_NOW);
     assert_int_equal(now.status, 400);
     assert_non_null(strstr(now.body, "urn:clothd:problem:bad-snapshot"));
     free(now.body);
-    rq = (api_request){command_find("step"), NULL, "{\"frames\": 0}", 13, NULL, -1, 0, 0, NULL, NULL};
+    rq = (api_request){command_find("step"), NULL, "{\"frames\": 0}", 13, NULL, -1, 0, 0, NULL, NULL, NULL};
     assert_int_equal(command_request(&rq, &now, &later), API_NOW);
     assert_int_equal(now.status, 422);
     free(now.body);
-    rq = (api_request){command_find("pause"), NULL, "{\"now\": true}", 13, NULL, -1, 0, 0, NULL, NULL};
+    rq = (api_request){command_find("pause"), NULL, "{\"now\": true}", 13, NULL, -1, 0, 0, NULL, NULL, NULL};
     assert_int_equal(command_request(&rq, &now, &later), API_NOW);
     assert_int_equal(now.status, 400);
     free(now.body);
     /* Accepted: the command for the sim thread, with its row. */
-    rq = (api_request){command_find("step"), NULL, "{\"frames\": 2}", 13, NULL, -1, 0, 0, NULL, NULL};
+    rq = (api_request){command_find("step"), NULL, "{\"frames\": 2}", 13, NULL, -1, 0, 0, NULL, NULL, NULL};
     assert_int_equal(command_request(&rq, &now, &later), API_LATER);
     assert_ptr_equal(later.def, command_find("step"));
     char *text = uk_dump(later.body);
     uk_assert_json(text, "{\"frames\":2}");
     free(text);
     json_decref(later.body);
-    rq = (api_request){command_find("rock_set"), NULL, "{\"radius\": 0.3}", 15, NULL, 5, 0, 0, NULL, NULL};
+    rq = (api_request){command_find("rock_set"), NULL, "{\"radius\": 0.3}", 15, NULL, 5, 0, 0, NULL, NULL, NULL};
     assert_int_equal(command_request(&rq, &now, &later), API_LATER);
     text = uk_dump(later.body);
     uk_assert_json(text, "{\"op\":\"rock_set\",\"id\":5,\"rock\":{\"radius\":0.3}}");
