@@ -17,6 +17,10 @@ int recordings_want(struct scene *sc, int changed);
  * the last, else only to those that have none yet; with the scene's hello first for one that
  * starts (the scene's published reads, and these rocks). */
 void recordings_frame(struct scene *sc, const pose *p, const cs_rock *rocks, int n_rocks, int changed);
+/* Whether each running recording of the scene has room for one more pose (1 when none runs): a
+ * step in progress, or a scene at max_speed, waits for its recordings' writer rather than have
+ * them drop frames (a scene in real time goes on, and they drop and count). */
+int recordings_room(struct scene *sc);
 /* Hands an event's text to the scene's running recordings that have their hello (copied). */
 void recordings_event(struct scene *sc, const char *text);
 /* The scene left the daemon: its recordings stop ("scene deleted"); none starts on it again. */

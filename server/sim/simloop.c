@@ -10,9 +10,11 @@
 #include "core/clock.h"
 #include "sim/autodrop.h"
 #include "sim/commands.h"
+#include "sim/rectap.h"
 #include "sim/simloop.h"
 
 #define PUBLISH_EVERY 0.016 /* s of wall time between publications while running */
+#define HELD_WAIT 0.001     /* s the thread waits when a frame waits for a recording's writer */
 #define RTF_WINDOW 0.5      /* s of wall time over which the real-time factor is measured */
 #define MAX_LAG 0.25        /* s of wall time a scene may fall behind before it stops catching up */
 #define COST_PRIOR 2e-8     /* s per vertex and substep assumed before the first measurement */
@@ -34,6 +36,7 @@ struct simloop {
     int kicked;          /* a command came since the thread last looked */
     int stop;
     atomic_int stopping; /* stop, readable without the lock between slices */
+    int held;            /* this turn, a frame waited for a recording's writer (held()) */
 };
 
 static void wake(void *ctx)
@@ -78,6 +81,18 @@ static void frame_done(simloop *sl, scene *sc, int32_t substeps)
     sc->frame++;
     autodrop_after_frame(sc);
     if (++sc->frames_since_checkpoint >= (uint64_t)sc->loop.checkpoint_interval) scene_take_checkpoint(sc);
+    /* A step or a scene at max_speed publishes now and then only; its recordings take every
+     * frame (a scene in real time publishes each frame anyway: paced). */
+    if ((sc->job.cmd || sc->loop.max_speed) && recordings_want(sc, 1)) scene_publish(sc, 0);
+}
+
+/* Whether a frame of a step, or of a scene at max_speed, waits for its recordings' writer to make
+ * room (the turn notes it: sl->held); a scene in real time never waits. */
+static int held(simloop *sl, scene *sc)
+{
+    if (!(sc->job.cmd || sc->loop.max_speed) || sc->frame_sub != 0 || recordings_room(sc)) return 0;
+    sl->held = 1;
+    return 1;
 }
 
 /* Steps the frame in progress on, by about `budget` seconds of compute at most (a whole frame
@@ -126,6 +141,7 @@ static void step_slice(simloop *sl, scene *sc)
         cs_info info;
         cs_sim_info(sc->engine, &info);
         if (j->frames) {
+            if (held(sl, sc)) break;
             const int r = advance_frame(sl, sc, budget);
             if (r < 0) {
                 scene_end_step(sc, sc->failed_as);
@@ -170,9 +186,9 @@ static double period_of(const scene *sc)
 }
 
 /* Whether a running scene's frame is due (or it runs at max_speed). */
-static int frame_due(const scene *sc, double now)
+static int frame_due(simloop *sl, scene *sc, double now)
 {
-    return !sc->job.cmd && !sc->paused && (sc->loop.max_speed || now >= sc->due);
+    return !sc->job.cmd && !sc->paused && (sc->loop.max_speed || now >= sc->due) && !held(sl, sc);
 }
 
 /* After a frame of a running scene (r: run_frame's): its pacing, and what it publishes. */
@@ -250,7 +266,7 @@ static void step_slices(simloop *sl, int n)
     for (int nb = -1; nb != 0 && clock_mono() - t0 < SIMLOOP_SLICE;) {
         nb = 0;
         for (int k = 0; k < n; k++)
-            if (batched_step(sl->turn[k])) batch_add(sl, nb++, sl->turn[k]);
+            if (batched_step(sl->turn[k]) && !held(sl, sl->turn[k])) batch_add(sl, nb++, sl->turn[k]);
         if (nb == 0) break;
         batch_run(sl, nb);
         for (int k = 0; k < nb; k++) {
@@ -273,14 +289,14 @@ static void run_due_frames(simloop *sl, int n)
     const double now = clock_mono();
     int nb = 0;
     for (int k = 0; k < n; k++)
-        if (frame_due(sl->turn[k], now) && steps_whole(sl->turn[k])) batch_add(sl, nb++, sl->turn[k]);
+        if (steps_whole(sl->turn[k]) && frame_due(sl, sl->turn[k], now)) batch_add(sl, nb++, sl->turn[k]);
     if (nb > 0) batch_run(sl, nb);
     for (int k = 0; k < nb; k++) paced(sl->batch[k], sl->each[k] == CS_OK ? 1 : -1);
     for (int k = 0; k < n && !atomic_load(&sl->stopping); k++) {
         scene *sc = sl->turn[k];
         int in_batch = 0;
         for (int b = 0; b < nb && !in_batch; b++) in_batch = sl->batch[b] == sc;
-        if (in_batch || !frame_due(sc, clock_mono())) continue;
+        if (in_batch || !frame_due(sl, sc, clock_mono())) continue;
         paced(sc, run_frame(sl, sc));
     }
 }
@@ -390,8 +406,14 @@ static void *run(void *arg)
         }
         /* A step in progress: a slice, then the queues (without waiting). Else wait for commands
          * while paused, or until the next frame is due. */
-        const int wait = !stepping && (!running || (!fast && clock_mono() < due));
-        stop = wait_for_work(sl, wait, running ? due : 0);
+        const int wait = sl->held || (!stepping && (!running || (!fast && clock_mono() < due)));
+        double until = running ? due : 0;
+        if (sl->held) { /* a frame waits for a recording's writer: look again soon, not at once */
+            const double soon = clock_mono() + HELD_WAIT;
+            if (until <= 0 || until > soon) until = soon;
+        }
+        sl->held = 0;
+        stop = wait_for_work(sl, wait, until);
         scenes_drop_gone(sl->table);
         for (int k = 0; k < n; k++) {
             run_commands(turn[k]);

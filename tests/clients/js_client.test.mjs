@@ -96,6 +96,19 @@ test('every operation of openapi.yaml is a client method, and the answers hold w
   assert.equal((await client.createScene({ id: 'made', scene: { nx: 4, ny: 4 } })).n_vertices, 16);
   assert.deepEqual(await client.deleteScene('made'), { id: 'made', deleted: true });
 
+  // Recordings, of the default scene and of another (both paused: each holds its first frame
+  // and waits), listed, downloaded, deleted.
+  assert.equal((await client.record({ seconds: 1, encoding: 'f32', id: 'ops' })).state, 'recording');
+  await client.createScene({ id: 'rec', scene: { nx: 4, ny: 4 } });
+  assert.equal((await client.scene('rec').record({ seconds: 1, id: 'ops2' })).scene, 'rec');
+  assert.deepEqual((await client.recordings()).recordings.map((r) => r.id).sort(), ['ops', 'ops2']);
+  const file = new Uint8Array(await client.recording('ops'));
+  assert.equal(String.fromCharCode(...file.subarray(0, 4)), 'CLR1');
+  assert.deepEqual(await client.deleteRecording('ops'), { id: 'ops', deleted: true });
+  await client.deleteScene('rec');
+  assert.equal((await client.recordings()).recordings[0].state, 'stopped'); // its scene went
+  await client.deleteRecording('ops2');
+
   // Every operation of the spec was answered with a success (the metrics count this scrape's
   // own request from the next one on).
   await client.metrics();
@@ -248,7 +261,7 @@ test('scenes: list, create, delete; a handle reaches its own scene, default the 
   // The server's refusals come through as their classes: an id taken 409, an unknown one 404.
   assert.ok((await client.createScene({ id: 'other' }).catch((x) => x)) instanceof clothd.Conflict);
   await client.deleteScene('other');
-  for (const call of [() => other.sim(), () => client.deleteScene('other'), () => client.recordings()]) {
+  for (const call of [() => other.sim(), () => client.deleteScene('other'), () => other.record({ seconds: 1 })]) {
     const e = await call().catch((x) => x);
     assert.ok(e instanceof clothd.NotFound, `${call}: ${e}`);
   }

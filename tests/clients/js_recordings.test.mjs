@@ -37,7 +37,7 @@ test('ids that cannot be recordings are TypeErrors before any request', () => {
 
 test('record, list, download, delete', async (t) => {
   if (noRoutes) return t.skip(noRoutes);
-  const { frame_rate: rate } = await client.getScene();
+  const { frame_rate: rate } = await client.params();
   const made = await client.record({ seconds: 0.5, encoding: 'q16', id: 'js-rec' });
   assert.equal(made.id, 'js-rec');
   assert.equal(made.scene, 'default');

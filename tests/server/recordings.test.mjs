@@ -356,6 +356,33 @@ test('a writer that falls behind drops frames with a count, never waits the scen
   await stop(d);
 });
 
+test('a step, or a scene at max_speed, waits for a slow writer instead: its recording keeps every frame', async () => {
+  // The writer waits 20 ms before each frame; a step of 60 frames of this small cloth alone takes
+  // a few ms, so without waiting for the writer most of its frames would be dropped (the 16
+  // poses the writer holds are fewer than the 61).
+  const d = await start([...small, '--paused'], { bin: TESTHOOKS, env: { CLOTHD_TEST_RECORDING_WRITE_MS: '20' } });
+  await ok(d, 'POST', '/v1/recordings', { seconds: 1, id: 'stepped', encoding: 'q16' });
+  const w0 = Date.now();
+  const stepped = await ok(d, 'POST', '/v1/sim/step', { frames: 60 });
+  const took = Date.now() - w0;
+  assert.equal(stepped.frames_run, 60);
+  const r = await finished(d, 'stepped');
+  assert.deepEqual([r.state, r.frames, r.frames_dropped], ['done', 61, 0], JSON.stringify(r));
+  // The step went at the writer's pace: 60 frames past the 16 the writer holds, 20 ms each.
+  assert.ok(took >= (60 - 16) * 20 * 0.9, `the step took ${took} ms`);
+  const rec = readRecording(await download(d, 'stepped'));
+  const times = rec.frames.map((f) => f.simTime);
+  const rate = (await ok(d, 'GET', '/v1/params')).frame_rate;
+  for (let k = 1; k < times.length; k++) assert.ok(Math.abs(times[k] - times[k - 1] - 1 / rate) < 1e-9, `frame ${k}`);
+  // At max_speed the same: every frame of the recording, none dropped.
+  await ok(d, 'PATCH', '/v1/params', { max_speed: true });
+  await ok(d, 'POST', '/v1/recordings', { seconds: 0.5, id: 'fast', encoding: 'q16' });
+  await ok(d, 'POST', '/v1/sim/resume');
+  const f = await finished(d, 'fast');
+  assert.deepEqual([f.state, f.frames, f.frames_dropped], ['done', Math.round(0.5 * rate) + 1, 0], JSON.stringify(f));
+  await stop(d);
+});
+
 test('clothctl record, recordings, recording RID (the file), recording delete RID', async () => {
   const { execFile } = await import('node:child_process');
   const d = await start([...small, '--paused']);

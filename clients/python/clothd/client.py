@@ -213,7 +213,8 @@ class SceneRoutes:
     # ---- recordings and the stream ----
     def record(self, seconds, encoding=None, id=None):
         """Starts a recording of this scene for ``seconds`` of simulated time: POST
-        /v1/scenes/{id}/recordings ``{seconds, encoding?, id?}`` (encoding: f32, q16, meshopt or
+        /v1/scenes/{id}/recordings (/v1/recordings for ``default``) ``{seconds, encoding?, id?}``
+        (encoding: f32, q16, meshopt or
         delta, the server's default delta; id: the recording's, generated when None). Returns
         ``{id, scene, state, ...}``; ``client.recordings.read(rid)`` reads the file once done."""
         body = {"seconds": seconds}
@@ -222,7 +223,7 @@ class SceneRoutes:
         if id is not None:
             _check_scene_id(id, "recording id")
             body["id"] = id
-        return self._client.request("POST", "/v1/scenes/%s/recordings" % self.id, body)
+        return self._call("POST", "/recordings", body)
 
     def stream(self, encoding=None, max_fps=None, scalar=None, **options):
         """The stream of this scene, connected (clothd.stream.Stream; a context manager).

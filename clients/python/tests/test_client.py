@@ -109,6 +109,19 @@ def test_every_operation_is_a_method_and_the_answers_hold_what_the_protocol_says
     assert [e["id"] for e in c.scenes()["scenes"]] == ["default"]  # the daemon's scenes: list, create, delete
     assert c.create_scene(id="made", scene={"nx": 4, "ny": 4})["n_vertices"] == 16
     assert c.delete_scene("made") == {"id": "made", "deleted": True}
+    # Recordings, of the default scene and of another (both paused: each holds its first frame
+    # and waits), listed, downloaded, parsed, deleted.
+    assert c.record(1, encoding="f32", id="ops")["state"] == "recording"
+    c.create_scene(id="rec", scene={"nx": 4, "ny": 4})
+    assert c.scene("rec").record(1, id="ops2")["scene"] == "rec"
+    assert sorted(r["id"] for r in c.recordings.list()["recordings"]) == ["ops", "ops2"]
+    rec = c.recordings.read("ops")
+    assert rec.hello["recording"]["id"] == "ops" and rec.decode(0).n_vertices == 480
+    assert c.recordings.get("ops")[:4] == b"CLR1"
+    assert c.recordings.delete("ops") == {"id": "ops", "deleted": True}
+    c.delete_scene("rec")
+    assert c.recordings.list()["recordings"][0]["state"] == "stopped"  # its scene went
+    c.recordings.delete("ops2")
     c.cloth_state_binary()
     c.metrics()
     seen = answered(c)
@@ -268,6 +281,6 @@ def test_scenes(client):
     assert c.rocks()["rocks"] == []  # nothing reached the default scene
     assert type(refusal(lambda: c.create_scene(id="other"))) is clothd.Conflict
     c.delete_scene("other")
-    for call in (other.sim, lambda: c.delete_scene("other"), c.recordings.list):
+    for call in (other.sim, lambda: c.delete_scene("other"), lambda: other.record(1)):
         assert type(refusal(call)) is clothd.NotFound
     assert [s["id"] for s in c.scenes()["scenes"]] == ["default"]

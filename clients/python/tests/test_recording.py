@@ -117,3 +117,36 @@ def test_random_corruption_is_a_recording_error_or_a_recording():
                     pass
         except RecordingError:
             pass
+
+
+def test_a_recording_of_the_real_daemon_reads_back(start_daemon):
+    """A delta recording of a real clothd: its first frame (the scene paused) is the cloth state
+    within quantum / 2, and once running, the recording of 0.5 s of sim time has one frame a
+    frame period apart from its first to the one that reaches 0.5 s."""
+    from conftest import until
+    d = start_daemon("--nx", "12", "--ny", "10", "--paused", "--auto-drop-interval", "0")
+    c = clothd.Client(d.url)
+    c.add_rock([0, 0, 1.5], 0.1)
+    rate = c.params()["frame_rate"]
+    state = c.cloth_state_binary(numpy=False)
+    made = c.record(0.5, id="py-rec")
+    assert (made["id"], made["scene"], made["state"], made["encoding"]) == ("py-rec", "default", "recording", "delta")
+    first = until("the first frame", lambda: c.recordings.list()["recordings"][0]["frames"] >= 1)
+    assert first
+    c.resume()
+    until("the recording done", lambda: c.recordings.list()["recordings"][0]["state"] == "done")
+    c.pause()
+    rec = c.recordings.read("py-rec")
+    assert rec.complete and rec.info["encoding"] == "delta"
+    assert rec.hello["scene"]["nx"] == 12 and len(rec.hello["rocks"]) == 1
+    assert len(rec) == round(0.5 * rate) + 1
+    times = [f.sim_time for f in rec.frames]
+    assert all(abs(b - a - 1 / rate) < 1e-9 for a, b in zip(times, times[1:]))
+    assert rec.duration == pytest.approx(0.5, abs=1e-9)
+    f0 = rec.decode(0)
+    for got, want in zip(rows(f0.positions), rows(state.positions)):
+        assert all(abs(g - w) <= 0.5e-4 + 1e-6 for g, w in zip(got, want)), (got, want)
+    assert [r.id for r in rec.decode(len(rec) - 1).rocks] == [r["id"] for r in c.rocks()["rocks"]]
+    assert rec.seek(0.25) == round(0.25 * rate)
+    with pytest.raises(clothd.NotFound):
+        c.recordings.read("nope")
