@@ -22,6 +22,9 @@ int int_from_json(const json_t *v, double lo, double hi, const char *name, long 
 int only_fields(const json_t *obj, const char *const *allowed, problem *pr);
 /* Whether id is a scene id: [a-z0-9][a-z0-9_-]{0,62} (so 63 characters at most). */
 int scene_id_valid(const char *id);
+/* The scene the routes without a scene prefix address, the one the daemon starts with, and the
+ * one a state file of the formats before 4 holds. */
+#define SCENE_DEFAULT "default"
 /* "an object", "a number", ...: what a value is, for a reason. */
 const char *json_type_word(const json_t *v);
 

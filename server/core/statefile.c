@@ -147,7 +147,7 @@ statefile_error statefile_parse(const unsigned char *buf, size_t len, statefile 
         }
         statefile_scene *sc = &out->scenes[out->n_scenes++];
         memset(sc, 0, sizeof *sc);
-        snprintf(sc->id, sizeof sc->id, "default");
+        snprintf(sc->id, sizeof sc->id, "%s", SCENE_DEFAULT);
         sc->offset = off;
         sc->snapshot_len = head.length;
         sc->loop = *loop;

@@ -14,11 +14,8 @@
 #ifndef CLOTHD_SCENES_H
 #define CLOTHD_SCENES_H
 
-#include "core/json_read.h" /* scene_id_valid */
+#include "core/json_read.h" /* scene_id_valid, SCENE_DEFAULT */
 #include "sim/scene.h"
-
-/* The scene the routes without a scene prefix address, and the one the daemon starts with. */
-#define SCENE_DEFAULT "default"
 
 typedef struct scenes scenes;
 
