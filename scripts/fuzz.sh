@@ -51,7 +51,7 @@ run_target() {
 for t in "${targets[@]}"; do
   bin="$build/fuzz/fuzz_$t"
   if [ ! -x "$bin" ] || [ ! -d "$root/fuzz/corpus/$t" ]; then
-    echo "fuzz: no target '$t' (request snapshot config stream_msg)" >&2
+    echo "fuzz: no target '$t' (request snapshot config stream_msg recording)" >&2
     exit 2
   fi
   work="$build/work/$t"
