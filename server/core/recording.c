@@ -49,7 +49,7 @@ void rec_record_head(unsigned char out[REC_RECORD_HEAD], uint32_t type, uint32_t
 
 size_t rec_padding(size_t len) { return (4 - len % 4) % 4; }
 
-uint64_t rec_record_size(uint64_t len) { return REC_RECORD_HEAD + len + (4 - len % 4) % 4; }
+uint64_t rec_record_size(uint64_t len) { return REC_RECORD_HEAD + len + rec_padding((size_t)len); }
 
 int rec_index_add_frame(rec_index *ix, const rec_frame *f)
 {
