@@ -19,26 +19,37 @@
  *                   meshopt: u32 byte count, then the q16 positions padded to 4 u16 per vertex
  *                            (x, y, z, 0: an 8-byte stride) compressed with meshoptimizer's
  *                            vertex codec (meshopt_encodeVertexBuffer, vertex size 8)
- *                   delta:   a 44-byte head, then the compressed values (offsets from the
+ *                   delta:   a 44-byte head, then three axis blocks (offsets from the
  *                            section's start):
- *                             0  4  kind (u32): 0 keyframe, 1 delta
+ *                             0  4  kind (u32): 2 keyframe, 3 delta (0 and 1: the same in the
+ *                                   first, byte-plane layout, below; still decoded)
  *                             4  4  keyframe id (u32): the keyframe's sequence number, from 1;
  *                                   a keyframe carries its own, a delta its keyframe's
  *                             8  8  keyframe frame (u64): the `frame` of that keyframe
  *                            16  8  quantum (f64, m): the grid's spacing
  *                            24 12  grid origin (3 i32): the keyframe's per-axis minimum of g
  *                            36  4  row (u32): vertices per grid row (the cloth's nx)
- *                            40  4  byte count (u32) of the zstd frames that follow
- *                            44     zstd frames, concatenated, of 12 n bytes together
- *                                   (below; clothd writes one per axis, 4 n bytes each)
+ *                            40  4  byte count (u32) of what follows (the three axis blocks)
+ *                            44     axis blocks x, y, z, each a multiple of 4 bytes:
+ *                                    0  1  basis (u8): 0 a = g - origin, 1 a = g - g of the
+ *                                          keyframe (a delta only; the encoder takes per axis
+ *                                          whichever compresses smaller)
+ *                                    1  3  zero
+ *                                    4  4  escapes E (u32, at most n)
+ *                                    8  4  byte count L (u32) of the zstd frame that follows
+ *                                   12  L  one zstd frame of n + 4 E bytes: n int8 residuals r
+ *                                          (-127..127; -128 is an escape: the residual is the
+ *                                          next of the E int32 that follow), then E int32
+ *                                          then zero padding to 4 bytes
  *                            g = round(x / quantum) clamped to int32 (round half away from 0);
- *                            a = g - origin (keyframe) or g - g of the keyframe (delta);
  *                            r = a - (a[i-1,j] + a[i,j-1] - a[i-1,j-1]), a neighbour missing
  *                            on the first row or column counts as 0 (i = v mod row, j = v div
- *                            row), all mod 2^32; z = zigzag(r) = (r << 1) ^ (r >> 31) as u32;
- *                            byte b (0 low .. 3) of z of axis c of vertex v is byte
- *                            (4 c + b) n + v. x decodes as (origin + a) quantum (keyframe) or
- *                            (g of the keyframe + a) quantum (delta), within quantum/2.
+ *                            row), all mod 2^32. x decodes as (origin + a) quantum (basis 0) or
+ *                            (g of the keyframe + a) quantum (basis 1), within quantum/2.
+ *                            Kinds 0 and 1 (the first layout): after the head, zstd frames of 12 n bytes
+ *                            together: byte b (0 low .. 3) of zigzag(r) = (r << 1) ^ (r >> 31)
+ *                            of axis c of vertex v is byte (4 c + b) n + v; basis 0 for a
+ *                            keyframe, 1 for a delta.
  *                 scalar (when flagged): n_vertices u8, 0 = slow or unstrained .. 255
  *                 rocks: n_rocks x 36 bytes {id u32, position 3 f32, radius f32,
  *                        orientation 4 f32 (quaternion x, y, z, w)}
@@ -70,7 +81,8 @@ enum clf_encoding { CLF_F32 = 0, CLF_Q16 = 1, CLF_MESHOPT = 2, CLF_DELTA = 3 };
 #define CLF_Q16_EXTENT_MIN 1e-9f
 
 /* The delta positions section: offsets from its start. */
-enum clf_delta_kind { CLF_DELTA_KEY = 0, CLF_DELTA_DELTA = 1 };
+enum clf_delta_kind { CLF_DELTA_KEY_PLANES = 0, CLF_DELTA_DELTA_PLANES = 1, CLF_DELTA_KEY = 2, CLF_DELTA_DELTA = 3 };
+#define CLF_DELTA_KIND_IS_KEY(k) ((k) == CLF_DELTA_KEY || (k) == CLF_DELTA_KEY_PLANES)
 #define CLF_DELTA_OFF_KIND 0
 #define CLF_DELTA_OFF_KEY_ID 4
 #define CLF_DELTA_OFF_KEY_FRAME 8
@@ -79,6 +91,13 @@ enum clf_delta_kind { CLF_DELTA_KEY = 0, CLF_DELTA_DELTA = 1 };
 #define CLF_DELTA_OFF_ROW 36
 #define CLF_DELTA_OFF_LENGTH 40
 #define CLF_DELTA_HEAD 44
+/* An axis block of kinds 2 and 3. */
+enum clf_delta_basis { CLF_DELTA_BASIS_ORIGIN = 0, CLF_DELTA_BASIS_KEY = 1 };
+#define CLF_DELTA_AXIS_OFF_BASIS 0
+#define CLF_DELTA_AXIS_OFF_ESCAPES 4
+#define CLF_DELTA_AXIS_OFF_LENGTH 8
+#define CLF_DELTA_AXIS_HEAD 12
+#define CLF_DELTA_ESCAPE (-128)
 
 /* Section sizes rounded up to 4 bytes. */
 #define CLF_ALIGN4(n) (((n) + 3u) & ~(size_t)3u)

@@ -141,9 +141,10 @@ function decode(data, options, state) {
   return out;
 }
 
-// The delta positions section at `at` (layout in clothd_frame.h): the zstd frames hold the byte
-// planes of the zigzagged residuals of the parallelogram prediction of a = g - origin (keyframe)
-// or g - g of the keyframe (delta); all integer arithmetic is mod 2^32 (| 0).
+// The delta positions section at `at` (layout in clothd_frame.h): per axis, a zstd frame of the
+// int8 residuals (int32 escapes) of the parallelogram prediction of a = g - origin (basis 0) or
+// g - g of the keyframe (basis 1), kinds 2 and 3; or (kinds 0 and 1, the first layout) zstd frames of
+// the byte planes of the zigzagged residuals. All integer arithmetic is mod 2^32 (| 0).
 function decodeDelta(bytes, dv, at, n, positions, options, state) {
   const kind = dv.getUint32(at, true);
   const keyId = dv.getUint32(at + 4, true);
@@ -152,14 +153,20 @@ function decodeDelta(bytes, dv, at, n, positions, options, state) {
   const origin = [0, 1, 2].map((c) => dv.getInt32(at + 24 + 4 * c, true));
   const row = dv.getUint32(at + 36, true);
   const length = dv.getUint32(at + 40, true);
-  if (kind > 1) throw new Error(`unknown delta kind ${kind}`);
+  if (kind > 3) throw new Error(`unknown delta kind ${kind}`);
+  const isKey = kind === 0 || kind === 2;
   if (!(quantum > 0 && quantum < Infinity)) throw new Error(`delta quantum ${quantum} is not a positive number`);
   if (row < 1) throw new Error('delta row of 0 vertices');
   if (at + DELTA_HEAD + length > bytes.length) throw new Error(`frame of ${bytes.length} bytes is truncated: its positions need ${at + DELTA_HEAD + length}`);
   const key = state.key;
-  if (kind === 1 && !(key && key.id === keyId && key.n === n && key.quantum === quantum))
+  if (!isKey && !(key && key.id === keyId && key.n === n && key.quantum === quantum))
     throw new Error(`delta of keyframe ${keyId} (frame ${keyFrame}), and this decoder holds ${key ? `keyframe ${key.id}` : 'no keyframe'}`);
   if (!options.zstd) throw new Error('a delta frame needs options.zstd (ZSTDDecoder of the zstddec package, initialised)');
+  if (kind >= 2) return decodeAxes(bytes, dv, at, n, row, length, positions, options, state, { isKey, keyId, keyFrame, quantum, origin, key });
+  return decodeDeltaPlanes(bytes, at, n, row, length, positions, options, state, kind, key, origin, quantum, keyId, keyFrame);
+}
+
+function decodeDeltaPlanes(bytes, at, n, row, length, positions, options, state, kind, key, origin, quantum, keyId, keyFrame) {
   const raw = options.zstd.decode(bytes.subarray(at + DELTA_HEAD, at + DELTA_HEAD + length), 12 * n);
   if (raw.length !== 12 * n) throw new Error(`delta values of ${raw.length} bytes, not ${12 * n}`);
   const g = kind === 0 ? new Int32Array(3 * n) : null;
@@ -205,4 +212,105 @@ function decodeDelta(bytes, dv, at, n, positions, options, state) {
     length: (length + 3) & ~3, keyframe: kind === 0, keyId, keyFrame, quantum,
     newKey: kind === 0 ? { id: keyId, frame: keyFrame, n, quantum, g } : null,
   };
+}
+
+// Kinds 2 and 3: three axis blocks. Every block is checked and decompressed before any position
+// is written, so a frame that fails changes nothing.
+function decodeAxes(bytes, dv, at, n, row, length, positions, options, state, h) {
+  const end = at + DELTA_HEAD + length;
+  const axes = [];
+  let p = at + DELTA_HEAD;
+  for (let c = 0; c < 3; c++) {
+    if (p + 12 > end) throw new Error(`delta axis ${c} block at byte ${p} runs past the positions (${end})`);
+    const basis = bytes[p], escapes = dv.getUint32(p + 4, true), len = dv.getUint32(p + 8, true);
+    if (basis > 1 || (basis === 1 && h.isKey)) throw new Error(`delta axis ${c} of basis ${basis} in a ${h.isKey ? 'keyframe' : 'delta'}`);
+    if (escapes > n) throw new Error(`delta axis ${c} claims ${escapes} escapes for ${n} vertices`);
+    if (p + 12 + len > end) throw new Error(`delta axis ${c} zstd frame of ${len} bytes runs past the positions`);
+    const size = n + 4 * escapes;
+    const raw = options.zstd.decode(bytes.subarray(p + 12, p + 12 + len), size);
+    if (raw.length !== size) throw new Error(`delta axis ${c} values of ${raw.length} bytes, not ${size}`);
+    const r8 = new Int8Array(raw.buffer, raw.byteOffset, n);
+    const found = countEscapes(r8);
+    if (found !== escapes) throw new Error(`delta axis ${c} has ${found} escapes, its head says ${escapes}`);
+    axes.push({ basis, r8, esc: new DataView(raw.buffer, raw.byteOffset + n, 4 * escapes) });
+    p += align4(12 + len);
+  }
+  if (p !== align4(end)) throw new Error(`delta axis blocks end at byte ${p}, the positions at ${align4(end)}`);
+  const g = h.isKey ? new Int32Array(3 * n) : null;
+  const w = Math.min(row, n);
+  const prev = state.rowScratch && state.rowScratch.length >= 3 * w ? state.rowScratch : (state.rowScratch = new Int32Array(3 * w));
+  undoAxes(axes, n, w, h.key ? h.key.g : null, h.origin, h.quantum, positions, g, prev);
+  return {
+    length: align4(length), keyframe: h.isKey, keyId: h.keyId, keyFrame: h.keyFrame, quantum: h.quantum,
+    newKey: h.isKey ? { id: h.keyId, frame: h.keyFrame, n, quantum: h.quantum, g } : null,
+  };
+}
+
+// How many bytes of r8 are -128 (escapes): four at a time where the bytes are aligned, a word
+// with no 0x80 byte skipped at once (the test is exact for "none": x ^ 0x80808080 has a zero byte).
+function countEscapes(r8) {
+  const n = r8.length;
+  let found = 0, v = 0;
+  const head = (4 - (r8.byteOffset & 3)) & 3;
+  for (; v < head && v < n; v++) if (r8[v] === -128) found++;
+  const words = (n - v) >> 2;
+  if (words > 0) {
+    const u = new Uint32Array(r8.buffer, r8.byteOffset + v, words);
+    for (let i = 0; i < words; i++) {
+      const x = u[i] ^ 0x80808080;
+      if (((x - 0x01010101) & ~x & 0x80808080) !== 0) {
+        const at = v + 4 * i;
+        for (let b = 0; b < 4; b++) if (r8[at + b] === -128) found++;
+      }
+    }
+    v += 4 * words;
+  }
+  for (; v < n; v++) if (r8[v] === -128) found++;
+  return found;
+}
+
+// The positions from the three axes' residuals, vertex by vertex (so positions and the
+// keyframe's g are read and written in order): the parallelogram's inverse row by row (prev
+// holds the row before, 3 values a vertex; the first row's are 0), plus the keyframe's g (basis
+// 1) or the origin (basis 0); g (keyframes) keeps the grid values.
+function undoAxes(axes, n, w, keyG, origin, quantum, positions, g, prev) {
+  const [ax, ay, az] = axes;
+  const rx = ax.r8, ry = ay.r8, rz = az.r8;
+  const kx = ax.basis === 1, ky = ay.basis === 1, kz = az.basis === 1;
+  const [ox, oy, oz] = origin;
+  let ex = 0, ey = 0, ez = 0;
+  prev.fill(0);
+  for (let j0 = 0; j0 < n; j0 += w) {
+    const end = j0 + Math.min(w, n - j0);
+    let lx = 0, ly = 0, lz = 0, dx = 0, dy = 0, dz = 0;
+    for (let v = j0, i = 0, k = 3 * j0; v < end; v++, i += 3, k += 3) {
+      let r = rx[v];
+      if (r === -128) r = ax.esc.getInt32(4 * ex++, true);
+      let b = prev[i];
+      lx = (r + lx + b - dx) | 0;
+      dx = b;
+      prev[i] = lx;
+      r = ry[v];
+      if (r === -128) r = ay.esc.getInt32(4 * ey++, true);
+      b = prev[i + 1];
+      ly = (r + ly + b - dy) | 0;
+      dy = b;
+      prev[i + 1] = ly;
+      r = rz[v];
+      if (r === -128) r = az.esc.getInt32(4 * ez++, true);
+      b = prev[i + 2];
+      lz = (r + lz + b - dz) | 0;
+      dz = b;
+      prev[i + 2] = lz;
+      const gx = ((kx ? keyG[k] : ox) + lx) | 0, gy = ((ky ? keyG[k + 1] : oy) + ly) | 0, gz = ((kz ? keyG[k + 2] : oz) + lz) | 0;
+      positions[k] = gx * quantum;
+      positions[k + 1] = gy * quantum;
+      positions[k + 2] = gz * quantum;
+      if (g) {
+        g[k] = gx;
+        g[k + 1] = gy;
+        g[k + 2] = gz;
+      }
+    }
+  }
 }

@@ -150,7 +150,7 @@ function scan(b, dv) {
     if (type === REC_TEXT) texts.push({ offset: at, length });
     else if (type === REC_FRAME) {
       const p = at + RECORD_HEAD;
-      const isKey = length < CLF_HEADER + 4 || (dv.getUint16(p + 6, true) & 3) !== CLF_DELTA || dv.getUint32(p + CLF_HEADER, true) === 0;
+      const isKey = length < CLF_HEADER + 4 || (dv.getUint16(p + 6, true) & 3) !== CLF_DELTA || (dv.getUint32(p + CLF_HEADER, true) & ~2) === 0; // kind 2, or 0 (the first layout)
       if (isKey) keyOrdinal = frames.length;
       frames.push({ offset: at, length, simTime: length >= CLF_HEADER ? dv.getFloat64(p + 24, true) : NaN,
         key: Math.max(keyOrdinal, 0), textsBefore: texts.length });
@@ -184,10 +184,10 @@ function checkFrames(b, dv, frames, texts, hello, text) {
     if (e === CLF_DELTA) {
       if (f.length < CLF_HEADER + 44) bad('a delta frame shorter than its head');
       const kind = dv.getUint32(p + CLF_HEADER, true), id = dv.getUint32(p + CLF_HEADER + 4, true);
-      if (kind === 0) {
+      if (kind === 0 || kind === 2) {
         if (f.key !== k) bad(`a keyframe whose index names frame ${f.key} as its keyframe`);
         keyId = id;
-      } else if (kind !== 1 || id !== keyId || f.key >= k || dv.getUint32(frames[f.key].offset + RECORD_HEAD + CLF_HEADER + 4, true) !== id) {
+      } else if ((kind !== 1 && kind !== 3) || id !== keyId || f.key >= k || dv.getUint32(frames[f.key].offset + RECORD_HEAD + CLF_HEADER + 4, true) !== id) {
         bad(`a delta of keyframe ${id} that the recording does not hold before it`);
       }
     } else if (f.key !== k) bad('a frame that needs no keyframe names another');
@@ -227,7 +227,7 @@ export function buildRecording(messages, options = {}) {
       const p = m instanceof ArrayBuffer ? new Uint8Array(m) : new Uint8Array(m.buffer, m.byteOffset, m.byteLength);
       const dv = new DataView(p.buffer, p.byteOffset, p.byteLength);
       const delta = (dv.getUint16(6, true) & 3) === CLF_DELTA;
-      if (!delta || dv.getUint32(CLF_HEADER, true) === 0) keyOrdinal = frames.length;
+      if (!delta || (dv.getUint32(CLF_HEADER, true) & ~2) === 0) keyOrdinal = frames.length;
       frames.push({ offset: record(REC_FRAME, p.slice()), simTime: dv.getFloat64(24, true), key: keyOrdinal, textsBefore: texts.length });
     }
   });

@@ -3,7 +3,7 @@
 // clothd_stream_encode_seconds_total), and the decode time per frame in node with proto/frame.mjs
 // (V8, as in a browser), for f32, q16, meshopt and delta, on the default scene (64 x 64, rocks
 // dropping every 3 s) and at 128 x 128, all four encodings subscribed at once; then the decode
-// time of 256 x 256 delta frames. A benchmark, not a test: it prints figures.
+// time of 256 x 256 delta frames, beside the sim and then alone. A benchmark, not a test: it prints figures.
 //   node scripts/bench-encodings.mjs [seconds per size, default 8]
 import WebSocket from 'ws';
 import { daemon } from './bench-daemon.mjs';
@@ -44,6 +44,7 @@ function client(d, encoding) {
       }
       const ms = performance.now() - t0;
       if (!c.on || f.encoding !== encoding) return;
+      if (c.keep) c.kept.push(new Uint8Array(data));
       c.frames++;
       c.bytes += f.bytes;
       c.positionBytes += f.bytes - 72 - 36 * f.nRocks - (f.scalar ? f.nVertices : 0);
@@ -87,6 +88,8 @@ await size('128x128', ['--nx', '128', '--ny', '128']);
 // 256 x 256: the decode time of delta frames (the sim runs slower than real time there).
 const d = await daemon(['--nx', '256', '--ny', '256']);
 const c = await client(d, 'delta');
+c.keep = true;
+c.kept = [];
 c.on = true;
 const t0 = Date.now();
 while (c.frames < 30 && Date.now() - t0 < 60000) await sleep(200);
@@ -95,3 +98,18 @@ console.log(JSON.stringify({ cloth: '256x256', encoding: 'delta', frames: c.fram
   decode_ms_max: Math.max(...c.ms).toFixed(3), errors: c.errors }));
 c.ws.close();
 d.proc.kill('SIGTERM');
+// The same frames decoded again with the daemon gone (no sim beside the decoder), from their
+// first keyframe on, 20 times over, into one array as the viewer does.
+await sleep(300);
+const first = c.kept.findIndex((b) => (new DataView(b.buffer).getUint32(72, true) & ~2) === 0);
+const again = [], positions = new Float32Array(3 * 256 * 256);
+for (let rep = 0; rep < 20; rep++) {
+  const dec = createDecoder({ zstd, positions });
+  for (const b of c.kept.slice(first)) {
+    const t0 = performance.now();
+    const f = dec.decode(b);
+    if (!f.delta.keyframe) again.push(performance.now() - t0);
+  }
+}
+console.log(JSON.stringify({ cloth: '256x256', encoding: 'delta', alone: true, deltas: again.length,
+  decode_ms_median: median(again).toFixed(3), decode_ms_min: Math.min(...again).toFixed(3) }));

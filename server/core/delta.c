@@ -27,16 +27,18 @@ int delta_init(delta_enc *e, double quantum)
 void delta_free(delta_enc *e)
 {
     free(e->key);
-    free(e->work);
-    free(e->planes);
+    free(e->grid);
+    free(e->res);
+    free(e->packed);
+    free(e->alt);
     ZSTD_freeCCtx(e->zstd);
     memset(e, 0, sizeof *e);
 }
 
-size_t delta_bound(int32_t n)
-{
-    return CLF_ALIGN4(CLF_DELTA_HEAD + 3 * ZSTD_compressBound(4 * (size_t)n));
-}
+/* One axis block: its head and a zstd frame of n + 4 E bytes, padded to 4. */
+static size_t axis_bound(size_t n) { return CLF_DELTA_AXIS_HEAD + CLF_ALIGN4(ZSTD_compressBound(5 * n)); }
+
+size_t delta_bound(int32_t n) { return CLF_DELTA_HEAD + 3 * axis_bound((size_t)n); }
 
 void delta_want_key(delta_enc *e) { e->key_wanted = 1; }
 
@@ -58,38 +60,78 @@ static void put_u64(unsigned char *p, uint64_t v)
     for (int i = 0; i < 8; i++) p[i] = (unsigned char)(v >> (8 * i));
 }
 
+/* p grown to bytes, or return -1 from the function (p unchanged). */
+#define GROW(p, bytes)                         \
+    do {                                       \
+        void *grown_ = realloc((p), (bytes));  \
+        if (!grown_) return -1;                \
+        (p) = grown_;                          \
+    } while (0)
+
 static int reserve(delta_enc *e, int32_t n)
 {
-    if ((size_t)n <= e->cap_n) return 0;
-    int32_t *key = realloc(e->key, 12 * (size_t)n), *work = key ? realloc(e->work, 12 * (size_t)n) : NULL;
-    if (key) e->key = key;
-    if (work) e->work = work;
-    unsigned char *planes = work ? realloc(e->planes, 12 * (size_t)n) : NULL;
-    if (!planes) return -1;
-    e->planes = planes;
-    e->cap_n = (size_t)n;
+    const size_t nn = (size_t)n;
+    if (nn <= e->cap_n) return 0;
+    GROW(e->key, 12 * nn);
+    GROW(e->grid, 12 * nn);
+    GROW(e->res, 4 * nn);
+    GROW(e->packed, 5 * nn);
+    GROW(e->alt, axis_bound(nn));
+    e->cap_n = nn;
     return 0;
 }
 
-/* a (3 n values, rows of row vertices) to the byte planes of the zigzagged residuals of the
- * parallelogram prediction, all in uint32 arithmetic (mod 2^32). */
-static void predict_to_planes(const int32_t *a, int32_t n, int32_t row, unsigned char *planes)
+/* The residuals of the parallelogram prediction of axis c of a = g - base (base: 3 n values, or
+ * NULL for the constant origin), rows of row vertices, in uint32 arithmetic (mod 2^32). Worked
+ * backwards in place: a value's neighbours are still a's when it is predicted. */
+static void residuals(const int32_t *g, const int32_t *base, int32_t origin, int c, size_t n, size_t w, uint32_t *r)
 {
-    const size_t nn = (size_t)n, w = (size_t)row;
-    for (size_t v = 0; v < nn; v++) {
-        const size_t i = v % w, j = v / w;
-        for (int c = 0; c < 3; c++) {
-            const uint32_t *u = (const uint32_t *)a;
-            const size_t k = 3 * v + (size_t)c;
-            uint32_t p = 0;
-            if (i && j) p = u[k - 3] + u[k - 3 * w] - u[k - 3 - 3 * w];
-            else if (i) p = u[k - 3];
-            else if (j) p = u[k - 3 * w];
-            const uint32_t r = u[k] - p;
-            const uint32_t z = (r << 1) ^ (0u - (r >> 31));
-            for (int b = 0; b < 4; b++) planes[(size_t)(4 * c + b) * nn + v] = (unsigned char)(z >> (8 * b));
+    for (size_t v = 0; v < n; v++)
+        r[v] = (uint32_t)g[3 * v + (size_t)c] - (base ? (uint32_t)base[3 * v + (size_t)c] : (uint32_t)origin);
+    for (size_t v = n; v-- > 0;) {
+        const size_t i = v % w;
+        uint32_t p = 0;
+        if (i && v >= w) p = r[v - 1] + r[v - w] - r[v - 1 - w];
+        else if (i) p = r[v - 1];
+        else if (v >= w) p = r[v - w];
+        r[v] -= p;
+    }
+}
+
+/* Residuals as int8 (CLF_DELTA_ESCAPE: the next int32 escape) then the escapes: n + 4 E bytes. */
+static size_t pack(const uint32_t *r, size_t n, unsigned char *out, uint32_t *escapes)
+{
+    size_t e = 0;
+    for (size_t v = 0; v < n; v++) {
+        const int32_t x = (int32_t)r[v];
+        if (x > CLF_DELTA_ESCAPE && x <= 127) {
+            out[v] = (unsigned char)(x & 0xff);
+        } else {
+            out[v] = (unsigned char)(CLF_DELTA_ESCAPE & 0xff);
+            unsigned char *p = out + n + 4 * e++;
+            for (int b = 0; b < 4; b++) p[b] = (unsigned char)(r[v] >> (8 * b));
         }
     }
+    *escapes = (uint32_t)e;
+    return n + 4 * e;
+}
+
+/* Axis c's block at out, of basis 0 (base NULL: a = g - origin) or 1 (a = g - base); the bytes
+ * written, 0 on a zstd error. */
+static size_t axis_block(delta_enc *e, const int32_t *base, int c, size_t n, size_t w, unsigned char *out, size_t cap)
+{
+    uint32_t *r = (uint32_t *)e->res, escapes;
+    residuals(e->grid, base, e->origin[c], c, n, w, r);
+    const size_t raw = pack(r, n, e->packed, &escapes);
+    const size_t got = ZSTD_compress2(e->zstd, out + CLF_DELTA_AXIS_HEAD, cap - CLF_DELTA_AXIS_HEAD, e->packed, raw);
+    if (ZSTD_isError(got)) return 0;
+    memset(out, 0, CLF_DELTA_AXIS_HEAD);
+    out[CLF_DELTA_AXIS_OFF_BASIS] = base ? CLF_DELTA_BASIS_KEY : CLF_DELTA_BASIS_ORIGIN;
+    put_u32(out + CLF_DELTA_AXIS_OFF_ESCAPES, escapes);
+    put_u32(out + CLF_DELTA_AXIS_OFF_LENGTH, (uint32_t)got);
+    size_t at = CLF_DELTA_AXIS_HEAD + got;
+    while (at % 4) out[at++] = 0;
+    return at;
 }
 
 size_t delta_encode(delta_enc *e, const float *xyz, int32_t n, int32_t row, uint64_t frame,
@@ -99,14 +141,13 @@ size_t delta_encode(delta_enc *e, const float *xyz, int32_t n, int32_t row, uint
     const uint64_t since = wall_ns - e->key_wall_ns;
     const int key = e->n != n || e->row != row || e->key_id == 0 || wall_ns < e->key_wall_ns ||
                     since >= DELTA_KEY_INTERVAL_NS || (e->key_wanted && since >= DELTA_KEY_MIN_GAP_NS);
-    const size_t m = 3 * (size_t)n;
+    const size_t m = 3 * (size_t)n, nn = (size_t)n, w = (size_t)row;
+    for (size_t k = 0; k < m; k++) e->grid[k] = delta_grid(xyz[k], e->quantum);
     if (key) {
         int32_t lo[3] = {0, 0, 0};
-        for (size_t k = 0; k < m; k++) {
-            e->key[k] = delta_grid(xyz[k], e->quantum);
-            if (k < 3 || e->key[k] < lo[k % 3]) lo[k % 3] = e->key[k];
-        }
-        for (size_t k = 0; k < m; k++) e->work[k] = (int32_t)((uint32_t)e->key[k] - (uint32_t)lo[k % 3]);
+        for (size_t k = 0; k < m; k++)
+            if (k < 3 || e->grid[k] < lo[k % 3]) lo[k % 3] = e->grid[k];
+        memcpy(e->key, e->grid, 12 * nn);
         memcpy(e->origin, lo, sizeof lo);
         e->n = n;
         e->row = row;
@@ -114,19 +155,26 @@ size_t delta_encode(delta_enc *e, const float *xyz, int32_t n, int32_t row, uint
         e->key_frame = frame;
         e->key_wall_ns = wall_ns;
         e->key_wanted = 0;
-    } else {
-        for (size_t k = 0; k < m; k++)
-            e->work[k] = (int32_t)((uint32_t)delta_grid(xyz[k], e->quantum) - (uint32_t)e->key[k]);
     }
-    predict_to_planes(e->work, n, row, e->planes);
     /* One zstd frame per axis: each gets literal statistics of its own (z's residuals spread
-     * wider than x's and y's: one frame of all three took 7 % more, README "Speed"). */
-    const size_t bound = delta_bound(n);
+     * wider than x's and y's: one frame of all three took 7 % more, README "Speed"). A delta
+     * tries both bases per axis and keeps the smaller: on a cloth in motion the grid values
+     * themselves often predict better than their difference from a keyframe up to a second old,
+     * on a cloth at rest the difference is all zeros. */
+    const size_t cap = axis_bound(nn);
     size_t len = 0;
     for (int c = 0; c < 3; c++) {
-        const size_t got = ZSTD_compress2(e->zstd, out + CLF_DELTA_HEAD + len, bound - CLF_DELTA_HEAD - len,
-                                          e->planes + 4 * (size_t)c * (size_t)n, 4 * (size_t)n);
-        if (ZSTD_isError(got)) {
+        unsigned char *block = out + CLF_DELTA_HEAD + len;
+        size_t got = axis_block(e, key ? NULL : e->key, c, nn, w, block, cap);
+        if (got && !key) {
+            const size_t own = axis_block(e, NULL, c, nn, w, e->alt, cap);
+            if (!own) got = 0;
+            else if (own < got) {
+                memcpy(block, e->alt, own);
+                got = own;
+            }
+        }
+        if (!got) {
             e->n = 0; /* whatever this was, the next frame is a keyframe */
             return 0;
         }

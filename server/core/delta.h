@@ -1,8 +1,9 @@
 /* delta.h - the positions of the stream's `delta` encoding (proto/clothd_frame.h): the cloth
- * quantized on a fixed grid of `quantum` metres, as keyframes (the grid values) and deltas (the
- * difference from the newest keyframe), each predicted from its grid neighbours, zigzagged, split
- * in byte planes and compressed with zstd (libzstd), one zstd frame per axis. A pure module: positions in, the positions
- * section of a frame out; which frames are keyframes is decided here too.
+ * quantized on a fixed grid of `quantum` metres, as keyframes (the grid values) and deltas (per
+ * axis, the difference from the newest keyframe or the grid values themselves, whichever
+ * compresses smaller), each predicted from its grid neighbours, the residuals as int8 with int32
+ * escapes, compressed with zstd (libzstd), one zstd frame per axis. A pure module: positions in,
+ * the positions section of a frame out; which frames are keyframes is decided here too.
  *
  * One encoder serves every client of one quantum: every delta refers to the newest keyframe, so a
  * client that holds that keyframe decodes any later delta, however many it skipped. */
@@ -35,8 +36,10 @@ typedef struct delta_enc {
     int32_t origin[3];           /* ... its integer grid origin */
     int key_wanted;              /* a keyframe was asked for (delta_want_key) */
     int32_t *key;                /* 3 n: the keyframe's grid values */
-    int32_t *work;               /* 3 n */
-    unsigned char *planes;       /* 12 n */
+    int32_t *grid;               /* 3 n: this frame's grid values */
+    int32_t *res;                /* n: one axis's residuals */
+    unsigned char *packed;       /* 5 n: one axis's int8 residuals and int32 escapes */
+    unsigned char *alt;          /* ZSTD_compressBound(5 n): the other basis's zstd frame */
     size_t cap_n;
     void *zstd;                  /* ZSTD_CCtx */
 } delta_enc;

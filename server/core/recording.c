@@ -165,7 +165,7 @@ int rec_check_frame(const unsigned char *p, size_t len, int32_t n, int *encoding
         }
         const unsigned char *s = p + CLF_HEADER_SIZE;
         const uint32_t k = get_u32(s + CLF_DELTA_OFF_KIND);
-        if (k != CLF_DELTA_KEY && k != CLF_DELTA_DELTA) {
+        if (k > CLF_DELTA_DELTA) {
             snprintf(why, why_len, "a delta frame of kind %u", (unsigned)k);
             return -1;
         }
@@ -302,7 +302,7 @@ int rec_read(const unsigned char *buf, size_t len, rec_file *out)
             out->encoding = enc;
             rec_frame f = {at, get_f64(p + CLF_OFF_SIM_TIME), out->ix.n_frames, out->ix.n_texts};
             if (enc == CLF_DELTA) {
-                if (kind == CLF_DELTA_KEY) {
+                if (CLF_DELTA_KIND_IS_KEY(kind)) {
                     if (have_key && key_id <= last_key_id) return refuse(out, at, "a keyframe whose id does not grow");
                     have_key = 1;
                     last_key_id = key_id;

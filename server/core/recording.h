@@ -87,7 +87,7 @@ int rec_read(const unsigned char *buf, size_t len, rec_file *out);
 void rec_file_free(rec_file *f);
 
 /* Checks one CLF1 frame of n vertices (header, flags, sizes; a delta's head): 0 with *encoding,
- * and for delta *kind (CLF_DELTA_KEY or CLF_DELTA_DELTA) and *key_id; -1 with the reason. */
+ * and for delta *kind (a clf_delta_kind) and *key_id; -1 with the reason. */
 int rec_check_frame(const unsigned char *p, size_t len, int32_t n, int *encoding, int *kind, uint32_t *key_id, char *why,
                     size_t why_len);
 

@@ -293,8 +293,8 @@ test('delta: a delta of another keyframe, or broken, throws and leaves the keyfr
   assert.throws(() => d.decode(KEY_FRAME.subarray(0, 72 + 40)), { name: 'Error', message: /truncated/ });
   assert.throws(() => d.decode(KEY_FRAME.subarray(0, KEY_FRAME.length - 8)), { name: 'Error', message: /truncated/ });
   const kind = KEY_FRAME.slice();
-  kind[72] = 2;
-  assert.throws(() => d.decode(kind), { name: 'Error', message: /kind 2/ });
+  kind[72] = 4;
+  assert.throws(() => d.decode(kind), { name: 'Error', message: /kind 4/ });
   const nan = KEY_FRAME.slice();
   new DataView(nan.buffer).setFloat64(72 + 16, NaN, true);
   assert.throws(() => d.decode(nan), { name: 'Error', message: /quantum/ });
@@ -306,4 +306,64 @@ test('delta: a delta of another keyframe, or broken, throws and leaves the keyfr
     deltaSection({ kind: 0, keyId: 1, keyFrame: 1, quantum: 0.5, origin: [0, 0, 0], row: 2, zstdBytes: KEY_ZSTD }));
   assert.throws(() => d.decode(short), { name: 'Error', message: /delta values/ });
   assert.equal(d.keyframe().id, 1);
+});
+
+// The same cloth in the layout of kinds 2 and 3 (clothd_frame.h): an axis block per axis (basis
+// u8, 3 zero, escapes u32, byte count u32, one zstd frame of n int8 residuals then the int32
+// escapes), padded to 4. Keyframe residuals x (0,2,0,1), y (0,0,2,0), z (2,0,1,-3). The delta: x
+// on the keyframe (basis 1), residuals (1,-1,-1,1), v0 +1; y on the origin (basis 0), a = g - 4 =
+// (0,0,2,2), residuals (0,0,2,0); z on the keyframe, v3 -200 (g -202): residual -200, an escape
+// (byte -128 then the int32). zstd frames made once with the zstd command line (zstd -1 --no-check).
+function axisBlock(basis, escapes, zframe) {
+  const head = new DataView(new ArrayBuffer(12));
+  head.setUint8(0, basis);
+  head.setUint32(4, escapes, true);
+  head.setUint32(8, zframe.length, true);
+  return frameOf(new Uint8Array(head.buffer), zframe);
+}
+const KEY2 = deltaFrame(deltaSection({ kind: 2, keyId: 1, keyFrame: 77, quantum: 0.5, origin: [2, 4, -2], row: 2, zstdBytes: frameOf(
+  axisBlock(0, 0, hex('28b52ffd200421000000020001')), axisBlock(0, 0, hex('28b52ffd200421000000000200')),
+  axisBlock(0, 0, hex('28b52ffd2004210000020001fd'))) }), 77);
+const DELTA2 = deltaFrame(deltaSection({ kind: 3, keyId: 1, keyFrame: 77, quantum: 0.5, origin: [2, 4, -2], row: 2, zstdBytes: frameOf(
+  axisBlock(1, 0, hex('28b52ffd200421000001ffff01')), axisBlock(0, 0, hex('28b52ffd200421000000000200')),
+  axisBlock(1, 1, hex('28b52ffd20084100000000008038ffffff'))) }), 78);
+
+test('delta: axis blocks (kinds 2 and 3) worked out by hand, escapes and mixed bases', () => {
+  const d = createDecoder({ zstd });
+  const k = d.decode(KEY2);
+  assert.deepEqual(k.delta, { keyframe: true, keyId: 1, keyFrame: 77, quantum: 0.5 });
+  assert.deepEqual(k.positions, Float32Array.from([1, 2, 0, 2, 2, 0, 1, 3, 0.5, 2.5, 3, -1]));
+  assert.equal(k.bytes, 72 + 44 + 3 * 28); // each block: 12 + 13 zstd bytes, padded to 28
+  for (let i = 0; i < 2; i++) {
+    const f = d.decode(DELTA2);
+    assert.deepEqual(f.delta, { keyframe: false, keyId: 1, keyFrame: 77, quantum: 0.5 });
+    assert.deepEqual(f.positions, Float32Array.from([1.5, 2, 0, 2, 2, 0, 1, 3, 0.5, 2.5, 3, -101]));
+  }
+  // A keyframe of the first, byte-plane layout is held alike.
+  d.decode(KEY_FRAME);
+  assert.equal(d.decode(DELTA2).positions[11], -101);
+});
+
+test('delta: broken axis blocks throw and change neither the keyframe nor the positions', () => {
+  const positions = new Float32Array(12);
+  const d = createDecoder({ zstd, positions });
+  d.decode(KEY2);
+  const held = positions.slice();
+  const at = 72 + 44;
+  const cases = [
+    [(b) => { b[at] = 1; }, /basis 1 in a keyframe/, KEY2],
+    [(b) => { b[at] = 2; }, /basis 2/, DELTA2],
+    [(b) => new DataView(b.buffer).setUint32(at + 4, 5, true), /5 escapes for 4 vertices/, DELTA2],
+    [(b) => new DataView(b.buffer).setUint32(at + 56 + 4, 0, true), /values|zstd|escape/i, DELTA2],
+    [(b) => new DataView(b.buffer).setUint32(at + 8, 200, true), /runs past/, DELTA2],
+    [(b) => new DataView(b.buffer).setUint32(72 + 40, 3 * 28 - 8, true), /runs past|end at/, DELTA2],
+  ];
+  for (const [spoil, message, frame] of cases) {
+    const b = frame.slice();
+    spoil(b);
+    assert.throws(() => d.decode(b), { name: 'Error', message });
+    assert.deepEqual(positions, held);
+    assert.equal(d.keyframe().id, 1);
+  }
+  assert.equal(d.decode(DELTA2).positions[11], -101);
 });

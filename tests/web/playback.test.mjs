@@ -64,7 +64,7 @@ function capture(streamPort, encoding, frames) {
       const b = new Uint8Array(data); // a copy: ws may pool its buffers
       if (!acked) return;
       const dv = new DataView(b.buffer);
-      if (count === 0 && (dv.getUint16(6, true) & 3) === 3 && dv.getUint32(72, true) !== 0) return;
+      if (count === 0 && (dv.getUint16(6, true) & 3) === 3 && (dv.getUint32(72, true) & ~2) !== 0) return; // not a keyframe (kind 2; 0 in the first layout)
       messages.push(b);
       progress.frames = ++count;
       if (count === frames) {

@@ -465,8 +465,9 @@ export class Stream {
   }
 }
 
-/** Whether a frame is a delta keyframe (encoding 3, kind 0). */
+/** Whether a frame is a delta keyframe (encoding 3, kind 2; or 0, the first layout's). */
 function isKeyframe(bytes) {
-  return bytes.length >= HEADER_SIZE + DELTA_HEAD && (bytes[6] & 3) === 3 &&
-    new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength).getUint32(HEADER_SIZE, true) === 0;
+  if (bytes.length < HEADER_SIZE + DELTA_HEAD || (bytes[6] & 3) !== 3) return false;
+  const kind = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength).getUint32(HEADER_SIZE, true);
+  return kind === 2 || kind === 0;
 }

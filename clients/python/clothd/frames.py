@@ -14,10 +14,12 @@ section starting on a 4-byte boundary::
         72      positions: f32: 3 f32 per vertex; q16: 3 u16 per vertex over the bbox;
                 meshopt: u32 byte count, then the q16 positions padded to 4 u16 per vertex and
                 compressed with meshoptimizer's vertex codec (vertex size 8);
-                delta: a 44-byte head (kind u32 0 keyframe 1 delta, keyframe id u32, keyframe
-                frame u64, quantum f64, grid origin 3 i32, row u32, byte count u32), then a zstd
-                frame of the byte planes of the zigzagged residuals of the grid values'
-                parallelogram prediction (PROTOCOL.md)
+                delta: a 44-byte head (kind u32 2 keyframe 3 delta, keyframe id u32, keyframe
+                frame u64, quantum f64, grid origin 3 i32, row u32, byte count u32), then per
+                axis a block (basis u8, 3 zero, escapes u32, byte count u32) and a zstd frame of
+                the int8 residuals (int32 escapes) of the grid values' parallelogram prediction;
+                kinds 0 and 1 (the first layout): zstd frames of byte planes of zigzagged residuals
+                (PROTOCOL.md)
                 scalar (flag bit 2): one u8 per vertex
                 rocks: n_rocks x {id u32, position 3 f32, radius f32, orientation 4 f32 (x, y, z, w)}
 
@@ -175,26 +177,61 @@ class Keyframe:
     g: object  # 3 n int32 grid values: a numpy int32 array or a list
 
 
-def _undo_prediction(z, n, row, numpy):
-    """The grid differences a (3 n, mod 2^32) from the zigzagged residuals' byte planes z."""
+def _planes_residuals(z, n, numpy):
+    """Kinds 0 and 1 (the first layout): the residuals (3 axes of n, mod 2^32) from the byte planes z of
+    their zigzags."""
     if numpy:
         planes = _numpy.frombuffer(z, dtype=_numpy.uint8).reshape(3, 4, n).astype(_numpy.uint32)
         u = planes[:, 0] | (planes[:, 1] << 8) | (planes[:, 2] << 16) | (planes[:, 3] << 24)
-        r = (u >> 1) ^ (_numpy.uint32(0) - (u & 1))  # (3, n)
-        row = max(1, min(row, n))  # a row longer than the cloth is its one row
+        return (u >> 1) ^ (_numpy.uint32(0) - (u & 1))  # (3, n)
+    m = 0xFFFFFFFF
+    out = []
+    for c in range(3):
+        base = 4 * c * n
+        u = [z[base + v] | z[base + n + v] << 8 | z[base + 2 * n + v] << 16 | z[base + 3 * n + v] << 24 for v in range(n)]
+        out.append([(x >> 1) ^ (-(x & 1) & m) for x in u])
+    return out
+
+
+def _axis_residuals(raw, n, escapes, numpy):
+    """One axis block's values (kinds 2 and 3): n int8 residuals, -128 taking the next of the
+    escapes int32 that follow; mod 2^32."""
+    if numpy:
+        r = _numpy.frombuffer(raw, dtype=_numpy.int8, count=n).astype(_numpy.int32)
+        at = _numpy.flatnonzero(r == -128)
+        if len(at) != escapes:
+            raise FrameError("delta axis has %d escapes, its head says %d" % (len(at), escapes))
+        r[at] = _numpy.frombuffer(raw, dtype="<i4", count=escapes, offset=n)
+        return r.view(_numpy.uint32)
+    out, e = [], 0
+    for v in range(n):
+        x = raw[v] - 256 if raw[v] >= 128 else raw[v]
+        if x == -128:
+            if e >= escapes:
+                raise FrameError("delta axis has more escapes than its head's %d" % escapes)
+            x = struct.unpack_from("<i", raw, n + 4 * e)[0]
+            e += 1
+        out.append(x & 0xFFFFFFFF)
+    if e != escapes:
+        raise FrameError("delta axis has %d escapes, its head says %d" % (e, escapes))
+    return out
+
+
+def _undo_prediction(r, n, row, numpy):
+    """The grid differences a (3 n interleaved, int32, mod 2^32) from the residuals r (3 axes)."""
+    row = max(1, min(row, n))  # a row longer than the cloth is its one row
+    if numpy:
         rows = -(-n // row)
         grid = _numpy.zeros((3, rows * row), dtype=_numpy.uint32)
-        grid[:, :n] = r
+        grid[:, :n] = _numpy.asarray(r, dtype=_numpy.uint32).reshape(3, n)
         # The parallelogram prediction's inverse is the 2D running sum, mod 2^32.
         grid = grid.reshape(3, rows, row).cumsum(axis=2, dtype=_numpy.uint32).cumsum(axis=1, dtype=_numpy.uint32)
         return grid.reshape(3, rows * row)[:, :n].T.reshape(3 * n).view(_numpy.int32)
     m = 0xFFFFFFFF
     a = [0] * (3 * n)
     for c in range(3):
-        base = 4 * c * n
+        rc = r[c]
         for v in range(n):
-            u = z[base + v] | z[base + n + v] << 8 | z[base + 2 * n + v] << 16 | z[base + 3 * n + v] << 24
-            r = (u >> 1) ^ (-(u & 1) & m)
             i, k = v % row, 3 * v + c
             if i and v >= row:
                 p = a[k - 3] + a[k - 3 * row] - a[k - 3 - 3 * row]
@@ -204,8 +241,31 @@ def _undo_prediction(z, n, row, numpy):
                 p = a[k - 3 * row]
             else:
                 p = 0
-            a[k] = (r + p) & m
+            a[k] = (rc[v] + p) & m
     return [x - (1 << 32) if x >= 1 << 31 else x for x in a]
+
+
+def _axis_blocks(data, at, length, n, is_key, numpy):
+    """Kinds 2 and 3: the three axis blocks at data[at:at + length]: (residuals, bases)."""
+    end, p, r, bases = at + length, at, [], []
+    for c in range(3):
+        if p + 12 > end:
+            raise FrameError("delta axis %d block at byte %d runs past the positions (%d)" % (c, p, end))
+        basis = data[p]
+        escapes, zlen = struct.unpack_from("<II", data, p + 4)
+        if basis > 1 or (basis == 1 and is_key):
+            raise FrameError("delta axis %d of basis %d in a %s" % (c, basis, "keyframe" if is_key else "delta"))
+        if escapes > n:
+            raise FrameError("delta axis %d claims %d escapes for %d vertices" % (c, escapes, n))
+        if p + 12 + zlen > end:
+            raise FrameError("delta axis %d zstd frame of %d bytes runs past the positions" % (c, zlen))
+        raw = zstd_decompress(bytes(data[p + 12:p + 12 + zlen]), n + 4 * escapes)
+        r.append(_axis_residuals(raw, n, escapes, numpy))
+        bases.append(basis)
+        p += (12 + zlen + 3) & ~3
+    if p != (end + 3) & ~3:
+        raise FrameError("delta axis blocks end at byte %d, the positions at %d" % (p, (end + 3) & ~3))
+    return (_numpy.stack(r) if numpy else r), bases
 
 
 def _positions_delta(data, at, n, bmin, bmax, numpy, state=None):
@@ -213,30 +273,38 @@ def _positions_delta(data, at, n, bmin, bmax, numpy, state=None):
         raise FrameError("a delta frame (encoding 3) needs a FrameDecoder, which keeps its keyframe")
     _need(data, at, DELTA_HEAD, "positions")
     kind, key_id, key_frame, quantum, ox, oy, oz, row, length = _DELTA_HEAD.unpack_from(data, at)
-    if kind > 1:
+    if kind > 3:
         raise FrameError("unknown delta kind %d" % kind)
+    is_key = kind in (0, 2)
     if not 0 < quantum < float("inf"):
         raise FrameError("delta quantum %r is not a positive number" % quantum)
     if row < 1:
         raise FrameError("delta row of 0 vertices")
     _need(data, at + DELTA_HEAD, length, "positions")
     key = state.keyframe
-    if kind == 1 and not (key and key.id == key_id and key.n == n and key.quantum == quantum):
+    if not is_key and not (key and key.id == key_id and key.n == n and key.quantum == quantum):
         raise FrameError("delta of keyframe %d (frame %d), and this decoder holds %s"
                          % (key_id, key_frame, "keyframe %d" % key.id if key else "no keyframe"))
-    z = zstd_decompress(bytes(data[at + DELTA_HEAD:at + DELTA_HEAD + length]), 12 * n)
-    a = _undo_prediction(z, n, row, numpy)
+    if kind >= 2:
+        r, bases = _axis_blocks(data, at + DELTA_HEAD, length, n, is_key, numpy)
+    else:  # the first layout's byte planes: a keyframe on the origin, a delta on the keyframe
+        r = _planes_residuals(zstd_decompress(bytes(data[at + DELTA_HEAD:at + DELTA_HEAD + length]), 12 * n), n, numpy)
+        bases = [0 if is_key else 1] * 3
+    a = _undo_prediction(r, n, row, numpy)
     origin = (ox, oy, oz)
     if numpy:
-        base = _numpy.tile(_numpy.asarray(origin, dtype=_numpy.int32), n) if kind == 0 else key.g
+        base = _numpy.tile(_numpy.asarray(origin, dtype=_numpy.int32), n)
+        if not is_key:
+            pick = _numpy.tile(_numpy.asarray(bases) == 1, n)
+            base = _numpy.where(pick, key.g, base).astype(_numpy.int32)
         g = (base.view(_numpy.uint32) + a.view(_numpy.uint32)).view(_numpy.int32)
         positions = (g.astype(_numpy.float64) * quantum).astype(_numpy.float32).reshape(n, 3)
     else:
-        base = [origin[k % 3] for k in range(3 * n)] if kind == 0 else key.g
+        base = [key.g[k] if bases[k % 3] == 1 else origin[k % 3] for k in range(3 * n)]
         g = [((b + d + (1 << 31)) & 0xFFFFFFFF) - (1 << 31) for b, d in zip(base, a)]
         positions = [[float(array.array("f", [g[3 * v + c] * quantum])[0]) for c in range(3)] for v in range(n)]
-    state.pending = Keyframe(key_id, key_frame, n, quantum, g) if kind == 0 else None
-    state.last_delta = Delta(kind == 0, key_id, key_frame, quantum)
+    state.pending = Keyframe(key_id, key_frame, n, quantum, g) if is_key else None
+    state.last_delta = Delta(is_key, key_id, key_frame, quantum)
     return positions, at + DELTA_HEAD + length
 
 

@@ -245,7 +245,7 @@ def _scan(data):
         elif kind == FRAME:
             p = at + RECORD_HEAD
             is_key = (length < _CLF_HEADER + 4 or (struct.unpack_from("<H", data, p + 6)[0] & 3) != _CLF_DELTA
-                      or _u32(data, p + _CLF_HEADER) == 0)
+                      or _u32(data, p + _CLF_HEADER) in (0, 2))  # keyframes: kind 2, or 0 (the first layout)
             if is_key:
                 key = len(frames)
             sim_time = struct.unpack_from("<d", data, p + 24)[0] if length >= _CLF_HEADER else math.nan
@@ -290,11 +290,11 @@ def _check_frames(data, rec):
             if f.length < _CLF_HEADER + 44:
                 bad("a delta frame shorter than its head")
             kind, ident = struct.unpack_from("<II", data, p + _CLF_HEADER)
-            if kind == 0:
+            if kind in (0, 2):  # keyframes: kind 2, or 0 (the byte-plane layout of 0.2)
                 if f.key != k:
                     bad("a keyframe whose index names frame %d as its keyframe" % f.key)
                 key_id = ident
-            elif (kind != 1 or ident != key_id or f.key >= k
+            elif (kind not in (1, 3) or ident != key_id or f.key >= k
                   or _u32(data, rec.frames[f.key].offset + RECORD_HEAD + _CLF_HEADER + 4) != ident):
                 bad("a delta of keyframe %d that the recording does not hold before it" % ident)
         elif f.key != k:

@@ -290,6 +290,67 @@ def test_delta_keyframe_and_delta_worked_out_by_hand():
         assert rows(d.decode(DELTA_1).positions)[0] == [1.5, 2, 0]
 
 
+# The same cloth in the layout of kinds 2 and 3 (PROTOCOL.md): an axis block per axis (basis u8,
+# 3 zero, escapes u32, byte count u32, one zstd frame of n int8 residuals and the int32 escapes).
+# Keyframe residuals: x 0 2 0 1, y 0 0 2 0, z 2 0 1 -3. The delta: x on the keyframe (basis 1),
+# residuals 1 -1 -1 1 (vertex 0 +1); y on the origin (basis 0), a = g - 4 = 0 0 2 2, residuals
+# 0 0 2 0; z on the keyframe, vertex 3 -200 (g -202), residual -200 an escape (byte -128, then
+# the int32). zstd frames made once with the zstd command line (zstd -1 --no-check).
+def axis_block(basis, escapes, zframe):
+    body = struct.pack("<B3xII", basis, escapes, len(zframe)) + zframe
+    return body + bytes(-len(body) % 4)
+
+
+KEY2 = delta_frame(2, 1, 77, 0.5, (2, 4, -2), 2, b"".join([
+    axis_block(0, 0, bytes.fromhex("28b52ffd200421000000020001")),
+    axis_block(0, 0, bytes.fromhex("28b52ffd200421000000000200")),
+    axis_block(0, 0, bytes.fromhex("28b52ffd2004210000020001fd"))]), frame=77)
+DELTA2 = delta_frame(3, 1, 77, 0.5, (2, 4, -2), 2, b"".join([
+    axis_block(1, 0, bytes.fromhex("28b52ffd200421000001ffff01")),
+    axis_block(0, 0, bytes.fromhex("28b52ffd200421000000000200")),
+    axis_block(1, 1, bytes.fromhex("28b52ffd20084100000000008038ffffff"))]), frame=78)
+
+
+@needs_zstd
+def test_delta_axis_blocks_worked_out_by_hand():
+    for numpy in ([False, True] if clothd.frames.numpy_available() else [False]):
+        d = clothd.FrameDecoder(numpy=numpy)
+        k = d.decode(KEY2)
+        assert k.delta == frames.Delta(True, 1, 77, 0.5)
+        assert rows(k.positions) == [[1, 2, 0], [2, 2, 0], [1, 3, 0.5], [2.5, 3, -1]]
+        for _ in range(2):
+            f = d.decode(DELTA2)
+            assert f.delta == frames.Delta(False, 1, 77, 0.5)
+            assert rows(f.positions) == [[1.5, 2, 0], [2, 2, 0], [1, 3, 0.5], [2.5, 3, -101]]
+        # A keyframe of the first layout's byte planes is held alike: the new layout's deltas decode on it.
+        d.decode(KEY)
+        assert rows(d.decode(DELTA2).positions)[3] == [2.5, 3, -101]
+        # Bad blocks: a basis 1 in a keyframe, escapes the head does not count, too many.
+        bad = bytearray(KEY2)
+        bad[72 + 44] = 1
+        with pytest.raises(clothd.FrameError, match="basis 1 in a keyframe"):
+            d.decode(bytes(bad))
+        bad = bytearray(DELTA2)
+        struct.pack_into("<I", bad, 72 + 44 + 2 * 28 + 4, 0)  # z's block (after two of 28 bytes)
+        with pytest.raises(clothd.FrameError):
+            d.decode(bytes(bad))
+        bad = bytearray(DELTA2)
+        struct.pack_into("<I", bad, 72 + 44 + 4, 5)
+        with pytest.raises(clothd.FrameError, match="5 escapes for 4 vertices"):
+            d.decode(bytes(bad))
+        assert d.keyframe.id == 1 and rows(d.decode(DELTA2).positions)[0] == [1.5, 2, 0]
+
+
+@needs_zstd
+def test_delta_axis_blocks_truncations_and_corruption_are_frame_errors():
+    def decode(data):
+        d = clothd.FrameDecoder()
+        d.decode(KEY2)
+        return d.decode(data)
+    for data in (KEY2, DELTA2):
+        truncate_and_corrupt(data, decode, random.Random(12))
+
+
 def test_delta_needs_the_stateful_decoder():
     with pytest.raises(clothd.FrameError, match="FrameDecoder"):
         clothd.decode_frame(KEY)

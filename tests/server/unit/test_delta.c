@@ -1,6 +1,7 @@
 /* test_delta.c - server/core/delta.c against hand-computed cases: the grid values of a few
- * coordinates, the head and the byte planes of a 2 x 2 keyframe and of a delta (decompressed by
- * libzstd itself, compared with bytes worked out by hand from the layout in clothd_frame.h), and
+ * coordinates, the head and the axis blocks of a 2 x 2 keyframe and of deltas (decompressed by
+ * libzstd itself, compared with bytes and grid values worked out by hand from the layout in
+ * clothd_frame.h, escapes included), and
  * the keyframe policy (first frame, shape change, once a second, asked for at most 4 times a
  * second). */
 #include <math.h>
@@ -37,22 +38,53 @@ static void grid_values(void **state)
     assert_false(delta_quantum_ok(0.9e-6) || delta_quantum_ok(0.011) || delta_quantum_ok(NAN) || delta_quantum_ok(0));
 }
 
-/* The 12 n bytes the zstd frames of a section hold: one frame per axis, 4 n bytes each. */
-static unsigned char *planes_of(const unsigned char *section, size_t n)
+/* One axis block of a section (layout in clothd_frame.h), decompressed by libzstd itself. */
+typedef struct {
+    int basis;
+    uint32_t escapes;
+    unsigned char raw[64]; /* n + 4 E bytes (n <= 4 here) */
+    int32_t r[4];          /* the residuals, escapes resolved */
+} axis;
+
+/* The three axis blocks of a section of n vertices, each checked against its head. */
+static void axes_of(const unsigned char *section, size_t n, axis ax[3])
 {
-    unsigned char *raw = malloc(12 * n + 1);
     const size_t len = get_u32(section + CLF_DELTA_OFF_LENGTH);
-    const unsigned char *z = section + CLF_DELTA_HEAD;
+    const unsigned char *b = section + CLF_DELTA_HEAD;
     size_t at = 0;
     for (int c = 0; c < 3; c++) {
-        const size_t frame = ZSTD_findFrameCompressedSize(z + at, len - at);
-        assert_false(ZSTD_isError(frame));
-        assert_int_equal(ZSTD_getFrameContentSize(z + at, frame), 4 * n);
-        at += frame;
+        assert_true(at + CLF_DELTA_AXIS_HEAD <= len);
+        ax[c].basis = b[at];
+        assert_int_equal(b[at + 1] | b[at + 2] | b[at + 3], 0);
+        ax[c].escapes = get_u32(b + at + CLF_DELTA_AXIS_OFF_ESCAPES);
+        const size_t zlen = get_u32(b + at + CLF_DELTA_AXIS_OFF_LENGTH), raw = n + 4 * ax[c].escapes;
+        assert_true(raw <= sizeof ax[c].raw && ax[c].escapes <= n);
+        assert_int_equal(ZSTD_getFrameContentSize(b + at + CLF_DELTA_AXIS_HEAD, zlen), raw);
+        assert_int_equal(ZSTD_decompress(ax[c].raw, sizeof ax[c].raw, b + at + CLF_DELTA_AXIS_HEAD, zlen), raw);
+        uint32_t e = 0;
+        for (size_t v = 0; v < n; v++) {
+            const int8_t x = (int8_t)ax[c].raw[v];
+            ax[c].r[v] = x == CLF_DELTA_ESCAPE ? (int32_t)get_u32(ax[c].raw + n + 4 * e++) : x;
+        }
+        assert_int_equal(e, ax[c].escapes);
+        at += CLF_ALIGN4(CLF_DELTA_AXIS_HEAD + zlen);
     }
     assert_int_equal(at, len);
-    assert_int_equal(ZSTD_decompress(raw, 12 * n + 1, z, len), 12 * n);
-    return raw;
+}
+
+/* The grid values a 2 x 2 section decodes to, by the spec: a from r (the parallelogram's
+ * inverse), plus the origin (basis 0) or the keyframe's g (basis 1). */
+static void grid_of(const unsigned char *section, const int32_t *key_g, int32_t g[12])
+{
+    axis ax[3];
+    axes_of(section, 4, ax);
+    for (int c = 0; c < 3; c++) {
+        const int32_t *r = ax[c].r;
+        const int32_t a[4] = {r[0], r[1] + r[0], r[2] + r[0], r[3] + (r[1] + r[0]) + (r[2] + r[0]) - r[0]};
+        assert_true(ax[c].basis == CLF_DELTA_BASIS_ORIGIN || (key_g && ax[c].basis == CLF_DELTA_BASIS_KEY));
+        for (int v = 0; v < 4; v++)
+            g[3 * v + c] = a[v] + (ax[c].basis ? key_g[3 * v + c] : (int32_t)get_u32(section + CLF_DELTA_OFF_ORIGIN + 4 * c));
+    }
 }
 
 /* A 2 x 2 cloth, quantum 0.5 m: vertices (i, j) = (0,0) (1,0) (0,1) (1,1). */
@@ -61,12 +93,9 @@ static const float KEY[12] = {1.0f, 2.0f, 0.0f,  2.0f, 2.0f, 0.0f,  1.0f, 3.0f, 
  * a:      (0,0,2) (2,0,2) (0,2,3) (3,2,0)
  * r:      v0 (0,0,2); v1 minus v0 (2,0,0); v2 minus v0 (0,2,1);
  *         v3 minus (v1 + v2 - v0) = (3,2,0) - (2,2,3) = (1,0,-3)
- * zigzag: (0,0,4) (4,0,0) (0,4,2) (2,0,5) */
-static const unsigned char KEY_PLANES[48] = {
-    0, 4, 0, 2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, /* x: byte 0 of v0..v3, bytes 1-3 */
-    0, 0, 4, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, /* y */
-    4, 0, 2, 5, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, /* z */
-};
+ * int8:   x 0 2 0 1, y 0 0 2 0, z 2 0 1 -3 (0xfd) */
+static const unsigned char KEY_BYTES[3][4] = {{0, 2, 0, 1}, {0, 0, 2, 0}, {2, 0, 1, 0xfd}};
+static const int32_t KEY_G[12] = {2, 4, 0,  4, 4, 0,  2, 6, 1,  5, 6, -2};
 
 static void keyframe_by_hand(void **state)
 {
@@ -81,6 +110,7 @@ static void keyframe_by_hand(void **state)
     assert_int_equal(len, CLF_ALIGN4(CLF_DELTA_HEAD + get_u32(out + CLF_DELTA_OFF_LENGTH)));
     assert_true(len <= delta_bound(4));
     assert_int_equal(get_u32(out + CLF_DELTA_OFF_KIND), CLF_DELTA_KEY);
+    assert_int_equal(get_u32(out + CLF_DELTA_OFF_KIND), 2);
     assert_int_equal(get_u32(out + CLF_DELTA_OFF_KEY_ID), 1);
     assert_int_equal(get_u64(out + CLF_DELTA_OFF_KEY_FRAME), 77);
     assert_int_equal(get_u64(out + CLF_DELTA_OFF_QUANTUM), 0x3fe0000000000000ull); /* 0.5 */
@@ -88,47 +118,56 @@ static void keyframe_by_hand(void **state)
     assert_int_equal((int32_t)get_u32(out + CLF_DELTA_OFF_ORIGIN + 4), 4);
     assert_int_equal((int32_t)get_u32(out + CLF_DELTA_OFF_ORIGIN + 8), -2);
     assert_int_equal(get_u32(out + CLF_DELTA_OFF_ROW), 2);
-    unsigned char *raw = planes_of(out, 4);
-    assert_memory_equal(raw, KEY_PLANES, 48);
-    free(raw);
+    axis ax[3];
+    axes_of(out, 4, ax);
+    for (int c = 0; c < 3; c++) {
+        assert_int_equal(ax[c].basis, 0);
+        assert_int_equal(ax[c].escapes, 0);
+        assert_memory_equal(ax[c].raw, KEY_BYTES[c], 4);
+    }
+    int32_t g[12];
+    grid_of(out, NULL, g);
+    assert_memory_equal(g, KEY_G, sizeof g);
 
-    /* The next frame, 10 ms later: a delta against it. Moves: v0 +x 0.5 (d = 1), v3 z -1.0
-     * (d = -2), v2 y -0.25 (3 - 0.25 = 2.75 / 0.5 = 5.5 -> 6: d = 0).
-     * d:      (1,0,0) (0,0,0) (0,0,0) (0,0,-2)
-     * r:      v0 (1,0,0); v1 - v0 (-1,0,0); v2 - v0 (-1,0,0); v3 - (v1 + v2 - v0) = (0,0,-2) - (-1,0,0)
-     *         = (1,0,-2)
-     * zigzag: (2,0,0) (1,0,0) (1,0,0) (2,0,3); -1 -> 0xffffffff - ... zigzag(-1) = 1 */
+    /* The next frame, 10 ms later: a delta against it. Moves: v0 +x 0.5 (g + 1), v3 z -1.0
+     * (g - 2), v2 y -0.25 (3 - 0.25 = 2.75 / 0.5 = 5.5 -> 6: unchanged). Whichever basis each
+     * axis took, it decodes to these grid values. */
     float next[12];
     memcpy(next, KEY, sizeof next);
     next[0] += 0.5f;
     next[11] -= 1.0f;
     next[7] -= 0.25f;
     const size_t len2 = delta_encode(&e, next, 4, 2, 78, 1010 * MS, out, &is_key);
-    assert_true(len2 > CLF_DELTA_HEAD);
+    assert_true(len2 > CLF_DELTA_HEAD && len2 <= delta_bound(4));
     assert_int_equal(is_key, 0);
     assert_int_equal(get_u32(out + CLF_DELTA_OFF_KIND), CLF_DELTA_DELTA);
+    assert_int_equal(get_u32(out + CLF_DELTA_OFF_KIND), 3);
     assert_int_equal(get_u32(out + CLF_DELTA_OFF_KEY_ID), 1);
     assert_int_equal(get_u64(out + CLF_DELTA_OFF_KEY_FRAME), 77);
     assert_int_equal((int32_t)get_u32(out + CLF_DELTA_OFF_ORIGIN + 8), -2);
-    static const unsigned char DELTA_PLANES[48] = {
-        2, 1, 1, 2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
-        0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
-        0, 0, 0, 3, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
-    };
-    raw = planes_of(out, 4);
-    assert_memory_equal(raw, DELTA_PLANES, 48);
-    free(raw);
+    static const int32_t NEXT_G[12] = {3, 4, 0,  4, 4, 0,  2, 6, 1,  5, 6, -4};
+    grid_of(out, KEY_G, g);
+    assert_memory_equal(g, NEXT_G, sizeof g);
 
-    /* Residuals past a byte: v0 x at -999 m is g = -1998, d = -2000, zigzag 3999 = 0x0f9f;
-     * v1 and v2: 0 - d of v0 = 2000, zigzag 4000 = 0x0fa0; v3: 0 - (0 + 0 - (-2000)) = -2000. */
+    /* Residuals past a byte escape: v0 x at -999 m is g = -1998. Against the keyframe
+     * d = (-2000, 0, 0, 0): r = (-2000, 2000, 2000, -2000); against the origin 2,
+     * a = (-2000, 2, 0, 3): r = (-2000, 2002, 2000, -1999). Either way all four escape. */
     next[0] = KEY[0] - 1000.0f;
     next[11] = KEY[11];
     assert_true(delta_encode(&e, next, 4, 2, 79, 1020 * MS, out, &is_key) > 0);
     assert_int_equal(is_key, 0);
-    raw = planes_of(out, 4);
-    static const unsigned char X_PLANES[16] = {0x9f, 0xa0, 0xa0, 0x9f, 0x0f, 0x0f, 0x0f, 0x0f, 0, 0, 0, 0, 0, 0, 0, 0};
-    assert_memory_equal(raw, X_PLANES, 16);
-    free(raw);
+    axes_of(out, 4, ax);
+    assert_int_equal(ax[0].escapes, 4);
+    assert_memory_equal(ax[0].raw, "\x80\x80\x80\x80", 4);
+    assert_int_equal(ax[0].r[0], -2000);
+    assert_int_equal(ax[0].r[2], 2000);
+    static const int32_t FAR_G[12] = {-1998, 4, 0,  4, 4, 0,  2, 6, 1,  5, 6, -2};
+    grid_of(out, KEY_G, g);
+    assert_memory_equal(g, FAR_G, sizeof g);
+    /* A cloth at rest: every axis of a delta is all zeros against its keyframe. */
+    assert_true(delta_encode(&e, KEY, 4, 2, 80, 1030 * MS, out, &is_key) > 0);
+    axes_of(out, 4, ax);
+    for (int c = 0; c < 3; c++) assert_memory_equal(ax[c].r, ((int32_t[4]){0, 0, 0, 0}), 16);
     free(out);
     delta_free(&e);
 }
