@@ -135,7 +135,10 @@ function decode(data, options, state) {
     encoding, nVertices: n, nRocks, bboxMin, bboxMax, positions, scalar, rocks, bytes: bytes.length,
   };
   if (delta) {
-    if (delta.newKey) state.key = delta.newKey; // only a frame that decoded whole replaces the keyframe
+    if (delta.newKey) { // only a frame that decoded whole replaces the keyframe
+      state.spareG = state.key ? state.key.g : null;
+      state.key = delta.newKey;
+    }
     out.delta = { keyframe: delta.keyframe, keyId: delta.keyId, keyFrame: delta.keyFrame, quantum: delta.quantum };
   }
   return out;
@@ -236,7 +239,13 @@ function decodeAxes(bytes, dv, at, n, row, length, positions, options, state, h)
     p += align4(12 + len);
   }
   if (p !== align4(end)) throw new Error(`delta axis blocks end at byte ${p}, the positions at ${align4(end)}`);
-  const g = h.isKey ? new Int32Array(3 * n) : null;
+  // A keyframe's g goes into the array of the keyframe before the one held (kept for this), so
+  // that a keyframe a second allocates nothing; the held one is replaced only on success.
+  let g = null;
+  if (h.isKey) {
+    const spare = state.spareG;
+    g = spare && spare.length === 3 * n && spare !== (h.key && h.key.g) ? spare : new Int32Array(3 * n);
+  }
   const w = Math.min(row, n);
   const prev = state.rowScratch && state.rowScratch.length >= 3 * w ? state.rowScratch : (state.rowScratch = new Int32Array(3 * w));
   undoAxes(axes, n, w, h.key ? h.key.g : null, h.origin, h.quantum, positions, g, prev);
