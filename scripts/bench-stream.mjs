@@ -4,7 +4,9 @@
 // POST /v1/rocks to the first frame that holds the rock. A benchmark, not a test.
 //   node scripts/bench-stream.mjs [seconds per case, default 5]
 //   BENCH_CASES=delta:128,q16:64 node scripts/bench-stream.mjs   only these fan-out cases
-// (encoding:clients) at 128 x 128; a frame counts once per client (a delta keyframe sent again
+// (encoding:clients) at 128 x 128; BENCH_PARAMS='{"time_scale":0.25,...}' patches /v1/params
+// first (the sim in slow motion, to see what the stream delivers when the sim is not the limit);
+// a frame counts once per client (a delta keyframe sent again
 // before a delta, to a client that skipped it, is not a frame of its own).
 import WebSocket from 'ws';
 import { daemon } from './bench-daemon.mjs';
@@ -84,6 +86,10 @@ async function latency(d, encoding) {
 }
 
 const big = await daemon(['--nx', '128', '--ny', '128', '--auto-drop-interval', '1', '--stream-max-clients', '256']);
+if (process.env.BENCH_PARAMS) {
+  const r = await fetch(`${big.url}/v1/params`, { method: 'PATCH', headers: { 'content-type': 'application/json' }, body: process.env.BENCH_PARAMS });
+  if (!r.ok) throw new Error(`PATCH /v1/params: ${r.status} ${await r.text()}`);
+}
 if (process.env.BENCH_CASES) {
   await sleep(2000);
   for (const c of process.env.BENCH_CASES.split(',')) {
