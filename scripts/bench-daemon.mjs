@@ -10,6 +10,9 @@ export async function daemon(flags) {
   const proc = spawn(process.env.CLOTHD_BIN ?? join(root, 'build/server/clothd'),
     ['--port', '0', '--stream-port', '0', '--backend', 'cpu', '--web-root', '/nonexistent', ...flags],
     { stdio: ['ignore', 'ignore', 'pipe'] });
+  // A benchmark that throws or exits early does not leave its daemon running (and loading the
+  // machine that the next benchmark measures on).
+  process.on('exit', () => proc.kill('SIGTERM'));
   let log = '';
   const url = await new Promise((resolve, reject) => {
     proc.stderr.on('data', (c) => {

@@ -88,7 +88,10 @@ async function latency(d, encoding) {
 const big = await daemon(['--nx', '128', '--ny', '128', '--auto-drop-interval', '1', '--stream-max-clients', '256']);
 if (process.env.BENCH_PARAMS) {
   const r = await fetch(`${big.url}/v1/params`, { method: 'PATCH', headers: { 'content-type': 'application/json' }, body: process.env.BENCH_PARAMS });
-  if (!r.ok) throw new Error(`PATCH /v1/params: ${r.status} ${await r.text()}`);
+  if (!r.ok) {
+    big.proc.kill('SIGTERM'); // not left running behind a failed benchmark
+    throw new Error(`PATCH /v1/params: ${r.status} ${await r.text()}`);
+  }
 }
 if (process.env.BENCH_CASES) {
   await sleep(2000);
