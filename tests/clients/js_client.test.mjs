@@ -9,7 +9,7 @@ import { before, test } from 'node:test';
 import assert from 'node:assert/strict';
 import { writeFileSync } from 'node:fs';
 import { join } from 'node:path';
-import { start, stop, tempDir, SPEC } from '../server/harness.mjs';
+import { start, stop, tempDir, until, SPEC } from '../server/harness.mjs';
 import { pausedDaemon } from './support.mjs';
 import * as clothd from '../../clients/js/src/index.js';
 
@@ -106,7 +106,10 @@ test('every operation of openapi.yaml is a client method, and the answers hold w
   assert.equal(String.fromCharCode(...file.subarray(0, 4)), 'CLR1');
   assert.deepEqual(await client.deleteRecording('ops'), { id: 'ops', deleted: true });
   await client.deleteScene('rec');
-  assert.equal((await client.recordings()).recordings[0].state, 'stopped'); // its scene went
+  // Its scene went: the sim thread stops the recording when it drops the scene, just after the
+  // DELETE's answer.
+  await until('the deleted scene\'s recording stopped', async () => (await client.recordings()).recordings[0].state === 'stopped');
+  assert.equal((await client.recordings()).recordings[0].reason, 'scene deleted');
   await client.deleteRecording('ops2');
 
   // Every operation of the spec was answered with a success (the metrics count this scrape's
