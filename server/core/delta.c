@@ -14,11 +14,17 @@ int delta_init(delta_enc *e, double quantum)
     memset(e, 0, sizeof *e);
     e->quantum = quantum;
     e->zstd = ZSTD_createCCtx();
-    if (!e->zstd) return -1;
-    if (ZSTD_isError(ZSTD_CCtx_setParameter(e->zstd, ZSTD_c_compressionLevel, DELTA_ZSTD_LEVEL)) ||
-        ZSTD_isError(ZSTD_CCtx_setParameter(e->zstd, ZSTD_c_minMatch, DELTA_ZSTD_MIN_MATCH))) {
+    e->tight = ZSTD_createCCtx();
+    if (!e->zstd || !e->tight || ZSTD_isError(ZSTD_CCtx_setParameter(e->zstd, ZSTD_c_compressionLevel, DELTA_ZSTD_LEVEL)) ||
+        ZSTD_isError(ZSTD_CCtx_setParameter(e->zstd, ZSTD_c_minMatch, DELTA_ZSTD_MIN_MATCH)) ||
+        ZSTD_isError(ZSTD_CCtx_setParameter(e->tight, ZSTD_c_compressionLevel, DELTA_ZSTD_LEVEL)) ||
+        ZSTD_isError(ZSTD_CCtx_setParameter(e->tight, ZSTD_c_strategy, ZSTD_btultra)) ||
+        ZSTD_isError(ZSTD_CCtx_setParameter(e->tight, ZSTD_c_minMatch, DELTA_ZSTD_MIN_MATCH)) ||
+        ZSTD_isError(ZSTD_CCtx_setParameter(e->tight, ZSTD_c_targetLength, DELTA_ZSTD_TIGHT_TARGET)) ||
+        ZSTD_isError(ZSTD_CCtx_setParameter(e->tight, ZSTD_c_searchLog, 1))) {
         ZSTD_freeCCtx(e->zstd);
-        e->zstd = NULL;
+        ZSTD_freeCCtx(e->tight);
+        e->zstd = e->tight = NULL;
         return -1;
     }
     return 0;
@@ -32,6 +38,7 @@ void delta_free(delta_enc *e)
     free(e->packed);
     free(e->alt);
     ZSTD_freeCCtx(e->zstd);
+    ZSTD_freeCCtx(e->tight);
     memset(e, 0, sizeof *e);
 }
 
@@ -116,14 +123,15 @@ static size_t pack(const uint32_t *r, size_t n, unsigned char *out, uint32_t *es
     return n + 4 * e;
 }
 
-/* Axis c's block at out, of basis 0 (base NULL: a = g - origin) or 1 (a = g - base); the bytes
- * written, 0 on a zstd error. */
-static size_t axis_block(delta_enc *e, const int32_t *base, int c, size_t n, size_t w, unsigned char *out, size_t cap)
+/* Axis c's block at out, of basis 0 (base NULL: a = g - origin) or 1 (a = g - base), compressed
+ * with zstd context z; the bytes written, 0 on a zstd error. */
+static size_t axis_block(delta_enc *e, void *z, const int32_t *base, int c, size_t n, size_t w, unsigned char *out,
+                         size_t cap)
 {
     uint32_t *r = (uint32_t *)e->res, escapes;
     residuals(e->grid, base, e->origin[c], c, n, w, r);
     const size_t raw = pack(r, n, e->packed, &escapes);
-    const size_t got = ZSTD_compress2(e->zstd, out + CLF_DELTA_AXIS_HEAD, cap - CLF_DELTA_AXIS_HEAD, e->packed, raw);
+    const size_t got = ZSTD_compress2(z, out + CLF_DELTA_AXIS_HEAD, cap - CLF_DELTA_AXIS_HEAD, e->packed, raw);
     if (ZSTD_isError(got)) return 0;
     memset(out, 0, CLF_DELTA_AXIS_HEAD);
     out[CLF_DELTA_AXIS_OFF_BASIS] = base ? CLF_DELTA_BASIS_KEY : CLF_DELTA_BASIS_ORIGIN;
@@ -161,18 +169,24 @@ size_t delta_encode(delta_enc *e, const float *xyz, int32_t n, int32_t row, uint
      * tries both bases per axis and keeps the smaller: on a cloth in motion the grid values
      * themselves often predict better than their difference from a keyframe up to a second old,
      * on a cloth at rest the difference is all zeros. */
+    /* The basis is chosen on the fast parser's sizes; a cloth of up to DELTA_TIGHT_MAX_N vertices
+     * then has the chosen one compressed again with the optimal parser. */
     const size_t cap = axis_bound(nn);
+    const int tight = nn <= DELTA_TIGHT_MAX_N;
     size_t len = 0;
     for (int c = 0; c < 3; c++) {
         unsigned char *block = out + CLF_DELTA_HEAD + len;
-        size_t got = axis_block(e, key ? NULL : e->key, c, nn, w, block, cap);
+        const int32_t *base = key ? NULL : e->key;
+        size_t got = axis_block(e, key && tight ? e->tight : e->zstd, base, c, nn, w, block, cap);
         if (got && !key) {
-            const size_t own = axis_block(e, NULL, c, nn, w, e->alt, cap);
+            const size_t own = axis_block(e, e->zstd, NULL, c, nn, w, e->alt, cap);
             if (!own) got = 0;
             else if (own < got) {
                 memcpy(block, e->alt, own);
                 got = own;
+                base = NULL;
             }
+            if (got && tight) got = axis_block(e, e->tight, base, c, nn, w, block, cap);
         }
         if (!got) {
             e->n = 0; /* whatever this was, the next frame is a keyframe */

@@ -26,6 +26,13 @@
  * save (1.52 bytes a vertex instead of 1.56 on the default scene, at the same speed). */
 #define DELTA_ZSTD_LEVEL 1
 #define DELTA_ZSTD_MIN_MATCH 7
+/* Cloths of up to this many vertices (90 x 90) have each axis's chosen block compressed again
+ * with zstd's optimal parser (btultra, matches of 7 bytes or more, long enough at 16, one search
+ * step): 1.6 % smaller at 64 x 64 and 6 % at 128 x 128 than the fast parser, at 6 to 12 times its
+ * time (README "Speed"). It costs about 0.5 ms a frame at 64 x 64 but 3 ms at 128 x 128, where
+ * the fast parser alone keeps many scenes' streams cheap for the server. */
+#define DELTA_TIGHT_MAX_N 8192u
+#define DELTA_ZSTD_TIGHT_TARGET 16
 
 typedef struct delta_enc {
     double quantum;
@@ -41,7 +48,8 @@ typedef struct delta_enc {
     unsigned char *packed;       /* 5 n: one axis's int8 residuals and int32 escapes */
     unsigned char *alt;          /* ZSTD_compressBound(5 n): the other basis's zstd frame */
     size_t cap_n;
-    void *zstd;                  /* ZSTD_CCtx */
+    void *zstd;                  /* ZSTD_CCtx: the fast parser (DELTA_ZSTD_LEVEL) */
+    void *tight;                 /* ZSTD_CCtx: the optimal parser (DELTA_TIGHT_MAX_N) */
 } delta_enc;
 
 /* An encoder for quantum (DELTA_QUANTUM_MIN..MAX); 0 or -1 (out of memory). */

@@ -3,7 +3,8 @@
  * libzstd itself, compared with bytes and grid values worked out by hand from the layout in
  * clothd_frame.h, escapes included), and
  * the keyframe policy (first frame, shape change, once a second, asked for at most 4 times a
- * second). */
+ * second), and cloths on either side of DELTA_TIGHT_MAX_N (the optimal and the fast zstd parser)
+ * in motion, every coordinate decoded within quantum / 2 of the one encoded. */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -212,12 +213,110 @@ static void keyframe_policy(void **state)
     delta_free(&e);
 }
 
+/* A whole section decoded by the spec (libzstd, then per axis the parallelogram's inverse, row
+ * by row, plus the origin or key_g), into positions xyz (3 n) and the grid values g. */
+static void decode_section(const unsigned char *section, size_t n, size_t w, const int32_t *key_g, int32_t *g, float *xyz)
+{
+    double quantum;
+    const uint64_t qbits = get_u64(section + CLF_DELTA_OFF_QUANTUM);
+    memcpy(&quantum, &qbits, 8);
+    const size_t len = get_u32(section + CLF_DELTA_OFF_LENGTH);
+    const unsigned char *b = section + CLF_DELTA_HEAD;
+    unsigned char *raw = malloc(5 * n);
+    uint32_t *a = malloc(4 * n);
+    size_t at = 0;
+    for (int c = 0; c < 3; c++) {
+        const int basis = b[at];
+        const uint32_t escapes = get_u32(b + at + CLF_DELTA_AXIS_OFF_ESCAPES);
+        const size_t zlen = get_u32(b + at + CLF_DELTA_AXIS_OFF_LENGTH);
+        assert_true(basis == CLF_DELTA_BASIS_ORIGIN || (key_g && basis == CLF_DELTA_BASIS_KEY));
+        assert_int_equal(ZSTD_decompress(raw, 5 * n, b + at + CLF_DELTA_AXIS_HEAD, zlen), n + 4 * escapes);
+        uint32_t e = 0;
+        for (size_t v = 0; v < n; v++) {
+            const int8_t x = (int8_t)raw[v];
+            const uint32_t r = x == CLF_DELTA_ESCAPE ? get_u32(raw + n + 4 * e++) : (uint32_t)(int32_t)x;
+            const size_t i = v % w;
+            uint32_t p = 0;
+            if (i && v >= w) p = a[v - 1] + a[v - w] - a[v - 1 - w];
+            else if (i) p = a[v - 1];
+            else if (v >= w) p = a[v - w];
+            a[v] = r + p;
+        }
+        assert_int_equal(e, escapes);
+        const uint32_t origin = get_u32(section + CLF_DELTA_OFF_ORIGIN + 4 * c);
+        for (size_t v = 0; v < n; v++) {
+            g[3 * v + c] = (int32_t)(a[v] + (basis ? (uint32_t)key_g[3 * v + c] : origin));
+            xyz[3 * v + c] = (float)(g[3 * v + c] * quantum);
+        }
+        at += CLF_ALIGN4(CLF_DELTA_AXIS_HEAD + zlen);
+    }
+    assert_int_equal(at, len);
+    free(raw);
+    free(a);
+}
+
+/* A wrinkled sheet, 1 m across, falling and rippling over a second of frames; a keyframe, then
+ * deltas, each decoded by the spec: every coordinate within quantum / 2 (plus float32's rounding of
+ * the decoded value) of what was encoded. w x w vertices: 64 x 64 takes the optimal parser, 100 x
+ * 100 (above DELTA_TIGHT_MAX_N) the fast one. */
+static void sheet_round_trip(size_t w)
+{
+    const size_t n = w * w;
+    const double quantum = 1e-4;
+    delta_enc e;
+    assert_int_equal(delta_init(&e, quantum), 0);
+    float *xyz = malloc(12 * n), *back = malloc(12 * n);
+    int32_t *g = malloc(12 * n), *key_g = malloc(12 * n);
+    unsigned char *out = calloc(1, delta_bound((int32_t)n));
+    double worst = 0;
+    int keys = 0;
+    for (int f = 0; f < 60; f++) {
+        const double t = f / 60.0;
+        for (size_t v = 0; v < n; v++) {
+            const double x = (double)(v % w) / (double)(w - 1), y = (double)(v / w) / (double)(w - 1);
+            xyz[3 * v] = (float)(x - 0.5 + 0.002 * sin(40 * y + 9 * t));
+            xyz[3 * v + 1] = (float)(y - 0.5);
+            xyz[3 * v + 2] = (float)(1.0 - 0.5 * 9.81 * t * t + 0.01 * sin(25 * x + 13 * t) * cos(31 * y - 7 * t));
+        }
+        int key;
+        const size_t len = delta_encode(&e, xyz, (int32_t)n, (int32_t)w, (uint64_t)f, (uint64_t)f * 16 * MS, out, &key);
+        assert_true(len > CLF_DELTA_HEAD && len <= delta_bound((int32_t)n));
+        assert_int_equal(key, f == 0);
+        keys += key;
+        decode_section(out, n, w, key ? NULL : key_g, g, back);
+        if (key) memcpy(key_g, g, 12 * n);
+        for (size_t k = 0; k < 3 * n; k++) {
+            const double err = fabs((double)back[k] - (double)xyz[k]);
+            const double bound = quantum / 2 + 2 * fabs((double)xyz[k]) * 0x1p-24;
+            if (err > bound) fail_msg("frame %d coordinate %zu: %.9g decoded as %.9g", f, k, (double)xyz[k], (double)back[k]);
+            if (err > worst) worst = err;
+        }
+    }
+    assert_int_equal(keys, 1);
+    assert_true(worst > 0.4 * quantum); /* the bound is reached, not avoided by a finer grid */
+    free(xyz);
+    free(back);
+    free(g);
+    free(key_g);
+    free(out);
+    delta_free(&e);
+}
+
+static void both_parsers(void **state)
+{
+    (void)state;
+    assert_true(64 * 64 <= DELTA_TIGHT_MAX_N && 100 * 100 > DELTA_TIGHT_MAX_N);
+    sheet_round_trip(64);
+    sheet_round_trip(100);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(grid_values),
         cmocka_unit_test(keyframe_by_hand),
         cmocka_unit_test(keyframe_policy),
+        cmocka_unit_test(both_parsers),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
