@@ -10,6 +10,13 @@
 // A viewer decoding 60 frames a second passes its own arrays (options.positions, .scalar,
 // .scratch), which are used when large enough: nothing is allocated per frame then but the
 // result object.
+//
+// A delta frame's inner loops (kinds 2 and 3: counting escapes, the prediction's inverse) run in
+// WebAssembly with SIMD where the engine has it (delta-wasm.mjs, built from delta_inverse.c), in a
+// memory of each decoder's own that also holds its keyframe; elsewhere, or with
+// `createDecoder({ wasm: false })`, in the JavaScript below. Both give the same positions, bit for
+// bit.
+import { DELTA_WASM } from './delta-wasm.mjs';
 
 export const MAGIC = 'CLF1';
 export const HEADER_SIZE = 72;
@@ -39,9 +46,10 @@ export function decodeFrame(data, options = {}) {
 
 /**
  * A decoder that keeps the newest keyframe of a delta stream, for every encoding.
- * @param {{zstd?: {decode: Function}, meshopt?: {decodeVertexBuffer: Function},
+ * @param {{zstd?: {decode: Function}, meshopt?: {decodeVertexBuffer: Function}, wasm?: boolean,
  *   positions?: Float32Array, scalar?: Uint8Array, scratch?: Uint8Array}} [options] zstd: the
- *   decoder of delta frames (zstddec's ZSTDDecoder, initialised); the rest as decodeFrame's
+ *   decoder of delta frames (zstddec's ZSTDDecoder, initialised); wasm: false decodes delta frames
+ *   in JavaScript only (else WebAssembly SIMD where available); the rest as decodeFrame's
  * @returns {{decode: (data: ArrayBuffer|ArrayBufferView) => object, keyframe: () => object|null}}
  *   decode gives decodeFrame's result; for a delta frame also `delta: {keyframe: boolean, keyId,
  *   keyFrame, quantum}`. A delta whose keyframe this decoder has not seen throws (and changes
@@ -53,6 +61,8 @@ export function createDecoder(options = {}) {
   return {
     decode: (data) => decode(data, options, state),
     keyframe: () => (state.key ? { id: state.key.id, frame: state.key.frame, quantum: state.key.quantum, nVertices: state.key.n } : null),
+    /** Whether delta frames are decoded in WebAssembly (after the first one; null before). */
+    wasm: () => (state.inverse === undefined ? null : state.inverse !== null),
   };
 }
 
@@ -136,7 +146,7 @@ function decode(data, options, state) {
   };
   if (delta) {
     if (delta.newKey) { // only a frame that decoded whole replaces the keyframe
-      state.spareG = state.key ? state.key.g : null;
+      state.spareG = state.key && !state.key.slot ? state.key.g : null;
       state.key = delta.newKey;
     }
     out.delta = { keyframe: delta.keyframe, keyId: delta.keyId, keyFrame: delta.keyFrame, quantum: delta.quantum };
@@ -221,6 +231,9 @@ function decodeDeltaPlanes(bytes, at, n, row, length, positions, options, state,
 // is written, so a frame that fails changes nothing.
 function decodeAxes(bytes, dv, at, n, row, length, positions, options, state, h) {
   const end = at + DELTA_HEAD + length;
+  const w = Math.min(row, n);
+  const m = options.wasm === false ? (state.inverse = null) : inverse(state, n);
+  const u8 = m && new Uint8Array(m.memory.buffer);
   const axes = [];
   let p = at + DELTA_HEAD;
   for (let c = 0; c < 3; c++) {
@@ -232,13 +245,40 @@ function decodeAxes(bytes, dv, at, n, row, length, positions, options, state, h)
     const size = n + 4 * escapes;
     const raw = options.zstd.decode(bytes.subarray(p + 12, p + 12 + len), size);
     if (raw.length !== size) throw new Error(`delta axis ${c} values of ${raw.length} bytes, not ${size}`);
-    const r8 = new Int8Array(raw.buffer, raw.byteOffset, n);
-    const found = countEscapes(r8);
+    let found;
+    if (m) {
+      u8.set(raw, m.res[c]);
+      found = m.exports.count_escapes(m.res[c], n);
+      axes.push({ basis });
+    } else {
+      const r8 = new Int8Array(raw.buffer, raw.byteOffset, n);
+      found = countEscapes(r8);
+      axes.push({ basis, r8, esc: new DataView(raw.buffer, raw.byteOffset + n, 4 * escapes) });
+    }
     if (found !== escapes) throw new Error(`delta axis ${c} has ${found} escapes, its head says ${escapes}`);
-    axes.push({ basis, r8, esc: new DataView(raw.buffer, raw.byteOffset + n, 4 * escapes) });
     p += align4(12 + len);
   }
   if (p !== align4(end)) throw new Error(`delta axis blocks end at byte ${p}, the positions at ${align4(end)}`);
+  const done = (g) => ({
+    length: align4(length), keyframe: h.isKey, keyId: h.keyId, keyFrame: h.keyFrame, quantum: h.quantum,
+    newKey: h.isKey ? { id: h.keyId, frame: h.keyFrame, n, quantum: h.quantum, g } : null,
+  });
+  if (m) {
+    // A keyframe's g goes into the slot the held keyframe is not in; a delta reads the held one's
+    // (copied in first if it came from the first layout's JavaScript decoder).
+    const held = h.key && h.key.slot && h.key.slot.m === m ? h.key.slot.i : -1;
+    let slot = held;
+    if (h.isKey) slot = held === 0 ? 1 : 0;
+    else if (held < 0) new Int32Array(m.memory.buffer, m.keys[(slot = 0)], 3 * n).set(h.key.g);
+    const onKey = axes.reduce((bits, a, c) => bits | (a.basis << c), 0);
+    m.exports.undo(n, w, m.res[0], m.res[1], m.res[2], onKey, h.origin[0], h.origin[1], h.origin[2], h.quantum,
+      m.keys[slot], m.pos, m.prev, h.isKey ? 1 : 0);
+    positions.set(new Float32Array(m.memory.buffer, m.pos, 3 * n));
+    const out = done(null);
+    if (out.newKey) wasmKey(out.newKey, m, slot);
+    if (!h.isKey && held < 0) wasmKey(h.key, m, 0); // the same values, in slot 0 from now on
+    return out;
+  }
   // A keyframe's g goes into the array of the keyframe before the one held (kept for this), so
   // that a keyframe a second allocates nothing; the held one is replaced only on success.
   let g = null;
@@ -246,13 +286,65 @@ function decodeAxes(bytes, dv, at, n, row, length, positions, options, state, h)
     const spare = state.spareG;
     g = spare && spare.length === 3 * n && spare !== (h.key && h.key.g) ? spare : new Int32Array(3 * n);
   }
-  const w = Math.min(row, n);
   const prev = state.rowScratch && state.rowScratch.length >= 3 * w ? state.rowScratch : (state.rowScratch = new Int32Array(3 * w));
   undoAxes(axes, n, w, h.key ? h.key.g : null, h.origin, h.quantum, positions, g, prev);
-  return {
-    length: align4(length), keyframe: h.isKey, keyId: h.keyId, keyFrame: h.keyFrame, quantum: h.quantum,
-    newKey: h.isKey ? { id: h.keyId, frame: h.keyFrame, n, quantum: h.quantum, g } : null,
-  };
+  return done(g);
+}
+
+// The WebAssembly module of delta_inverse.c, compiled once (null where the engine lacks
+// WebAssembly or its SIMD).
+let wasmModule;
+function inverseModule() {
+  if (wasmModule === undefined) {
+    wasmModule = null;
+    try {
+      const bin = atob(DELTA_WASM), code = new Uint8Array(bin.length);
+      for (let i = 0; i < bin.length; i++) code[i] = bin.charCodeAt(i);
+      if (typeof WebAssembly === 'object' && WebAssembly.validate(code)) wasmModule = new WebAssembly.Module(code);
+    } catch {
+      wasmModule = null;
+    }
+  }
+  return wasmModule;
+}
+
+const align16 = (n) => (n + 15) & ~15;
+
+// This decoder's instance of the module, its memory laid out for n vertices or more: two keyframe
+// slots (3 n int32 each), the positions (3 n float32), each axis's residuals and escapes (5 n
+// bytes at most) and three rows of scratch; null without WebAssembly SIMD. A memory grown for a
+// larger cloth moves the regions, so a keyframe held in a slot is copied out to JavaScript first.
+function inverse(state, n) {
+  let m = state.inverse;
+  if (m === undefined) {
+    const mod = inverseModule();
+    if (!mod) return (state.inverse = null);
+    const memory = new WebAssembly.Memory({ initial: 2 });
+    const { exports } = new WebAssembly.Instance(mod, { env: { memory } });
+    m = state.inverse = { memory, exports, base: align16(exports.__heap_base.value), cap: -1 };
+  }
+  if (!m || n <= m.cap) return m;
+  const cap = Math.max(n, 1024);
+  const key = state.key;
+  if (key && key.slot && key.slot.m === m) {
+    const g = Int32Array.from(key.g);
+    delete key.slot;
+    Object.defineProperty(key, 'g', { value: g, writable: true, enumerable: true, configurable: true });
+  }
+  const keys = [m.base, m.base + 12 * cap], pos = m.base + 24 * cap;
+  const res = [0, 1, 2].map((c) => pos + 12 * cap + c * align16(5 * cap));
+  const prev = res[2] + align16(5 * cap), need = prev + 12 * cap;
+  const have = m.memory.buffer.byteLength;
+  if (need > have) m.memory.grow(Math.ceil((need - have) / 65536));
+  Object.assign(m, { cap, keys, pos, res, prev });
+  return m;
+}
+
+// A keyframe held in slot i of m: its g is a view of that slot (made anew, as the memory's buffer
+// changes when it grows).
+function wasmKey(key, m, i) {
+  key.slot = { m, i };
+  Object.defineProperty(key, 'g', { get: () => new Int32Array(m.memory.buffer, m.keys[i], 3 * key.n), enumerable: true, configurable: true });
 }
 
 // How many bytes of r8 are -128 (escapes): four at a time where the bytes are aligned, a word

@@ -13,6 +13,7 @@ CLOTHD_APT_TEST=(
   libcmocka-dev               # C unit and physics tests
   g++                         # the emulated-CUDA tests: backend_cuda.cu compiled for the CPU (tests/emu)
   clang                       # libFuzzer and the fuzz targets' sanitizers (scripts/fuzz.sh)
+  lld                         # wasm-ld: proto/delta-wasm.mjs checked against its source (scripts/build-wasm.sh)
   chromium chromium-driver    # the viewer's end-to-end tests (headless, driven by playwright-core)
   strace                      # the crash-safe save test sees the system calls of a save
   wrk                         # the soak test's API load (tests/server/soak.mjs) and scripts/bench-http.sh

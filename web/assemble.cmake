@@ -3,7 +3,7 @@
 #         -P assemble.cmake
 # The page's own files (index.html, style.css, src/*.js) are copied as they are; the npm packages
 # of web/package-lock.json (installed by scripts/setup.sh: npm ci in web/) are copied to vendor/,
-# proto/frame.mjs to proto/, and the JavaScript client (CLIENT, by default clients/js beside
+# proto/frame.mjs (with delta-wasm.mjs, the WebAssembly it imports) to proto/, and the JavaScript client (CLIENT, by default clients/js beside
 # web/) to clients/js/src/, where its import of ../../../proto/frame.mjs finds proto/ as it does
 # in the source tree. index.html's import map names these paths. No bundler: the
 # browser loads ES modules, nothing comes from a CDN. Without web/node_modules the page cannot
@@ -65,7 +65,7 @@ foreach(i RANGE 0 ${last} 2)
   list(GET vendor ${j} to)
   file(COPY_FILE "${SRC}/node_modules/${from}" "${OUT}/vendor/${to}" ONLY_IF_DIFFERENT)
 endforeach()
-foreach(f frame.mjs recording.mjs)
+foreach(f frame.mjs delta-wasm.mjs recording.mjs)
   file(COPY_FILE "${PROTO}/${f}" "${OUT}/proto/${f}" ONLY_IF_DIFFERENT)
 endforeach()
 file(GLOB client RELATIVE "${CLIENT}/src" "${CLIENT}/src/*.js")

@@ -4,7 +4,8 @@
 // not a pass/fail matter on a shared machine.
 //   decode: the page's own decoder on one frame into the GPU buffer's array, per encoding, for a
 //     128 x 128 and a 256 x 256 cloth (median and 90th percentile of 30 runs of 10 decodes; delta,
-//     whose frames need their keyframe, as the page's stream decodes 30 or more of them);
+//     whose frames need their keyframe, as the page's stream decodes 30 or more of them, and at
+//     256 x 256 also 40 delta frames decoded again with the sim paused: "delta, alone");
 //   drawn:  frames drawn per second at 128 x 128 (a) with the sim in slow motion (time_scale 0.25,
 //     so frames still come at 60 per second but clothd takes a quarter of a core), (b) with the
 //     sim in real time beside the browser on the same cores, and a bare three.js 128 x 128 lit
@@ -42,7 +43,7 @@ after(async () => {
     console.log(`viewer speed (${figures.machine}, headless Chromium, SwiftShader)`);
     for (const [size, encs] of Object.entries(figures.decode))
       for (const [enc, d] of Object.entries(encs))
-        console.log(`  decode ${size} ${enc.padEnd(8)} median ${d.median.toFixed(2)} ms, p90 ${d.p90.toFixed(2)} ms (${d.bytes} bytes)`);
+        console.log(`  decode ${size} ${enc.padEnd(12)} median ${d.median.toFixed(2)} ms, p90 ${d.p90.toFixed(2)} ms (${d.bytes} bytes${d.wasm === undefined ? "" : d.wasm ? ", WebAssembly" : ", JavaScript"})`);
     for (const [what, d] of Object.entries(figures.drawn))
       console.log(`  drawn  ${what.padEnd(34)} ${d.drawn.toFixed(1)} frames/s (received ${d.received?.toFixed(1) ?? '-'})`);
   }
@@ -152,4 +153,42 @@ test('decode time of one frame, 256 x 256', opts, async () => {
   await until('the 256 x 256 cloth', () => page.evaluate(() => window.__clothd.view.cloth.n === 65536 && window.__clothd.view.cloth.hasFrame));
   await decodeTimes('256x256', 30);
   for (const d of Object.values(figures.decode['256x256'])) assert.ok(d.median > 0);
+  // The same decode with nothing beside it: the page takes 40 delta frames off a stream of its
+  // own, the sim is paused, and the page's frame.mjs decodes them again (from their first
+  // keyframe on, 10 times over, each with a fresh decoder) into one array, timing each delta.
+  const port = (await (await fetch(`${daemon.url}/v1/health`)).json()).stream.port;
+  const kept = await page.evaluate((p) => new Promise((resolve, reject) => {
+    const ws = new WebSocket(`ws://127.0.0.1:${p}/stream`, 'clothd.v1'), frames = [];
+    ws.binaryType = 'arraybuffer';
+    ws.onopen = () => ws.send(JSON.stringify({ type: 'subscribe', encoding: 'delta' }));
+    ws.onmessage = (m) => {
+      if (typeof m.data !== 'string' && frames.push(m.data) >= 40) ws.close(), resolve(frames.length);
+    };
+    ws.onerror = () => reject(new Error('stream'));
+    window.__kept = frames;
+  }), port);
+  assert.equal(kept, 40);
+  await ok(daemon, 'POST', '/v1/sim/pause');
+  figures.decode['256x256']['delta, alone'] = await page.evaluate(async () => {
+    const { createDecoder } = await import('clothd/frame');
+    const { ZSTDDecoder } = await import('zstddec');
+    const zstd = new ZSTDDecoder();
+    await zstd.init();
+    const frames = window.__kept.slice(window.__kept.findIndex((b) => (new DataView(b).getUint32(72, true) & ~2) === 0));
+    const positions = new Float32Array(3 * 65536), ms = [];
+    let wasm;
+    for (let rep = 0; rep < 10; rep++) {
+      const d = createDecoder({ zstd, positions });
+      for (const b of frames) {
+        const t0 = performance.now();
+        const f = d.decode(b);
+        if (!f.delta.keyframe && rep > 0) ms.push(performance.now() - t0);
+      }
+      wasm = d.wasm();
+    }
+    ms.sort((a, b) => a - b);
+    return { median: ms[ms.length >> 1], p90: ms[Math.floor(ms.length * 0.9)], bytes: frames[frames.length - 1].byteLength, deltas: ms.length, wasm };
+  });
+  await ok(daemon, 'POST', '/v1/sim/resume');
+  assert.ok(figures.decode['256x256']['delta, alone'].deltas > 0);
 });

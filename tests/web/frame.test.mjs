@@ -328,9 +328,15 @@ const DELTA2 = deltaFrame(deltaSection({ kind: 3, keyId: 1, keyFrame: 77, quantu
   axisBlock(1, 0, hex('28b52ffd200421000001ffff01')), axisBlock(0, 0, hex('28b52ffd200421000000000200')),
   axisBlock(1, 1, hex('28b52ffd20084100000000008038ffffff'))) }), 78);
 
-test('delta: axis blocks (kinds 2 and 3) worked out by hand, escapes and mixed bases', () => {
-  const d = createDecoder({ zstd });
+// Kinds 2 and 3 are decoded by WebAssembly (delta_inverse.c) and, with { wasm: false }, by
+// frame.mjs's JavaScript: every test of them runs on both.
+const PATHS = [['WebAssembly', true], ['JavaScript', false]];
+
+for (const [path, wasm] of PATHS) {
+test(`delta (${path}): axis blocks (kinds 2 and 3) worked out by hand, escapes and mixed bases`, () => {
+  const d = createDecoder({ zstd, wasm });
   const k = d.decode(KEY2);
+  assert.equal(d.wasm(), wasm);
   assert.deepEqual(k.delta, { keyframe: true, keyId: 1, keyFrame: 77, quantum: 0.5 });
   assert.deepEqual(k.positions, Float32Array.from([1, 2, 0, 2, 2, 0, 1, 3, 0.5, 2.5, 3, -1]));
   assert.equal(k.bytes, 72 + 44 + 3 * 28); // each block: 12 + 13 zstd bytes, padded to 28
@@ -344,9 +350,9 @@ test('delta: axis blocks (kinds 2 and 3) worked out by hand, escapes and mixed b
   assert.equal(d.decode(DELTA2).positions[11], -101);
 });
 
-test('delta: broken axis blocks throw and change neither the keyframe nor the positions', () => {
+test(`delta (${path}): broken axis blocks throw and change neither the keyframe nor the positions`, () => {
   const positions = new Float32Array(12);
-  const d = createDecoder({ zstd, positions });
+  const d = createDecoder({ zstd, positions, wasm });
   d.decode(KEY2);
   const held = positions.slice();
   const at = 72 + 44;
@@ -366,4 +372,145 @@ test('delta: broken axis blocks throw and change neither the keyframe nor the po
     assert.equal(d.keyframe().id, 1);
   }
   assert.equal(d.decode(DELTA2).positions[11], -101);
+});
+}
+
+// A zstd frame of raw blocks (RFC 8878: magic, a frame header of a single segment and a 4-byte
+// content size, then blocks of at most 128 KiB, each a 3-byte header - last flag, type 0 raw,
+// size - and its bytes as they are): any residuals, compressed by no encoder under test.
+function zstdRaw(data) {
+  const MAX = 1 << 17, parts = Math.max(1, Math.ceil(data.length / MAX));
+  const out = new Uint8Array(9 + 3 * parts + data.length);
+  out.set([0x28, 0xb5, 0x2f, 0xfd, 0xa0]);
+  new DataView(out.buffer).setUint32(5, data.length, true);
+  let at = 9;
+  for (let i = 0; i < parts; i++) {
+    const chunk = data.subarray(i * MAX, Math.min(data.length, (i + 1) * MAX));
+    const h = (i === parts - 1 ? 1 : 0) | (chunk.length << 3);
+    out.set([h & 255, (h >> 8) & 255, (h >> 16) & 255], at);
+    out.set(chunk, at + 3);
+    at += 3 + chunk.length;
+  }
+  return out;
+}
+
+// A deterministic generator (xorshift32), so that a failure is the same on every run.
+function random(seed) {
+  let x = seed >>> 0 || 1;
+  return () => {
+    x ^= x << 13; x >>>= 0;
+    x ^= x >>> 17;
+    x ^= x << 5; x >>>= 0;
+    return x / 2 ** 32;
+  };
+}
+
+// One delta frame of n vertices in rows of `row` from each axis's residuals (int32, any) and
+// bases, with the grid values it decodes to by the spec, worked here in plain arithmetic: a =
+// r + left + below - below-left (0 past the first row and column), g = a + origin (basis 0) or
+// a + the keyframe's g (basis 1), mod 2^32.
+function synthetic({ n, row, kind, keyId, keyFrame = 10 * keyId, quantum, origin, bases, r, keyG, frame = 1, trailing = 0 }) {
+  const blocks = [], g = new Int32Array(3 * n);
+  for (let c = 0; c < 3; c++) {
+    const bytes = [], escapes = [];
+    for (let v = 0; v < n; v++) {
+      const x = r[c][v];
+      if (x > -128 && x <= 127) bytes.push(x & 255);
+      else bytes.push(0x80), escapes.push(x);
+    }
+    const raw = new Uint8Array(n + 4 * escapes.length);
+    raw.set(bytes);
+    escapes.forEach((e, i) => new DataView(raw.buffer).setInt32(n + 4 * i, e, true));
+    blocks.push(axisBlock(bases[c], escapes.length, zstdRaw(raw)));
+    const a = new Int32Array(n);
+    for (let v = 0; v < n; v++) {
+      const i = v % row, left = i > 0 ? a[v - 1] : 0, below = v >= row ? a[v - row] : 0;
+      const diag = i > 0 && v >= row ? a[v - row - 1] : 0;
+      a[v] = (r[c][v] + left + below - diag) | 0;
+      g[3 * v + c] = (a[v] + (bases[c] ? keyG[3 * v + c] : origin[c])) | 0;
+    }
+  }
+  const body = frameOf(header({ encoding: 3, frame, n, min: [0, 0, 0], max: [1, 1, 1] }),
+    deltaSection({ kind, keyId, keyFrame, quantum, origin, row, zstdBytes: frameOf(...blocks) }));
+  const bytes = new Uint8Array(body.length + trailing);
+  bytes.set(body);
+  return { bytes, g, positions: Float32Array.from(g, (v) => v * quantum) };
+}
+
+// Residuals for one axis: mostly small, some past int8 (escapes: a run of them, some anywhere,
+// some at int32's ends so that the sums wrap).
+function residuals(rnd, n) {
+  const r = new Int32Array(n);
+  for (let v = 0; v < n; v++) {
+    const u = rnd();
+    r[v] = u < 0.9 ? Math.round((rnd() - 0.5) * 40) : u < 0.96 ? Math.round((rnd() - 0.5) * 254)
+      : u < 0.98 ? Math.round((rnd() - 0.5) * 2e5) : rnd() < 0.5 ? -128 : (rnd() < 0.5 ? 2 ** 31 - 1 : -(2 ** 31));
+  }
+  for (let v = Math.floor(n / 3); v < Math.min(n, Math.floor(n / 3) + 20); v++) r[v] = 1000 + v;
+  return r;
+}
+
+for (const [path, wasm] of PATHS) {
+  test(`delta (${path}): random residuals and escapes on cloths of many shapes decode to the spec's grid values`, () => {
+    const rnd = random(7);
+    // Rows of 1 to 257 vertices, a last row short or whole, widths on and off SIMD's 4 and 16.
+    const shapes = [[1, 1], [4, 2], [7, 7], [12, 3], [50, 7], [33 * 33, 33], [64 * 64, 64], [100 * 37 + 5, 37], [257 * 3, 257]];
+    for (const [n, row] of shapes) {
+      const positions = new Float32Array(3 * n);
+      const d = createDecoder({ zstd, wasm, positions });
+      const origin = [Math.round((rnd() - 0.5) * 4e4), -17, 2 ** 31 - 5];
+      const quantum = rnd() < 0.5 ? 1e-4 : 0.5;
+      const key = synthetic({ n, row, kind: 2, keyId: 1, quantum, origin, bases: [0, 0, 0], r: [0, 1, 2].map(() => residuals(rnd, n)) });
+      assert.deepEqual(d.decode(key.bytes).positions, key.positions, `keyframe ${n} / ${row}`);
+      assert.equal(d.wasm(), wasm);
+      let held = key;
+      for (let f = 0; f < 6; f++) {
+        const r = [0, 1, 2].map(() => residuals(rnd, n));
+        if (f === 3) { // a new keyframe while one is held (the other slot), then deltas of it
+          held = synthetic({ n, row, kind: 2, keyId: 2, quantum, origin, bases: [0, 0, 0], r });
+          assert.deepEqual(d.decode(held.bytes).positions, held.positions);
+          continue;
+        }
+        const bases = [0, 1, 2].map(() => (rnd() < 0.5 ? 1 : 0));
+        const delta = synthetic({ n, row, kind: 3, keyId: held === key ? 1 : 2, quantum, origin, bases, r, keyG: held.g, frame: 2 + f });
+        assert.deepEqual(d.decode(delta.bytes).positions, delta.positions, `delta ${f} of ${n} / ${row}, bases ${bases}`);
+        assert.deepEqual(d.decode(delta.bytes).positions, delta.positions); // the same again: the keyframe alone
+      }
+    }
+  });
+
+  test(`delta (${path}): a keyframe broken after its positions, or of a larger cloth, leaves the one held`, () => {
+    const rnd = random(11), n = 40, row = 8, quantum = 0.25, origin = [3, -4, 5];
+    const d = createDecoder({ zstd, wasm });
+    const key = synthetic({ n, row, kind: 2, keyId: 1, quantum, origin, bases: [0, 0, 0], r: [0, 1, 2].map(() => residuals(rnd, n)) });
+    d.decode(key.bytes);
+    const r = [0, 1, 2].map(() => residuals(rnd, n));
+    const delta = synthetic({ n, row, kind: 3, keyId: 1, quantum, origin, bases: [1, 0, 1], r, keyG: key.g, frame: 9 });
+    // A keyframe with 4 bytes after its sections: it decodes into the other slot, then fails.
+    const broken = synthetic({ n, row, kind: 2, keyId: 5, quantum, origin, bases: [0, 0, 0], r: [0, 1, 2].map(() => residuals(rnd, n)), trailing: 4 });
+    assert.throws(() => d.decode(broken.bytes), { name: 'Error', message: /bytes/ });
+    assert.equal(d.keyframe().id, 1);
+    assert.deepEqual(d.decode(delta.bytes).positions, delta.positions);
+    // A keyframe of 5,000 vertices (a memory grown, the held keyframe moved), broken alike.
+    const big = synthetic({ n: 5000, row: 50, kind: 2, keyId: 6, quantum, origin, bases: [0, 0, 0], r: [0, 1, 2].map(() => residuals(rnd, 5000)), trailing: 4 });
+    assert.throws(() => d.decode(big.bytes), { name: 'Error', message: /bytes/ });
+    assert.deepEqual(d.keyframe(), { id: 1, frame: 10, quantum, nVertices: n });
+    assert.deepEqual(d.decode(delta.bytes).positions, delta.positions);
+    // Then that cloth whole: its deltas decode, and the small one's no longer do.
+    big.bytes = big.bytes.subarray(0, big.bytes.length - 4);
+    assert.deepEqual(d.decode(big.bytes).positions, big.positions);
+    const bigDelta = synthetic({ n: 5000, row: 50, kind: 3, keyId: 6, quantum, origin, bases: [1, 1, 0], r: [0, 1, 2].map(() => residuals(rnd, 5000)), keyG: big.g, frame: 70 });
+    assert.deepEqual(d.decode(bigDelta.bytes).positions, bigDelta.positions);
+    assert.throws(() => d.decode(delta.bytes), { name: 'Error', message: /holds keyframe 6/ });
+  });
+}
+
+test('delta: WebAssembly and JavaScript take the first layout\'s keyframe alike', () => {
+  // A kinds-0 keyframe is held in JavaScript; a kind-3 delta of it copies it into WebAssembly.
+  for (const [, wasm] of PATHS) {
+    const d = createDecoder({ zstd, wasm });
+    d.decode(KEY_FRAME);
+    for (let i = 0; i < 2; i++) assert.deepEqual(d.decode(DELTA2).positions, Float32Array.from([1.5, 2, 0, 2, 2, 0, 1, 3, 0.5, 2.5, 3, -101]));
+    assert.deepEqual(d.decode(DELTA_FRAME).positions, Float32Array.from([1.5, 2, 0, 2, 2, 0, 1, 3, 0.5, 2.5, 3, -2]));
+  }
 });
