@@ -5,7 +5,8 @@
 //   decode: the page's own decoder on one frame into the GPU buffer's array, per encoding, for a
 //     128 x 128 and a 256 x 256 cloth (median and 90th percentile of 30 runs of 10 decodes; delta,
 //     whose frames need their keyframe, as the page's stream decodes 30 or more of them, and at
-//     256 x 256 also 40 delta frames decoded again with the sim paused: "delta, alone");
+//     256 x 256 also 40 delta frames decoded again in a blank page, the sim paused and the
+//     viewer closed: "delta, alone" - the last test, as it closes the viewer);
 //   drawn:  frames drawn per second at 128 x 128 (a) with the sim in slow motion (time_scale 0.25,
 //     so frames still come at 60 per second but clothd takes a quarter of a core), (b) with the
 //     sim in real time beside the browser on the same cores, and a bare three.js 128 x 128 lit
@@ -153,10 +154,14 @@ test('decode time of one frame, 256 x 256', opts, async () => {
   await until('the 256 x 256 cloth', () => page.evaluate(() => window.__clothd.view.cloth.n === 65536 && window.__clothd.view.cloth.hasFrame));
   await decodeTimes('256x256', 30);
   for (const d of Object.values(figures.decode['256x256'])) assert.ok(d.median > 0);
-  // The same decode with nothing beside it: the page takes 40 delta frames off a stream of its
-  // own, the sim is paused, and the page's frame.mjs decodes them again (from their first
+  // The same decode with nothing beside it: the viewer's page is closed (its drawing takes a core
+  // of SwiftShader), a blank page of clothd's origin takes 40 delta frames off a stream of its
+  // own, the sim is paused, and that page's frame.mjs decodes them again (from their first
   // keyframe on, 10 times over, each with a fresh decoder) into one array, timing each delta.
   const port = (await (await fetch(`${daemon.url}/v1/health`)).json()).stream.port;
+  await page.close();
+  page = await browser.context.newPage();
+  await page.goto(`${daemon.url}/style.css`);
   const kept = await page.evaluate((p) => new Promise((resolve, reject) => {
     const ws = new WebSocket(`ws://127.0.0.1:${p}/stream`, 'clothd.v1'), frames = [];
     ws.binaryType = 'arraybuffer';
@@ -170,8 +175,8 @@ test('decode time of one frame, 256 x 256', opts, async () => {
   assert.equal(kept, 40);
   await ok(daemon, 'POST', '/v1/sim/pause');
   figures.decode['256x256']['delta, alone'] = await page.evaluate(async () => {
-    const { createDecoder } = await import('clothd/frame');
-    const { ZSTDDecoder } = await import('zstddec');
+    const { createDecoder } = await import('/proto/frame.mjs');
+    const { ZSTDDecoder } = await import('/vendor/zstddec.mjs');
     const zstd = new ZSTDDecoder();
     await zstd.init();
     const frames = window.__kept.slice(window.__kept.findIndex((b) => (new DataView(b).getUint32(72, true) & ~2) === 0));
