@@ -298,7 +298,8 @@ def _positions_delta(data, at, n, bmin, bmax, numpy, state=None):
             pick = _numpy.tile(_numpy.asarray(bases) == 1, n)
             base = _numpy.where(pick, key.g, base).astype(_numpy.int32)
         g = (base.view(_numpy.uint32) + a.view(_numpy.uint32)).view(_numpy.int32)
-        positions = (g.astype(_numpy.float64) * quantum).astype(_numpy.float32).reshape(n, 3)
+        with _numpy.errstate(over="ignore"):  # past float32: inf, as float32 arithmetic (and frame.mjs) gives
+            positions = (g.astype(_numpy.float64) * quantum).astype(_numpy.float32).reshape(n, 3)
     else:
         base = [key.g[k] if bases[k % 3] == 1 else origin[k % 3] for k in range(3 * n)]
         g = [((b + d + (1 << 31)) & 0xFFFFFFFF) - (1 << 31) for b, d in zip(base, a)]

@@ -342,6 +342,20 @@ def test_delta_axis_blocks_worked_out_by_hand():
 
 
 @needs_zstd
+def test_delta_grid_values_past_float32_decode_to_inf_without_a_warning():
+    # A quantum of 1e300 m (finite, positive: a frame may say it) puts g = 2 at 2e300, past
+    # float32's 3.4e38: inf, with numpy as without, and no RuntimeWarning of numpy's cast.
+    import warnings
+    huge = bytearray(KEY2)
+    struct.pack_into("<d", huge, 72 + 16, 1e300)
+    for numpy in ([False, True] if clothd.frames.numpy_available() else [False]):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            p = rows(clothd.FrameDecoder(numpy=numpy).decode(bytes(huge)).positions)
+        assert p[0] == [float("inf"), float("inf"), 0] and p[3] == [float("inf"), float("inf"), -float("inf")]
+
+
+@needs_zstd
 def test_delta_axis_blocks_truncations_and_corruption_are_frame_errors():
     def decode(data):
         d = clothd.FrameDecoder()
