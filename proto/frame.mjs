@@ -232,8 +232,9 @@ function decodeDeltaPlanes(bytes, at, n, row, length, positions, options, state,
 function decodeAxes(bytes, dv, at, n, row, length, positions, options, state, h) {
   const end = at + DELTA_HEAD + length;
   const w = Math.min(row, n);
-  const m = options.wasm === false ? (state.inverse = null) : inverse(state, n);
-  const u8 = m && new Uint8Array(m.memory.buffer);
+  // The WebAssembly memory is laid out (grown) for n only once a block has decompressed to its n
+  // residuals: a frame that merely claims a large cloth grows nothing.
+  let m = options.wasm === false ? (state.inverse = null) : undefined, u8 = null;
   const axes = [];
   let p = at + DELTA_HEAD;
   for (let c = 0; c < 3; c++) {
@@ -246,6 +247,10 @@ function decodeAxes(bytes, dv, at, n, row, length, positions, options, state, h)
     const raw = options.zstd.decode(bytes.subarray(p + 12, p + 12 + len), size);
     if (raw.length !== size) throw new Error(`delta axis ${c} values of ${raw.length} bytes, not ${size}`);
     let found;
+    if (m === undefined) {
+      m = inverse(state, n);
+      u8 = m && new Uint8Array(m.memory.buffer);
+    }
     if (m) {
       u8.set(raw, m.res[c]);
       found = m.exports.count_escapes(m.res[c], n);
