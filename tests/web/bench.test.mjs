@@ -3,7 +3,7 @@
 // $CLOTHD_ARTIFACTS/viewer-bench.json. It asserts only that each figure was measured; speed is
 // not a pass/fail matter on a shared machine.
 //   decode: the page's own decoder on one frame into the GPU buffer's array, per encoding, for a
-//     128 x 128 and a 256 x 256 cloth (median and 90th percentile of 30 runs of 10 decodes; delta,
+//     64 x 64, a 128 x 128 and a 256 x 256 cloth (median and 90th percentile of 30 runs of 10 decodes; delta,
 //     whose frames need their keyframe, as the page's stream decodes 30 or more of them, and at
 //     256 x 256 also 40 delta frames decoded again in a blank page, the sim paused and the
 //     viewer closed: "delta, alone" - the last test, as it closes the viewer);
@@ -146,6 +146,14 @@ test('frames drawn per second, 128 x 128', opts, async () => {
   await bare.close();
   await ok(daemon, 'POST', '/v1/sim/resume');
   for (const d of Object.values(figures.drawn)) assert.ok(d.drawn > 0);
+});
+
+test('decode time of one frame, 64 x 64 (the default cloth)', opts, async () => {
+  await ok(daemon, 'PUT', '/v1/scene', { nx: 64, ny: 64 });
+  await ok(daemon, 'PATCH', '/v1/params', REAL);
+  await until('the 64 x 64 cloth', () => page.evaluate(() => window.__clothd.view.cloth.n === 4096 && window.__clothd.view.cloth.hasFrame));
+  await decodeTimes('64x64', 30);
+  for (const d of Object.values(figures.decode['64x64'])) assert.ok(d.median > 0);
 });
 
 test('decode time of one frame, 256 x 256', opts, async () => {
