@@ -170,7 +170,7 @@ size_t delta_encode(delta_enc *e, const float *xyz, int32_t n, int32_t row, uint
      * themselves often predict better than their difference from a keyframe up to a second old,
      * on a cloth at rest the difference is all zeros. */
     /* The basis is chosen on the fast parser's sizes; a cloth of up to DELTA_TIGHT_MAX_N vertices
-     * then has the chosen one compressed again with the optimal parser. */
+     * then has the chosen one compressed again with the optimal parser (a keyframe: at once). */
     const size_t cap = axis_bound(nn);
     const int tight = nn <= DELTA_TIGHT_MAX_N;
     size_t len = 0;
@@ -186,7 +186,13 @@ size_t delta_encode(delta_enc *e, const float *xyz, int32_t n, int32_t row, uint
                 got = own;
                 base = NULL;
             }
-            if (got && tight) got = axis_block(e, e->tight, base, c, nn, w, block, cap);
+            if (got && tight) { /* kept only where smaller (it all but always is) */
+                const size_t again = axis_block(e, e->tight, base, c, nn, w, e->alt, cap);
+                if (again && again < got) {
+                    memcpy(block, e->alt, again);
+                    got = again;
+                }
+            }
         }
         if (!got) {
             e->n = 0; /* whatever this was, the next frame is a keyframe */

@@ -29,7 +29,7 @@
 /* Cloths of up to this many vertices (90 x 90) have each axis's chosen block compressed again
  * with zstd's optimal parser (btultra, matches of 7 bytes or more, long enough at 16, one search
  * step): 1.6 % smaller at 64 x 64 and 6 % at 128 x 128 than the fast parser, at 6 to 12 times its
- * time (README "Speed"). It costs about 0.5 ms a frame at 64 x 64 but 3 ms at 128 x 128, where
+ * time (README "Speed"). It costs about 0.75 ms a frame at 64 x 64 but 3 ms at 128 x 128, where
  * the fast parser alone keeps many scenes' streams cheap for the server. */
 #define DELTA_TIGHT_MAX_N 8192u
 #define DELTA_ZSTD_TIGHT_TARGET 16
