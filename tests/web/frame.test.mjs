@@ -514,3 +514,36 @@ test('delta: WebAssembly and JavaScript take the first layout\'s keyframe alike'
     assert.deepEqual(d.decode(DELTA_FRAME).positions, Float32Array.from([1.5, 2, 0, 2, 2, 0, 1, 3, 0.5, 2.5, 3, -2]));
   }
 });
+
+for (const [path, wasm] of PATHS) {
+  test(`delta (${path}): random corruption of a delta throws an Error or decodes, and never changes the keyframe`, () => {
+    const rnd = random(23), n = 33 * 20, row = 33, quantum = 1e-3, origin = [100, -200, 300];
+    const key = synthetic({ n, row, kind: 2, keyId: 1, quantum, origin, bases: [0, 0, 0], r: [0, 1, 2].map(() => residuals(rnd, n)) });
+    const good = synthetic({ n, row, kind: 3, keyId: 1, quantum, origin, bases: [1, 0, 1], r: [0, 1, 2].map(() => residuals(rnd, n)), keyG: key.g, frame: 5 });
+    const d = createDecoder({ zstd, wasm });
+    d.decode(key.bytes);
+    let threw = 0, decoded = 0;
+    for (let t = 0; t < 400; t++) {
+      const bad = good.bytes.slice();
+      // 1-4 bytes anywhere in the positions section (heads, zstd frames, residuals), or a cut.
+      if (t % 10 === 9) {
+        const cut = bad.subarray(0, 72 + Math.floor(rnd() * (bad.length - 72)));
+        assert.throws(() => d.decode(cut), Error);
+        threw++;
+      } else {
+        for (let k = 1 + Math.floor(rnd() * 4); k > 0; k--) bad[72 + Math.floor(rnd() * (bad.length - 72))] = Math.floor(rnd() * 256);
+        try {
+          d.decode(bad);
+          decoded++;
+        } catch (e) {
+          assert.ok(e instanceof Error, `threw ${e}`);
+          threw++;
+        }
+      }
+      if (t % 20 === 0) assert.deepEqual(d.decode(good.bytes).positions, good.positions, `after corruption ${t}`);
+    }
+    assert.ok(threw > 40 && decoded > 40, `threw ${threw}, decoded ${decoded}`);
+    assert.equal(d.keyframe().id, 1);
+    assert.deepEqual(d.decode(good.bytes).positions, good.positions);
+  });
+}
