@@ -44,7 +44,7 @@ after(async () => {
     console.log(`viewer speed (${figures.machine}, headless Chromium, SwiftShader)`);
     for (const [size, encs] of Object.entries(figures.decode))
       for (const [enc, d] of Object.entries(encs))
-        console.log(`  decode ${size} ${enc.padEnd(12)} median ${d.median.toFixed(2)} ms, p90 ${d.p90.toFixed(2)} ms (${d.bytes} bytes${d.wasm === undefined ? "" : d.wasm ? ", WebAssembly" : ", JavaScript"})`);
+        console.log(`  decode ${size} ${enc.padEnd(12)} median ${d.median.toFixed(2)} ms${d.mean === undefined ? '' : `, mean ${d.mean.toFixed(3)} ms`}, p90 ${d.p90.toFixed(2)} ms (${d.bytes} bytes${d.wasm === undefined ? "" : d.wasm ? ", WebAssembly" : ", JavaScript"})`);
     for (const [what, d] of Object.entries(figures.drawn))
       console.log(`  drawn  ${what.padEnd(34)} ${d.drawn.toFixed(1)} frames/s (received ${d.received?.toFixed(1) ?? '-'})`);
   }
@@ -148,20 +148,19 @@ test('frames drawn per second, 128 x 128', opts, async () => {
   for (const d of Object.values(figures.drawn)) assert.ok(d.drawn > 0);
 });
 
-test('decode time of one frame, 64 x 64 (the default cloth)', opts, async () => {
-  await ok(daemon, 'PUT', '/v1/scene', { nx: 64, ny: 64 });
+// A new w x w cloth in real time, once the viewer shows it: its decode times.
+async function decodeTimesAt(w) {
+  await ok(daemon, 'PUT', '/v1/scene', { nx: w, ny: w });
   await ok(daemon, 'PATCH', '/v1/params', REAL);
-  await until('the 64 x 64 cloth', () => page.evaluate(() => window.__clothd.view.cloth.n === 4096 && window.__clothd.view.cloth.hasFrame));
-  await decodeTimes('64x64', 30);
-  for (const d of Object.values(figures.decode['64x64'])) assert.ok(d.median > 0);
-});
+  await until(`the ${w} x ${w} cloth`, () => page.evaluate((n) => window.__clothd.view.cloth.n === n && window.__clothd.view.cloth.hasFrame, w * w));
+  await decodeTimes(`${w}x${w}`, 30);
+  for (const d of Object.values(figures.decode[`${w}x${w}`])) assert.ok(d.median > 0);
+}
+
+test('decode time of one frame, 64 x 64 (the default cloth)', opts, () => decodeTimesAt(64));
 
 test('decode time of one frame, 256 x 256', opts, async () => {
-  await ok(daemon, 'PUT', '/v1/scene', { nx: 256, ny: 256 });
-  await ok(daemon, 'PATCH', '/v1/params', REAL);
-  await until('the 256 x 256 cloth', () => page.evaluate(() => window.__clothd.view.cloth.n === 65536 && window.__clothd.view.cloth.hasFrame));
-  await decodeTimes('256x256', 30);
-  for (const d of Object.values(figures.decode['256x256'])) assert.ok(d.median > 0);
+  await decodeTimesAt(256);
   // The same decode with nothing beside it: the viewer's page is closed (its drawing takes a core
   // of SwiftShader), a blank page of clothd's origin takes 40 delta frames off a stream of its
   // own, the sim is paused, and that page's frame.mjs decodes them again (from their first
@@ -200,7 +199,9 @@ test('decode time of one frame, 256 x 256', opts, async () => {
       wasm = d.wasm();
     }
     ms.sort((a, b) => a - b);
-    return { median: ms[ms.length >> 1], p90: ms[Math.floor(ms.length * 0.9)], bytes: frames[frames.length - 1].byteLength, deltas: ms.length, wasm };
+    // The page's clock ticks in 0.1 ms (with jitter): the mean of the 300-odd times is the finer figure.
+    const mean = ms.reduce((a, b) => a + b, 0) / ms.length;
+    return { median: ms[ms.length >> 1], mean, p90: ms[Math.floor(ms.length * 0.9)], bytes: frames[frames.length - 1].byteLength, deltas: ms.length, wasm };
   });
   await ok(daemon, 'POST', '/v1/sim/resume');
   assert.ok(figures.decode['256x256']['delta, alone'].deltas > 0);
