@@ -120,7 +120,10 @@ def test_every_operation_is_a_method_and_the_answers_hold_what_the_protocol_says
     assert c.recordings.get("ops")[:4] == b"CLR1"
     assert c.recordings.delete("ops") == {"id": "ops", "deleted": True}
     c.delete_scene("rec")
-    assert c.recordings.list()["recordings"][0]["state"] == "stopped"  # its scene went
+    # Its scene went: the sim thread stops the recording when it drops the scene, just after the
+    # DELETE's answer.
+    until("the deleted scene's recording stopped", lambda: c.recordings.list()["recordings"][0]["state"] == "stopped")
+    assert c.recordings.list()["recordings"][0]["reason"] == "scene deleted"
     c.recordings.delete("ops2")
     c.cloth_state_binary()
     c.metrics()
