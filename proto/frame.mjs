@@ -274,7 +274,10 @@ function decodeAxes(bytes, dv, at, n, row, length, positions, options, state, h)
     const held = h.key && h.key.slot && h.key.slot.m === m ? h.key.slot.i : -1;
     let slot = held;
     if (h.isKey) slot = held === 0 ? 1 : 0;
-    else if (held < 0) new Int32Array(m.memory.buffer, m.keys[(slot = 0)], 3 * n).set(h.key.g);
+    else if (held < 0) {
+      slot = 0;
+      new Int32Array(m.memory.buffer, m.keys[0], 3 * n).set(h.key.g);
+    }
     const onKey = axes.reduce((bits, a, c) => bits | (a.basis << c), 0);
     m.exports.undo(n, w, m.res[0], m.res[1], m.res[2], onKey, h.origin[0], h.origin[1], h.origin[2], h.quantum,
       m.keys[slot], m.pos, m.prev, h.isKey ? 1 : 0);

@@ -3,7 +3,7 @@
 # SIMD) into proto/delta-wasm.mjs, the module as base64 that proto/frame.mjs imports. The .mjs is
 # committed, so building clothd or serving the viewer needs no WebAssembly toolchain; run this
 # after changing delta_inverse.c. `--check` builds into a temporary file and fails if it differs
-# from the committed one (tests/web/wasm.test.mjs runs it where clang and wasm-ld are installed:
+# from the committed one (the ctest docs.delta_wasm runs it where clang and wasm-ld are installed:
 # Debian's clang and lld).
 #   scripts/build-wasm.sh [--check]
 set -euo pipefail
