@@ -28,6 +28,8 @@ export const FLAG_SCALAR = 4;
 export const MAX_VERTICES = 4096 * 4096;
 /** The delta positions section's head: kind, keyframe id and frame, quantum, origin, row, length. */
 export const DELTA_HEAD = 44;
+/** Whether a delta section's kind is a keyframe's: 2, or 0 (the first, byte-plane layout). */
+export const isDeltaKeyKind = (kind) => kind === 2 || kind === 0;
 
 const align4 = (n) => (n + 3) & ~3;
 
@@ -167,7 +169,7 @@ function decodeDelta(bytes, dv, at, n, positions, options, state) {
   const row = dv.getUint32(at + 36, true);
   const length = dv.getUint32(at + 40, true);
   if (kind > 3) throw new Error(`unknown delta kind ${kind}`);
-  const isKey = kind === 0 || kind === 2;
+  const isKey = isDeltaKeyKind(kind);
   if (!(quantum > 0 && quantum < Infinity)) throw new Error(`delta quantum ${quantum} is not a positive number`);
   if (row < 1) throw new Error('delta row of 0 vertices');
   if (at + DELTA_HEAD + length > bytes.length) throw new Error(`frame of ${bytes.length} bytes is truncated: its positions need ${at + DELTA_HEAD + length}`);

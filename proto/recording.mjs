@@ -1,5 +1,5 @@
 // recording.mjs - reads and writes clothd recordings (CLR1; layout in PROTOCOL.md, "Recordings"),
-// in the browser and in node, no dependencies. A recording is one scene's stream written down:
+// in the browser and in node, no dependencies but frame.mjs beside it. A recording is one scene's stream written down:
 // its hello, then its events (text records) and every frame it published (binary CLF1 frames, as
 // frame.mjs decodes them), in order; a finished one ends with an index of its frames and texts and
 // a 16-byte tail pointing at it, so frame k is found at once. A file without a valid tail (still
@@ -8,6 +8,8 @@
 //   const r = readRecording(bytes);     // throws RecordingError(message, offset)
 //   r.frames[k] -> {offset, length, simTime, key, textsBefore}; r.frame(k) -> the CLF1 bytes;
 //   r.text(k) -> text record k parsed (0 is the hello); r.seek(t) -> the frame at t s.
+
+import { isDeltaKeyKind } from './frame.mjs';
 
 export const REC_MAGIC = 'CLR1';
 export const TAIL_MAGIC = 'CLRX';
@@ -150,7 +152,7 @@ function scan(b, dv) {
     if (type === REC_TEXT) texts.push({ offset: at, length });
     else if (type === REC_FRAME) {
       const p = at + RECORD_HEAD;
-      const isKey = length < CLF_HEADER + 4 || (dv.getUint16(p + 6, true) & 3) !== CLF_DELTA || (dv.getUint32(p + CLF_HEADER, true) & ~2) === 0; // kind 2, or 0 (the first layout)
+      const isKey = length < CLF_HEADER + 4 || (dv.getUint16(p + 6, true) & 3) !== CLF_DELTA || isDeltaKeyKind(dv.getUint32(p + CLF_HEADER, true));
       if (isKey) keyOrdinal = frames.length;
       frames.push({ offset: at, length, simTime: length >= CLF_HEADER ? dv.getFloat64(p + 24, true) : NaN,
         key: Math.max(keyOrdinal, 0), textsBefore: texts.length });
@@ -184,7 +186,7 @@ function checkFrames(b, dv, frames, texts, hello, text) {
     if (e === CLF_DELTA) {
       if (f.length < CLF_HEADER + 44) bad('a delta frame shorter than its head');
       const kind = dv.getUint32(p + CLF_HEADER, true), id = dv.getUint32(p + CLF_HEADER + 4, true);
-      if (kind === 0 || kind === 2) {
+      if (isDeltaKeyKind(kind)) {
         if (f.key !== k) bad(`a keyframe whose index names frame ${f.key} as its keyframe`);
         keyId = id;
       } else if ((kind !== 1 && kind !== 3) || id !== keyId || f.key >= k || dv.getUint32(frames[f.key].offset + RECORD_HEAD + CLF_HEADER + 4, true) !== id) {
@@ -227,7 +229,7 @@ export function buildRecording(messages, options = {}) {
       const p = m instanceof ArrayBuffer ? new Uint8Array(m) : new Uint8Array(m.buffer, m.byteOffset, m.byteLength);
       const dv = new DataView(p.buffer, p.byteOffset, p.byteLength);
       const delta = (dv.getUint16(6, true) & 3) === CLF_DELTA;
-      if (!delta || (dv.getUint32(CLF_HEADER, true) & ~2) === 0) keyOrdinal = frames.length;
+      if (!delta || isDeltaKeyKind(dv.getUint32(CLF_HEADER, true))) keyOrdinal = frames.length;
       frames.push({ offset: record(REC_FRAME, p.slice()), simTime: dv.getFloat64(24, true), key: keyOrdinal, textsBefore: texts.length });
     }
   });

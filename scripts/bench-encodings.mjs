@@ -9,7 +9,7 @@ import WebSocket from 'ws';
 import { daemon } from './bench-daemon.mjs';
 import { MeshoptDecoder } from 'meshoptimizer';
 import { ZSTDDecoder } from 'zstddec';
-import { createDecoder } from '../proto/frame.mjs';
+import { createDecoder, isDeltaKeyKind } from '../proto/frame.mjs';
 
 const secs = Number(process.argv[2] ?? 8);
 const ENCODINGS = ['f32', 'q16', 'meshopt', 'delta'];
@@ -101,7 +101,7 @@ d.proc.kill('SIGTERM');
 // The same frames decoded again with the daemon gone (no sim beside the decoder), from their
 // first keyframe on, 20 times over, into one array as the viewer does.
 await sleep(300);
-const first = c.kept.findIndex((b) => (new DataView(b.buffer).getUint32(72, true) & ~2) === 0);
+const first = c.kept.findIndex((b) => isDeltaKeyKind(new DataView(b.buffer).getUint32(72, true)));
 const again = [], positions = new Float32Array(3 * 256 * 256);
 for (let rep = 0; rep < 20; rep++) {
   const dec = createDecoder({ zstd, positions });

@@ -16,7 +16,7 @@
 // delta frames are decoded with the zstddec package's decoder (imported when the first comes,
 // or given), meshopt frames with the meshoptimizer package's; `{"type": "keyframe"}` is
 // keyframe().
-import { createDecoder, DELTA_HEAD, HEADER_SIZE } from '../../../proto/frame.mjs';
+import { createDecoder, DELTA_HEAD, HEADER_SIZE, isDeltaKeyKind } from '../../../proto/frame.mjs';
 
 export const PROTOCOL = 'clothd.v1';
 export const DEFAULT_SCENE = 'default';
@@ -468,6 +468,5 @@ export class Stream {
 /** Whether a frame is a delta keyframe (encoding 3, kind 2; or 0, the first layout's). */
 function isKeyframe(bytes) {
   if (bytes.length < HEADER_SIZE + DELTA_HEAD || (bytes[6] & 3) !== 3) return false;
-  const kind = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength).getUint32(HEADER_SIZE, true);
-  return kind === 2 || kind === 0;
+  return isDeltaKeyKind(new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength).getUint32(HEADER_SIZE, true));
 }

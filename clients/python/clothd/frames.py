@@ -69,6 +69,7 @@ Q16_EXTENT_MIN = 1e-9
 _HEADER = struct.Struct("<4sHHQQdQII3f3f")
 _DELTA_HEAD = struct.Struct("<IIQd3iII")
 DELTA_HEAD = 44
+DELTA_KEY_KINDS = (2, 0)  # a delta section's kinds that are keyframes: 2, or 0 (the first, byte-plane layout)
 _ROCK = struct.Struct("<I3ff4f")
 assert _HEADER.size == HEADER_SIZE and _ROCK.size == ROCK_SIZE and _DELTA_HEAD.size == DELTA_HEAD
 
@@ -275,7 +276,7 @@ def _positions_delta(data, at, n, bmin, bmax, numpy, state=None):
     kind, key_id, key_frame, quantum, ox, oy, oz, row, length = _DELTA_HEAD.unpack_from(data, at)
     if kind > 3:
         raise FrameError("unknown delta kind %d" % kind)
-    is_key = kind in (0, 2)
+    is_key = kind in DELTA_KEY_KINDS
     if not 0 < quantum < float("inf"):
         raise FrameError("delta quantum %r is not a positive number" % quantum)
     if row < 1:

@@ -17,7 +17,7 @@ import math
 import struct
 
 from .errors import ProtocolError
-from .frames import FrameDecoder
+from .frames import DELTA_KEY_KINDS, FrameDecoder
 
 REC_MAGIC = b"CLR1"
 TAIL_MAGIC = b"CLRX"
@@ -245,7 +245,7 @@ def _scan(data):
         elif kind == FRAME:
             p = at + RECORD_HEAD
             is_key = (length < _CLF_HEADER + 4 or (struct.unpack_from("<H", data, p + 6)[0] & 3) != _CLF_DELTA
-                      or _u32(data, p + _CLF_HEADER) in (0, 2))  # keyframes: kind 2, or 0 (the first layout)
+                      or _u32(data, p + _CLF_HEADER) in DELTA_KEY_KINDS)
             if is_key:
                 key = len(frames)
             sim_time = struct.unpack_from("<d", data, p + 24)[0] if length >= _CLF_HEADER else math.nan
@@ -290,7 +290,7 @@ def _check_frames(data, rec):
             if f.length < _CLF_HEADER + 44:
                 bad("a delta frame shorter than its head")
             kind, ident = struct.unpack_from("<II", data, p + _CLF_HEADER)
-            if kind in (0, 2):  # keyframes: kind 2, or 0 (the byte-plane layout of 0.2)
+            if kind in DELTA_KEY_KINDS:
                 if f.key != k:
                     bad("a keyframe whose index names frame %d as its keyframe" % f.key)
                 key_id = ident
