@@ -82,7 +82,7 @@ static int reserve(delta_enc *e, int32_t n)
     GROW(e->key, 12 * nn);
     GROW(e->grid, 12 * nn);
     GROW(e->res, 4 * nn);
-    GROW(e->packed, 5 * nn);
+    GROW(e->packed, 5 * nn + 5 * (nn < DELTA_TIGHT_MAX_N ? nn : DELTA_TIGHT_MAX_N));
     GROW(e->alt, axis_bound(nn));
     e->cap_n = nn;
     return 0;
@@ -123,19 +123,34 @@ static size_t pack(const uint32_t *r, size_t n, unsigned char *out, uint32_t *es
     return n + 4 * e;
 }
 
-/* Axis c's block at out, of basis 0 (base NULL: a = g - origin) or 1 (a = g - base), compressed
- * with zstd context z; the bytes written, 0 on a zstd error. */
-static size_t axis_block(delta_enc *e, void *z, const int32_t *base, int c, size_t n, size_t w, unsigned char *out,
-                         size_t cap)
+/* One axis's values as an axis block holds them, before zstd: its basis, the n + 4 E bytes at
+ * bytes, E. */
+typedef struct {
+    int basis;
+    const unsigned char *bytes;
+    size_t len;
+    uint32_t escapes;
+} packed_axis;
+
+/* Axis c of basis 0 (base NULL: a = g - origin) or 1 (a = g - base), packed into buf (5 n bytes). */
+static packed_axis pack_axis(delta_enc *e, const int32_t *base, int c, size_t n, size_t w, unsigned char *buf)
 {
-    uint32_t *r = (uint32_t *)e->res, escapes;
+    uint32_t *r = (uint32_t *)e->res;
     residuals(e->grid, base, e->origin[c], c, n, w, r);
-    const size_t raw = pack(r, n, e->packed, &escapes);
-    const size_t got = ZSTD_compress2(z, out + CLF_DELTA_AXIS_HEAD, cap - CLF_DELTA_AXIS_HEAD, e->packed, raw);
+    packed_axis p = {base ? CLF_DELTA_BASIS_KEY : CLF_DELTA_BASIS_ORIGIN, buf, 0, 0};
+    p.len = pack(r, n, buf, &p.escapes);
+    return p;
+}
+
+/* The axis block of p at out, compressed with zstd context z; the bytes written, 0 on a zstd
+ * error. */
+static size_t axis_block(void *z, const packed_axis *p, unsigned char *out, size_t cap)
+{
+    const size_t got = ZSTD_compress2(z, out + CLF_DELTA_AXIS_HEAD, cap - CLF_DELTA_AXIS_HEAD, p->bytes, p->len);
     if (ZSTD_isError(got)) return 0;
     memset(out, 0, CLF_DELTA_AXIS_HEAD);
-    out[CLF_DELTA_AXIS_OFF_BASIS] = base ? CLF_DELTA_BASIS_KEY : CLF_DELTA_BASIS_ORIGIN;
-    put_u32(out + CLF_DELTA_AXIS_OFF_ESCAPES, escapes);
+    out[CLF_DELTA_AXIS_OFF_BASIS] = (unsigned char)p->basis;
+    put_u32(out + CLF_DELTA_AXIS_OFF_ESCAPES, p->escapes);
     put_u32(out + CLF_DELTA_AXIS_OFF_LENGTH, (uint32_t)got);
     size_t at = CLF_DELTA_AXIS_HEAD + got;
     while (at % 4) out[at++] = 0;
@@ -176,18 +191,23 @@ size_t delta_encode(delta_enc *e, const float *xyz, int32_t n, int32_t row, uint
     size_t len = 0;
     for (int c = 0; c < 3; c++) {
         unsigned char *block = out + CLF_DELTA_HEAD + len;
-        const int32_t *base = key ? NULL : e->key;
-        size_t got = axis_block(e, key && tight ? e->tight : e->zstd, base, c, nn, w, block, cap);
+        const packed_axis first = pack_axis(e, key ? NULL : e->key, c, nn, w, e->packed);
+        const packed_axis *chosen = &first;
+        packed_axis own;
+        size_t got = axis_block(key && tight ? e->tight : e->zstd, &first, block, cap);
         if (got && !key) {
-            const size_t own = axis_block(e, e->zstd, NULL, c, nn, w, e->alt, cap);
-            if (!own) got = 0;
-            else if (own < got) {
-                memcpy(block, e->alt, own);
-                got = own;
-                base = NULL;
+            /* Packed beside the first where the optimal parser will compress the chosen one
+             * again, over it (no longer needed) where not. */
+            own = pack_axis(e, NULL, c, nn, w, e->packed + (tight ? 5 * nn : 0));
+            const size_t got_own = axis_block(e->zstd, &own, e->alt, cap);
+            if (!got_own) got = 0;
+            else if (got_own < got) {
+                memcpy(block, e->alt, got_own);
+                got = got_own;
+                chosen = &own;
             }
             if (got && tight) { /* kept only where smaller (it all but always is) */
-                const size_t again = axis_block(e, e->tight, base, c, nn, w, e->alt, cap);
+                const size_t again = axis_block(e->tight, chosen, e->alt, cap);
                 if (again && again < got) {
                     memcpy(block, e->alt, again);
                     got = again;

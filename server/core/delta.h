@@ -45,7 +45,8 @@ typedef struct delta_enc {
     int32_t *key;                /* 3 n: the keyframe's grid values */
     int32_t *grid;               /* 3 n: this frame's grid values */
     int32_t *res;                /* n: one axis's residuals */
-    unsigned char *packed;       /* 5 n: one axis's int8 residuals and int32 escapes */
+    unsigned char *packed;       /* 5 n (10 n up to DELTA_TIGHT_MAX_N): one axis's int8 residuals and
+                                  * int32 escapes, on each basis */
     unsigned char *alt;          /* ZSTD_compressBound(5 n): the other basis's zstd frame */
     size_t cap_n;
     void *zstd;                  /* ZSTD_CCtx: the fast parser (DELTA_ZSTD_LEVEL) */
