@@ -68,5 +68,10 @@ int cs_backend_covers(const cs_backend *b, const cs_params *p, char *why, size_t
                  "the cpu backend)", b->name);
         return 0;
     }
+    if (p->integrator == CS_IMPLICIT_EULER && !(b->caps & CS_CAP_IMPLICIT)) {
+        snprintf(why, why_len, "the %s backend does not have integrator implicit_euler yet (use velocity_verlet, or "
+                 "the cpu backend)", b->name);
+        return 0;
+    }
     return 1;
 }

@@ -26,7 +26,7 @@
 #include <omp.h>
 #endif
 
-#include "sim_internal.h"
+#include "cpu_internal.h"
 
 #if defined(__GNUC__)
 #define CS_ALWAYS_INLINE __attribute__((always_inline)) inline
@@ -79,6 +79,7 @@ typedef struct cpu_ctx {
     size_t partials_cap;  /* floats */
     int64_t torn;         /* springs torn since the last report (atomic adds from the team) */
     char device[160];
+    cs_im_work *im;       /* implicit_euler's workspace (implicit_cpu.c), once used */
 } cpu_ctx;
 
 /* The thread buffers, shared by every CPU simulation of the process. Nothing in one outlives the
@@ -144,6 +145,7 @@ static void cpu_destroy(void *ctx)
         }
     pthread_mutex_unlock(&pool.lock);
     free(c->partials);
+    cs_im_free(c->im);
     free(c);
 }
 
@@ -392,7 +394,7 @@ static void rocks_near_box(int32_t nr, const float (*restrict rk)[CS_MAX_ROCKS],
  * whose low b bits are a given prefix is the sum of its two halves (bit b clear, then set); an
  * empty subtree is +0, and the sums above it are still done, so even signed zeros come out as
  * the full tree gives them. */
-static void tree_sum_sparse(const float (*contrib)[CS_CHUNK], const uint8_t *idx, int n, int b, float out[6])
+void cs_cpu_tree_sum_sparse(const float (*contrib)[CS_CHUNK], const uint8_t *idx, int n, int b, float out[6])
 {
     if (n == 0) {
         for (int q = 0; q < 6; q++) out[q] = 0.0f;
@@ -409,8 +411,8 @@ static void tree_sum_sparse(const float (*contrib)[CS_CHUNK], const uint8_t *idx
         else part[lo++] = idx[k];
     }
     float a[6], c[6];
-    tree_sum_sparse(contrib, part, lo, b + 1, a);
-    tree_sum_sparse(contrib, part + lo, n - lo, b + 1, c);
+    cs_cpu_tree_sum_sparse(contrib, part, lo, b + 1, a);
+    cs_cpu_tree_sum_sparse(contrib, part + lo, n - lo, b + 1, c);
     for (int q = 0; q < 6; q++) out[q] = a[q] + c[q];
 }
 
@@ -675,7 +677,7 @@ static float surface_contacts(const cs_phys *p, const cs_state *s, thread_buf *t
                 tb->idx[n_idx++] = (uint8_t)l;
             }
         }
-        tree_sum_sparse((const float(*)[CS_CHUNK])tb->contrib, tb->idx, n_idx, 0, out);
+        cs_cpu_tree_sum_sparse((const float(*)[CS_CHUNK])tb->contrib, tb->idx, n_idx, 0, out);
     }
     return lo.z;
 }
@@ -735,7 +737,7 @@ static void chunk_contacts(const cs_phys *p, const cs_state *s, thread_buf *tb, 
                     tb->idx[n_idx++] = (uint8_t)l;
                 }
             }
-            tree_sum_sparse((const float(*)[CS_CHUNK])tb->contrib, tb->idx, n_idx, 0, out);
+            cs_cpu_tree_sum_sparse((const float(*)[CS_CHUNK])tb->contrib, tb->idx, n_idx, 0, out);
         }
     }
     if (ground) {
@@ -794,7 +796,7 @@ static void contact_row(const cs_phys *p, cs_state *s, thread_buf *tb, int32_t j
 }
 
 /* New rest lengths from the current positions (symplectic Euler, after the update). */
-static int strain_row(const cs_phys *p, cs_state *s, int32_t r)
+int cs_cpu_strain_row(const cs_phys *p, cs_state *s, int32_t r)
 {
     const float *X = s->x, *Y = s->y, *Z = s->z, *L0 = s->L0;
     float *L0n = s->L0_next;
@@ -961,6 +963,12 @@ static cs_status cpu_refresh(void *ctx, const cs_model *m, cs_state *s)
     cpu_ctx *c = ctx;
     const cs_phys *p = &m->phys;
     const int threads = threads_of(m);
+    if (p->integrator == CS_IMPLICIT_EULER) {
+        if (reserve(c, m, s) != CS_OK) return CS_E_NOMEM;
+        const cs_status st = cs_im_refresh(&c->im, c->partials, m, s, threads);
+        take_torn(c);
+        return st;
+    }
     thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(threads, m->phys.nx) : NULL;
     if (!tb) return CS_E_NOMEM;
 #pragma omp parallel num_threads(threads)
@@ -1017,7 +1025,7 @@ static void step_team(cpu_ctx *c, thread_buf *tb, const cs_model *m, cs_state *s
             TEAM_ONE(solo, rocks_forces(p, s, c->partials, 0.0f), rocks_move(s, p->dt, p->dt), grab_motion(p, s));
             TEAM_ROWS(solo, "omp for schedule(static)", j, ny, move_row(s, p, j, 0, p->dt, p->dt));
             if (strain) {
-                TEAM_ROWS(solo, "omp for schedule(static)", j, ny, count_torn(c, strain_row(p, s, j)));
+                TEAM_ROWS(solo, "omp for schedule(static)", j, ny, count_torn(c, cs_cpu_strain_row(p, s, j)));
                 TEAM_ONE(solo, swap_rest(s));
             }
         }
@@ -1036,6 +1044,15 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
 {
     cpu_ctx *c = ctx;
     const int threads = threads_of(m);
+    if (m->phys.integrator == CS_IMPLICIT_EULER) {
+        int64_t torn = 0;
+        if (reserve(c, m, s) != CS_OK) return CS_E_NOMEM;
+        const cs_status st = cs_im_step(&c->im, c->partials, m, s, substeps, threads, rep, &torn);
+        if (st != CS_OK) return st;
+        c->torn += torn;
+        step_report(c, s, rep);
+        return CS_OK;
+    }
     thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(threads, m->phys.nx) : NULL;
     if (!tb) return CS_E_NOMEM;
     if (threads == 1) {
@@ -1148,6 +1165,11 @@ static cs_status cpu_step_batch(cs_batch_item *items, int n)
     int nj = 0;
     for (int i = 0; i < n; i++) {
         if (items[i].substeps <= 0) continue;
+        if (items[i].m->phys.integrator == CS_IMPLICIT_EULER) {
+            /* implicit_euler runs its own parallel loops: stepped alone, as cpu_step does */
+            items[i].status = cpu_step(items[i].ctx, items[i].m, items[i].s, items[i].substeps, &items[i].rep);
+            continue;
+        }
         jobs[nj++] = (batch_job){&items[i], (double)items[i].s->n * (double)items[i].substeps};
     }
     qsort(jobs, (size_t)nj, sizeof *jobs, by_work_desc);
@@ -1241,5 +1263,5 @@ static void cpu_stats(void *ctx, const cs_model *m, cs_backend_stats *out)
 
 const cs_backend cs_backend_cpu = {
     "cpu", cpu_available, cpu_create, cpu_destroy, cpu_upload, cpu_download, cpu_refresh, cpu_step, cpu_device,
-    cpu_error, cpu_stats, cpu_cost, CS_CAP_SURFACE_CONTACT, cpu_step_batch,
+    cpu_error, cpu_stats, cpu_cost, CS_CAP_SURFACE_CONTACT | CS_CAP_IMPLICIT, cpu_step_batch,
 };

@@ -29,6 +29,7 @@ struct cs_sim {
     cs_cost_fn memory_cost; /* NULL: cs_scene_memory */
     void *memory_ctx;
     int32_t rock_limit;    /* most rocks, 1..CS_MAX_ROCKS */
+    cs_solver_stats solver; /* the last step call's, for cs_info */
 };
 
 /* sim.c */

@@ -470,14 +470,15 @@ void scene_publish(scene *sc, int with_hash)
     }
     json_t *o = json_pack(
         "{s:s, s:I, s:I, s:f, s:f, s:f, s:i, s:f, s:s, s:i, s:i, s:I, s:i,"
-        " s:{s:f, s:f, s:f, s:f}, s:o, s:O}",
+        " s:{s:f, s:f, s:f, s:f}, s:o, s:O, s:{s:i, s:i, s:i, s:f}}",
         "state", sc->paused ? "paused" : "running", "step", (json_int_t)info.step, "frame", (json_int_t)sc->frame,
         "sim_time", info.time, "dt", info.dt, "dt_max", info.dt_max, "substeps", (int)info.substeps,
         "realtime_factor", sc->paused ? 0.0 : sc->rtf, "backend", cs_sim_backend(sc->engine), "n_vertices",
         (int)info.n_vertices, "n_springs", (int)info.n_springs, "n_torn", (json_int_t)info.n_torn, "n_rocks",
         (int)info.n_rocks, "energy", "kinetic", sc->energy.kinetic, "spring", sc->energy.spring, "gravity",
         sc->energy.gravity, "total", sc->energy.total, "state_hash", hash, "last_event",
-        sc->last_event ? sc->last_event : json_null());
+        sc->last_event ? sc->last_event : json_null(), "solver", "substeps", (int)info.solver.substeps, "newton",
+        (int)info.solver.newton, "iterations", (int)info.solver.cg, "residual", (double)info.solver.residual);
     set_doc(sc, DOC_SIM, json_dumps(o, JSON_DUMP_FLAGS));
     json_decref(o);
 

@@ -20,7 +20,7 @@ after(async () => {
 
 const keys = (o) => Object.keys(o).sort();
 const SIM_KEYS = ['backend', 'dt', 'dt_max', 'energy', 'frame', 'last_event', 'n_rocks', 'n_springs', 'n_torn',
-  'n_vertices', 'realtime_factor', 'sim_time', 'state', 'state_hash', 'step', 'substeps'];
+  'n_vertices', 'realtime_factor', 'sim_time', 'solver', 'state', 'state_hash', 'step', 'substeps'];
 const ROCK_KEYS = ['angular_velocity', 'density', 'id', 'kinematic', 'mass', 'orientation', 'position', 'radius',
   'velocity'];
 

@@ -11,7 +11,7 @@ static const char *const design_names[] = {
     "k_contact", "c_contact", "c_tangent", "mu", "contact_offset", "friction_model", "contact_model",
     "max_depenetration_speed", "placement_overlap", "k_rock", "c_rock", "mu_rock",
     "ground", "ground_z", "frame_rate", "substeps", "max_substeps", "auto_substeps", "stability_safety",
-    "integrator", "grab_speed"};
+    "integrator", "grab_speed", "implicit_substeps", "solver_iterations", "solver_tolerance", "cg_iterations"};
 
 static void test_table_has_every_design_parameter_once(void **unused)
 {
@@ -69,6 +69,7 @@ static void test_choices_and_named_defaults(void **unused)
     (void)unused;
     assert_int_equal(cs_param_choice(cs_param_find("integrator"), "velocity_verlet"), CS_VELOCITY_VERLET);
     assert_int_equal(cs_param_choice(cs_param_find("integrator"), "symplectic_euler"), CS_SYMPLECTIC_EULER);
+    assert_int_equal(cs_param_choice(cs_param_find("integrator"), "implicit_euler"), CS_IMPLICIT_EULER);
     assert_int_equal(cs_param_choice(cs_param_find("friction_model"), "coulomb_viscous"), CS_FRICTION_COULOMB_VISCOUS);
     assert_int_equal(cs_param_choice(cs_param_find("friction_model"), "resultant"), CS_FRICTION_RESULTANT);
     assert_int_equal(cs_param_choice(cs_param_find("orientation"), "vertical"), CS_VERTICAL);

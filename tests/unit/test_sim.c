@@ -91,7 +91,7 @@ static void test_set_params_is_all_or_nothing(void **unused)
     assert_memory_equal(&now, &p, sizeof p);
     assert_true(cs_state_hash(sim) == h);
     bad = p;
-    bad.integrator = 2;
+    bad.integrator = 3;
     assert_int_equal(cs_sim_set_params(sim, &bad), CS_E_RANGE);
     assert_int_equal(cs_sim_set_params(sim, NULL), CS_E_INVALID);
     /* A good change applies and recomputes accelerations (gravity flipped: a_z flips). */

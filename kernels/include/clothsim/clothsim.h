@@ -120,6 +120,14 @@ cs_status cs_sim_step_frames(cs_sim *sim, int64_t frames);
 #define CS_BATCH_MAX 4096
 cs_status cs_sims_step(cs_sim *const *sims, size_t n, const int64_t *substeps, cs_status *each);
 
+/* What the implicit solver did over a span of substeps (integrator implicit_euler). */
+typedef struct cs_solver_stats {
+    int32_t substeps;   /* substeps solved: more than asked where contact cut one in parts */
+    int32_t newton;     /* Newton iterations, summed */
+    int32_t cg;         /* conjugate-gradient iterations (one multigrid V-cycle each), summed */
+    float residual;     /* the largest final residual of a substep, relative to its first */
+} cs_solver_stats;
+
 typedef struct cs_info {
     uint64_t step;       /* substeps since the scene was built */
     double time;         /* simulated seconds */
@@ -127,6 +135,7 @@ typedef struct cs_info {
     double dt, dt_max;   /* substep and the stability guard's limit (s) */
     int32_t n_vertices, n_springs, n_rocks;
     int64_t n_torn;
+    cs_solver_stats solver; /* the last step call's (zeros until implicit_euler has run) */
 } cs_info;
 void cs_sim_info(const cs_sim *sim, cs_info *out);
 

@@ -18,14 +18,14 @@ extern "C" {
 typedef enum cs_orientation { CS_HORIZONTAL = 0, CS_VERTICAL = 1 } cs_orientation;
 typedef enum cs_pins { CS_PINS_CORNERS = 0, CS_PINS_EDGES = 1, CS_PINS_TOP_EDGE = 2, CS_PINS_NONE = 3 } cs_pins;
 typedef enum cs_friction { CS_FRICTION_COULOMB_VISCOUS = 0, CS_FRICTION_RESULTANT = 1 } cs_friction;
-typedef enum cs_integrator { CS_VELOCITY_VERLET = 0, CS_SYMPLECTIC_EULER = 1 } cs_integrator;
+typedef enum cs_integrator { CS_VELOCITY_VERLET = 0, CS_SYMPLECTIC_EULER = 1, CS_IMPLICIT_EULER = 2 } cs_integrator;
 typedef enum cs_contact_model { CS_CONTACT_VERTEX = 0, CS_CONTACT_SURFACE = 1 } cs_contact_model;
 
 /* Choice lists, in enum order. */
 #define CS_CHOICES_ORIENTATION "horizontal", "vertical"
 #define CS_CHOICES_PINS "corners", "edges", "top-edge", "none"
 #define CS_CHOICES_FRICTION "coulomb_viscous", "resultant"
-#define CS_CHOICES_INTEGRATOR "velocity_verlet", "symplectic_euler"
+#define CS_CHOICES_INTEGRATOR "velocity_verlet", "symplectic_euler", "implicit_euler"
 #define CS_CHOICES_CONTACT "vertex", "surface"
 
 /* Scene fields: changing one rebuilds the cloth.
@@ -73,8 +73,12 @@ typedef enum cs_contact_model { CS_CONTACT_VERTEX = 0, CS_CONTACT_SURFACE = 1 } 
     X(max_substeps, INT, "-", 1000, 1, 100000, NONE, "Most substeps per frame the stability guard may choose") \
     X(auto_substeps, BOOL, "-", 1, 0, 1, NONE, "Raise substeps when a change needs it (else refuse the change)") \
     X(stability_safety, FLOAT, "-", 0.7, 0.01, 1, NONE, "Fraction of the stable time step the guard allows") \
-    X(integrator, ENUM, "-", CS_VELOCITY_VERLET, 0, 1, INTEGRATOR, "velocity_verlet (seed 000) or symplectic_euler (seed 003)") \
+    X(integrator, ENUM, "-", CS_VELOCITY_VERLET, 0, 2, INTEGRATOR, "velocity_verlet (kick-drift-kick), symplectic_euler, or implicit_euler (backward Euler solved by Newton and multigrid-preconditioned conjugate gradients: stiff springs cost no substeps)") \
     X(grab_speed, FLOAT, "m/s", 5.0, 0.001, 1000, NONE, "Fastest a grabbed vertex moves toward its target") \
+    X(implicit_substeps, INT, "-", 2, 1, 100000, NONE, "Substeps per frame under implicit_euler (the guard adds what rock contact needs, and a substep is cut in parts while something would cross contact_offset in it)") \
+    X(solver_iterations, INT, "-", 4, 1, 100, NONE, "implicit_euler: most Newton iterations per substep") \
+    X(solver_tolerance, FLOAT, "-", 1e-3, 1e-7, 0.5, NONE, "implicit_euler: a substep stops once its residual (the net force's norm) is this fraction of its first") \
+    X(cg_iterations, INT, "-", 30, 1, 1000, NONE, "implicit_euler: most conjugate-gradient iterations per Newton iteration, each preconditioned by one multigrid V-cycle") \
 
 #define CS_FIELD_DECL_INT(name) int32_t name;
 #define CS_FIELD_DECL_FLOAT(name) float name;

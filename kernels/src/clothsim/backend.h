@@ -70,6 +70,7 @@ typedef struct cs_state {
 typedef struct cs_step_report {
     int64_t torn;     /* springs torn during the call */
     int finite;       /* 1 when every position, velocity and rock value is finite */
+    cs_solver_stats solver; /* implicit_euler: what its solver did in the call (zeros otherwise) */
 } cs_step_report;
 
 /* One simulation of a batch (step_batch): its backend context, model and state, the substeps it
@@ -156,6 +157,8 @@ typedef struct cs_backend {
 
 /* contact_model surface (physics.h, "surface contact"). */
 #define CS_CAP_SURFACE_CONTACT 1u
+/* integrator implicit_euler (implicit.h). */
+#define CS_CAP_IMPLICIT 2u
 
 /* Adds a row to a cost model and its totals. */
 void cs_cost_add(cs_cost_model *c, const char *name, double read, double written, double fixed, double per_substep,

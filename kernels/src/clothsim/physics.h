@@ -101,6 +101,12 @@ typedef struct cs_phys {
     int32_t strain_on;           /* plastic_yield > 0 or tear_strain > 0 */
     int32_t integrator;          /* cs_integrator */
     float grab_speed;
+    /* implicit_euler (implicit.h) */
+    float plastic_rate;          /* 1/s, so that a substep cut in parts flows the same per second */
+    float rock_dt;               /* the longest stable step of a rock contact (rocks sub-cycle to it) */
+    int32_t solver_iterations, cg_iterations;
+    float solver_tolerance;
+    int32_t most_splits;         /* parts a substep may be cut into for contact (max_substeps / substeps) */
 } cs_phys;
 
 /* A rock as the kernels see it. Kinematic rocks have inv_mass = inv_inertia = 0. */
@@ -433,6 +439,8 @@ typedef struct cs_surface_out {
     int32_t touches;    /* terms within reach it takes a share of */
     int32_t owns;       /* terms within reach it owns, plus 1 for its own law when it touches: its
                            lane of the rock's sum is written when this is not 0 */
+    cs_vec3 E;          /* its net elastic contact force and net contact weight (the vertex law's */
+    float weight;       /* inputs; implicit_euler linearises the contact with them) */
 } cs_surface_out;
 
 /* The working sums of one gather: the elastic force on the vertex and its net contact weight. */
@@ -602,6 +610,8 @@ SIM_HD static inline void cs_surface_gather_tris(const cs_ring *g, const cs_vec3
     o->share = o->force = o->torque = zero;
     o->energy = o->depth = 0.0f;
     o->touches = o->owns = 0;
+    o->E = zero;
+    o->weight = 0.0f;
     const int32_t fm = g->faces;
     in &= fm;
     if (!in) return; /* a vertex near, not at, a contact (most of those a culling box lets through) */
@@ -620,6 +630,8 @@ SIM_HD static inline void cs_surface_gather_tris(const cs_ring *g, const cs_vec3
     /* Dissipation and the separation cap, at the vertex from its net elastic force; the vertex
      * owns the reaction of what it adds or removes. */
     if (!o->touches) return;
+    o->E = acc.E;
+    o->weight = acc.weight;
     cs_vec3 arm;
     const cs_vec3 F = cs_surface_vertex_law(acc.E, acc.weight, g->v, g->ro, Fsum, free, r, ph, &arm);
     const cs_vec3 D = cs_sub(F, acc.E);
@@ -729,10 +741,9 @@ SIM_HD static inline void cs_rock_group_sum(const float *partials, int32_t nr, i
     *T = t;
 }
 
-/* Total force and torque on rock r: the cloth's (the group sums of cs_rock_group_sum, in group
- * order), then the other rocks in index order, the ground, gravity. */
-SIM_HD static inline void cs_rock_force(const cs_rock_state *rocks, int32_t nr, int32_t r, const float *partials,
-                                        int32_t nchunks, const cs_phys *p, cs_vec3 *F_out, cs_vec3 *T_out)
+/* The cloth's force and torque on rock r: the group sums of cs_rock_group_sum, in group order. */
+SIM_HD static inline void cs_rock_cloth_force(const float *partials, int32_t nr, int32_t r, int32_t nchunks,
+                                              cs_vec3 *F_out, cs_vec3 *T_out)
 {
     cs_vec3 F = cs_v3(0.0f, 0.0f, 0.0f), T = cs_v3(0.0f, 0.0f, 0.0f), f, t;
     for (int32_t g = 0; g < nchunks; g += CS_CHUNK_GROUP) {
@@ -740,6 +751,17 @@ SIM_HD static inline void cs_rock_force(const cs_rock_state *rocks, int32_t nr, 
         F = cs_add(F, f);
         T = cs_add(T, t);
     }
+    *F_out = F;
+    *T_out = T;
+}
+
+/* Total force and torque on rock r: the cloth's (the group sums of cs_rock_group_sum, in group
+ * order), then the other rocks in index order, the ground, gravity. */
+SIM_HD static inline void cs_rock_force(const cs_rock_state *rocks, int32_t nr, int32_t r, const float *partials,
+                                        int32_t nchunks, const cs_phys *p, cs_vec3 *F_out, cs_vec3 *T_out)
+{
+    cs_vec3 F, T, f, t;
+    cs_rock_cloth_force(partials, nr, r, nchunks, &F, &T);
     for (int32_t b = 0; b < nr; b++) {
         if (b != r && cs_rock_pair_contact(&rocks[r], &rocks[b], p, &f, &t)) {
             F = cs_add(F, f);

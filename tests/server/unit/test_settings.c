@@ -89,7 +89,7 @@ static void test_config_text(void **unused)
         {"k_bend = -1", "x.conf:1: k_bend must be between 0 and 1e+09 (got -1)"},
         {"gravity = 1,2", "x.conf:1: gravity must be three numbers 'x,y,z' (got '1,2')"},
         {"backend = tpu", "x.conf:1: backend must be one of auto|cuda|cpu (got 'tpu')"},
-        {"integrator = rk4", "x.conf:1: integrator must be one of velocity_verlet|symplectic_euler (got 'rk4')"},
+        {"integrator = rk4", "x.conf:1: integrator must be one of velocity_verlet|symplectic_euler|implicit_euler (got 'rk4')"},
         {"ground = maybe", "x.conf:1: ground must be true or false (got 'maybe')"},
         {"warp_speed = 9", "x.conf:1: unknown setting 'warp_speed' (clothd --help lists them)"},
         {"no equals here", "x.conf:1: expected 'name = value'"},

@@ -1,0 +1,413 @@
+/* clothsim/implicit.h - the pieces of integrator implicit_euler (kernels/MODEL.md, "The implicit
+ * solver"), written once for every backend: the Hessian blocks of the springs and contacts, the
+ * per-vertex residual and diagonal, the multigrid hierarchy's Galerkin product, its smoother, and
+ * the fixed-order sums the conjugate gradients need. Rules as physics.h: SIM_HD, no libc beyond
+ * sqrtf, no globals, plain structs; every sum in a fixed order.
+ *
+ * A substep of length h solves backward Euler, x = argmin G(x) with
+ *   G(x) = 1/(2 h^2) |x - y|^2_M + E(x),  y = x_n + h v_n,  v = (x - x_n) / h,
+ * whose gradient is the explicit integrators' force law evaluated at the new state (physics.h:
+ * springs with their damping, air drag and wind, gravity, contacts): the residual of vertex i is
+ *   R_i = F_i(x, v) - m (v_i - v_n,i) / h  (= -dG/dx_i).
+ * Newton's method linearises R; the linear system A dx = R, with A the mass term m/h^2 plus the
+ * springs' and contacts' stiffness blocks (projected to be positive: a spring in compression keeps
+ * only its axial block), is solved by conjugate gradients preconditioned by one multigrid V-cycle.
+ *
+ * Storage of a level's matrix (all levels alike): per vertex the diagonal block D (9 floats, row
+ * major) and four forward off-diagonal blocks F_t, t = 0..3, coupling vertex (i, j) to (i, j) +
+ * CS_IM_FWD(t) = (1, 0), (0, 1), (1, 1), (-1, 1); the block to (i, j) - CS_IM_FWD(t) is the
+ * neighbour's F_t transposed (the matrix is symmetric). On the finest level these are the negated
+ * stiffness blocks of the structural and shear springs (whose directions they are); the bending
+ * springs' blocks are kept apart (they reach two vertices) and enter the true operator only, not
+ * the preconditioner's (dropping them keeps its matrix positive definite and changes little: k_bend
+ * is a hundredth of k_structural). A coarse level aggregates 2 x 2 vertices (i, j) -> (i/2, j/2)
+ * and its matrix is the Galerkin product P^T A P for that piecewise-constant P, which keeps the
+ * same nine-point shape on every level. Vertices of inverse mass 0 (pinned, grabbed) are left out:
+ * their rows and columns are dropped (Dirichlet), a coarse vertex is out when all of its are. */
+#ifndef CLOTHSIM_IMPLICIT_H
+#define CLOTHSIM_IMPLICIT_H
+
+#include "clothsim/physics.h"
+
+/* Forward directions of a level's off-diagonal blocks (t = 0..3). */
+SIM_HD static inline int cs_im_fwd_di(int t) { return t == 3 ? -1 : (t == 1 ? 0 : 1); }
+SIM_HD static inline int cs_im_fwd_dj(int t) { return t == 0 ? 0 : 1; }
+
+/* The most levels a hierarchy has, and the size at which coarsening stops. */
+#define CS_IM_MAX_LEVELS 12
+#define CS_IM_COARSEST 4
+/* Damped Jacobi's weight, sweeps before and after the coarse correction, sweeps on the coarsest
+ * level, and the scale of the coarse correction (piecewise-constant interpolation underestimates a
+ * smooth error's correction: over-correcting makes up for it). Chosen by measurement (MODEL.md). */
+#define CS_IM_OMEGA 0.6f
+#define CS_IM_SMOOTH 1
+#define CS_IM_COARSE_SWEEPS 16
+#define CS_IM_COARSE_SCALE 1.6f
+
+typedef struct cs_mat3 {
+    float m[9];
+} cs_mat3;
+
+SIM_HD static inline cs_mat3 cs_m3_zero(void)
+{
+    cs_mat3 a;
+    for (int k = 0; k < 9; k++) a.m[k] = 0.0f;
+    return a;
+}
+SIM_HD static inline cs_mat3 cs_m3_diag(float s)
+{
+    cs_mat3 a = cs_m3_zero();
+    a.m[0] = a.m[4] = a.m[8] = s;
+    return a;
+}
+SIM_HD static inline void cs_m3_addto(cs_mat3 *a, const cs_mat3 *b)
+{
+    for (int k = 0; k < 9; k++) a->m[k] += b->m[k];
+}
+SIM_HD static inline void cs_m3_addto_t(cs_mat3 *a, const cs_mat3 *b)
+{
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) a->m[3 * r + c] += b->m[3 * c + r];
+}
+/* s u u^T + t (I - u u^T) for a unit u. */
+SIM_HD static inline cs_mat3 cs_m3_axial(cs_vec3 u, float s, float t)
+{
+    const float uu[3] = {u.x, u.y, u.z};
+    cs_mat3 a;
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) a.m[3 * r + c] = (s - t) * (uu[r] * uu[c]) + (r == c ? t : 0.0f);
+    return a;
+}
+SIM_HD static inline cs_vec3 cs_m3_mul(const float *a, cs_vec3 x)
+{
+    return cs_v3(a[0] * x.x + a[1] * x.y + a[2] * x.z, a[3] * x.x + a[4] * x.y + a[5] * x.z,
+                 a[6] * x.x + a[7] * x.y + a[8] * x.z);
+}
+SIM_HD static inline cs_vec3 cs_m3_mul_t(const float *a, cs_vec3 x)
+{
+    return cs_v3(a[0] * x.x + a[3] * x.y + a[6] * x.z, a[1] * x.x + a[4] * x.y + a[7] * x.z,
+                 a[2] * x.x + a[5] * x.y + a[8] * x.z);
+}
+/* The inverse of a symmetric positive definite block (the identity where it is not invertible). */
+SIM_HD static inline cs_mat3 cs_m3_inverse(const float *a)
+{
+    cs_mat3 r;
+    r.m[0] = a[4] * a[8] - a[5] * a[7];
+    r.m[1] = a[2] * a[7] - a[1] * a[8];
+    r.m[2] = a[1] * a[5] - a[2] * a[4];
+    r.m[3] = a[5] * a[6] - a[3] * a[8];
+    r.m[4] = a[0] * a[8] - a[2] * a[6];
+    r.m[5] = a[2] * a[3] - a[0] * a[5];
+    r.m[6] = a[3] * a[7] - a[4] * a[6];
+    r.m[7] = a[1] * a[6] - a[0] * a[7];
+    r.m[8] = a[0] * a[4] - a[1] * a[3];
+    const float det = a[0] * r.m[0] + a[1] * r.m[3] + a[2] * r.m[6];
+    if (!(det > 1e-30f)) return cs_m3_diag(1.0f);
+    const float inv = 1.0f / det;
+    for (int k = 0; k < 9; k++) r.m[k] *= inv;
+    return r;
+}
+
+/* ---- the linearised force law ---- */
+
+/* The stiffness block of the spring from xi to xj (positive semi-definite): k u u^T + k max(0,
+ * 1 - L0/l) (I - u u^T) + (c/h) u u^T - the elastic Hessian with its transverse part dropped in
+ * compression, plus the damping's along u. Zero for a torn spring or below CS_MIN_LEN. Both ends
+ * compute the same bits. */
+SIM_HD static inline cs_mat3 cs_im_spring_block(cs_vec3 xi, cs_vec3 xj, float L0, float k, float c_over_h)
+{
+    const cs_vec3 d = cs_sub(xj, xi);
+    const float l = sqrtf(cs_dot(d, d));
+    if (!(l > CS_MIN_LEN && L0 > 0.0f)) return cs_m3_zero();
+    const cs_vec3 u = cs_scale(d, 1.0f / l);
+    const float g = 1.0f - L0 / l;
+    return cs_m3_axial(u, k + c_over_h, g > 0.0f ? k * g : 0.0f);
+}
+
+/* A penalty contact's block at a vertex, normal n: kn along n, kt across it. */
+SIM_HD static inline cs_mat3 cs_im_contact_block(cs_vec3 n, float kn, float kt) { return cs_m3_axial(n, kn, kt); }
+
+/* The linearisation of cs_contact_law along n (penetration delta, normal velocity vn): the normal
+ * force max(0, k delta - c vn) grows by k + c/h per unit of approach while it pushes; the viscous
+ * friction (coulomb_viscous) by at most c_tangent/h across n. */
+SIM_HD static inline cs_mat3 cs_im_law_block(cs_vec3 n, float delta, float vn, float k, float c, float ct, float h,
+                                             int32_t friction, float vmax)
+{
+    const float fn = k * delta - c * vn;
+    const float kn = (fn > 0.0f && vn <= vmax) ? k + c / h : 0.0f;
+    const float kt = friction == CS_FRICTION_COULOMB_VISCOUS && kn > 0.0f ? ct / h : 0.0f;
+    return cs_im_contact_block(n, kn, kt);
+}
+
+/* cs_im_law_block for the contact of vertex (xi, vi) with rock r (the geometry of
+ * cs_vertex_rock_contact); zero where they do not touch. */
+SIM_HD static inline cs_mat3 cs_im_vertex_rock_block(cs_vec3 xi, cs_vec3 vi, const cs_rock_state *r, const cs_phys *p,
+                                                    float h)
+{
+    const cs_vec3 rr = cs_sub(xi, r->x);
+    const float len = cs_len(rr);
+    const float delta = r->radius + p->contact_offset - len;
+    if (!(delta > 0.0f && len > CS_MIN_LEN)) return cs_m3_zero();
+    const cs_vec3 n = cs_scale(rr, 1.0f / len);
+    const float vn = cs_dot(cs_sub(vi, cs_add(r->v, cs_cross(r->w, rr))), n);
+    return cs_im_law_block(n, delta, vn, p->k_contact, p->c_contact, p->c_tangent, h, p->friction, p->max_sep);
+}
+
+/* The same for the ground (cs_vertex_ground_contact). */
+SIM_HD static inline cs_mat3 cs_im_ground_block(cs_vec3 xi, cs_vec3 vi, const cs_phys *p, float h)
+{
+    const float delta = p->ground_z + p->contact_offset - xi.z;
+    if (!(p->ground && delta > 0.0f)) return cs_m3_zero();
+    return cs_im_law_block(cs_v3(0.0f, 0.0f, 1.0f), delta, vi.z, p->k_contact, p->c_contact, p->c_tangent, h,
+                           p->friction, p->max_sep);
+}
+
+/* The surface contact's block at a vertex from what it gathered (cs_surface_out: its net elastic
+ * force E and net weight W): the lumped stiffness of its terms, W (k_contact + c_contact / h)
+ * along E, and with coulomb_viscous W c_tangent / h across it. */
+SIM_HD static inline cs_mat3 cs_im_surface_block(const cs_surface_out *o, const cs_phys *p, float h)
+{
+    const float e = cs_len(o->E), W = o->weight > 0.0f ? o->weight : 0.0f;
+    if (!(e > 0.0f) || !o->touches) return cs_m3_zero();
+    const float kt = p->friction == CS_FRICTION_COULOMB_VISCOUS ? W * p->c_tangent / h : 0.0f;
+    return cs_im_contact_block(cs_scale(o->E, 1.0f / e), W * (p->k_contact + p->c_contact / h), kt);
+}
+
+/* The surface contact's hold (implicit_euler's form of the explicit law's velocity level): a
+ * free vertex in contact that approaches the rock's surface (vn < 0 along n = E/|E|, relative to
+ * the surface's velocity there) meets a damper CS_IM_HOLD m' / h, m' its mass against its share of
+ * the rock's (cs_surface_max_touch): solved implicitly, it removes all but 1/(1 + CS_IM_HOLD) of
+ * the approach within the substep, so the cloth carries a heavy rock by its tension instead of
+ * letting it through the contact layer. Only ever takes energy away. Returns 1 and the force on
+ * the vertex, its block and the arm (R n) of the rock's reaction when it acts. */
+#define CS_IM_HOLD 10.0f
+SIM_HD static inline int cs_im_surface_hold(const cs_surface_out *o, cs_vec3 vi, const cs_rock_state *r,
+                                           const cs_phys *p, float h, cs_vec3 *F, cs_mat3 *blk, cs_vec3 *arm)
+{
+    const float e = cs_len(o->E);
+    if (!(e > 0.0f) || !o->touches) return 0;
+    const cs_vec3 n = cs_scale(o->E, 1.0f / e);
+    *arm = cs_scale(n, r->radius);
+    const cs_vec3 vsurf = cs_add(r->v, cs_cross(r->w, *arm));
+    const float vn = cs_dot(cs_sub(vi, vsurf), n);
+    if (!(vn < 0.0f)) return 0;
+    const float m = 1.0f / (p->inv_mass + cs_surface_max_touch(r, p) * r->inv_mass);
+    const float kappa = CS_IM_HOLD * m / h;
+    *F = cs_scale(n, -kappa * vn);
+    *blk = cs_im_contact_block(n, kappa / h, 0.0f);
+    return 1;
+}
+
+/* ---- a vertex's residual and diagonal ----
+ *
+ * The non-contact part at vertex v = (i, j): its 12 springs in CS_SPRING_SLOTS order (each from
+ * cs_spring_force at the iterate's positions and velocities v = (x - x_n)/h, so the result is the
+ * explicit force law at the new state), then cs_air_gravity: the resultant Ro, which the caller
+ * adds contacts to. D receives the springs' blocks, then the inertia and drag terms m/h^2 + m drag/h.
+ * xs, vs: the slots' positions and velocities (ignored where on[slot] is 0: off the grid). owned[t]
+ * receives the block of the spring of type t the vertex owns (zero where it has none). */
+SIM_HD static inline cs_vec3 cs_im_springs(const cs_phys *p, cs_vec3 xi, cs_vec3 vi, const cs_vec3 *xs,
+                                          const cs_vec3 *vs, const float *L0s, const int *on, float h, cs_mat3 *D,
+                                          cs_mat3 *owned)
+{
+    cs_vec3 f = cs_v3(0.0f, 0.0f, 0.0f);
+    cs_mat3 d = cs_m3_zero();
+    const float ch = p->c_spring / h;
+    int slot = 0;
+    float len;
+#define CS_IM_SLOT(t, di, dj, fwd)                                                                      \
+    if (on[slot]) {                                                                                    \
+        f = cs_add(f, cs_spring_force(xi, vi, xs[slot], vs[slot], L0s[slot], p->k[t], p->c_spring, &len)); \
+        const cs_mat3 b = cs_im_spring_block(xi, xs[slot], L0s[slot], p->k[t], ch);                     \
+        cs_m3_addto(&d, &b);                                                                           \
+        if (fwd) owned[t] = b;                                                                         \
+    } else if (fwd) {                                                                                  \
+        owned[t] = cs_m3_zero();                                                                       \
+    }                                                                                                  \
+    slot++;
+    CS_SPRING_SLOTS(CS_IM_SLOT)
+#undef CS_IM_SLOT
+    f = cs_add(f, cs_air_gravity(vi, p));
+    const float dm = p->mass / (h * h) + p->mass * p->drag / h;
+    d.m[0] += dm;
+    d.m[4] += dm;
+    d.m[8] += dm;
+    *D = d;
+    return f;
+}
+
+/* The residual once the contacts are in F: F - m (v - v_n)/h. */
+SIM_HD static inline cs_vec3 cs_im_residual(const cs_phys *p, cs_vec3 F, cs_vec3 v, cs_vec3 v_old, float h)
+{
+    return cs_sub(F, cs_scale(cs_sub(v, v_old), p->mass / h));
+}
+
+/* ---- a level's operator ---- */
+
+/* What a backend hands the functions below of one level: its grid, its vertices' mask (1 in the
+ * solve, 0 out), D, the four forward blocks and on the finest level the two bending blocks
+ * (B_0 to (i + 2, j), B_1 to (i, j + 2); NULL on coarse levels). Blocks are 9 floats each, vertex
+ * major: D[9 v + k], F[t][9 v + k]. */
+typedef struct cs_im_level {
+    int32_t nx, ny;
+    const float *mask;
+    const float *D, *Dinv;
+    const float *F[4];
+    const float *B[2];
+} cs_im_level;
+
+/* (A x)_v on a level: D x_v, then the forward blocks in order, then the backward ones (the
+ * neighbours' forward blocks transposed), then (bend = 1, finest level) the bending blocks
+ * likewise. x is 3 floats a vertex; 0 for a vertex out of the solve. */
+SIM_HD static inline cs_vec3 cs_im_apply(const cs_im_level *L, const float *x, int32_t i, int32_t j, int bend)
+{
+    const int32_t nx = L->nx, ny = L->ny, v = j * nx + i;
+    if (L->mask[v] == 0.0f) return cs_v3(0.0f, 0.0f, 0.0f);
+    cs_vec3 y = cs_m3_mul(L->D + 9 * (size_t)v, cs_v3_from(x + 3 * (size_t)v));
+    for (int t = 0; t < 4; t++) {
+        const int32_t ii = i + cs_im_fwd_di(t), jj = j + cs_im_fwd_dj(t);
+        if (ii < 0 || ii >= nx || jj >= ny) continue;
+        const int32_t q = jj * nx + ii;
+        y = cs_add(y, cs_m3_mul(L->F[t] + 9 * (size_t)v, cs_v3_from(x + 3 * (size_t)q)));
+    }
+    for (int t = 0; t < 4; t++) {
+        const int32_t ii = i - cs_im_fwd_di(t), jj = j - cs_im_fwd_dj(t);
+        if (ii < 0 || ii >= nx || jj < 0) continue;
+        const int32_t q = jj * nx + ii;
+        y = cs_add(y, cs_m3_mul_t(L->F[t] + 9 * (size_t)q, cs_v3_from(x + 3 * (size_t)q)));
+    }
+    if (bend) {
+        for (int b = 0; b < 2; b++) {
+            const int32_t ii = i + 2 * (1 - b), jj = j + 2 * b;
+            if (ii < nx && jj < ny) {
+                const int32_t q = jj * nx + ii;
+                y = cs_add(y, cs_m3_mul(L->B[b] + 9 * (size_t)v, cs_v3_from(x + 3 * (size_t)q)));
+            }
+            const int32_t ib = i - 2 * (1 - b), jb = j - 2 * b;
+            if (ib >= 0 && jb >= 0) {
+                const int32_t q = jb * nx + ib;
+                y = cs_add(y, cs_m3_mul_t(L->B[b] + 9 * (size_t)q, cs_v3_from(x + 3 * (size_t)q)));
+            }
+        }
+    }
+    return y;
+}
+
+/* One damped Jacobi update of vertex v: x_v + omega Dinv (b_v - (A x)_v); Ax is (A x)_v. */
+SIM_HD static inline cs_vec3 cs_im_jacobi(const cs_im_level *L, int32_t v, cs_vec3 x, cs_vec3 b, cs_vec3 Ax)
+{
+    if (L->mask[v] == 0.0f) return cs_v3(0.0f, 0.0f, 0.0f);
+    return cs_add(x, cs_scale(cs_m3_mul(L->Dinv + 9 * (size_t)v, cs_sub(b, Ax)), CS_IM_OMEGA));
+}
+
+/* The coarse level's size along an axis of n fine vertices. */
+SIM_HD static inline int32_t cs_im_coarse(int32_t n) { return (n + 1) / 2; }
+
+/* The Galerkin product's row of coarse vertex (I, J) of level C from the fine level L (2 x 2
+ * aggregation): D_C = the sum of the aggregate's diagonal blocks and of the blocks coupling two of
+ * its vertices (both ways), F_C,t = the sum of the blocks coupling the aggregate to aggregate
+ * (I, J) + fwd(t) - the fine forward blocks from this aggregate, then the fine backward ones into
+ * it (transposed) - each in a fixed order of fine vertex, then direction. Writes D (9 floats),
+ * F[t] (9 floats each) and the coarse mask; an empty aggregate gets the identity and mask 0. */
+SIM_HD static inline void cs_im_galerkin(const cs_im_level *L, int32_t I, int32_t J, float *D, float *F[4],
+                                         float *mask)
+{
+    const int32_t nx = L->nx, ny = L->ny;
+    cs_mat3 d = cs_m3_zero(), f[4];
+    for (int t = 0; t < 4; t++) f[t] = cs_m3_zero();
+    float any = 0.0f;
+    for (int a = 0; a < 4; a++) {
+        const int32_t i = 2 * I + (a & 1), j = 2 * J + (a >> 1);
+        if (i >= nx || j >= ny) continue;
+        const int32_t v = j * nx + i;
+        if (L->mask[v] == 0.0f) continue;
+        any = 1.0f;
+        const cs_mat3 *Dv = (const cs_mat3 *)(L->D + 9 * (size_t)v);
+        cs_m3_addto(&d, Dv);
+        for (int s = 0; s < 4; s++) {
+            const int32_t ii = i + cs_im_fwd_di(s), jj = j + cs_im_fwd_dj(s);
+            if (ii < 0 || ii >= nx || jj >= ny || L->mask[jj * nx + ii] == 0.0f) continue;
+            const cs_mat3 *B = (const cs_mat3 *)(L->F[s] + 9 * (size_t)v);
+            const int32_t dI = ii / 2 - I, dJ = jj / 2 - J;
+            if (dI == 0 && dJ == 0) { /* within the aggregate: both ways */
+                cs_m3_addto(&d, B);
+                cs_m3_addto_t(&d, B);
+                continue;
+            }
+            for (int t = 0; t < 4; t++)
+                if (dI == cs_im_fwd_di(t) && dJ == cs_im_fwd_dj(t)) cs_m3_addto(&f[t], B);
+        }
+    }
+    /* fine backward blocks from this aggregate into a forward neighbour aggregate: the fine block
+     * A(a, b) with a here and b = a - fwd(s) there is F_s(b)^T */
+    for (int a = 0; a < 4; a++) {
+        const int32_t i = 2 * I + (a & 1), j = 2 * J + (a >> 1);
+        if (i >= nx || j >= ny || L->mask[j * nx + i] == 0.0f) continue;
+        for (int s = 0; s < 4; s++) {
+            const int32_t ii = i - cs_im_fwd_di(s), jj = j - cs_im_fwd_dj(s);
+            if (ii < 0 || ii >= nx || jj < 0) continue;
+            const int32_t q = jj * nx + ii;
+            if (L->mask[q] == 0.0f) continue;
+            const int32_t dI = ii / 2 - I, dJ = jj / 2 - J;
+            if (dI == 0 && dJ == 0) continue; /* counted above from q's side */
+            for (int t = 0; t < 4; t++)
+                if (dI == cs_im_fwd_di(t) && dJ == cs_im_fwd_dj(t))
+                    cs_m3_addto_t(&f[t], (const cs_mat3 *)(L->F[s] + 9 * (size_t)q));
+        }
+    }
+    if (any == 0.0f) d = cs_m3_diag(1.0f);
+    for (int k = 0; k < 9; k++) D[k] = d.m[k];
+    for (int t = 0; t < 4; t++)
+        for (int k = 0; k < 9; k++) F[t][k] = any != 0.0f ? f[t].m[k] : 0.0f;
+    *mask = any;
+}
+
+/* Restriction (the sum over the aggregate, in its fixed order) of a fine vector r at coarse vertex
+ * (I, J). */
+SIM_HD static inline cs_vec3 cs_im_restrict(const cs_im_level *L, const float *r, int32_t I, int32_t J)
+{
+    cs_vec3 s = cs_v3(0.0f, 0.0f, 0.0f);
+    for (int a = 0; a < 4; a++) {
+        const int32_t i = 2 * I + (a & 1), j = 2 * J + (a >> 1);
+        if (i >= L->nx || j >= L->ny) continue;
+        const int32_t v = j * L->nx + i;
+        if (L->mask[v] != 0.0f) s = cs_add(s, cs_v3_from(r + 3 * (size_t)v));
+    }
+    return s;
+}
+
+/* ---- fixed-order sums ----
+ * A sum over the vertices of a level-0 grid is taken as the rock partials are (physics.h): per
+ * chunk (a row's CS_CHUNK columns) by cs_tree_sum's tree, then the chunks in order, in groups of
+ * CS_CHUNK_GROUP. The terms of vertex v of a dot product: a.x b.x + a.y b.y + a.z b.z. */
+SIM_HD static inline float cs_im_dot3(const float *a, const float *b, int32_t v)
+{
+    const size_t o = 3 * (size_t)v;
+    return a[o] * b[o] + a[o + 1] * b[o + 1] + a[o + 2] * b[o + 2];
+}
+
+/* The total of per-chunk partials, chunk by chunk in groups (cs_rock_group_sum's order). */
+SIM_HD static inline float cs_im_chunk_total(const float *partials, int32_t nchunks)
+{
+    float total = 0.0f;
+    for (int32_t g = 0; g < nchunks; g += CS_CHUNK_GROUP) {
+        const int32_t e = g + CS_CHUNK_GROUP < nchunks ? g + CS_CHUNK_GROUP : nchunks;
+        float s = 0.0f;
+        for (int32_t c = g; c < e; c++) s += partials[c];
+        total += s;
+    }
+    return total;
+}
+
+/* The speed past which a body crosses the contact layer (contact_offset) in a substep h: the
+ * substep is then cut into equal parts (MODEL.md): how many, for the fastest speed vmax, at most
+ * most. */
+SIM_HD static inline int32_t cs_im_splits(float vmax, float h, float layer, int32_t most)
+{
+    if (!(layer > 0.0f) || !(vmax > 0.0f)) return 1;
+    const float k = vmax * h / layer;
+    if (!(k > 1.0f)) return 1;
+    return k >= (float)most ? most : (int32_t)k + 1;
+}
+
+#endif

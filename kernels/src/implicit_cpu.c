@@ -1,0 +1,633 @@
+/* implicit_cpu.c - integrator implicit_euler on the CPU backend: the functions of
+ * clothsim/implicit.h looped over the grid with OpenMP, in the sequence below (kernels/MODEL.md,
+ * "The implicit solver").
+ *
+ * A substep of length h (cut into equal parts while a rock or vertex would cross the contact layer
+ * in it: cs_im_splits), each part:
+ *   1. the rocks: sub-cycled to cs_phys.rock_dt, each sub-cycle v += d (a_cloth + F_other / M),
+ *      w likewise, then drift - a_cloth being the cloth's force over mass of the last solve (the
+ *      rock's a, alpha), F_other the rocks', the ground's and gravity (cs_rock_force without the
+ *      cloth);
+ *   2. the cloth: x_n and v_n kept aside, the first guess x = x_n + h v_n + h^2 g (pinned vertices
+ *      stay, the grabbed one moves at its grab velocity), then Newton: assemble (residual, blocks,
+ *      the rocks' partials) at the iterate, stop when its norm is solver_tolerance of the first or
+ *      after solver_iterations, else solve A dx = R by conjugate gradients preconditioned with one
+ *      multigrid V-cycle (at most cg_iterations), x += dx, v = (x - x_n)/h;
+ *   3. a = (v - v_n)/h; the rocks' a, alpha from the last assembly's partials; with strain, the rest
+ *      lengths from the new positions (cs_cpu_strain_row), swapped.
+ * Every loop's iterations are independent (each writes its own vertex or chunk), and every sum goes
+ * through per-chunk trees summed in chunk order, so the result is the same for any thread count. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "clothsim/implicit.h"
+#include "cpu_internal.h"
+
+typedef struct im_level {
+    int32_t nx, ny, n;
+    float *D, *Dinv, *F[4], *mask; /* coarse levels own mask; level 0 points at the state's w */
+    float *b, *x, *t;               /* 3 n each: right side, solution, scratch */
+} im_level;
+
+struct cs_im_work {
+    int32_t nx, ny, n, nchunks, levels;
+    float *xb, *yb, *zb, *vxb, *vyb, *vzb; /* the substep's x_n and v_n */
+    float *R;                              /* residual, 3 n (AoS) */
+    float *B[2];                           /* bending blocks of level 0 */
+    float *dx, *r, *z, *p, *q;             /* conjugate gradients, 3 n each */
+    float *part;                           /* per-chunk partials of a dot product */
+    im_level lv[CS_IM_MAX_LEVELS];
+    void *mem;
+};
+
+void cs_im_free(cs_im_work *w)
+{
+    if (!w) return;
+    free(w->mem);
+    free(w);
+}
+
+/* Lays out the workspace for an nx x ny cloth in one allocation; NULL when out of memory. */
+static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
+{
+    cs_im_work *w = calloc(1, sizeof *w);
+    if (!w) return NULL;
+    w->nx = nx, w->ny = ny, w->n = nx * ny, w->nchunks = nchunks;
+    int32_t lx = nx, ly = ny;
+    size_t floats = (size_t)w->n * (6 + 3 + 18 + 15) + (size_t)nchunks;
+    int L = 0;
+    for (;;) {
+        w->lv[L].nx = lx, w->lv[L].ny = ly, w->lv[L].n = lx * ly;
+        floats += (size_t)lx * ly * (9 * 6 + 1 + 9);
+        L++;
+        if (L == CS_IM_MAX_LEVELS || (lx <= CS_IM_COARSEST && ly <= CS_IM_COARSEST)) break;
+        lx = cs_im_coarse(lx), ly = cs_im_coarse(ly);
+    }
+    w->levels = L;
+    float *m = malloc(sizeof(float) * floats);
+    if (!m) {
+        free(w);
+        return NULL;
+    }
+    w->mem = m;
+    const size_t n = (size_t)w->n;
+#define TAKE(k) (m += (k), m - (k))
+    w->xb = TAKE(n), w->yb = TAKE(n), w->zb = TAKE(n);
+    w->vxb = TAKE(n), w->vyb = TAKE(n), w->vzb = TAKE(n);
+    w->R = TAKE(3 * n);
+    w->B[0] = TAKE(9 * n), w->B[1] = TAKE(9 * n);
+    w->dx = TAKE(3 * n), w->r = TAKE(3 * n), w->z = TAKE(3 * n), w->p = TAKE(3 * n), w->q = TAKE(3 * n);
+    w->part = TAKE((size_t)nchunks);
+    for (int l = 0; l < L; l++) {
+        im_level *v = &w->lv[l];
+        const size_t k = (size_t)v->n;
+        v->D = TAKE(9 * k), v->Dinv = TAKE(9 * k);
+        for (int t = 0; t < 4; t++) v->F[t] = TAKE(9 * k);
+        v->mask = TAKE(k);
+        v->b = TAKE(3 * k), v->x = TAKE(3 * k), v->t = TAKE(3 * k);
+    }
+#undef TAKE
+    memset(w->mem, 0, sizeof(float) * floats);
+    return w;
+}
+
+static cs_status work_fit(cs_im_work **w, const cs_phys *p)
+{
+    if (*w && (*w)->nx == p->nx && (*w)->ny == p->ny) return CS_OK;
+    cs_im_work *n = work_new(p->nx, p->ny, p->nchunks);
+    if (!n) return CS_E_NOMEM;
+    cs_im_free(*w);
+    *w = n;
+    return CS_OK;
+}
+
+/* The level as implicit.h's functions read it (level 0's mask is the state's w). */
+static cs_im_level view(const cs_im_work *w, int l, const cs_state *s)
+{
+    const im_level *v = &w->lv[l];
+    cs_im_level L;
+    L.nx = v->nx, L.ny = v->ny;
+    L.mask = l == 0 ? s->w : v->mask;
+    L.D = v->D, L.Dinv = v->Dinv;
+    for (int t = 0; t < 4; t++) L.F[t] = v->F[t];
+    L.B[0] = l == 0 ? w->B[0] : NULL, L.B[1] = l == 0 ? w->B[1] : NULL;
+    return L;
+}
+
+static void put3(float *a, int32_t v, cs_vec3 x)
+{
+    a[3 * (size_t)v] = x.x, a[3 * (size_t)v + 1] = x.y, a[3 * (size_t)v + 2] = x.z;
+}
+static void put9(float *a, int32_t v, const cs_mat3 *m) { memcpy(a + 9 * (size_t)v, m->m, sizeof m->m); }
+
+/* ---- assembly ---- */
+
+#define LOADX(o) cs_v3(s->x[(o)], s->y[(o)], s->z[(o)])
+#define LOADV(o) cs_v3(s->vx[(o)], s->vy[(o)], s->vz[(o)])
+
+/* The springs, air and gravity of chunk c's vertices at the iterate: force into R (the residual
+ * comes later), Ro into q (resultant friction reads it), blocks into level 0 (blocks: 1). */
+static void chunk_springs(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, int32_t j, int32_t i0,
+                          int32_t i1, int blocks)
+{
+    const int32_t nx = p->nx, ny = p->ny;
+    const size_t n = (size_t)p->n;
+    im_level *l0 = &w->lv[0];
+    for (int32_t i = i0; i < i1; i++) {
+        const int32_t v = j * nx + i;
+        cs_vec3 xs[12], vs[12];
+        float L0s[12];
+        int on[12], slot = 0;
+#define CS_IM_GATHER(t, di, dj, fwd)                                                          \
+    {                                                                                        \
+        const int32_t ii = i + (di), jj = j + (dj);                                          \
+        on[slot] = ii >= 0 && ii < nx && jj >= 0 && jj < ny;                                  \
+        const int32_t q = on[slot] ? jj * nx + ii : v;                                       \
+        xs[slot] = LOADX(q), vs[slot] = LOADV(q);                                            \
+        L0s[slot] = s->L0[(size_t)(t) * n + (size_t)((fwd) ? v : q)];                        \
+        slot++;                                                                              \
+    }
+        CS_SPRING_SLOTS(CS_IM_GATHER)
+#undef CS_IM_GATHER
+        cs_mat3 D, owned[CS_NTYPES];
+        const cs_vec3 F = cs_im_springs(p, LOADX(v), LOADV(v), xs, vs, L0s, on, h, &D, owned);
+        put3(w->R, v, F);
+        put3(w->q, v, F);
+        if (!blocks) continue;
+        put9(l0->D, v, &D);
+        for (int t = 0; t < CS_NTYPES; t++) {
+            cs_mat3 b = owned[t];
+            for (int k = 0; k < 9; k++) b.m[k] = -b.m[k];
+            put9(t < 4 ? l0->F[t] : w->B[t - 4], v, &b);
+        }
+    }
+}
+
+static void add3(float *a, int32_t v, cs_vec3 x)
+{
+    a[3 * (size_t)v] += x.x, a[3 * (size_t)v + 1] += x.y, a[3 * (size_t)v + 2] += x.z;
+}
+static void add9(float *a, int32_t v, const cs_mat3 *m)
+{
+    for (int k = 0; k < 9; k++) a[9 * (size_t)v + k] += m->m[k];
+}
+
+/* The 1-ring of vertex (i, j) at the iterate (cs_ring; slots off the grid repeat the vertex). */
+static void ring_of(const cs_phys *p, const cs_state *s, const float *ro, int32_t i, int32_t j, cs_ring *g,
+                    float *reach)
+{
+    const int32_t nx = p->nx, ny = p->ny, v = j * nx + i;
+    float most = 0.0f;
+    for (int k = 0; k < CS_RING; k++) {
+        const int32_t ii = i + cs_ring_di(k), jj = j + cs_ring_dj(k);
+        const int32_t o = (ii >= 0 && ii < nx && jj >= 0 && jj < ny) ? jj * nx + ii : v;
+        g->x[k] = LOADX(o);
+        const float d = cs_len(cs_sub(g->x[k], g->x[0]));
+        most = d > most ? d : most;
+    }
+    g->v = LOADV(v);
+    g->ro = cs_v3(ro[3 * (size_t)v], ro[3 * (size_t)v + 1], ro[3 * (size_t)v + 2]);
+    g->faces = cs_ring_faces(s->L0, nx, ny, i, j);
+    *reach = most;
+}
+
+/* Contacts of chunk (row j, columns i0 .. i1) in rock order, then the ground: forces onto R,
+ * blocks onto level 0's D, each rock's reaction from the chunk into its partial (chunk tree). */
+static void chunk_contacts(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, int32_t j, int32_t i0,
+                           int32_t i1, int32_t chunk, float *partials, int blocks)
+{
+    const int32_t nx = p->nx, nr = s->n_rocks;
+    float contrib[6][CS_CHUNK];
+    uint8_t idx[CS_CHUNK];
+    float *D = w->lv[0].D;
+    /* the box of rows j-1 .. j+1 over columns i0-1 .. i1 (every triangle of the chunk's rings) */
+    const int32_t ny = p->ny, r0 = j > 0 ? j - 1 : 0, r1 = j + 1 < ny ? j + 1 : j;
+    const int32_t c0 = i0 > 0 ? i0 - 1 : 0, c1 = i1 < nx ? i1 : nx - 1;
+    cs_vec3 lo = LOADX(r0 * nx + c0), hi = lo;
+    for (int32_t jj = r0; jj <= r1; jj++)
+        for (int32_t ii = c0; ii <= c1; ii++) {
+            const cs_vec3 x = LOADX(jj * nx + ii);
+            lo = cs_v3(x.x < lo.x ? x.x : lo.x, x.y < lo.y ? x.y : lo.y, x.z < lo.z ? x.z : lo.z);
+            hi = cs_v3(x.x > hi.x ? x.x : hi.x, x.y > hi.y ? x.y : hi.y, x.z > hi.z ? x.z : hi.z);
+        }
+    for (int32_t r = 0; r < nr; r++) {
+        const cs_rock_state *rock = &s->rocks[r];
+        const float lim = cs_surface_lim(rock, p);
+        int n_idx = 0;
+        /* a rock that cannot reach the box adds nothing (its partial: the tree of +0) */
+        const cs_vec3 c = rock->x;
+        const float ex = c.x < lo.x ? lo.x - c.x : c.x > hi.x ? c.x - hi.x : 0.0f;
+        const float ey = c.y < lo.y ? lo.y - c.y : c.y > hi.y ? c.y - hi.y : 0.0f;
+        const float ez = c.z < lo.z ? lo.z - c.z : c.z > hi.z ? c.z - hi.z : 0.0f;
+        const float reach = lim * 1.001f + 1e-6f;
+        const int near = ex * ex + ey * ey + ez * ez <= reach * reach;
+        for (int32_t i = i0; i < i1 && near; i++) {
+            const int32_t v = j * nx + i, l = i - i0;
+            const cs_vec3 xi = LOADX(v);
+            const float dc = cs_len(cs_sub(xi, rock->x));
+            if (p->contact_model == CS_CONTACT_SURFACE) {
+                cs_ring g;
+                float ext;
+                ring_of(p, s, w->q, i, j, &g, &ext);
+                if (dc > reach + ext) continue; /* every ring triangle lies within ext of the vertex */
+                cs_surface_out o;
+                cs_surface_gather(&g, rock, p, cs_v3(0.0f, 0.0f, 0.0f), 0.0f, &o);
+                if (o.touches) {
+                    add3(w->R, v, o.share);
+                    if (blocks) {
+                        const cs_mat3 b = cs_im_surface_block(&o, p, h);
+                        add9(D, v, &b);
+                    }
+                    cs_vec3 Fh, arm;
+                    cs_mat3 bh;
+                    if (s->w[v] != 0.0f && cs_im_surface_hold(&o, LOADV(v), rock, p, h, &Fh, &bh, &arm)) {
+                        add3(w->R, v, Fh);
+                        if (blocks) add9(D, v, &bh);
+                        /* the vertex's lane takes the reaction (its law's lane, owned once it touches) */
+                        o.force = cs_sub(o.force, Fh);
+                        o.torque = cs_add(o.torque, cs_cross(arm, cs_neg(Fh)));
+                    }
+                }
+                if (o.owns) {
+                    contrib[0][l] = o.force.x, contrib[1][l] = o.force.y, contrib[2][l] = o.force.z;
+                    contrib[3][l] = o.torque.x, contrib[4][l] = o.torque.y, contrib[5][l] = o.torque.z;
+                    idx[n_idx++] = (uint8_t)l;
+                }
+            } else {
+                if (dc > rock->radius + p->contact_offset) continue;
+                const cs_vec3 vi = LOADV(v);
+                const cs_vec3 ro = cs_v3(w->q[3 * (size_t)v], w->q[3 * (size_t)v + 1], w->q[3 * (size_t)v + 2]);
+                cs_vec3 Fc, arm;
+                if (!cs_vertex_rock_contact(xi, vi, ro, rock, p, &Fc, &arm)) continue;
+                add3(w->R, v, Fc);
+                if (blocks) {
+                    const cs_mat3 b = cs_im_vertex_rock_block(xi, vi, rock, p, h);
+                    add9(D, v, &b);
+                }
+                const cs_vec3 Rr = cs_neg(Fc), T = cs_cross(arm, Rr);
+                contrib[0][l] = Rr.x, contrib[1][l] = Rr.y, contrib[2][l] = Rr.z;
+                contrib[3][l] = T.x, contrib[4][l] = T.y, contrib[5][l] = T.z;
+                idx[n_idx++] = (uint8_t)l;
+            }
+        }
+        cs_cpu_tree_sum_sparse((const float(*)[CS_CHUNK])contrib, idx, n_idx, 0,
+                               partials + ((size_t)chunk * (size_t)nr + (size_t)r) * 6);
+    }
+    if (!p->ground) return;
+    for (int32_t i = i0; i < i1; i++) {
+        const int32_t v = j * nx + i;
+        const cs_vec3 xi = LOADX(v), vi = LOADV(v);
+        const cs_vec3 ro = cs_v3(w->q[3 * (size_t)v], w->q[3 * (size_t)v + 1], w->q[3 * (size_t)v + 2]);
+        cs_vec3 Fc;
+        if (!cs_vertex_ground_contact(xi, vi, ro, p, &Fc)) continue;
+        add3(w->R, v, Fc);
+        if (blocks) {
+            const cs_mat3 b = cs_im_ground_block(xi, vi, p, h);
+            add9(D, v, &b);
+        }
+    }
+}
+
+/* The residual R = F - m (v - v_n)/h of chunk's vertices (0 where out of the solve, whose D becomes
+ * the identity), and the partial of |R|^2 (chunk tree). */
+static void chunk_residual(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, int32_t j, int32_t i0,
+                           int32_t i1, int32_t chunk, int blocks)
+{
+    float buf[CS_CHUNK];
+    for (int k = 0; k < CS_CHUNK; k++) buf[k] = 0.0f;
+    for (int32_t i = i0; i < i1; i++) {
+        const int32_t v = j * p->nx + i;
+        const cs_vec3 F = cs_v3_from(w->R + 3 * (size_t)v);
+        cs_vec3 R = cs_im_residual(p, F, LOADV(v), cs_v3(w->vxb[v], w->vyb[v], w->vzb[v]), h);
+        if (s->w[v] == 0.0f) {
+            R = cs_v3(0.0f, 0.0f, 0.0f);
+            if (blocks) {
+                const cs_mat3 I = cs_m3_diag(1.0f);
+                put9(w->lv[0].D, v, &I);
+            }
+        }
+        put3(w->R, v, R);
+        buf[i - i0] = cs_dot(R, R);
+    }
+    w->part[chunk] = cs_tree_sum(buf);
+}
+
+/* Assembles at the iterate (the state's x and v): R, and with blocks level 0's matrix; rock
+ * partials. Returns |R|. */
+static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, float *partials, int blocks,
+                      int threads)
+{
+    const int32_t nseg = p->nseg, nchunks = p->nchunks;
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 4)
+    for (int32_t c = 0; c < nchunks; c++) {
+        const int32_t j = c / nseg, g = c % nseg;
+        const int32_t i0 = g * CS_CHUNK, i1 = i0 + CS_CHUNK < p->nx ? i0 + CS_CHUNK : p->nx;
+        chunk_springs(p, h, s, w, j, i0, i1, blocks);
+        chunk_contacts(p, h, s, w, j, i0, i1, c, partials, blocks);
+        chunk_residual(p, h, s, w, j, i0, i1, c, blocks);
+    }
+    return sqrtf(cs_im_chunk_total(w->part, nchunks));
+}
+
+/* ---- the linear solve ---- */
+
+/* a . b over level 0 (chunk trees, then chunks in order). */
+static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b, int threads)
+{
+    const int32_t nseg = p->nseg;
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t c = 0; c < p->nchunks; c++) {
+        const int32_t j = c / nseg, i0 = (c % nseg) * CS_CHUNK;
+        const int32_t i1 = i0 + CS_CHUNK < p->nx ? i0 + CS_CHUNK : p->nx;
+        float buf[CS_CHUNK];
+        for (int k = 0; k < CS_CHUNK; k++) buf[k] = 0.0f;
+        for (int32_t i = i0; i < i1; i++) buf[i - i0] = cs_im_dot3(a, b, j * p->nx + i);
+        w->part[c] = cs_tree_sum(buf);
+    }
+    return cs_im_chunk_total(w->part, p->nchunks);
+}
+
+/* y = A x on level l (bend: the true operator of level 0, bending blocks included). */
+static void apply(const cs_im_level *L, const float *x, float *y, int bend, int threads)
+{
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t j = 0; j < L->ny; j++)
+        for (int32_t i = 0; i < L->nx; i++) put3(y, j * L->nx + i, cs_im_apply(L, x, i, j, bend));
+}
+
+/* x = x + omega Dinv (b - t) where t = A x (first: x = omega Dinv b, from x = 0). */
+static void jacobi(const cs_im_level *L, float *x, const float *b, const float *t, int first, int threads)
+{
+    const int32_t n = L->nx * L->ny;
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t v = 0; v < n; v++) {
+        const cs_vec3 zero = cs_v3(0.0f, 0.0f, 0.0f);
+        const cs_vec3 xv = first ? zero : cs_v3_from(x + 3 * (size_t)v);
+        put3(x, v, cs_im_jacobi(L, v, xv, cs_v3_from(b + 3 * (size_t)v), first ? zero : cs_v3_from(t + 3 * (size_t)v)));
+    }
+}
+
+/* One V-cycle from level l: x = B b (x and b on that level; level 0's are the caller's). */
+static void vcycle(cs_im_work *w, const cs_state *s, int l, const float *b, float *x, int threads)
+{
+    const cs_im_level L = view(w, l, s);
+    im_level *lv = &w->lv[l];
+    float *t = lv->t;
+    const int last = l + 1 == w->levels;
+    const int sweeps = last ? CS_IM_COARSE_SWEEPS : CS_IM_SMOOTH;
+    jacobi(&L, x, b, t, 1, threads);
+    for (int k = 1; k < sweeps; k++) {
+        apply(&L, x, t, 0, threads);
+        jacobi(&L, x, b, t, 0, threads);
+    }
+    if (last) return;
+    /* the residual, restricted */
+    apply(&L, x, t, 0, threads);
+    const int32_t n = lv->n;
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t k = 0; k < 3 * n; k++) t[k] = b[k] - t[k];
+    im_level *c = &w->lv[l + 1];
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t J = 0; J < c->ny; J++)
+        for (int32_t I = 0; I < c->nx; I++) put3(c->b, J * c->nx + I, cs_im_restrict(&L, t, I, J));
+    vcycle(w, s, l + 1, c->b, c->x, threads);
+    /* the coarse correction, interpolated (constant over each aggregate) and scaled */
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t j = 0; j < L.ny; j++)
+        for (int32_t i = 0; i < L.nx; i++) {
+            const int32_t v = j * L.nx + i;
+            if (L.mask[v] == 0.0f) continue;
+            const cs_vec3 e = cs_v3_from(c->x + 3 * (size_t)((j / 2) * c->nx + i / 2));
+            put3(x, v, cs_add(cs_v3_from(x + 3 * (size_t)v), cs_scale(e, CS_IM_COARSE_SCALE)));
+        }
+    for (int k = 0; k < sweeps; k++) {
+        apply(&L, x, t, 0, threads);
+        jacobi(&L, x, b, t, 0, threads);
+    }
+}
+
+/* The hierarchy from level 0's matrix: each level's Dinv, the coarse levels' Galerkin products. */
+static void hierarchy(cs_im_work *w, const cs_state *s, int threads)
+{
+    for (int l = 0; l < w->levels; l++) {
+        im_level *lv = &w->lv[l];
+        if (l > 0) {
+            const cs_im_level F = view(w, l - 1, s);
+#pragma omp parallel for num_threads(threads) schedule(static)
+            for (int32_t J = 0; J < lv->ny; J++)
+                for (int32_t I = 0; I < lv->nx; I++) {
+                    const int32_t v = J * lv->nx + I;
+                    float *Fc[4];
+                    for (int t = 0; t < 4; t++) Fc[t] = lv->F[t] + 9 * (size_t)v;
+                    cs_im_galerkin(&F, I, J, lv->D + 9 * (size_t)v, Fc, lv->mask + v);
+                }
+        }
+#pragma omp parallel for num_threads(threads) schedule(static)
+        for (int32_t v = 0; v < lv->n; v++) {
+            const cs_mat3 inv = cs_m3_inverse(lv->D + 9 * (size_t)v);
+            put9(lv->Dinv, v, &inv);
+        }
+    }
+}
+
+/* Conjugate gradients on A dx = R, preconditioned by a V-cycle; stops at |r| <= target or after
+ * most iterations. Returns the iterations run. */
+static int pcg(const cs_phys *p, cs_im_work *w, const cs_state *s, float target, int most, int threads)
+{
+    const cs_im_level L0 = view(w, 0, s);
+    const int32_t n3 = 3 * p->n;
+    memset(w->dx, 0, sizeof(float) * (size_t)n3);
+    memcpy(w->r, w->R, sizeof(float) * (size_t)n3);
+    vcycle(w, s, 0, w->r, w->z, threads);
+    memcpy(w->p, w->z, sizeof(float) * (size_t)n3);
+    float rz = dot(p, w, w->r, w->z, threads);
+    int it = 0;
+    while (it < most) {
+        apply(&L0, w->p, w->q, 1, threads);
+        const float pq = dot(p, w, w->p, w->q, threads);
+        if (!(pq > 0.0f) || !(rz > 0.0f)) break;
+        const float alpha = rz / pq;
+#pragma omp parallel for num_threads(threads) schedule(static)
+        for (int32_t k = 0; k < n3; k++) {
+            w->dx[k] += alpha * w->p[k];
+            w->r[k] -= alpha * w->q[k];
+        }
+        it++;
+        if (!(sqrtf(dot(p, w, w->r, w->r, threads)) > target)) break;
+        vcycle(w, s, 0, w->r, w->z, threads);
+        const float rz2 = dot(p, w, w->r, w->z, threads);
+        const float beta = rz2 / rz;
+        rz = rz2;
+#pragma omp parallel for num_threads(threads) schedule(static)
+        for (int32_t k = 0; k < n3; k++) w->p[k] = w->z[k] + beta * w->p[k];
+    }
+    return it;
+}
+
+/* ---- the substep ---- */
+
+/* The rocks over h: sub-cycles of at most rock_dt with the cloth's last force held (step 1). */
+static void rocks_advance(const cs_phys *p, cs_state *s, float h)
+{
+    const int32_t nr = s->n_rocks;
+    if (!nr) return;
+    int32_t sub = 1;
+    if (p->rock_dt > 0.0f && h > p->rock_dt) {
+        const float k = h / p->rock_dt;
+        sub = k > 1e6f ? 1000000 : (int32_t)k + 1;
+    }
+    const float d = h / (float)sub;
+    cs_vec3 F[CS_MAX_ROCKS], T[CS_MAX_ROCKS];
+    for (int32_t k = 0; k < sub; k++) {
+        for (int32_t r = 0; r < nr; r++) cs_rock_force(s->rocks, nr, r, NULL, 0, p, &F[r], &T[r]);
+        for (int32_t r = 0; r < nr; r++) {
+            cs_rock_state *q = &s->rocks[r];
+            q->v = cs_add(q->v, cs_scale(cs_add(q->a, cs_scale(F[r], q->inv_mass)), d));
+            q->w = cs_add(q->w, cs_scale(cs_add(q->alpha, cs_scale(T[r], q->inv_inertia)), d));
+            cs_rock_drift(q, d);
+        }
+    }
+}
+
+/* The rocks' a and alpha from the cloth's partials (step 3). */
+static void rocks_take(const cs_phys *p, cs_state *s, const float *partials)
+{
+    for (int32_t r = 0; r < s->n_rocks; r++) {
+        cs_rock_state *q = &s->rocks[r];
+        cs_vec3 F, T;
+        cs_rock_cloth_force(partials, s->n_rocks, r, p->nchunks, &F, &T);
+        q->a = cs_scale(F, q->inv_mass);
+        q->alpha = cs_scale(T, q->inv_inertia);
+    }
+}
+
+/* One part of a substep, of length h (the sequence at the top). */
+static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state *s, float h, int threads,
+                    cs_solver_stats *st)
+{
+    cs_phys P = *p0; /* the part's own step */
+    cs_phys *p = &P;
+    p->dt = h, p->hdt = 0.5f * h;
+    if (p->plastic_rate > 0.0f) p->plastic_f = p->plastic_rate * h < 1.0f ? p->plastic_rate * h : 1.0f;
+    const int32_t n = p->n, g = s->grab;
+    rocks_advance(p, s, h);
+    const cs_vec3 vg = g >= 0 ? cs_grab_velocity(LOADX(g), s->grab_target, p) : cs_v3(0.0f, 0.0f, 0.0f);
+    const float inv_h = 1.0f / h;
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t v = 0; v < n; v++) {
+        w->xb[v] = s->x[v], w->yb[v] = s->y[v], w->zb[v] = s->z[v];
+        w->vxb[v] = s->vx[v], w->vyb[v] = s->vy[v], w->vzb[v] = s->vz[v];
+        cs_vec3 x = LOADX(v);
+        if (s->w[v] != 0.0f)
+            x = cs_add(x, cs_add(cs_scale(LOADV(v), h), cs_scale(p->gravity, h * h)));
+        else if (v == g)
+            x = cs_add(x, cs_scale(vg, h));
+        s->x[v] = x.x, s->y[v] = x.y, s->z[v] = x.z;
+        s->vx[v] = (x.x - w->xb[v]) * inv_h, s->vy[v] = (x.y - w->yb[v]) * inv_h, s->vz[v] = (x.z - w->zb[v]) * inv_h;
+    }
+    const int most = p->solver_iterations;
+    float r = assemble(p, h, s, w, partials, 1, threads);
+    const float r0 = r;
+    int k = 0;
+    float prev = 2.0f * r0 + 1.0f;
+    /* Newton stops at the tolerance, after solver_iterations, or once an iteration no longer
+     * halves the residual: it has reached float rounding's floor (positions of a few ulps give
+     * spring forces of k ulp) */
+    while (k < most && r > p->solver_tolerance * r0 && r < 0.5f * prev) {
+        prev = r;
+        hierarchy(w, s, threads);
+        const float aim = 0.5f * p->solver_tolerance * r0, step = 0.05f * r;
+        st->cg += pcg(p, w, s, aim > step ? aim : step, p->cg_iterations, threads);
+#pragma omp parallel for num_threads(threads) schedule(static)
+        for (int32_t v = 0; v < n; v++) {
+            if (s->w[v] == 0.0f) continue;
+            s->x[v] += w->dx[3 * (size_t)v], s->y[v] += w->dx[3 * (size_t)v + 1], s->z[v] += w->dx[3 * (size_t)v + 2];
+            s->vx[v] = (s->x[v] - w->xb[v]) * inv_h;
+            s->vy[v] = (s->y[v] - w->yb[v]) * inv_h;
+            s->vz[v] = (s->z[v] - w->zb[v]) * inv_h;
+        }
+        k++;
+        r = assemble(p, h, s, w, partials, k < most, threads);
+    }
+    st->newton += k;
+    const float rel = r0 > 0.0f ? r / r0 : 0.0f;
+    st->residual = rel > st->residual ? rel : st->residual;
+    st->substeps++;
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t v = 0; v < n; v++) {
+        s->ax[v] = (s->vx[v] - w->vxb[v]) * inv_h * s->w[v];
+        s->ay[v] = (s->vy[v] - w->vyb[v]) * inv_h * s->w[v];
+        s->az[v] = (s->vz[v] - w->vzb[v]) * inv_h * s->w[v];
+    }
+    rocks_take(p, s, partials);
+    int64_t torn = 0;
+    if (p->strain_on) {
+#pragma omp parallel for num_threads(threads) schedule(static) reduction(+ : torn)
+        for (int32_t j = 0; j < p->ny; j++) torn += cs_cpu_strain_row(p, s, j);
+        float *t = s->L0;
+        s->L0 = s->L0_next;
+        s->L0_next = t;
+    }
+    return torn;
+}
+
+/* The fastest a rock, or with rocks about a cloth vertex, moves toward a contact now (for the
+ * parts of a substep): rocks at their speed plus what gravity adds in h. */
+static float fastest(const cs_phys *p, const cs_state *s, float h, int threads)
+{
+    float most = 0.0f;
+    const float gain = cs_len(p->gravity) * h;
+    for (int32_t r = 0; r < s->n_rocks; r++) {
+        if (s->rocks[r].kinematic) continue;
+        const float v = cs_len(s->rocks[r].v) + gain;
+        most = v > most ? v : most;
+    }
+    if (!s->n_rocks) return most;
+    float sq = 0.0f;
+#pragma omp parallel for num_threads(threads) schedule(static) reduction(max : sq)
+    for (int32_t v = 0; v < s->n; v++) {
+        const float q = s->vx[v] * s->vx[v] + s->vy[v] * s->vy[v] + s->vz[v] * s->vz[v];
+        sq = q > sq ? q : sq;
+    }
+    const float vv = sqrtf(sq) + gain;
+    return vv > most ? vv : most;
+}
+
+cs_status cs_im_step(cs_im_work **wp, float *partials, const cs_model *m, cs_state *s, int32_t substeps, int threads,
+                     cs_step_report *rep, int64_t *torn)
+{
+    const cs_phys *p = &m->phys;
+    if (work_fit(wp, p) != CS_OK) return CS_E_NOMEM;
+    cs_im_work *w = *wp;
+    cs_solver_stats st = {0, 0, 0, 0.0f};
+    int64_t t = 0;
+    for (int32_t k = 0; k < substeps; k++) {
+        const int32_t parts = cs_im_splits(fastest(p, s, p->dt, threads), p->dt, p->contact_offset, p->most_splits);
+        const float h = p->dt / (float)parts;
+        for (int32_t q = 0; q < parts; q++) t += part(p, w, partials, s, h, threads, &st);
+    }
+    rep->solver = st;
+    *torn = t;
+    return CS_OK;
+}
+
+cs_status cs_im_refresh(cs_im_work **wp, float *partials, const cs_model *m, cs_state *s, int threads)
+{
+    const cs_phys *p = &m->phys;
+    if (work_fit(wp, p) != CS_OK) return CS_E_NOMEM;
+    cs_im_work *w = *wp;
+    const int32_t n = p->n;
+    memcpy(w->vxb, s->vx, sizeof(float) * (size_t)n);
+    memcpy(w->vyb, s->vy, sizeof(float) * (size_t)n);
+    memcpy(w->vzb, s->vz, sizeof(float) * (size_t)n);
+    assemble(p, p->dt, s, w, partials, 0, threads);
+    /* R = F there (v = v_n): the cloth's force */
+    for (int32_t v = 0; v < n; v++) {
+        const float k = p->inv_mass * s->w[v];
+        s->ax[v] = w->R[3 * (size_t)v] * k, s->ay[v] = w->R[3 * (size_t)v + 1] * k;
+        s->az[v] = w->R[3 * (size_t)v + 2] * k;
+    }
+    rocks_take(p, s, partials);
+    return CS_OK;
+}
