@@ -33,6 +33,7 @@ typedef struct im_level {
 struct cs_im_work {
     int32_t nx, ny, n, nchunks, levels;
     float *xb, *yb, *zb, *vxb, *vyb, *vzb; /* the substep's x_n and v_n */
+    float *xo, *yo, *zo;                   /* the Newton iterate a line search starts from */
     float *R;                              /* residual, 3 n (AoS) */
     float *B[2];                           /* bending blocks of level 0 */
     float *dx, *r, *z, *p, *q;             /* conjugate gradients, 3 n each */
@@ -55,7 +56,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     if (!w) return NULL;
     w->nx = nx, w->ny = ny, w->n = nx * ny, w->nchunks = nchunks;
     int32_t lx = nx, ly = ny;
-    size_t floats = (size_t)w->n * (6 + 3 + 18 + 15) + (size_t)nchunks;
+    size_t floats = (size_t)w->n * (9 + 3 + 18 + 15) + (size_t)nchunks;
     int L = 0;
     for (;;) {
         w->lv[L].nx = lx, w->lv[L].ny = ly, w->lv[L].n = lx * ly;
@@ -75,6 +76,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
 #define TAKE(k) (m += (k), m - (k))
     w->xb = TAKE(n), w->yb = TAKE(n), w->zb = TAKE(n);
     w->vxb = TAKE(n), w->vyb = TAKE(n), w->vzb = TAKE(n);
+    w->xo = TAKE(n), w->yo = TAKE(n), w->zo = TAKE(n);
     w->R = TAKE(3 * n);
     w->B[0] = TAKE(9 * n), w->B[1] = TAKE(9 * n);
     w->dx = TAKE(3 * n), w->r = TAKE(3 * n), w->z = TAKE(3 * n), w->p = TAKE(3 * n), w->q = TAKE(3 * n);
@@ -502,6 +504,21 @@ static void rocks_take(const cs_phys *p, cs_state *s, const float *partials)
     }
 }
 
+/* x = x_k + a dx for the vertices in the solve, and v = (x - x_n)/h. */
+static void move(cs_im_work *w, cs_state *s, float a, float inv_h, int threads)
+{
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t v = 0; v < s->n; v++) {
+        if (s->w[v] == 0.0f) continue;
+        s->x[v] = w->xo[v] + a * w->dx[3 * (size_t)v];
+        s->y[v] = w->yo[v] + a * w->dx[3 * (size_t)v + 1];
+        s->z[v] = w->zo[v] + a * w->dx[3 * (size_t)v + 2];
+        s->vx[v] = (s->x[v] - w->xb[v]) * inv_h;
+        s->vy[v] = (s->y[v] - w->yb[v]) * inv_h;
+        s->vz[v] = (s->z[v] - w->zb[v]) * inv_h;
+    }
+}
+
 /* One part of a substep, of length h (the sequence at the top). */
 static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state *s, float h, int threads,
                     cs_solver_stats *st)
@@ -531,24 +548,31 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state 
     const float r0 = r;
     int k = 0;
     float prev = 2.0f * r0 + 1.0f;
-    /* Newton stops at the tolerance, after solver_iterations, or once an iteration no longer
-     * halves the residual: it has reached float rounding's floor (positions of a few ulps give
+    /* Newton stops at the tolerance, after solver_iterations, or once an iteration takes less than
+     * a tenth off the residual: it has reached float rounding's floor (positions of a few ulps give
      * spring forces of k ulp) */
-    while (k < most && r > p->solver_tolerance * r0 && r < 0.5f * prev) {
+    while (k < most && r > p->solver_tolerance * r0 && r < 0.9f * prev) {
         prev = r;
         hierarchy(w, s, threads);
         const float aim = 0.5f * p->solver_tolerance * r0, step = 0.05f * r;
         st->cg += pcg(p, w, s, aim > step ? aim : step, p->cg_iterations, threads);
+        /* x = x_k + a dx, a = 1, 1/2, 1/4, 1/8 while the residual does not fall (a contact that
+         * switches on or off within the step makes a full Newton step overshoot) */
 #pragma omp parallel for num_threads(threads) schedule(static)
-        for (int32_t v = 0; v < n; v++) {
-            if (s->w[v] == 0.0f) continue;
-            s->x[v] += w->dx[3 * (size_t)v], s->y[v] += w->dx[3 * (size_t)v + 1], s->z[v] += w->dx[3 * (size_t)v + 2];
-            s->vx[v] = (s->x[v] - w->xb[v]) * inv_h;
-            s->vy[v] = (s->y[v] - w->yb[v]) * inv_h;
-            s->vz[v] = (s->z[v] - w->zb[v]) * inv_h;
+        for (int32_t v = 0; v < n; v++) w->xo[v] = s->x[v], w->yo[v] = s->y[v], w->zo[v] = s->z[v];
+        float a = 1.0f, rn = r;
+        for (int tries = 0; tries < 4; tries++, a *= 0.5f) {
+            move(w, s, a, inv_h, threads);
+            rn = assemble(p, h, s, w, partials, 1, threads);
+            if (rn < r) break;
+        }
+        if (!(rn < r)) { /* no step along dx helps: back to x_k, and stop */
+            move(w, s, 0.0f, inv_h, threads);
+            rn = assemble(p, h, s, w, partials, 1, threads);
+            prev = rn;
         }
         k++;
-        r = assemble(p, h, s, w, partials, k < most, threads);
+        r = rn;
     }
     st->newton += k;
     const float rel = r0 > 0.0f ? r / r0 : 0.0f;
