@@ -51,7 +51,7 @@ static void usage(FILE *f)
     fprintf(f,
             "usage: clothd-bench [--backend cpu|cuda|auto] [--json] [--threads N] [--seconds S]\n"
             "                    [--sizes 64,128,256,512] [--rocks 0,16] [--contact surface,vertex]\n"
-            "                    [--integrator velocity_verlet|symplectic_euler] [--model]\n"
+            "                    [--integrator velocity_verlet|symplectic_euler|implicit_euler] [--model]\n"
             "       clothd-bench --batch 1,4,16,64 [--backend B] [--sizes 32,64] [--threads N] [--seconds S]\n"
             "                    [--frames F --only batch|alone] [--read] [--json]\n");
 }
@@ -450,8 +450,8 @@ int main(int argc, char **argv)
         return 2;
     }
     if (!json && !model_only)
-        printf("%-7s %-9s %5s %-8s %14s %22s\n", "backend", "grid", "rocks", "contact", "substeps/s",
-               "vertex-substeps/s");
+        printf("%-7s %-9s %5s %-8s %14s %22s %10s %12s\n", "backend", "grid", "rocks", "contact", "substeps/s",
+               "vertex-substeps/s", "x realtime", "us/vertex-s");
 
     for (int si = 0; si < n_sizes; si++) {
         const int size = sizes[si];
@@ -548,8 +548,10 @@ int main(int argc, char **argv)
                 print_model(self->name, &m, (double)size * size, 1, bs.peak_bandwidth);
                 printf("}\n");
             } else {
-                printf("%-7s %4dx%-4d %5d %-8s %14.0f %22.0f\n", cs_sim_backend(sim), size, size, info.n_rocks,
-                       cm->choices[models[mi]], sps, vsps);
+                /* the real-time factor, and the wall time a simulated second costs per vertex (us) */
+                const double rtf = sps / ((double)p.frame_rate * info.substeps);
+                printf("%-7s %4dx%-4d %5d %-8s %14.0f %22.0f %10.3f %12.1f\n", cs_sim_backend(sim), size, size,
+                       info.n_rocks, cm->choices[models[mi]], sps, vsps, rtf, 1e6 / (rtf * size * size));
             }
             fflush(stdout);
             cs_sim_destroy(sim);

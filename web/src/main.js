@@ -373,6 +373,8 @@ function hud() {
     `backend ${h ? `${h.backend}: ${h.device}` : '-'}`,
     `scene   ${cur.id}`,
     `cloth   ${sim ? `${sim.n_vertices} vertices, ${sim.n_torn} torn springs, ${sim.n_rocks} rocks` : '-'}`,
+    sim?.solver?.substeps ? `solver  ${sim.solver.substeps} substeps, ${sim.solver.newton} Newton, ${sim.solver.iterations} CG iterations, residual ${sim.solver.residual.toExponential(1)}`
+      : `solver  ${sim ? `${sim.substeps} substeps a frame` : '-'}`,
     playback ? `stream  closed: playing ${playback.name} (${playback.info.encoding ?? '?'}), frame ${playback.k + 1} of ${playback.count}`
       : `stream  ${kb >= 1024 ? `${(kb / 1024).toFixed(2)} MB/s` : `${kb.toFixed(0)} kB/s`}, ${state.subscribed?.encoding ?? stream.subscription.encoding}`,
   ].join('\n');

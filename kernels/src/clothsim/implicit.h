@@ -181,6 +181,7 @@ SIM_HD static inline cs_mat3 cs_im_surface_block(const cs_surface_out *o, const 
  * letting it through the contact layer. Only ever takes energy away. Returns 1 and the force on
  * the vertex, its block and the arm (R n) of the rock's reaction when it acts. */
 #define CS_IM_HOLD 10.0f
+#define CS_IM_HOLD_EPS 0.02f /* m/s */
 SIM_HD static inline int cs_im_surface_hold(const cs_surface_out *o, cs_vec3 vi, const cs_rock_state *r,
                                            const cs_phys *p, float h, cs_vec3 *F, cs_mat3 *blk, cs_vec3 *arm)
 {
@@ -193,8 +194,12 @@ SIM_HD static inline int cs_im_surface_hold(const cs_surface_out *o, cs_vec3 vi,
     if (!(vn < 0.0f)) return 0;
     const float m = 1.0f / (p->inv_mass + cs_surface_max_touch(r, p) * r->inv_mass);
     const float kappa = CS_IM_HOLD * m / h;
-    *F = cs_scale(n, -kappa * vn);
-    *blk = cs_im_contact_block(n, kappa / h, 0.0f);
+    /* C1 at vn = 0 (Newton crosses it): kappa vn^2 / (2 eps) up to -eps, then kappa (-vn - eps/2) */
+    const float eps = CS_IM_HOLD_EPS;
+    const float f = vn > -eps ? kappa * vn * vn / (2.0f * eps) : kappa * (-vn - 0.5f * eps);
+    const float slope = vn > -eps ? kappa * -vn / eps : kappa;
+    *F = cs_scale(n, f);
+    *blk = cs_im_contact_block(n, slope / h, 0.0f);
     return 1;
 }
 
