@@ -603,8 +603,7 @@ static float fastest(const cs_phys *p, const cs_state *s, float h, int threads)
     float most = 0.0f;
     const float gain = cs_len(p->gravity) * h;
     for (int32_t r = 0; r < s->n_rocks; r++) {
-        if (s->rocks[r].kinematic) continue;
-        const float v = cs_len(s->rocks[r].v) + gain;
+        const float v = cs_len(s->rocks[r].v) + (s->rocks[r].kinematic ? 0.0f : gain);
         most = v > most ? v : most;
     }
     if (!s->n_rocks) return most;
