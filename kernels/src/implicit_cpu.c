@@ -38,6 +38,8 @@ struct cs_im_work {
     float *B[2];                           /* bending blocks of level 0 */
     float *dx, *r, *z, *p, *q;             /* conjugate gradients, 3 n each */
     float *part;                           /* per-chunk partials of a dot product */
+    cs_im_contact *ct;                     /* the part's rock contacts, CS_IM_SLOTS a vertex */
+    int32_t *lost;                         /* per chunk: contacts that did not fit */
     im_level lv[CS_IM_MAX_LEVELS];
     void *mem;
 };
@@ -46,6 +48,8 @@ void cs_im_free(cs_im_work *w)
 {
     if (!w) return;
     free(w->mem);
+    free(w->ct);
+    free(w->lost);
     free(w);
 }
 
@@ -67,7 +71,12 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     }
     w->levels = L;
     float *m = malloc(sizeof(float) * floats);
-    if (!m) {
+    w->ct = malloc(sizeof *w->ct * (size_t)w->n * CS_IM_SLOTS);
+    w->lost = calloc((size_t)nchunks, sizeof *w->lost);
+    if (!m || !w->ct || !w->lost) {
+        free(m);
+        free(w->ct);
+        free(w->lost);
         free(w);
         return NULL;
     }
@@ -196,6 +205,85 @@ static void ring_of(const cs_phys *p, const cs_state *s, const float *ro, int32_
 
 /* Contacts of chunk (row j, columns i0 .. i1) in rock order, then the ground: forces onto R,
  * blocks onto level 0's D, each rock's reaction from the chunk into its partial (chunk tree). */
+/* The box (lo, hi) of rows j-1 .. j+1 over columns i0-1 .. i1: every triangle of the chunk's
+ * rings. */
+static void chunk_box(const cs_phys *p, const cs_state *s, int32_t j, int32_t i0, int32_t i1, cs_vec3 *lo, cs_vec3 *hi)
+{
+    const int32_t nx = p->nx, ny = p->ny, r0 = j > 0 ? j - 1 : 0, r1 = j + 1 < ny ? j + 1 : j;
+    const int32_t c0 = i0 > 0 ? i0 - 1 : 0, c1 = i1 < nx ? i1 : nx - 1;
+    cs_vec3 l = LOADX(r0 * nx + c0), h = l;
+    for (int32_t jj = r0; jj <= r1; jj++)
+        for (int32_t ii = c0; ii <= c1; ii++) {
+            const cs_vec3 x = LOADX(jj * nx + ii);
+            l = cs_v3(x.x < l.x ? x.x : l.x, x.y < l.y ? x.y : l.y, x.z < l.z ? x.z : l.z);
+            h = cs_v3(x.x > h.x ? x.x : h.x, x.y > h.y ? x.y : h.y, x.z > h.z ? x.z : h.z);
+        }
+    *lo = l, *hi = h;
+}
+
+/* Whether a sphere (c, reach) may touch the box (never a false no). */
+static int near_box(cs_vec3 c, float reach, cs_vec3 lo, cs_vec3 hi)
+{
+    const float ex = c.x < lo.x ? lo.x - c.x : c.x > hi.x ? c.x - hi.x : 0.0f;
+    const float ey = c.y < lo.y ? lo.y - c.y : c.y > hi.y ? c.y - hi.y : 0.0f;
+    const float ez = c.z < lo.z ? lo.z - c.z : c.z > hi.z ? c.z - hi.z : 0.0f;
+    const float r = reach * 1.001f + 1e-6f;
+    return ex * ex + ey * ey + ez * ez <= r * r;
+}
+
+/* A part's contacts with the rocks (cs_im_contact), taken at its start for chunk (row j, columns
+ * i0 .. i1): each vertex's, in rock order, into its CS_IM_SLOTS slots; returns those that did not
+ * fit (counted, never silently dropped). */
+static int32_t chunk_contact_setup(const cs_phys *p, const cs_state *s, cs_im_work *w, int32_t j, int32_t i0,
+                                   int32_t i1, float margin)
+{
+    const int32_t nx = p->nx, nr = s->n_rocks;
+    int32_t lost = 0;
+    for (int32_t i = i0; i < i1; i++)
+        for (int k = 0; k < CS_IM_SLOTS; k++) w->ct[(size_t)(j * nx + i) * CS_IM_SLOTS + k].rock = -1;
+    if (!nr) return 0;
+    cs_vec3 lo, hi;
+    chunk_box(p, s, j, i0, i1, &lo, &hi);
+    for (int32_t r = 0; r < nr; r++) {
+        cs_rock_state grown = s->rocks[r];
+        grown.radius += margin; /* so that what comes within margin in the part is taken */
+        const float lim = cs_surface_lim(&grown, p);
+        if (!near_box(grown.x, lim, lo, hi)) continue;
+        for (int32_t i = i0; i < i1; i++) {
+            const int32_t v = j * nx + i;
+            cs_im_contact c;
+            c.rock = r;
+            int got;
+            if (p->contact_model == CS_CONTACT_SURFACE) {
+                cs_ring g;
+                float ext;
+                ring_of(p, s, w->q, i, j, &g, &ext);
+                if (cs_len(cs_sub(g.x[0], grown.x)) > lim * 1.001f + 1e-6f + ext) continue;
+                /* touching now: its own force; else what the margin finds, less the margin */
+                cs_surface_out o;
+                cs_surface_gather(&g, &s->rocks[r], p, cs_v3(0.0f, 0.0f, 0.0f), 0.0f, &o);
+                got = cs_im_contact_surface(&o, &s->rocks[r], p, 0.0f, &c);
+                if (!got) {
+                    cs_surface_gather(&g, &grown, p, cs_v3(0.0f, 0.0f, 0.0f), 0.0f, &o);
+                    got = cs_im_contact_surface(&o, &s->rocks[r], p, margin, &c);
+                }
+            } else {
+                got = cs_im_contact_vertex(LOADX(v), &s->rocks[r], p, margin, &c);
+            }
+            if (!got) continue;
+            cs_im_contact *slot = w->ct + (size_t)v * CS_IM_SLOTS;
+            int k = 0;
+            while (k < CS_IM_SLOTS && slot[k].rock >= 0) k++;
+            if (k == CS_IM_SLOTS) lost++;
+            else slot[k] = c;
+        }
+    }
+    return lost;
+}
+
+/* Contacts of chunk (row j, columns i0 .. i1) in rock order (the part's slots), then the ground:
+ * forces onto R, blocks onto level 0's D, each rock's reaction from the chunk into its partial
+ * (chunk tree). */
 static void chunk_contacts(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, int32_t j, int32_t i0,
                            int32_t i1, int32_t chunk, float *partials, int blocks)
 {
@@ -203,71 +291,21 @@ static void chunk_contacts(const cs_phys *p, float h, const cs_state *s, cs_im_w
     float contrib[6][CS_CHUNK];
     uint8_t idx[CS_CHUNK];
     float *D = w->lv[0].D;
-    /* the box of rows j-1 .. j+1 over columns i0-1 .. i1 (every triangle of the chunk's rings) */
-    const int32_t ny = p->ny, r0 = j > 0 ? j - 1 : 0, r1 = j + 1 < ny ? j + 1 : j;
-    const int32_t c0 = i0 > 0 ? i0 - 1 : 0, c1 = i1 < nx ? i1 : nx - 1;
-    cs_vec3 lo = LOADX(r0 * nx + c0), hi = lo;
-    for (int32_t jj = r0; jj <= r1; jj++)
-        for (int32_t ii = c0; ii <= c1; ii++) {
-            const cs_vec3 x = LOADX(jj * nx + ii);
-            lo = cs_v3(x.x < lo.x ? x.x : lo.x, x.y < lo.y ? x.y : lo.y, x.z < lo.z ? x.z : lo.z);
-            hi = cs_v3(x.x > hi.x ? x.x : hi.x, x.y > hi.y ? x.y : hi.y, x.z > hi.z ? x.z : hi.z);
-        }
     for (int32_t r = 0; r < nr; r++) {
         const cs_rock_state *rock = &s->rocks[r];
-        const float lim = cs_surface_lim(rock, p);
         int n_idx = 0;
-        /* a rock that cannot reach the box adds nothing (its partial: the tree of +0) */
-        const cs_vec3 c = rock->x;
-        const float ex = c.x < lo.x ? lo.x - c.x : c.x > hi.x ? c.x - hi.x : 0.0f;
-        const float ey = c.y < lo.y ? lo.y - c.y : c.y > hi.y ? c.y - hi.y : 0.0f;
-        const float ez = c.z < lo.z ? lo.z - c.z : c.z > hi.z ? c.z - hi.z : 0.0f;
-        const float reach = lim * 1.001f + 1e-6f;
-        const int near = ex * ex + ey * ey + ez * ez <= reach * reach;
-        for (int32_t i = i0; i < i1 && near; i++) {
+        for (int32_t i = i0; i < i1; i++) {
             const int32_t v = j * nx + i, l = i - i0;
-            const cs_vec3 xi = LOADX(v);
-            const float dc = cs_len(cs_sub(xi, rock->x));
-            if (p->contact_model == CS_CONTACT_SURFACE) {
-                cs_ring g;
-                float ext;
-                ring_of(p, s, w->q, i, j, &g, &ext);
-                if (dc > reach + ext) continue; /* every ring triangle lies within ext of the vertex */
-                cs_surface_out o;
-                cs_surface_gather(&g, rock, p, cs_v3(0.0f, 0.0f, 0.0f), 0.0f, &o);
-                if (o.touches) {
-                    add3(w->R, v, o.share);
-                    if (blocks) {
-                        const cs_mat3 b = cs_im_surface_block(&o, p, h);
-                        add9(D, v, &b);
-                    }
-                    cs_vec3 Fh, arm;
-                    cs_mat3 bh;
-                    if (s->w[v] != 0.0f && cs_im_surface_hold(&o, LOADV(v), rock, p, h, &Fh, &bh, &arm)) {
-                        add3(w->R, v, Fh);
-                        if (blocks) add9(D, v, &bh);
-                        /* the vertex's lane takes the reaction (its law's lane, owned once it touches) */
-                        o.force = cs_sub(o.force, Fh);
-                        o.torque = cs_add(o.torque, cs_cross(arm, cs_neg(Fh)));
-                    }
-                }
-                if (o.owns) {
-                    contrib[0][l] = o.force.x, contrib[1][l] = o.force.y, contrib[2][l] = o.force.z;
-                    contrib[3][l] = o.torque.x, contrib[4][l] = o.torque.y, contrib[5][l] = o.torque.z;
-                    idx[n_idx++] = (uint8_t)l;
-                }
-            } else {
-                if (dc > rock->radius + p->contact_offset) continue;
-                const cs_vec3 vi = LOADV(v);
+            const cs_im_contact *slot = w->ct + (size_t)v * CS_IM_SLOTS;
+            for (int k = 0; k < CS_IM_SLOTS && slot[k].rock >= 0; k++) {
+                if (slot[k].rock != r) continue;
                 const cs_vec3 ro = cs_v3(w->q[3 * (size_t)v], w->q[3 * (size_t)v + 1], w->q[3 * (size_t)v + 2]);
-                cs_vec3 Fc, arm;
-                if (!cs_vertex_rock_contact(xi, vi, ro, rock, p, &Fc, &arm)) continue;
-                add3(w->R, v, Fc);
-                if (blocks) {
-                    const cs_mat3 b = cs_im_vertex_rock_block(xi, vi, rock, p, h);
-                    add9(D, v, &b);
-                }
-                const cs_vec3 Rr = cs_neg(Fc), T = cs_cross(arm, Rr);
+                cs_mat3 b;
+                const cs_vec3 F = cs_im_contact_force(&slot[k], LOADX(v), cs_v3(w->xb[v], w->yb[v], w->zb[v]),
+                                                      LOADV(v), ro, rock, p, h, s->w[v], &b);
+                add3(w->R, v, F);
+                if (blocks) add9(D, v, &b);
+                const cs_vec3 Rr = cs_neg(F), T = cs_cross(cs_v3(slot[k].arm[0], slot[k].arm[1], slot[k].arm[2]), Rr);
                 contrib[0][l] = Rr.x, contrib[1][l] = Rr.y, contrib[2][l] = Rr.z;
                 contrib[3][l] = T.x, contrib[4][l] = T.y, contrib[5][l] = T.z;
                 idx[n_idx++] = (uint8_t)l;
@@ -330,6 +368,22 @@ static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *
         chunk_residual(p, h, s, w, j, i0, i1, c, blocks);
     }
     return sqrtf(cs_im_chunk_total(w->part, nchunks));
+}
+
+/* The part's rock contacts (chunk_contact_setup) from the state as it is; returns those lost. */
+static int32_t contact_setup(const cs_phys *p, const cs_state *s, cs_im_work *w, int threads)
+{
+    const int32_t nseg = p->nseg, nchunks = p->nchunks;
+    const float margin = p->contact_offset + 1e-3f;
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 4)
+    for (int32_t c = 0; c < nchunks; c++) {
+        const int32_t j = c / nseg, g = c % nseg;
+        const int32_t i0 = g * CS_CHUNK, i1 = i0 + CS_CHUNK < p->nx ? i0 + CS_CHUNK : p->nx;
+        w->lost[c] = chunk_contact_setup(p, s, w, j, i0, i1, margin);
+    }
+    int32_t lost = 0;
+    for (int32_t c = 0; c < nchunks; c++) lost += w->lost[c];
+    return lost;
 }
 
 /* ---- the linear solve ---- */
@@ -529,6 +583,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state 
     if (p->plastic_rate > 0.0f) p->plastic_f = p->plastic_rate * h < 1.0f ? p->plastic_rate * h : 1.0f;
     const int32_t n = p->n, g = s->grab;
     rocks_advance(p, s, h);
+    st->lost += contact_setup(p, s, w, threads);
     const cs_vec3 vg = g >= 0 ? cs_grab_velocity(LOADX(g), s->grab_target, p) : cs_v3(0.0f, 0.0f, 0.0f);
     const float inv_h = 1.0f / h;
 #pragma omp parallel for num_threads(threads) schedule(static)
@@ -623,7 +678,7 @@ cs_status cs_im_step(cs_im_work **wp, float *partials, const cs_model *m, cs_sta
     const cs_phys *p = &m->phys;
     if (work_fit(wp, p) != CS_OK) return CS_E_NOMEM;
     cs_im_work *w = *wp;
-    cs_solver_stats st = {0, 0, 0, 0.0f};
+    cs_solver_stats st = {0, 0, 0, 0.0f, 0};
     int64_t t = 0;
     for (int32_t k = 0; k < substeps; k++) {
         const int32_t parts = cs_im_splits(fastest(p, s, p->dt, threads), p->dt, p->contact_offset, p->most_splits);
@@ -644,6 +699,10 @@ cs_status cs_im_refresh(cs_im_work **wp, float *partials, const cs_model *m, cs_
     memcpy(w->vxb, s->vx, sizeof(float) * (size_t)n);
     memcpy(w->vyb, s->vy, sizeof(float) * (size_t)n);
     memcpy(w->vzb, s->vz, sizeof(float) * (size_t)n);
+    memcpy(w->xb, s->x, sizeof(float) * (size_t)n);
+    memcpy(w->yb, s->y, sizeof(float) * (size_t)n);
+    memcpy(w->zb, s->z, sizeof(float) * (size_t)n);
+    contact_setup(p, s, w, threads);
     assemble(p, p->dt, s, w, partials, 0, threads);
     /* R = F there (v = v_n): the cloth's force */
     for (int32_t v = 0; v < n; v++) {

@@ -328,10 +328,10 @@ cs_status cs_sim_step(cs_sim *sim, int64_t substeps)
     if (!sim) return CS_E_INVALID;
     cs_status st = step_check(sim, substeps);
     if (st != CS_OK) return st;
-    cs_step_report total = {0, 1, {0, 0, 0, 0.0f}};
+    cs_step_report total = {0, 1, {0, 0, 0, 0.0f, 0}};
     while (substeps > 0 && total.finite) {
         const int32_t now = substeps > STEP_CALL_MAX ? STEP_CALL_MAX : (int32_t)substeps;
-        cs_step_report rep = {0, 1, {0, 0, 0, 0.0f}};
+        cs_step_report rep = {0, 1, {0, 0, 0, 0.0f, 0}};
         st = sim->backend->step(sim->ctx, &sim->model, &sim->state, now, &rep);
         if (st != CS_OK) return cs_backend_fail(sim, st, "failed while stepping");
         step_account(sim, now, &rep);
@@ -390,7 +390,7 @@ cs_status cs_sims_step(cs_sim *const *sims, size_t n, const int64_t *substeps, c
             if (left[k] == 0 || sims[k]->backend != b) continue;
             cs_sim *s = sims[k];
             const int32_t now = left[k] > STEP_CALL_MAX ? STEP_CALL_MAX : (int32_t)left[k];
-            items[m] = (cs_batch_item){s->ctx, &s->model, &s->state, now, {0, 1, {0, 0, 0, 0.0f}}, CS_OK};
+            items[m] = (cs_batch_item){s->ctx, &s->model, &s->state, now, {0, 1, {0, 0, 0, 0.0f, 0}}, CS_OK};
             of[m++] = k;
         }
         batch_round(b, items, m);

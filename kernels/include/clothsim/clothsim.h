@@ -126,6 +126,7 @@ typedef struct cs_solver_stats {
     int32_t newton;     /* Newton iterations, summed */
     int32_t cg;         /* conjugate-gradient iterations (one multigrid V-cycle each), summed */
     float residual;     /* the largest final residual of a substep, relative to its first */
+    int32_t lost;       /* rock contacts a vertex had no room for (more than 4 rocks at once), summed */
 } cs_solver_stats;
 
 typedef struct cs_info {

@@ -29,6 +29,13 @@
 
 #include "clothsim/physics.h"
 
+/* The surface contact's hold (cs_im_contact_force), implicit_euler's form of the explicit law's
+ * velocity level: a damper of CS_IM_HOLD m' / h (m' the vertex's mass against its share of the
+ * rock's, cs_surface_max_touch) against a free vertex's approach to the rock's surface, quadratic up
+ * to CS_IM_HOLD_EPS (so Newton crosses zero approach smoothly), with Coulomb friction of its force. */
+#define CS_IM_HOLD 100.0f
+#define CS_IM_HOLD_EPS 0.1f /* m/s */
+
 /* Forward directions of a level's off-diagonal blocks (t = 0..3). */
 SIM_HD static inline int cs_im_fwd_di(int t) { return t == 3 ? -1 : (t == 1 ? 0 : 1); }
 SIM_HD static inline int cs_im_fwd_dj(int t) { return t == 0 ? 0 : 1; }
@@ -139,20 +146,6 @@ SIM_HD static inline cs_mat3 cs_im_law_block(cs_vec3 n, float delta, float vn, f
     return cs_im_contact_block(n, kn, kt);
 }
 
-/* cs_im_law_block for the contact of vertex (xi, vi) with rock r (the geometry of
- * cs_vertex_rock_contact); zero where they do not touch. */
-SIM_HD static inline cs_mat3 cs_im_vertex_rock_block(cs_vec3 xi, cs_vec3 vi, const cs_rock_state *r, const cs_phys *p,
-                                                    float h)
-{
-    const cs_vec3 rr = cs_sub(xi, r->x);
-    const float len = cs_len(rr);
-    const float delta = r->radius + p->contact_offset - len;
-    if (!(delta > 0.0f && len > CS_MIN_LEN)) return cs_m3_zero();
-    const cs_vec3 n = cs_scale(rr, 1.0f / len);
-    const float vn = cs_dot(cs_sub(vi, cs_add(r->v, cs_cross(r->w, rr))), n);
-    return cs_im_law_block(n, delta, vn, p->k_contact, p->c_contact, p->c_tangent, h, p->friction, p->max_sep);
-}
-
 /* The same for the ground (cs_vertex_ground_contact). */
 SIM_HD static inline cs_mat3 cs_im_ground_block(cs_vec3 xi, cs_vec3 vi, const cs_phys *p, float h)
 {
@@ -162,45 +155,111 @@ SIM_HD static inline cs_mat3 cs_im_ground_block(cs_vec3 xi, cs_vec3 vi, const cs
                            p->friction, p->max_sep);
 }
 
-/* The surface contact's block at a vertex from what it gathered (cs_surface_out: its net elastic
- * force E and net weight W): the lumped stiffness of its terms, W (k_contact + c_contact / h)
- * along E, and with coulomb_viscous W c_tangent / h across it. */
-SIM_HD static inline cs_mat3 cs_im_surface_block(const cs_surface_out *o, const cs_phys *p, float h)
+/* ---- rock contact, linearised per part ----
+ *
+ * A rock's contact with a vertex is taken once at the start of each part of a substep, with the
+ * rock where it will be at the part's end and the cloth where it is, and held as a half-space
+ * for the part: normal n, the elastic force e0 there (negative: not touching yet, by how much) and
+ * the stiffness kw along n. At the iterate x the elastic force is e0 - kw (x - x_n) . n and the
+ * contact law acts on it as on the explicit one (normal damping, the separation cap, friction by
+ * model); the surface model's hold (below) replaces its velocity level. This is smooth in x (a
+ * plane, not a sphere that a vertex can slip round) and convex, so Newton converges where the
+ * contact at the new state made it stall; a part never moves anything farther than
+ * contact_offset (cs_im_splits), which bounds the error of the linearisation. The vertex's force
+ * goes to the rock whole (reaction and torque about its centre by the arm). */
+#define CS_IM_SLOTS 4
+typedef struct cs_im_contact {
+    int32_t rock;       /* index, or -1 */
+    float n[3];         /* normal, from the rock toward the vertex */
+    float arm[3];       /* from the rock's centre to the contact */
+    float e0;           /* elastic force along n at the part's start (k delta; < 0 apart) */
+    float kw;           /* its stiffness along n: k_contact times the contact's weight */
+    float w;            /* the contact's weight (damping and friction scale with it) */
+} cs_im_contact;
+
+/* vertex model: the sphere's tangent plane at the vertex's nearest point, reached within margin. */
+SIM_HD static inline int cs_im_contact_vertex(cs_vec3 xb, const cs_rock_state *r, const cs_phys *p, float margin,
+                                              cs_im_contact *c)
 {
-    const float e = cs_len(o->E), W = o->weight > 0.0f ? o->weight : 0.0f;
-    if (!(e > 0.0f) || !o->touches) return cs_m3_zero();
-    const float kt = p->friction == CS_FRICTION_COULOMB_VISCOUS ? W * p->c_tangent / h : 0.0f;
-    return cs_im_contact_block(cs_scale(o->E, 1.0f / e), W * (p->k_contact + p->c_contact / h), kt);
+    const cs_vec3 rr = cs_sub(xb, r->x);
+    const float len = cs_len(rr), delta = r->radius + p->contact_offset - len;
+    if (!(delta > -margin && len > CS_MIN_LEN)) return 0;
+    const cs_vec3 n = cs_scale(rr, 1.0f / len);
+    c->n[0] = n.x, c->n[1] = n.y, c->n[2] = n.z;
+    c->arm[0] = rr.x, c->arm[1] = rr.y, c->arm[2] = rr.z;
+    c->e0 = p->k_contact * delta, c->kw = p->k_contact, c->w = 1.0f;
+    return 1;
 }
 
-/* The surface contact's hold (implicit_euler's form of the explicit law's velocity level): a
- * free vertex in contact that approaches the rock's surface (vn < 0 along n = E/|E|, relative to
- * the surface's velocity there) meets a damper CS_IM_HOLD m' / h, m' its mass against its share of
- * the rock's (cs_surface_max_touch): solved implicitly, it removes all but 1/(1 + CS_IM_HOLD) of
- * the approach within the substep, so the cloth carries a heavy rock by its tension instead of
- * letting it through the contact layer. Only ever takes energy away. Returns 1 and the force on
- * the vertex, its block and the arm (R n) of the rock's reaction when it acts. */
-#define CS_IM_HOLD 10.0f
-#define CS_IM_HOLD_EPS 0.02f /* m/s */
-SIM_HD static inline int cs_im_surface_hold(const cs_surface_out *o, cs_vec3 vi, const cs_rock_state *r,
-                                           const cs_phys *p, float h, cs_vec3 *F, cs_mat3 *blk, cs_vec3 *arm)
+/* surface model: the gather against the rock grown by margin (o: cs_surface_gather's output for
+ * that rock), its net elastic force E and weight W, less what the margin added (k W margin). */
+SIM_HD static inline int cs_im_contact_surface(const cs_surface_out *o, const cs_rock_state *r, const cs_phys *p,
+                                               float margin, cs_im_contact *c)
 {
-    const float e = cs_len(o->E);
-    if (!(e > 0.0f) || !o->touches) return 0;
+    const float e = cs_len(o->E), W = o->weight;
+    if (!(e > 0.0f) || !o->touches || !(W > 0.0f)) return 0;
     const cs_vec3 n = cs_scale(o->E, 1.0f / e);
-    *arm = cs_scale(n, r->radius);
-    const cs_vec3 vsurf = cs_add(r->v, cs_cross(r->w, *arm));
-    const float vn = cs_dot(cs_sub(vi, vsurf), n);
-    if (!(vn < 0.0f)) return 0;
-    const float m = 1.0f / (p->inv_mass + cs_surface_max_touch(r, p) * r->inv_mass);
-    const float kappa = CS_IM_HOLD * m / h;
-    /* C1 at vn = 0 (Newton crosses it): kappa vn^2 / (2 eps) up to -eps, then kappa (-vn - eps/2) */
-    const float eps = CS_IM_HOLD_EPS;
-    const float f = vn > -eps ? kappa * vn * vn / (2.0f * eps) : kappa * (-vn - 0.5f * eps);
-    const float slope = vn > -eps ? kappa * -vn / eps : kappa;
-    *F = cs_scale(n, f);
-    *blk = cs_im_contact_block(n, slope / h, 0.0f);
+    c->n[0] = n.x, c->n[1] = n.y, c->n[2] = n.z;
+    c->arm[0] = n.x * r->radius, c->arm[1] = n.y * r->radius, c->arm[2] = n.z * r->radius;
+    c->kw = p->k_contact * W, c->w = W;
+    c->e0 = e - c->kw * margin;
     return 1;
+}
+
+/* The force of contact c on the vertex at x (started at xb, velocity vi; Ro its non-contact
+ * resultant) and its block; free: the vertex's w (the hold acts on free vertices only). */
+SIM_HD static inline cs_vec3 cs_im_contact_force(const cs_im_contact *c, cs_vec3 x, cs_vec3 xb, cs_vec3 vi, cs_vec3 Ro,
+                                                const cs_rock_state *r, const cs_phys *p, float h, float free,
+                                                cs_mat3 *blk)
+{
+    const cs_vec3 n = cs_v3(c->n[0], c->n[1], c->n[2]), arm = cs_v3(c->arm[0], c->arm[1], c->arm[2]);
+    const float e = c->e0 - c->kw * cs_dot(cs_sub(x, xb), n);
+    const cs_vec3 vrel = cs_sub(vi, cs_add(r->v, cs_cross(r->w, arm)));
+    const float vn = cs_dot(vrel, n);
+    const float cw = p->c_contact * c->w;
+    float fn = e - cw * vn;
+    const int on = fn > 0.0f && e > 0.0f && vn <= p->max_sep;
+    fn = on ? fn : 0.0f;
+    cs_vec3 F = cs_scale(n, fn);
+    float kn = on ? c->kw + cw / h : 0.0f, kt = 0.0f;
+    if (p->friction == CS_FRICTION_COULOMB_VISCOUS) {
+        const cs_vec3 vt = cs_sub(vrel, cs_scale(n, vn));
+        const float vt_len = cs_len(vt);
+        if (vt_len >= CS_MIN_LEN && on) {
+            const float a = p->mu * fn, b = p->c_tangent * c->w * vt_len;
+            F = cs_add(F, cs_scale(vt, -(a < b ? a : b) / vt_len));
+            kt = p->c_tangent * c->w / h;
+        }
+    } else if (on) {
+        const float ron = cs_dot(Ro, n);
+        if (ron < 0.0f) {
+            const cs_vec3 rot = cs_sub(Ro, cs_scale(n, ron));
+            const float rot_len = cs_len(rot);
+            if (rot_len >= CS_MIN_LEN) {
+                const float b = p->mu * -ron, s = c->w < 1.0f ? c->w : 1.0f;
+                F = cs_add(F, cs_scale(rot, -(rot_len < b ? rot_len : b) * s / rot_len));
+            }
+        }
+    }
+    if (free > 0.0f && e > 0.0f && vn < 0.0f && p->contact_model == CS_CONTACT_SURFACE) {
+        /* the hold: a damper CS_IM_HOLD m' / h against approach, C1 at vn = 0 */
+        const float m = 1.0f / (p->inv_mass + cs_surface_max_touch(r, p) * r->inv_mass);
+        const float kappa = CS_IM_HOLD * m / h, eps = CS_IM_HOLD_EPS;
+        const float f = vn > -eps ? kappa * vn * vn / (2.0f * eps) : kappa * (-vn - 0.5f * eps);
+        F = cs_add(F, cs_scale(n, f));
+        kn += (vn > -eps ? kappa * -vn / eps : kappa) / h;
+        /* and its Coulomb friction, as the velocity level's: up to mu f against the sliding,
+         * viscous (kappa) below that */
+        const cs_vec3 vt = cs_sub(vrel, cs_scale(n, vn));
+        const float vt_len = cs_len(vt);
+        if (vt_len >= CS_MIN_LEN) {
+            const float a = p->mu * f, b = kappa * vt_len;
+            F = cs_add(F, cs_scale(vt, -(a < b ? a : b) / vt_len));
+            kt += (a < b ? a / vt_len : kappa) / h;
+        }
+    }
+    *blk = cs_im_contact_block(n, kn, kt);
+    return F;
 }
 
 /* ---- a vertex's residual and diagonal ----
