@@ -39,6 +39,11 @@ struct cs_im_work {
     float *dx, *r, *z, *p, *q;             /* conjugate gradients, 3 n each */
     float *part;                           /* per-chunk partials of a dot product */
     cs_im_contact *ct;                     /* the part's rock contacts, CS_IM_SLOTS a vertex */
+    /* The rocks in the solve: their translation is solved with the cloth (entries 3 n + 3 r of
+     * every vector; 0 for a kinematic rock). */
+    cs_rock_state *star;                   /* each rock where it would be without the cloth */
+    float *rD, *rDinv;                     /* its diagonal block M/h^2 + its contacts' blocks */
+    float *rxo;                            /* its position where a line search starts */
     int32_t *lost;                         /* per chunk: contacts that did not fit */
     im_level lv[CS_IM_MAX_LEVELS];
     void *mem;
@@ -50,6 +55,7 @@ void cs_im_free(cs_im_work *w)
     free(w->mem);
     free(w->ct);
     free(w->lost);
+    free(w->star);
     free(w);
 }
 
@@ -60,7 +66,8 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     if (!w) return NULL;
     w->nx = nx, w->ny = ny, w->n = nx * ny, w->nchunks = nchunks;
     int32_t lx = nx, ly = ny;
-    size_t floats = (size_t)w->n * (9 + 3 + 18 + 15) + (size_t)nchunks;
+    size_t floats = (size_t)w->n * (9 + 3 + 18 + 15) + (size_t)nchunks + 6 * 3 * (size_t)CS_MAX_ROCKS +
+                    (9 + 9 + 3) * (size_t)CS_MAX_ROCKS;
     int L = 0;
     for (;;) {
         w->lv[L].nx = lx, w->lv[L].ny = ly, w->lv[L].n = lx * ly;
@@ -73,10 +80,12 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     float *m = malloc(sizeof(float) * floats);
     w->ct = malloc(sizeof *w->ct * (size_t)w->n * CS_IM_SLOTS);
     w->lost = calloc((size_t)nchunks, sizeof *w->lost);
-    if (!m || !w->ct || !w->lost) {
+    w->star = calloc(CS_MAX_ROCKS, sizeof *w->star);
+    if (!m || !w->ct || !w->lost || !w->star) {
         free(m);
         free(w->ct);
         free(w->lost);
+        free(w->star);
         free(w);
         return NULL;
     }
@@ -86,9 +95,12 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     w->xb = TAKE(n), w->yb = TAKE(n), w->zb = TAKE(n);
     w->vxb = TAKE(n), w->vyb = TAKE(n), w->vzb = TAKE(n);
     w->xo = TAKE(n), w->yo = TAKE(n), w->zo = TAKE(n);
-    w->R = TAKE(3 * n);
+    const size_t nv = 3 * n + 3 * (size_t)CS_MAX_ROCKS; /* a vector: the cloth, then the rocks */
+    w->R = TAKE(nv);
     w->B[0] = TAKE(9 * n), w->B[1] = TAKE(9 * n);
-    w->dx = TAKE(3 * n), w->r = TAKE(3 * n), w->z = TAKE(3 * n), w->p = TAKE(3 * n), w->q = TAKE(3 * n);
+    w->dx = TAKE(nv), w->r = TAKE(nv), w->z = TAKE(nv), w->p = TAKE(nv), w->q = TAKE(nv);
+    w->rD = TAKE(9 * (size_t)CS_MAX_ROCKS), w->rDinv = TAKE(9 * (size_t)CS_MAX_ROCKS);
+    w->rxo = TAKE(3 * (size_t)CS_MAX_ROCKS);
     w->part = TAKE((size_t)nchunks);
     for (int l = 0; l < L; l++) {
         im_level *v = &w->lv[l];
@@ -301,10 +313,14 @@ static void chunk_contacts(const cs_phys *p, float h, const cs_state *s, cs_im_w
                 if (slot[k].rock != r) continue;
                 const cs_vec3 ro = cs_v3(w->q[3 * (size_t)v], w->q[3 * (size_t)v + 1], w->q[3 * (size_t)v + 2]);
                 cs_mat3 b;
-                const cs_vec3 F = cs_im_contact_force(&slot[k], LOADX(v), cs_v3(w->xb[v], w->yb[v], w->zb[v]),
+                const cs_vec3 dr = cs_sub(rock->x, w->star[r].x);
+                const cs_vec3 F = cs_im_contact_force(&slot[k], LOADX(v), cs_v3(w->xb[v], w->yb[v], w->zb[v]), dr,
                                                       LOADV(v), ro, rock, p, h, s->w[v], &b);
                 add3(w->R, v, F);
-                if (blocks) add9(D, v, &b);
+                if (blocks) {
+                    add9(D, v, &b);
+                    memcpy(w->ct[(size_t)v * CS_IM_SLOTS + k].K, b.m, sizeof b.m);
+                }
                 const cs_vec3 Rr = cs_neg(F), T = cs_cross(cs_v3(slot[k].arm[0], slot[k].arm[1], slot[k].arm[2]), Rr);
                 contrib[0][l] = Rr.x, contrib[1][l] = Rr.y, contrib[2][l] = Rr.z;
                 contrib[3][l] = T.x, contrib[4][l] = T.y, contrib[5][l] = T.z;
@@ -353,8 +369,54 @@ static void chunk_residual(const cs_phys *p, float h, const cs_state *s, cs_im_w
     w->part[chunk] = cs_tree_sum(buf);
 }
 
+/* Whether rock r's translation is solved (a dynamic rock). */
+static int rock_free(const cs_state *s, int32_t r) { return s->rocks[r].inv_mass > 0.0f; }
+
+/* The rocks' rows: the residual F_cloth - M (v - v*)/h of each dynamic rock (v* its velocity
+ * without the cloth; 0 for a kinematic one) into R after the cloth's, and with blocks its
+ * diagonal block M/h^2 + the blocks of its contacts (vertex by vertex, in order) and its inverse.
+ * Returns the rocks' part of |R|^2, rock by rock. */
+static float rocks_residual(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, const float *partials,
+                            int blocks)
+{
+    const int32_t nr = s->n_rocks;
+    const size_t o = 3 * (size_t)p->n;
+    float sum = 0.0f;
+    for (int32_t r = 0; r < nr; r++) {
+        const cs_rock_state *q = &s->rocks[r];
+        cs_vec3 F, T, R = cs_v3(0.0f, 0.0f, 0.0f);
+        if (rock_free(s, r)) {
+            cs_rock_cloth_force(partials, nr, r, p->nchunks, &F, &T);
+            /* the prediction applied M a of it already */
+            R = cs_sub(cs_sub(F, cs_scale(w->star[r].a, q->mass)), cs_scale(cs_sub(q->v, w->star[r].v), q->mass / h));
+        }
+        put3(w->R + o, r, R);
+        sum += cs_dot(R, R);
+        if (blocks) {
+            cs_mat3 d = cs_m3_diag(rock_free(s, r) ? q->mass / (h * h) : 1.0f);
+            put9(w->rD, r, &d);
+        }
+    }
+    if (blocks && nr) {
+        for (int32_t v = 0; v < p->n; v++) {
+            const cs_im_contact *slot = w->ct + (size_t)v * CS_IM_SLOTS;
+            for (int k = 0; k < CS_IM_SLOTS && slot[k].rock >= 0; k++)
+                if (rock_free(s, slot[k].rock)) {
+                    cs_mat3 K;
+                    memcpy(K.m, slot[k].K, sizeof K.m);
+                    add9(w->rD, slot[k].rock, &K);
+                }
+        }
+        for (int32_t r = 0; r < nr; r++) {
+            const cs_mat3 inv = cs_m3_inverse(w->rD + 9 * (size_t)r);
+            put9(w->rDinv, r, &inv);
+        }
+    }
+    return sum;
+}
+
 /* Assembles at the iterate (the state's x and v): R, and with blocks level 0's matrix; rock
- * partials. Returns |R|. */
+ * partials; the rocks' rows. Returns |R|. */
 static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, float *partials, int blocks,
                       int threads)
 {
@@ -367,7 +429,8 @@ static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *
         chunk_contacts(p, h, s, w, j, i0, i1, c, partials, blocks);
         chunk_residual(p, h, s, w, j, i0, i1, c, blocks);
     }
-    return sqrtf(cs_im_chunk_total(w->part, nchunks));
+    const float cloth = cs_im_chunk_total(w->part, nchunks);
+    return sqrtf(cloth + rocks_residual(p, h, s, w, partials, blocks));
 }
 
 /* The part's rock contacts (chunk_contact_setup) from the state as it is; returns those lost. */
@@ -388,8 +451,8 @@ static int32_t contact_setup(const cs_phys *p, const cs_state *s, cs_im_work *w,
 
 /* ---- the linear solve ---- */
 
-/* a . b over level 0 (chunk trees, then chunks in order). */
-static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b, int threads)
+/* a . b over level 0 (chunk trees, then chunks in order), then the rocks' entries in order. */
+static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b, int nr, int threads)
 {
     const int32_t nseg = p->nseg;
 #pragma omp parallel for num_threads(threads) schedule(static)
@@ -401,7 +464,10 @@ static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b
         for (int32_t i = i0; i < i1; i++) buf[i - i0] = cs_im_dot3(a, b, j * p->nx + i);
         w->part[c] = cs_tree_sum(buf);
     }
-    return cs_im_chunk_total(w->part, p->nchunks);
+    float sum = cs_im_chunk_total(w->part, p->nchunks);
+    const size_t o = 3 * (size_t)p->n;
+    for (int32_t r = 0; r < nr; r++) sum += cs_im_dot3(a + o, b + o, r);
+    return sum;
 }
 
 /* y = A x on level l (bend: the true operator of level 0, bending blocks included). */
@@ -487,21 +553,62 @@ static void hierarchy(cs_im_work *w, const cs_state *s, int threads)
     }
 }
 
+/* y = A x with the rocks: the cloth's operator (bending included), then each contact's coupling
+ * between its vertex and its rock (the vertices' in parallel, each rock's row vertex by vertex in
+ * order). */
+static void apply_full(const cs_phys *p, cs_im_work *w, const cs_state *s, const float *x, float *y, int threads)
+{
+    const cs_im_level L0 = view(w, 0, s);
+    apply(&L0, x, y, 1, threads);
+    const int32_t nr = s->n_rocks, n = p->n;
+    if (!nr) return;
+    const size_t o = 3 * (size_t)n;
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t v = 0; v < n; v++) {
+        if (s->w[v] == 0.0f) continue;
+        const cs_im_contact *slot = w->ct + (size_t)v * CS_IM_SLOTS;
+        for (int k = 0; k < CS_IM_SLOTS && slot[k].rock >= 0; k++)
+            if (rock_free(s, slot[k].rock))
+                put3(y, v, cs_sub(cs_v3_from(y + 3 * (size_t)v), cs_m3_mul(slot[k].K, cs_v3_from(x + o + 3 * (size_t)slot[k].rock))));
+    }
+    for (int32_t r = 0; r < nr; r++)
+        put3(y + o, r, rock_free(s, r) ? cs_m3_mul(w->rD + 9 * (size_t)r, cs_v3_from(x + o + 3 * (size_t)r))
+                                       : cs_v3(0.0f, 0.0f, 0.0f));
+    for (int32_t v = 0; v < n; v++) {
+        const cs_im_contact *slot = w->ct + (size_t)v * CS_IM_SLOTS;
+        for (int k = 0; k < CS_IM_SLOTS && slot[k].rock >= 0; k++) {
+            const int32_t r = slot[k].rock;
+            if (rock_free(s, r) && s->w[v] != 0.0f)
+                put3(y + o, r, cs_sub(cs_v3_from(y + o + 3 * (size_t)r), cs_m3_mul(slot[k].K, cs_v3_from(x + 3 * (size_t)v))));
+        }
+    }
+}
+
+/* The preconditioner: the V-cycle on the cloth, each rock's block inverted. */
+static void precondition(const cs_phys *p, cs_im_work *w, const cs_state *s, const float *r, float *z, int threads)
+{
+    vcycle(w, s, 0, r, z, threads);
+    const size_t o = 3 * (size_t)p->n;
+    for (int32_t k = 0; k < s->n_rocks; k++)
+        put3(z + o, k, rock_free(s, k) ? cs_m3_mul(w->rDinv + 9 * (size_t)k, cs_v3_from(r + o + 3 * (size_t)k))
+                                       : cs_v3(0.0f, 0.0f, 0.0f));
+}
+
 /* Conjugate gradients on A dx = R, preconditioned by a V-cycle; stops at |r| <= target or after
  * most iterations. Returns the iterations run. */
 static int pcg(const cs_phys *p, cs_im_work *w, const cs_state *s, float target, int most, int threads)
 {
-    const cs_im_level L0 = view(w, 0, s);
-    const int32_t n3 = 3 * p->n;
+    const int nr = s->n_rocks;
+    const int32_t n3 = 3 * p->n + 3 * nr;
     memset(w->dx, 0, sizeof(float) * (size_t)n3);
     memcpy(w->r, w->R, sizeof(float) * (size_t)n3);
-    vcycle(w, s, 0, w->r, w->z, threads);
+    precondition(p, w, s, w->r, w->z, threads);
     memcpy(w->p, w->z, sizeof(float) * (size_t)n3);
-    float rz = dot(p, w, w->r, w->z, threads);
+    float rz = dot(p, w, w->r, w->z, nr, threads);
     int it = 0;
     while (it < most) {
-        apply(&L0, w->p, w->q, 1, threads);
-        const float pq = dot(p, w, w->p, w->q, threads);
+        apply_full(p, w, s, w->p, w->q, threads);
+        const float pq = dot(p, w, w->p, w->q, nr, threads);
         if (!(pq > 0.0f) || !(rz > 0.0f)) break;
         const float alpha = rz / pq;
 #pragma omp parallel for num_threads(threads) schedule(static)
@@ -510,9 +617,9 @@ static int pcg(const cs_phys *p, cs_im_work *w, const cs_state *s, float target,
             w->r[k] -= alpha * w->q[k];
         }
         it++;
-        if (!(sqrtf(dot(p, w, w->r, w->r, threads)) > target)) break;
-        vcycle(w, s, 0, w->r, w->z, threads);
-        const float rz2 = dot(p, w, w->r, w->z, threads);
+        if (!(sqrtf(dot(p, w, w->r, w->r, nr, threads)) > target)) break;
+        precondition(p, w, s, w->r, w->z, threads);
+        const float rz2 = dot(p, w, w->r, w->z, nr, threads);
         const float beta = rz2 / rz;
         rz = rz2;
 #pragma omp parallel for num_threads(threads) schedule(static)
@@ -523,8 +630,12 @@ static int pcg(const cs_phys *p, cs_im_work *w, const cs_state *s, float target,
 
 /* ---- the substep ---- */
 
-/* The rocks over h: sub-cycles of at most rock_dt with the cloth's last force held (step 1). */
-static void rocks_advance(const cs_phys *p, cs_state *s, float h)
+/* The rocks over h as predicted: sub-cycles of at most rock_dt under their own contacts and
+ * gravity (cs_rock_force without the cloth) and the cloth's last force (a, alpha), each v += d (a
+ * + F / M), w likewise, then drift (step 1) - so that a rock the cloth holds against the ground is
+ * not first driven through it. Where that leaves each rock is kept (w->star): the solve moves the
+ * dynamic ones from there by the cloth's force less the last one. */
+static void rocks_advance(const cs_phys *p, cs_state *s, cs_im_work *w, float h)
 {
     const int32_t nr = s->n_rocks;
     if (!nr) return;
@@ -544,10 +655,13 @@ static void rocks_advance(const cs_phys *p, cs_state *s, float h)
             cs_rock_drift(q, d);
         }
     }
+    memcpy(w->star, s->rocks, sizeof *s->rocks * (size_t)nr);
 }
 
-/* The rocks' a and alpha from the cloth's partials (step 3). */
-static void rocks_take(const cs_phys *p, cs_state *s, const float *partials)
+/* The rocks' a and alpha: the cloth's force and torque over mass and inertia (step 3, and a
+ * refresh); with h > 0 the cloth's torque also turns each rock over h (its force has moved it in
+ * the solve). */
+static void rocks_take(const cs_phys *p, cs_state *s, const float *partials, float h)
 {
     for (int32_t r = 0; r < s->n_rocks; r++) {
         cs_rock_state *q = &s->rocks[r];
@@ -555,12 +669,21 @@ static void rocks_take(const cs_phys *p, cs_state *s, const float *partials)
         cs_rock_cloth_force(partials, s->n_rocks, r, p->nchunks, &F, &T);
         q->a = cs_scale(F, q->inv_mass);
         q->alpha = cs_scale(T, q->inv_inertia);
+        if (h > 0.0f) q->w = cs_add(q->w, cs_scale(q->alpha, h));
     }
 }
 
-/* x = x_k + a dx for the vertices in the solve, and v = (x - x_n)/h. */
+/* x = x_k + a dx for the vertices and rocks in the solve, and v = (x - x_n)/h (a rock's: v* +
+ * (x - x*)/h). */
 static void move(cs_im_work *w, cs_state *s, float a, float inv_h, int threads)
 {
+    const float *d = w->dx + 3 * (size_t)s->n;
+    for (int32_t r = 0; r < s->n_rocks; r++) {
+        if (!rock_free(s, r)) continue;
+        cs_rock_state *q = &s->rocks[r];
+        q->x = cs_add(cs_v3_from(w->rxo + 3 * (size_t)r), cs_scale(cs_v3_from(d + 3 * (size_t)r), a));
+        q->v = cs_add(w->star[r].v, cs_scale(cs_sub(q->x, w->star[r].x), inv_h));
+    }
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t v = 0; v < s->n; v++) {
         if (s->w[v] == 0.0f) continue;
@@ -582,7 +705,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state 
     p->dt = h, p->hdt = 0.5f * h;
     if (p->plastic_rate > 0.0f) p->plastic_f = p->plastic_rate * h < 1.0f ? p->plastic_rate * h : 1.0f;
     const int32_t n = p->n, g = s->grab;
-    rocks_advance(p, s, h);
+    rocks_advance(p, s, w, h);
     st->lost += contact_setup(p, s, w, threads);
     const cs_vec3 vg = g >= 0 ? cs_grab_velocity(LOADX(g), s->grab_target, p) : cs_v3(0.0f, 0.0f, 0.0f);
     const float inv_h = 1.0f / h;
@@ -615,6 +738,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state 
          * switches on or off within the step makes a full Newton step overshoot) */
 #pragma omp parallel for num_threads(threads) schedule(static)
         for (int32_t v = 0; v < n; v++) w->xo[v] = s->x[v], w->yo[v] = s->y[v], w->zo[v] = s->z[v];
+        for (int32_t q = 0; q < s->n_rocks; q++) put3(w->rxo, q, s->rocks[q].x);
         float a = 1.0f, rn = r;
         for (int tries = 0; tries < 4; tries++, a *= 0.5f) {
             move(w, s, a, inv_h, threads);
@@ -639,7 +763,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state 
         s->ay[v] = (s->vy[v] - w->vyb[v]) * inv_h * s->w[v];
         s->az[v] = (s->vz[v] - w->vzb[v]) * inv_h * s->w[v];
     }
-    rocks_take(p, s, partials);
+    rocks_take(p, s, partials, 0.0f);
     int64_t torn = 0;
     if (p->strain_on) {
 #pragma omp parallel for num_threads(threads) schedule(static) reduction(+ : torn)
@@ -702,6 +826,7 @@ cs_status cs_im_refresh(cs_im_work **wp, float *partials, const cs_model *m, cs_
     memcpy(w->xb, s->x, sizeof(float) * (size_t)n);
     memcpy(w->yb, s->y, sizeof(float) * (size_t)n);
     memcpy(w->zb, s->z, sizeof(float) * (size_t)n);
+    if (s->n_rocks) memcpy(w->star, s->rocks, sizeof *s->rocks * (size_t)s->n_rocks);
     contact_setup(p, s, w, threads);
     assemble(p, p->dt, s, w, partials, 0, threads);
     /* R = F there (v = v_n): the cloth's force */
@@ -710,6 +835,6 @@ cs_status cs_im_refresh(cs_im_work **wp, float *partials, const cs_model *m, cs_
         s->ax[v] = w->R[3 * (size_t)v] * k, s->ay[v] = w->R[3 * (size_t)v + 1] * k;
         s->az[v] = w->R[3 * (size_t)v + 2] * k;
     }
-    rocks_take(p, s, partials);
+    rocks_take(p, s, partials, 0.0f);
     return CS_OK;
 }

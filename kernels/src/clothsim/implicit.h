@@ -175,6 +175,7 @@ typedef struct cs_im_contact {
     float e0;           /* elastic force along n at the part's start (k delta; < 0 apart) */
     float kw;           /* its stiffness along n: k_contact times the contact's weight */
     float w;            /* the contact's weight (damping and friction scale with it) */
+    float K[9];         /* its block at the last assembly (the rock's coupling to the vertex) */
 } cs_im_contact;
 
 /* vertex model: the sphere's tangent plane at the vertex's nearest point, reached within margin. */
@@ -207,13 +208,15 @@ SIM_HD static inline int cs_im_contact_surface(const cs_surface_out *o, const cs
 }
 
 /* The force of contact c on the vertex at x (started at xb, velocity vi; Ro its non-contact
- * resultant) and its block; free: the vertex's w (the hold acts on free vertices only). */
-SIM_HD static inline cs_vec3 cs_im_contact_force(const cs_im_contact *c, cs_vec3 x, cs_vec3 xb, cs_vec3 vi, cs_vec3 Ro,
-                                                const cs_rock_state *r, const cs_phys *p, float h, float free,
-                                                cs_mat3 *blk)
+ * resultant; dr: how far the rock has moved since the contact was taken) and its block, which acts
+ * on the vertex's displacement relative to the rock's; free: the vertex's w (the hold acts on free
+ * vertices only). */
+SIM_HD static inline cs_vec3 cs_im_contact_force(const cs_im_contact *c, cs_vec3 x, cs_vec3 xb, cs_vec3 dr, cs_vec3 vi,
+                                                cs_vec3 Ro, const cs_rock_state *r, const cs_phys *p, float h,
+                                                float free, cs_mat3 *blk)
 {
     const cs_vec3 n = cs_v3(c->n[0], c->n[1], c->n[2]), arm = cs_v3(c->arm[0], c->arm[1], c->arm[2]);
-    const float e = c->e0 - c->kw * cs_dot(cs_sub(x, xb), n);
+    const float e = c->e0 - c->kw * cs_dot(cs_sub(cs_sub(x, xb), dr), n);
     const cs_vec3 vrel = cs_sub(vi, cs_add(r->v, cs_cross(r->w, arm)));
     const float vn = cs_dot(vrel, n);
     const float cw = p->c_contact * c->w;
