@@ -709,11 +709,15 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state 
     st->lost += contact_setup(p, s, w, threads);
     const cs_vec3 vg = g >= 0 ? cs_grab_velocity(LOADX(g), s->grab_target, p) : cs_v3(0.0f, 0.0f, 0.0f);
     const float inv_h = 1.0f / h;
-#pragma omp parallel for num_threads(threads) schedule(static)
+    float reach = 0.0f; /* the largest coordinate, for float's floor (cs_im_float_floor) */
+#pragma omp parallel for num_threads(threads) schedule(static) reduction(max : reach)
     for (int32_t v = 0; v < n; v++) {
         w->xb[v] = s->x[v], w->yb[v] = s->y[v], w->zb[v] = s->z[v];
         w->vxb[v] = s->vx[v], w->vyb[v] = s->vy[v], w->vzb[v] = s->vz[v];
         cs_vec3 x = LOADX(v);
+        const float ax = fabsf(x.x) > fabsf(x.y) ? fabsf(x.x) : fabsf(x.y), az = fabsf(x.z);
+        reach = ax > reach ? ax : reach;
+        reach = az > reach ? az : reach;
         if (s->w[v] != 0.0f)
             x = cs_add(x, cs_add(cs_scale(LOADV(v), h), cs_scale(p->gravity, h * h)));
         else if (v == g)
@@ -726,10 +730,10 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state 
     const float r0 = r;
     int k = 0;
     float prev = 2.0f * r0 + 1.0f;
-    /* Newton stops at the tolerance, after solver_iterations, or once an iteration takes less than
-     * a tenth off the residual: it has reached float rounding's floor (positions of a few ulps give
-     * spring forces of k ulp) */
-    while (k < most && r > p->solver_tolerance * r0 && r < 0.9f * prev) {
+    /* Newton stops at the tolerance, at float rounding's floor, after solver_iterations, or once
+     * an iteration no longer halves the residual (the floor, where the estimate is low) */
+    const float floor = cs_im_float_floor(p, reach);
+    while (k < most && r > p->solver_tolerance * r0 && r > floor && r < 0.5f * prev) {
         prev = r;
         hierarchy(w, s, threads);
         const float aim = 0.5f * p->solver_tolerance * r0, step = 0.05f * r;
