@@ -35,6 +35,7 @@ struct cs_im_work {
     float *xb, *yb, *zb, *vxb, *vyb, *vzb; /* the substep's x_n and v_n */
     float *xo, *yo, *zo;                   /* the Newton iterate a line search starts from */
     float *R;                              /* residual, 3 n (AoS) */
+    float *fo;                             /* each vertex's owned springs' forces, CS_NTYPES x 3 n */
     float *B[2];                           /* bending blocks of level 0 */
     float *dx, *r, *z, *p, *q;             /* conjugate gradients, 3 n each */
     float *part;                           /* per-chunk partials of a dot product */
@@ -66,7 +67,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     if (!w) return NULL;
     w->nx = nx, w->ny = ny, w->n = nx * ny, w->nchunks = nchunks;
     int32_t lx = nx, ly = ny;
-    size_t floats = (size_t)w->n * (9 + 3 + 18 + 15) + (size_t)nchunks + 6 * 3 * (size_t)CS_MAX_ROCKS +
+    size_t floats = (size_t)w->n * (9 + 3 + 18 + 15 + 18) + (size_t)nchunks + 6 * 3 * (size_t)CS_MAX_ROCKS +
                     (9 + 9 + 3) * (size_t)CS_MAX_ROCKS;
     int L = 0;
     for (;;) {
@@ -98,6 +99,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     const size_t nv = 3 * n + 3 * (size_t)CS_MAX_ROCKS; /* a vector: the cloth, then the rocks */
     w->R = TAKE(nv);
     w->B[0] = TAKE(9 * n), w->B[1] = TAKE(9 * n);
+    w->fo = TAKE(18 * n);
     w->dx = TAKE(nv), w->r = TAKE(nv), w->z = TAKE(nv), w->p = TAKE(nv), w->q = TAKE(nv);
     w->rD = TAKE(9 * (size_t)CS_MAX_ROCKS), w->rDinv = TAKE(9 * (size_t)CS_MAX_ROCKS);
     w->rxo = TAKE(3 * (size_t)CS_MAX_ROCKS);
@@ -149,8 +151,38 @@ static void put9(float *a, int32_t v, const cs_mat3 *m) { memcpy(a + 9 * (size_t
 #define LOADX(o) cs_v3(s->x[(o)], s->y[(o)], s->z[(o)])
 #define LOADV(o) cs_v3(s->vx[(o)], s->vy[(o)], s->vz[(o)])
 
-/* The springs, air and gravity of chunk c's vertices at the iterate: force into R (the residual
- * comes later), Ro into q (resultant friction reads it), blocks into level 0 (blocks: 1). */
+/* The springs each vertex of chunk (row j, columns i0 .. i1) owns, evaluated once from their
+ * owner (cs_im_spring): forces into fo, negated blocks into level 0's F and the bending blocks
+ * (blocks: 1; zero where the grid has no such spring). */
+static void chunk_owned(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, int32_t j, int32_t i0, int32_t i1,
+                        int blocks)
+{
+    const int32_t nx = p->nx, ny = p->ny;
+    const size_t n = (size_t)p->n;
+    im_level *l0 = &w->lv[0];
+    for (int32_t i = i0; i < i1; i++) {
+        const int32_t v = j * nx + i;
+        const cs_vec3 xi = LOADX(v), vi = LOADV(v);
+        for (int t = 0; t < CS_NTYPES; t++) {
+            cs_vec3 F = cs_v3(0.0f, 0.0f, 0.0f);
+            cs_mat3 b = cs_m3_zero();
+            if (cs_far_end_on_grid(nx, ny, i, j, cs_type_di[t], cs_type_dj[t])) {
+                const int32_t q = v + cs_type_di[t] + cs_type_dj[t] * nx;
+                F = cs_im_spring(xi, vi, LOADX(q), LOADV(q), s->L0[(size_t)t * n + (size_t)v], p->k[t], p->c_spring, h,
+                                 &b);
+            }
+            put3(w->fo + (size_t)t * 3 * n, v, F);
+            if (!blocks) continue;
+            for (int k = 0; k < 9; k++) b.m[k] = -b.m[k];
+            put9(t < 4 ? l0->F[t] : w->B[t - 4], v, &b);
+        }
+    }
+}
+
+/* The springs, air and gravity of chunk c's vertices at the iterate, gathered in
+ * CS_SPRING_SLOTS order from their owners' evaluations (the same bits as cs_im_springs: a spring
+ * from its other end is the exact negation, its block the same): force into R (the residual comes
+ * later), Ro into q (resultant friction reads it), the diagonal into level 0 (blocks: 1). */
 static void chunk_springs(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, int32_t j, int32_t i0,
                           int32_t i1, int blocks)
 {
@@ -159,30 +191,29 @@ static void chunk_springs(const cs_phys *p, float h, const cs_state *s, cs_im_wo
     im_level *l0 = &w->lv[0];
     for (int32_t i = i0; i < i1; i++) {
         const int32_t v = j * nx + i;
-        cs_vec3 xs[12], vs[12];
-        float L0s[12];
-        int on[12], slot = 0;
-#define CS_IM_GATHER(t, di, dj, fwd)                                                          \
-    {                                                                                        \
-        const int32_t ii = i + (di), jj = j + (dj);                                          \
-        on[slot] = ii >= 0 && ii < nx && jj >= 0 && jj < ny;                                  \
-        const int32_t q = on[slot] ? jj * nx + ii : v;                                       \
-        xs[slot] = LOADX(q), vs[slot] = LOADV(q);                                            \
-        L0s[slot] = s->L0[(size_t)(t) * n + (size_t)((fwd) ? v : q)];                        \
-        slot++;                                                                              \
+        cs_vec3 f = cs_v3(0.0f, 0.0f, 0.0f);
+        cs_mat3 d = cs_m3_zero();
+#define CS_IM_GATHER(t, di, dj, fwd)                                                                \
+    {                                                                                              \
+        const int32_t ii = i + (di), jj = j + (dj);                                                \
+        if (ii >= 0 && ii < nx && jj >= 0 && jj < ny) {                                            \
+            const int32_t o = (fwd) ? v : jj * nx + ii; /* the owner */                            \
+            const cs_vec3 F = cs_v3_from(w->fo + (size_t)(t) * 3 * n + 3 * (size_t)o);             \
+            f = cs_add(f, (fwd) ? F : cs_neg(F));                                                  \
+            if (blocks) {                                                                          \
+                const float *B = ((t) < 4 ? l0->F[(t) & 3] : w->B[((t) - 4) & 1]) + 9 * (size_t)o; \
+                for (int k = 0; k < 9; k++) d.m[k] += -B[k];                                       \
+            }                                                                                      \
+        }                                                                                          \
     }
         CS_SPRING_SLOTS(CS_IM_GATHER)
 #undef CS_IM_GATHER
-        cs_mat3 D, owned[CS_NTYPES];
-        const cs_vec3 F = cs_im_springs(p, LOADX(v), LOADV(v), xs, vs, L0s, on, h, &D, owned);
-        put3(w->R, v, F);
-        put3(w->q, v, F);
-        if (!blocks) continue;
-        put9(l0->D, v, &D);
-        for (int t = 0; t < CS_NTYPES; t++) {
-            cs_mat3 b = owned[t];
-            for (int k = 0; k < 9; k++) b.m[k] = -b.m[k];
-            put9(t < 4 ? l0->F[t] : w->B[t - 4], v, &b);
+        f = cs_add(f, cs_air_gravity(LOADV(v), p));
+        put3(w->R, v, f);
+        put3(w->q, v, f);
+        if (blocks) {
+            const cs_mat3 D = cs_im_inertia(p, h, d);
+            put9(l0->D, v, &D);
         }
     }
 }
@@ -421,6 +452,12 @@ static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *
                       int threads)
 {
     const int32_t nseg = p->nseg, nchunks = p->nchunks;
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t c = 0; c < nchunks; c++) {
+        const int32_t j = c / nseg, g = c % nseg;
+        const int32_t i0 = g * CS_CHUNK, i1 = i0 + CS_CHUNK < p->nx ? i0 + CS_CHUNK : p->nx;
+        chunk_owned(p, h, s, w, j, i0, i1, blocks);
+    }
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 4)
     for (int32_t c = 0; c < nchunks; c++) {
         const int32_t j = c / nseg, g = c % nseg;
@@ -473,9 +510,17 @@ static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b
 /* y = A x on level l (bend: the true operator of level 0, bending blocks included). */
 static void apply(const cs_im_level *L, const float *x, float *y, int bend, int threads)
 {
+    const int32_t e = bend ? 2 : 1, nx = L->nx, ny = L->ny;
 #pragma omp parallel for num_threads(threads) schedule(static)
-    for (int32_t j = 0; j < L->ny; j++)
-        for (int32_t i = 0; i < L->nx; i++) put3(y, j * L->nx + i, cs_im_apply(L, x, i, j, bend));
+    for (int32_t j = 0; j < ny; j++) {
+        if (j < e || j >= ny - e) {
+            for (int32_t i = 0; i < nx; i++) put3(y, j * nx + i, cs_im_apply(L, x, i, j, bend));
+            continue;
+        }
+        for (int32_t i = 0; i < nx; i++)
+            put3(y, j * nx + i,
+                 i < e || i >= nx - e ? cs_im_apply(L, x, i, j, bend) : cs_im_apply_inner(L, x, j * nx + i, bend));
+    }
 }
 
 /* x = x + omega Dinv (b - t) where t = A x (first: x = omega Dinv b, from x = 0). */

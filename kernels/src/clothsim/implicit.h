@@ -131,6 +131,18 @@ SIM_HD static inline cs_mat3 cs_im_spring_block(cs_vec3 xi, cs_vec3 xj, float L0
     return cs_m3_axial(u, k + c_over_h, g > 0.0f ? k * g : 0.0f);
 }
 
+/* One spring seen from xi: its force on xi (cs_spring_force) and its block (cs_im_spring_block).
+ * From the other end the force is exactly the negation and the block the same bits, so a backend
+ * may evaluate each spring once, from the end that owns it, and gather (cs_im_springs' order). */
+SIM_HD static inline cs_vec3 cs_im_spring(cs_vec3 xi, cs_vec3 vi, cs_vec3 xj, cs_vec3 vj, float L0, float k, float c,
+                                         float h, cs_mat3 *blk)
+{
+    float len;
+    const cs_vec3 F = cs_spring_force(xi, vi, xj, vj, L0, k, c, &len);
+    *blk = cs_im_spring_block(xi, xj, L0, k, c / h);
+    return F;
+}
+
 /* A penalty contact's block at a vertex, normal n: kn along n, kt across it. */
 SIM_HD static inline cs_mat3 cs_im_contact_block(cs_vec3 n, float kn, float kt) { return cs_m3_axial(n, kn, kt); }
 
@@ -265,9 +277,19 @@ SIM_HD static inline cs_vec3 cs_im_contact_force(const cs_im_contact *c, cs_vec3
     return F;
 }
 
-/* ---- a vertex's residual and diagonal ----
- *
- * The non-contact part at vertex v = (i, j): its 12 springs in CS_SPRING_SLOTS order (each from
+/* ---- a vertex's residual and diagonal ---- */
+
+/* The diagonal d of the springs plus the inertia and drag terms m/h^2 + m drag/h. */
+SIM_HD static inline cs_mat3 cs_im_inertia(const cs_phys *p, float h, cs_mat3 d)
+{
+    const float dm = p->mass / (h * h) + p->mass * p->drag / h;
+    d.m[0] += dm;
+    d.m[4] += dm;
+    d.m[8] += dm;
+    return d;
+}
+
+/* The non-contact part at vertex v = (i, j): its 12 springs in CS_SPRING_SLOTS order (each from
  * cs_spring_force at the iterate's positions and velocities v = (x - x_n)/h, so the result is the
  * explicit force law at the new state), then cs_air_gravity: the resultant Ro, which the caller
  * adds contacts to. D receives the springs' blocks, then the inertia and drag terms m/h^2 + m drag/h.
@@ -279,13 +301,11 @@ SIM_HD static inline cs_vec3 cs_im_springs(const cs_phys *p, cs_vec3 xi, cs_vec3
 {
     cs_vec3 f = cs_v3(0.0f, 0.0f, 0.0f);
     cs_mat3 d = cs_m3_zero();
-    const float ch = p->c_spring / h;
     int slot = 0;
-    float len;
 #define CS_IM_SLOT(t, di, dj, fwd)                                                                      \
     if (on[slot]) {                                                                                    \
-        f = cs_add(f, cs_spring_force(xi, vi, xs[slot], vs[slot], L0s[slot], p->k[t], p->c_spring, &len)); \
-        const cs_mat3 b = cs_im_spring_block(xi, xs[slot], L0s[slot], p->k[t], ch);                     \
+        cs_mat3 b;                                                                                     \
+        f = cs_add(f, cs_im_spring(xi, vi, xs[slot], vs[slot], L0s[slot], p->k[t], p->c_spring, h, &b));  \
         cs_m3_addto(&d, &b);                                                                           \
         if (fwd) owned[t] = b;                                                                         \
     } else if (fwd) {                                                                                  \
@@ -294,13 +314,8 @@ SIM_HD static inline cs_vec3 cs_im_springs(const cs_phys *p, cs_vec3 xi, cs_vec3
     slot++;
     CS_SPRING_SLOTS(CS_IM_SLOT)
 #undef CS_IM_SLOT
-    f = cs_add(f, cs_air_gravity(vi, p));
-    const float dm = p->mass / (h * h) + p->mass * p->drag / h;
-    d.m[0] += dm;
-    d.m[4] += dm;
-    d.m[8] += dm;
-    *D = d;
-    return f;
+    *D = cs_im_inertia(p, h, d);
+    return cs_add(f, cs_air_gravity(vi, p));
 }
 
 /* The residual once the contacts are in F: F - m (v - v_n)/h. */
@@ -355,6 +370,31 @@ SIM_HD static inline cs_vec3 cs_im_apply(const cs_im_level *L, const float *x, i
                 const int32_t q = jb * nx + ib;
                 y = cs_add(y, cs_m3_mul_t(L->B[b] + 9 * (size_t)q, cs_v3_from(x + 3 * (size_t)q)));
             }
+        }
+    }
+    return y;
+}
+
+/* cs_im_apply for a vertex whose every neighbour it reads is on the grid (1 <= i <= nx - 2 and
+ * 1 <= j <= ny - 2; with bend, 2 .. n - 3): the same sums in the same order, without the tests. */
+SIM_HD static inline cs_vec3 cs_im_apply_inner(const cs_im_level *L, const float *x, int32_t v, int bend)
+{
+    if (L->mask[v] == 0.0f) return cs_v3(0.0f, 0.0f, 0.0f);
+    const int32_t nx = L->nx;
+    cs_vec3 y = cs_m3_mul(L->D + 9 * (size_t)v, cs_v3_from(x + 3 * (size_t)v));
+    for (int t = 0; t < 4; t++) {
+        const int32_t q = v + cs_im_fwd_di(t) + cs_im_fwd_dj(t) * nx;
+        y = cs_add(y, cs_m3_mul(L->F[t] + 9 * (size_t)v, cs_v3_from(x + 3 * (size_t)q)));
+    }
+    for (int t = 0; t < 4; t++) {
+        const int32_t q = v - cs_im_fwd_di(t) - cs_im_fwd_dj(t) * nx;
+        y = cs_add(y, cs_m3_mul_t(L->F[t] + 9 * (size_t)q, cs_v3_from(x + 3 * (size_t)q)));
+    }
+    if (bend) {
+        for (int b = 0; b < 2; b++) {
+            const int32_t o = b ? 2 * nx : 2;
+            y = cs_add(y, cs_m3_mul(L->B[b] + 9 * (size_t)v, cs_v3_from(x + 3 * (size_t)(v + o))));
+            y = cs_add(y, cs_m3_mul_t(L->B[b] + 9 * (size_t)(v - o), cs_v3_from(x + 3 * (size_t)(v - o))));
         }
     }
     return y;
