@@ -138,7 +138,8 @@ cs_status cs_guard_eval(cs_sim *sim, const cs_combos *combos, const cs_scene *sc
         eff = (int32_t)need;
     }
     *substeps = eff;
-    *dt_max = dtm;
+    /* nothing bounds the step (implicit_euler without rocks, a cloth without stiffness): a frame */
+    *dt_max = isfinite(dtm) ? dtm : 1.0 / (double)p->frame_rate;
     return CS_OK;
 }
 
