@@ -7,7 +7,10 @@
  * implicit solver must reach and explicit or Gauss-Seidel-like sweeps approach slowly. Prints, per
  * size and solver_tolerance, the error, the Newton and conjugate-gradient iterations a frame, and
  * the wall time a frame.
- *   clothd-accuracy [--sizes 64,128,256] [--tolerances 1e-2,5e-3,1e-3,1e-4] [--seconds S] [--threads T] */
+ *   clothd-accuracy [--sizes 64,128,256] [--tolerances 1e-2,5e-3,1e-3,1e-4] [--seconds S] [--threads T]
+ * With --curtain N it instead hangs an N x N curtain of the default fabric (air drag 5/s, so that
+ * it settles) for S seconds under velocity_verlet and under implicit_euler and compares their
+ * stretch (the options before it count: --seconds first). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -34,6 +37,37 @@ static int parse_list(const char *s, double *out, int most)
     return n;
 }
 
+/* A curtain (N x N, vertical, pinned along its top, the default fabric, air drag 5/s so that it
+ * settles) after S seconds under an integrator: its lowest point below the top (the stretch). */
+static double curtain(int N, int integrator, double seconds, int threads, double *ms)
+{
+    cs_scene sc;
+    cs_params p;
+    cs_scene_default(&sc);
+    cs_params_default(&p);
+    sc.nx = sc.ny = N;
+    sc.orientation = CS_VERTICAL;
+    sc.pins = CS_PINS_TOP_EDGE;
+    sc.height = 2.0f;
+    p.ground = 0, p.drag = 5.0f, p.auto_substeps = 1, p.max_substeps = 100000;
+    p.integrator = integrator;
+    cs_sim *sim = NULL;
+    char err[256];
+    if (cs_sim_create(&sc, &p, "cpu", &sim, err, sizeof err) != CS_OK) return -1;
+    if (threads > 0) cs_sim_set_threads(sim, threads);
+    const int frames = (int)(seconds * p.frame_rate + 0.5);
+    const double t0 = now();
+    if (cs_sim_step_frames(sim, frames) != CS_OK) return -1;
+    *ms = 1e3 * (now() - t0) / frames;
+    float *x = malloc(sizeof(float) * 3 * (size_t)N * N);
+    if (!x || cs_read_positions(sim, x, 3 * (size_t)N * N) != CS_OK) return -1;
+    double lo = 1e30;
+    for (int v = 0; v < N * N; v++) lo = x[3 * v + 2] < lo ? x[3 * v + 2] : lo;
+    free(x);
+    cs_sim_destroy(sim);
+    return (sc.height + sc.size_y / 2.0) - lo - sc.size_y; /* the stretch past the rest length */
+}
+
 int main(int argc, char **argv)
 {
     double sizes[8] = {64, 128, 256}, tols[8] = {1e-2, 5e-3, 1e-3, 1e-4};
@@ -45,6 +79,17 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--tolerances") == 0 && v) n_tols = parse_list(v, tols, 8), i++;
         else if (strcmp(a, "--seconds") == 0 && v) seconds = atof(v), i++;
         else if (strcmp(a, "--threads") == 0 && v) threads = atoi(v), i++;
+        else if (strcmp(a, "--curtain") == 0 && v) {
+            /* the curtain's stretch under velocity_verlet and implicit_euler */
+            const int N = atoi(v);
+            double ms_v = 0, ms_i = 0;
+            const double sv = curtain(N, CS_VELOCITY_VERLET, seconds, threads, &ms_v);
+            const double si = curtain(N, CS_IMPLICIT_EULER, seconds, threads, &ms_i);
+            printf("curtain %d x %d after %.1f s: stretch velocity_verlet %.6f m (%.1f ms a frame), implicit_euler "
+                   "%.6f m (%.1f ms a frame): %+.2f %%\n",
+                   N, N, seconds, sv, ms_v, si, ms_i, 100 * (si - sv) / sv);
+            return 0;
+        }
         else {
             fprintf(stderr, "usage: clothd-accuracy [--sizes 64,128,256] [--tolerances 1e-2,1e-3] [--seconds S] "
                             "[--threads T]\n");
