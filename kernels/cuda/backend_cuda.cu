@@ -58,7 +58,11 @@
  * scene's bits do not depend on them. What the scenes' frames were read for is copied on the
  * device in one launch after the batch and to pinned memory on the batch's copy stream. The
  * batch launches its kernels one by one on its stream (no graph yet): about substeps + 1 launches
- * a frame for the whole batch. */
+ * a frame for the whole batch.
+ *
+ * Integrator implicit_euler has a sequence of its own (see "integrator implicit_euler" below):
+ * plain launches of per-vertex and per-chunk kernels around the functions of clothsim/implicit.h,
+ * with the solver's scalars on the host; a batch steps such scenes alone. */
 #include <cuda_runtime.h>
 
 #include <stdio.h>
@@ -68,6 +72,7 @@
 #include <mutex>
 
 #include "clothsim/backend.h"
+#include "clothsim/implicit.h"
 #include "clothsim/physics.h"
 
 /* ---- device memory access: the CPU imitation of CUDA (tests/emu) counts bytes through these ---- */
@@ -1029,6 +1034,7 @@ struct cuda_ctx {
     unsigned wanted;           /* parts downloaded since the last step call */
     graph_entry graphs[GRAPHS];
     int n_graphs;
+    struct im_work *im;        /* implicit_euler's workspace (see "integrator implicit_euler"), once used */
     uint64_t epoch, uses;
     char device[320];
     char err[256];
@@ -1163,11 +1169,14 @@ static cudaError_t alloc_rock_bufs(rock_bufs *r, int32_t cap, int32_t nchunks)
     return e;
 }
 
+static void im_free(struct im_work *w);
+
 static void cuda_destroy(void *ctx)
 {
     cuda_ctx *c = (cuda_ctx *)ctx;
     if (!c) return;
     drop_graphs(c);
+    im_free(c->im);
     free_vertex_bufs(&c->vb);
     free_rock_bufs(&c->rb);
     cudaFree(c->flags);
@@ -1418,6 +1427,658 @@ static void rocks(const cuda_ctx *c, int mode, int pos, int rest)
     }
 }
 
+/* ---- integrator implicit_euler (kernels/MODEL.md, "The implicit solver") ----
+ *
+ * The CPU backend's sequence (implicit_cpu.c) with each of its loops a kernel that calls the same
+ * functions of clothsim/implicit.h and physics.h per vertex, in the same order, so the state ends
+ * bitwise the same. Simple launches on the scene's stream, no graphs: a part of a substep runs
+ * the first guess, then Newton (assemble, the multigrid hierarchy, conjugate gradients
+ * preconditioned by a V-cycle, a backtracking line search), then the accelerations and the strain
+ * pass. The iterate lives in the state buffer a substep writes (state[cur ^ 1]); the part's start
+ * (x_n, v_n) is copied aside, so the buffers swap once a part as the explicit substeps do.
+ *
+ * Sums: a block per chunk (a row's CS_CHUNK columns) sums its terms with cs_tree_sum's tree in
+ * shared memory into the chunk's partial; the host copies the partials back and totals them with
+ * cs_im_chunk_total, then computes the solver's scalars (residual norms, alpha, beta) in float as
+ * the CPU does. A copy back and a wait per dot product: simple, not fast.
+ *
+ * Rocks are refused under implicit_euler (guard.c), so there is no rock contact here: a part is a
+ * whole substep (cs_im_splits of no rock speed is 1) and the contacts are the ground's. */
+
+/* One level's arrays (device memory); level 0's mask is the state's, as floats. */
+struct im_level_bufs {
+    int32_t nx, ny, n;
+    float *D, *Dinv, *F[4], *mask;
+    float *b, *x, *t; /* 3 n each: right side, solution, scratch */
+};
+
+struct im_work {
+    int32_t nx, ny, n, nchunks, levels;
+    float *base;               /* the part's start: x_n, v_n (6 n, the state's layout) */
+    float *xo;                 /* the Newton iterate a line search starts from (3 n, x, y, z) */
+    float *R, *q, *dx, *r, *z, *p; /* 3 n each (AoS): residual, spring force (then A p), CG vectors */
+    float *B[2];               /* bending blocks of level 0 */
+    float *part;               /* per-chunk partials of a sum */
+    float *host_part;          /* their pinned host copy */
+    im_level_bufs lv[CS_IM_MAX_LEVELS];
+    cuda_scene *sc;            /* the scene with the part's phys (its dt is the part's h) */
+    cuda_scene host_sc;        /* what sc holds */
+    int sc_valid;
+    void *mem;                 /* every float array above, in one allocation */
+};
+
+#define IM_THREADS 256 /* threads of a per-vertex block */
+
+static void im_free(im_work *w)
+{
+    if (!w) return;
+    cudaFree(w->mem);
+    cudaFree(w->sc);
+    cudaFreeHost(w->host_part);
+    free(w);
+}
+
+/* The level as implicit.h's functions read it. */
+static cs_im_level im_view(const im_work *w, int l)
+{
+    const im_level_bufs *v = &w->lv[l];
+    cs_im_level L;
+    L.nx = v->nx, L.ny = v->ny;
+    L.mask = v->mask;
+    L.D = v->D, L.Dinv = v->Dinv;
+    for (int t = 0; t < 4; t++) L.F[t] = v->F[t];
+    L.B[0] = l == 0 ? w->B[0] : NULL, L.B[1] = l == 0 ? w->B[1] : NULL;
+    return L;
+}
+
+__device__ static inline void im_put3(float *a, int32_t v, cs_vec3 x)
+{
+    a[3 * (size_t)v] = x.x, a[3 * (size_t)v + 1] = x.y, a[3 * (size_t)v + 2] = x.z;
+}
+__device__ static inline void im_put9(float *a, int32_t v, const cs_mat3 *m)
+{
+    for (int k = 0; k < 9; k++) a[9 * (size_t)v + k] = m->m[k];
+}
+__device__ static inline int32_t im_vertex(void) { return (int32_t)(blockIdx.x * blockDim.x + threadIdx.x); }
+
+/* Position and velocity of vertex o of a state (SoA, 6 n). */
+#define IM_X(S, n, o) cs_v3((S)[(o)], (S)[(size_t)(n) + (o)], (S)[2 * (size_t)(n) + (o)])
+#define IM_V(S, n, o) cs_v3((S)[3 * (size_t)(n) + (o)], (S)[4 * (size_t)(n) + (o)], (S)[5 * (size_t)(n) + (o)])
+
+/* cs_tree_sum's tree over the block (CS_CHUNK threads): buf[t] += buf[t + s], s = CS_CHUNK/2 .. 1.
+ * Every thread calls it; the sum is valid in thread 0. */
+__device__ static float im_tree(float *buf, float mine)
+{
+    const int t = (int)threadIdx.x;
+    buf[t] = mine;
+    for (int s = CS_CHUNK / 2; s > 0; s >>= 1) {
+        __syncthreads();
+        if (t < s) buf[t] += buf[t + s];
+    }
+    return buf[0];
+}
+
+/* The part's start: x_n, v_n copied aside, level 0's mask as floats and (guess) the first guess
+ * into the iterate S: x_n + h v_n + h^2 g for a free vertex, the grabbed one moved at its grab
+ * velocity, the others kept; v = (x - x_n)/h. */
+__global__ void k_im_begin(const cuda_scene *__restrict__ sc, const float *__restrict__ in, float *S, float *base,
+                           const unsigned char *__restrict__ mask, float *mask0, int guess)
+{
+    const cs_phys *p = &sc->p;
+    const int32_t v = im_vertex(), g = sc->grab;
+    const size_t n = (size_t)p->n;
+    if (v >= p->n) return;
+    for (int q = 0; q < 6; q++) base[(size_t)q * n + v] = in[(size_t)q * n + v];
+    const float w = (float)mask[v];
+    mask0[v] = w;
+    if (!guess) return;
+    const float h = p->dt, inv_h = 1.0f / h;
+    cs_vec3 x = IM_X(in, n, v);
+    if (w != 0.0f)
+        x = cs_add(x, cs_add(cs_scale(IM_V(in, n, v), h), cs_scale(p->gravity, h * h)));
+    else if (v == g)
+        x = cs_add(x, cs_scale(cs_grab_velocity(IM_X(in, n, g), sc->grab_target, p), h));
+    const float o[6] = {x.x, x.y, x.z, (x.x - base[v]) * inv_h, (x.y - base[n + v]) * inv_h,
+                        (x.z - base[2 * n + v]) * inv_h};
+    for (int q = 0; q < 6; q++) S[(size_t)q * n + v] = o[q];
+}
+
+/* The largest coordinate of chunk blockIdx.x's vertices at the part's start (|x| or |y|, then |z|,
+ * as implicit_cpu.c's part takes it; a NaN is never taken), for float's floor (cs_im_float_floor):
+ * the chunk's largest into part (a maximum: any order gives the same). */
+__global__ void __launch_bounds__(CS_CHUNK) k_im_reach(const cuda_scene *__restrict__ sc, const float *in, float *part)
+{
+    CS_DYNAMIC_SHARED(float, buf);
+    const cs_phys *p = &sc->p;
+    const int t = (int)threadIdx.x;
+    const int32_t c = (int32_t)blockIdx.x, j = c / p->nseg, i = (c % p->nseg) * CS_CHUNK + t;
+    float reach = 0.0f;
+    if (i < p->nx) {
+        reach = cs_im_reach(IM_X(in, p->n, j * p->nx + i), reach);
+    }
+    buf[t] = reach;
+    for (int s = CS_CHUNK / 2; s > 0; s >>= 1) {
+        __syncthreads();
+        if (t < s) buf[t] = buf[t + s] > buf[t] ? buf[t + s] : buf[t];
+    }
+    if (t == 0) part[c] = buf[0];
+}
+
+/* What an assembly writes (device pointers). */
+struct im_asm {
+    float *R, *q, *D, *F[4], *B[2], *part;
+    const float *mask0;
+};
+
+/* Assembly at the iterate S of chunk blockIdx.x, a thread per vertex (chunk_springs,
+ * chunk_contacts without rocks, chunk_residual of implicit_cpu.c): the springs, air and gravity,
+ * then the ground contact, then the residual R = F - m (v - v_n)/h (0 out of the solve, whose D
+ * is the identity); with blocks, level 0's matrix; the chunk's partial of |R|^2. */
+__global__ void __launch_bounds__(CS_CHUNK) k_im_assemble(const cuda_scene *__restrict__ sc, const float *S,
+                                                         const float *__restrict__ base, const float *__restrict__ L0,
+                                                         im_asm a, int blocks)
+{
+    CS_DYNAMIC_SHARED(float, buf);
+    const cs_phys *p = &sc->p;
+    const int32_t nx = p->nx, ny = p->ny, c = (int32_t)blockIdx.x;
+    const int32_t j = c / p->nseg, i0 = (c % p->nseg) * CS_CHUNK, i = i0 + (int32_t)threadIdx.x;
+    const size_t n = (size_t)p->n;
+    const float h = p->dt;
+    float mine = 0.0f;
+    if (i < nx) {
+        const int32_t v = j * nx + i;
+        cs_vec3 xs[12], vs[12];
+        float L0s[12];
+        int on[12], slot = 0;
+#define IM_GATHER(t, di, dj, fwd)                                                                      \
+    {                                                                                                  \
+        const int32_t ii = i + (di), jj = j + (dj);                                                    \
+        on[slot] = ii >= 0 && ii < nx && jj >= 0 && jj < ny;                                           \
+        const int32_t o = on[slot] ? jj * nx + ii : v;                                                 \
+        xs[slot] = IM_X(S, n, o), vs[slot] = IM_V(S, n, o);                                            \
+        L0s[slot] = L0[(size_t)(t) * n + (size_t)((fwd) ? v : o)];                                     \
+        slot++;                                                                                        \
+    }
+        CS_SPRING_SLOTS(IM_GATHER)
+#undef IM_GATHER
+        cs_mat3 D, owned[CS_NTYPES];
+        const cs_vec3 xi = IM_X(S, n, v), vi = IM_V(S, n, v);
+        const cs_vec3 F = cs_im_springs(p, xi, vi, xs, vs, L0s, on, h, &D, owned);
+        im_put3(a.q, v, F);
+        if (blocks) {
+            /* the four forward blocks of level 0, then the two bending ones */
+            static_assert(CS_NTYPES == 6, "four forward types, then two bending ones");
+            float *const to[CS_NTYPES] = {a.F[0], a.F[1], a.F[2], a.F[3], a.B[0], a.B[1]};
+            for (int t = 0; t < CS_NTYPES; t++) {
+                cs_mat3 b = owned[t];
+                for (int k = 0; k < 9; k++) b.m[k] = -b.m[k];
+                im_put9(to[t], v, &b);
+            }
+        }
+        /* the contacts: no rocks (refused under implicit_euler), then the ground */
+        float f[3] = {F.x, F.y, F.z};
+        cs_vec3 Fc;
+        if (p->ground && cs_vertex_ground_contact(xi, vi, F, p, &Fc)) {
+            f[0] += Fc.x, f[1] += Fc.y, f[2] += Fc.z;
+            if (blocks) {
+                const cs_mat3 b = cs_im_ground_block(xi, vi, p, h);
+                for (int k = 0; k < 9; k++) D.m[k] += b.m[k];
+            }
+        }
+        cs_vec3 R = cs_im_residual(p, cs_v3(f[0], f[1], f[2]), vi, IM_V(base, n, v), h);
+        if (a.mask0[v] == 0.0f) {
+            R = cs_v3(0.0f, 0.0f, 0.0f);
+            D = cs_m3_diag(1.0f);
+        }
+        if (blocks) im_put9(a.D, v, &D);
+        im_put3(a.R, v, R);
+        mine = cs_dot(R, R);
+    }
+    const float sum = im_tree(buf, mine);
+    if (threadIdx.x == 0) a.part[c] = sum;
+}
+
+/* a . b over level 0: chunk blockIdx.x's partial (cs_im_dot3 terms, the chunk tree). */
+__global__ void __launch_bounds__(CS_CHUNK) k_im_dot(const cuda_scene *__restrict__ sc, const float *a, const float *b,
+                                                    float *part)
+{
+    CS_DYNAMIC_SHARED(float, buf);
+    const cs_phys *p = &sc->p;
+    const int32_t c = (int32_t)blockIdx.x, j = c / p->nseg, i = (c % p->nseg) * CS_CHUNK + (int32_t)threadIdx.x;
+    const float mine = i < p->nx ? cs_im_dot3(a, b, j * p->nx + i) : 0.0f;
+    const float sum = im_tree(buf, mine);
+    if (threadIdx.x == 0) part[c] = sum;
+}
+
+/* y = A x on a level (bend: level 0's true operator, bending blocks included). */
+__global__ void k_im_apply(cs_im_level L, const float *x, float *y, int bend)
+{
+    const int32_t v = im_vertex();
+    if (v >= L.nx * L.ny) return;
+    im_put3(y, v, cs_im_apply(&L, x, v % L.nx, v / L.nx, bend));
+}
+
+/* x = x + omega Dinv (b - t), t = A x (first: from x = 0). */
+__global__ void k_im_jacobi(cs_im_level L, float *x, const float *b, const float *t, int first)
+{
+    const int32_t v = im_vertex();
+    if (v >= L.nx * L.ny) return;
+    const cs_vec3 zero = cs_v3(0.0f, 0.0f, 0.0f);
+    const cs_vec3 xv = first ? zero : cs_v3_from(x + 3 * (size_t)v);
+    im_put3(x, v, cs_im_jacobi(&L, v, xv, cs_v3_from(b + 3 * (size_t)v), first ? zero : cs_v3_from(t + 3 * (size_t)v)));
+}
+
+/* t = b - t over 3 n floats. */
+__global__ void k_im_sub(const float *b, float *t, int32_t n3)
+{
+    const int32_t k = im_vertex();
+    if (k < n3) t[k] = b[k] - t[k];
+}
+
+/* The coarse right side: the fine residual t restricted to coarse level C. */
+__global__ void k_im_restrict(cs_im_level L, const float *t, float *cb, int32_t cnx, int32_t cny)
+{
+    const int32_t v = im_vertex();
+    if (v >= cnx * cny) return;
+    im_put3(cb, v, cs_im_restrict(&L, t, v % cnx, v / cnx));
+}
+
+/* x += CS_IM_COARSE_SCALE e, e the coarse correction constant over each aggregate. */
+__global__ void k_im_prolong(cs_im_level L, float *x, const float *cx, int32_t cnx)
+{
+    const int32_t v = im_vertex();
+    if (v >= L.nx * L.ny || L.mask[v] == 0.0f) return;
+    const int32_t i = v % L.nx, j = v / L.nx;
+    const cs_vec3 e = cs_v3_from(cx + 3 * (size_t)((j / 2) * cnx + i / 2));
+    im_put3(x, v, cs_add(cs_v3_from(x + 3 * (size_t)v), cs_scale(e, CS_IM_COARSE_SCALE)));
+}
+
+/* Coarse level c's Galerkin row of each of its vertices from the fine level F. */
+__global__ void k_im_galerkin(cs_im_level F, im_level_bufs c)
+{
+    const int32_t v = im_vertex();
+    if (v >= c.n) return;
+    float *Fc[4];
+    for (int t = 0; t < 4; t++) Fc[t] = c.F[t] + 9 * (size_t)v;
+    cs_im_galerkin(&F, v % c.nx, v / c.nx, c.D + 9 * (size_t)v, Fc, c.mask + v);
+}
+
+__global__ void k_im_inverse(const float *D, float *Dinv, int32_t n)
+{
+    const int32_t v = im_vertex();
+    if (v >= n) return;
+    const cs_mat3 inv = cs_m3_inverse(D + 9 * (size_t)v);
+    im_put9(Dinv, v, &inv);
+}
+
+/* dx += alpha p; r -= alpha q. */
+__global__ void k_im_cg_step(float *dx, float *r, const float *p, const float *q, float alpha, int32_t n3)
+{
+    const int32_t k = im_vertex();
+    if (k >= n3) return;
+    dx[k] += alpha * p[k];
+    r[k] -= alpha * q[k];
+}
+
+/* p = z + beta p. */
+__global__ void k_im_cg_dir(float *p, const float *z, float beta, int32_t n3)
+{
+    const int32_t k = im_vertex();
+    if (k < n3) p[k] = z[k] + beta * p[k];
+}
+
+/* The iterate's positions kept for the line search. */
+__global__ void k_im_keep(const float *S, float *xo, int32_t n)
+{
+    const int32_t v = im_vertex();
+    if (v >= n) return;
+    for (int q = 0; q < 3; q++) xo[(size_t)q * (size_t)n + v] = S[(size_t)q * (size_t)n + v];
+}
+
+/* x = x_k + a dx for the vertices in the solve, and v = (x - x_n)/h. */
+__global__ void k_im_move(float *S, const float *xo, const float *dx, const float *base, const float *mask0, float a,
+                          float inv_h, int32_t n)
+{
+    const int32_t v = im_vertex();
+    if (v >= n || mask0[v] == 0.0f) return;
+    const size_t N = (size_t)n;
+    for (int q = 0; q < 3; q++) {
+        S[q * N + v] = xo[q * N + v] + a * dx[3 * (size_t)v + q];
+        S[(3 + q) * N + v] = (S[q * N + v] - base[q * N + v]) * inv_h;
+    }
+}
+
+/* a = (v - v_n)/h, 0 where the vertex is out of the solve. */
+__global__ void k_im_accel(const float *S, const float *base, const float *mask0, float *acc, float inv_h, int32_t n)
+{
+    const int32_t v = im_vertex();
+    if (v >= n) return;
+    const size_t N = (size_t)n;
+    for (int q = 0; q < 3; q++) acc[q * N + v] = (S[(3 + q) * N + v] - base[(3 + q) * N + v]) * inv_h * mask0[v];
+}
+
+/* The refresh's a = F/m: the residual at v = v_n is the force (cs_im_refresh). */
+__global__ void k_im_refresh_accel(const cuda_scene *__restrict__ sc, const float *R, const float *mask0, float *acc)
+{
+    const int32_t v = im_vertex(), n = sc->p.n;
+    if (v >= n) return;
+    const float k = sc->p.inv_mass * mask0[v];
+    for (int q = 0; q < 3; q++) acc[(size_t)q * (size_t)n + v] = R[3 * (size_t)v + q] * k;
+}
+
+/* FLAG_NONFINITE where a position or velocity of the state is not finite (the CPU's
+ * state_finite). */
+__global__ void k_im_finite(const float *S, int32_t n, int *flags)
+{
+    const int32_t v = im_vertex();
+    if (v >= n) return;
+    int bad = 0;
+    for (int q = 0; q < 6; q++) bad |= !isfinite(S[(size_t)q * (size_t)n + v]);
+    if (bad) atomicOr(&flags[FLAG_NONFINITE], 1);
+}
+
+static unsigned im_blocks(int64_t threads) { return (unsigned)((threads + IM_THREADS - 1) / IM_THREADS); }
+
+/* The workspace for this cloth (kept while its size stays); its arrays zeroed, as the CPU's. */
+static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
+{
+    if (c->im && c->im->nx == p->nx && c->im->ny == p->ny && c->im->nchunks == p->nchunks) return CS_OK;
+    im_work *w = (im_work *)calloc(1, sizeof *w);
+    if (!w) return CS_E_NOMEM;
+    w->nx = p->nx, w->ny = p->ny, w->n = p->n, w->nchunks = p->nchunks;
+    size_t floats = (size_t)w->n * (6 + 3 + 18 + 18) + (size_t)w->nchunks;
+    int32_t lx = p->nx, ly = p->ny;
+    int L = 0;
+    for (;;) {
+        w->lv[L].nx = lx, w->lv[L].ny = ly, w->lv[L].n = lx * ly;
+        floats += (size_t)lx * (size_t)ly * (9 * 6 + 1 + 9);
+        L++;
+        if (L == CS_IM_MAX_LEVELS || (lx <= CS_IM_COARSEST && ly <= CS_IM_COARSEST)) break;
+        lx = cs_im_coarse(lx), ly = cs_im_coarse(ly);
+    }
+    w->levels = L;
+    cudaError_t e = cudaMalloc(&w->mem, sizeof(float) * floats);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&w->sc, sizeof(cuda_scene));
+    if (e == cudaSuccess) e = cudaMallocHost((void **)&w->host_part, sizeof(float) * (size_t)w->nchunks);
+    if (e == cudaSuccess) e = cudaMemsetAsync(w->mem, 0, sizeof(float) * floats, c->stream);
+    if (e != cudaSuccess) {
+        im_free(w);
+        return cuda_fail(c, e, "allocating implicit_euler's workspace", __LINE__);
+    }
+    float *m = (float *)w->mem;
+    const size_t n = (size_t)w->n;
+#define TAKE(k) (m += (k), m - (k))
+    w->base = TAKE(6 * n), w->xo = TAKE(3 * n);
+    w->R = TAKE(3 * n), w->q = TAKE(3 * n), w->dx = TAKE(3 * n);
+    w->r = TAKE(3 * n), w->z = TAKE(3 * n), w->p = TAKE(3 * n);
+    w->B[0] = TAKE(9 * n), w->B[1] = TAKE(9 * n);
+    w->part = TAKE((size_t)w->nchunks);
+    for (int l = 0; l < L; l++) {
+        im_level_bufs *v = &w->lv[l];
+        const size_t k = (size_t)v->n;
+        v->D = TAKE(9 * k), v->Dinv = TAKE(9 * k);
+        for (int t = 0; t < 4; t++) v->F[t] = TAKE(9 * k);
+        v->mask = TAKE(k);
+        v->b = TAKE(3 * k), v->x = TAKE(3 * k), v->t = TAKE(3 * k);
+    }
+#undef TAKE
+    im_free(c->im);
+    c->im = w;
+    return CS_OK;
+}
+
+/* The device scene the implicit kernels read: the context's, with the part's phys. */
+static cs_status im_scene(cuda_ctx *c, const cs_phys *p)
+{
+    im_work *w = c->im;
+    cuda_scene k = c->host_sc;
+    k.p = *p;
+    if (w->sc_valid && memcmp(&k, &w->host_sc, sizeof k) == 0) return CS_OK;
+    w->host_sc = k;
+    /* From pageable memory: done when it returns (after the work queued before it). */
+    CUDA_CHECK(cudaMemcpyAsync(w->sc, &w->host_sc, sizeof k, cudaMemcpyHostToDevice, c->stream));
+    w->sc_valid = 1;
+    return CS_OK;
+}
+
+/* The total of the chunk partials in w->part, on the host (cs_im_chunk_total). */
+static cs_status im_total(cuda_ctx *c, float *out)
+{
+    im_work *w = c->im;
+    CUDA_CHECK(cudaGetLastError());
+    CUDA_CHECK(cudaMemcpyAsync(w->host_part, w->part, sizeof(float) * (size_t)w->nchunks, cudaMemcpyDeviceToHost,
+                               c->stream));
+    CUDA_CHECK(cudaStreamSynchronize(c->stream));
+    *out = cs_im_chunk_total(w->host_part, w->nchunks);
+    return CS_OK;
+}
+
+/* Assembles at the iterate S (rest lengths L0): R, with blocks level 0's matrix; |R| into r. */
+static cs_status im_assemble(cuda_ctx *c, const float *S, const float *L0, int blocks, float *r)
+{
+    im_work *w = c->im;
+    im_asm a;
+    a.R = w->R, a.q = w->q, a.D = w->lv[0].D, a.part = w->part, a.mask0 = w->lv[0].mask;
+    for (int t = 0; t < 4; t++) a.F[t] = w->lv[0].F[t];
+    a.B[0] = w->B[0], a.B[1] = w->B[1];
+    k_im_assemble<<<(unsigned)w->nchunks, CS_CHUNK, sizeof(float) * CS_CHUNK, c->stream>>>(w->sc, S, w->base, L0, a,
+                                                                                           blocks);
+    float total = 0.0f;
+    const cs_status st = im_total(c, &total);
+    *r = sqrtf(total + 0.0f); /* the rocks' rows after the cloth's: none (refused under implicit_euler) */
+    return st;
+}
+
+/* a . b over level 0. */
+static cs_status im_dot(cuda_ctx *c, const float *a, const float *b, float *out)
+{
+    im_work *w = c->im;
+    k_im_dot<<<(unsigned)w->nchunks, CS_CHUNK, sizeof(float) * CS_CHUNK, c->stream>>>(w->sc, a, b, w->part);
+    return im_total(c, out);
+}
+
+/* The hierarchy from level 0's matrix: the coarse levels' Galerkin products, each level's Dinv. */
+static void im_hierarchy(cuda_ctx *c)
+{
+    im_work *w = c->im;
+    for (int l = 0; l < w->levels; l++) {
+        im_level_bufs *lv = &w->lv[l];
+        if (l > 0) k_im_galerkin<<<im_blocks(lv->n), IM_THREADS, 0, c->stream>>>(im_view(w, l - 1), *lv);
+        k_im_inverse<<<im_blocks(lv->n), IM_THREADS, 0, c->stream>>>(lv->D, lv->Dinv, lv->n);
+    }
+}
+
+/* One V-cycle from level l: x = B b (vcycle of implicit_cpu.c). */
+static void im_vcycle(cuda_ctx *c, int l, const float *b, float *x)
+{
+    im_work *w = c->im;
+    const cs_im_level L = im_view(w, l);
+    im_level_bufs *lv = &w->lv[l];
+    const unsigned nb = im_blocks(lv->n);
+    cudaStream_t st = c->stream;
+    const int last = l + 1 == w->levels;
+    const int sweeps = last ? CS_IM_COARSE_SWEEPS : CS_IM_SMOOTH;
+    k_im_jacobi<<<nb, IM_THREADS, 0, st>>>(L, x, b, lv->t, 1);
+    for (int k = 1; k < sweeps; k++) {
+        k_im_apply<<<nb, IM_THREADS, 0, st>>>(L, x, lv->t, 0);
+        k_im_jacobi<<<nb, IM_THREADS, 0, st>>>(L, x, b, lv->t, 0);
+    }
+    if (last) return;
+    k_im_apply<<<nb, IM_THREADS, 0, st>>>(L, x, lv->t, 0);
+    k_im_sub<<<im_blocks(3 * (int64_t)lv->n), IM_THREADS, 0, st>>>(b, lv->t, 3 * lv->n);
+    im_level_bufs *cl = &w->lv[l + 1];
+    k_im_restrict<<<im_blocks(cl->n), IM_THREADS, 0, st>>>(L, lv->t, cl->b, cl->nx, cl->ny);
+    im_vcycle(c, l + 1, cl->b, cl->x);
+    k_im_prolong<<<nb, IM_THREADS, 0, st>>>(L, x, cl->x, cl->nx);
+    for (int k = 0; k < sweeps; k++) {
+        k_im_apply<<<nb, IM_THREADS, 0, st>>>(L, x, lv->t, 0);
+        k_im_jacobi<<<nb, IM_THREADS, 0, st>>>(L, x, b, lv->t, 0);
+    }
+}
+
+/* Conjugate gradients on A dx = R preconditioned by a V-cycle (pcg of implicit_cpu.c): stops at
+ * |r| <= target or after most iterations; the iterations run into its. */
+static cs_status im_pcg(cuda_ctx *c, float target, int most, int *its)
+{
+    im_work *w = c->im;
+    const cs_im_level L0 = im_view(w, 0);
+    const int32_t n3 = 3 * w->n;
+    const size_t bytes = sizeof(float) * (size_t)n3;
+    const unsigned nb = im_blocks(w->n), nb3 = im_blocks(n3);
+    cs_status st;
+    *its = 0;
+    CUDA_CHECK(cudaMemsetAsync(w->dx, 0, bytes, c->stream));
+    CUDA_CHECK(cudaMemcpyAsync(w->r, w->R, bytes, cudaMemcpyDeviceToDevice, c->stream));
+    im_vcycle(c, 0, w->r, w->z);
+    CUDA_CHECK(cudaMemcpyAsync(w->p, w->z, bytes, cudaMemcpyDeviceToDevice, c->stream));
+    float rz;
+    if ((st = im_dot(c, w->r, w->z, &rz)) != CS_OK) return st;
+    int it = 0;
+    while (it < most) {
+        k_im_apply<<<nb, IM_THREADS, 0, c->stream>>>(L0, w->p, w->q, 1);
+        float pq;
+        if ((st = im_dot(c, w->p, w->q, &pq)) != CS_OK) return st;
+        if (!(pq > 0.0f) || !(rz > 0.0f)) break;
+        const float alpha = rz / pq;
+        k_im_cg_step<<<nb3, IM_THREADS, 0, c->stream>>>(w->dx, w->r, w->p, w->q, alpha, n3);
+        it++;
+        float rr;
+        if ((st = im_dot(c, w->r, w->r, &rr)) != CS_OK) return st;
+        if (!(sqrtf(rr) > target)) break;
+        im_vcycle(c, 0, w->r, w->z);
+        float rz2;
+        if ((st = im_dot(c, w->r, w->z, &rz2)) != CS_OK) return st;
+        const float beta = rz2 / rz;
+        rz = rz2;
+        k_im_cg_dir<<<nb3, IM_THREADS, 0, c->stream>>>(w->p, w->z, beta, n3);
+    }
+    *its = it;
+    CUDA_CHECK(cudaGetLastError());
+    return CS_OK;
+}
+
+/* One part of a substep, of length h (part of implicit_cpu.c without rocks): from state[cur] into
+ * state[cur ^ 1], which then holds the state; torn springs counted into the flags. */
+static cs_status im_part(cuda_ctx *c, const cs_phys *p0, float h, cs_solver_stats *stats)
+{
+    im_work *w = c->im;
+    cs_phys P = *p0; /* the part's own step */
+    const cs_phys *p = &P;
+    P.dt = h, P.hdt = 0.5f * h;
+    if (P.plastic_rate > 0.0f) P.plastic_f = P.plastic_rate * h < 1.0f ? P.plastic_rate * h : 1.0f;
+    cs_status st = im_scene(c, p);
+    if (st != CS_OK) return st;
+    const int32_t n = p->n;
+    const unsigned nb = im_blocks(n);
+    float *S = c->vb.state[c->cur ^ 1];
+    const float *L0 = c->vb.rest[c->rest_cur];
+    const float inv_h = 1.0f / h;
+    /* the largest coordinate at the part's start, for float's floor */
+    k_im_reach<<<(unsigned)w->nchunks, CS_CHUNK, sizeof(float) * CS_CHUNK, c->stream>>>(w->sc, c->vb.state[c->cur],
+                                                                                        w->part);
+    CUDA_CHECK(cudaGetLastError());
+    CUDA_CHECK(cudaMemcpyAsync(w->host_part, w->part, sizeof(float) * (size_t)w->nchunks, cudaMemcpyDeviceToHost,
+                               c->stream));
+    k_im_begin<<<nb, IM_THREADS, 0, c->stream>>>(w->sc, c->vb.state[c->cur], S, w->base, c->vb.mask, w->lv[0].mask, 1);
+    CUDA_CHECK(cudaStreamSynchronize(c->stream));
+    float reach = 0.0f;
+    for (int32_t q = 0; q < w->nchunks; q++) reach = w->host_part[q] > reach ? w->host_part[q] : reach;
+    const int most = p->solver_iterations;
+    float r;
+    if ((st = im_assemble(c, S, L0, 1, &r)) != CS_OK) return st;
+    const float r0 = r;
+    int k = 0;
+    float prev = 2.0f * r0 + 1.0f;
+    /* Newton: stops as implicit_cpu.c's does (the tolerance, float rounding's floor,
+     * solver_iterations, or an iteration that no longer halves the residual) */
+    const float rounding = cs_im_float_floor(p, reach);
+    while (k < most && r > p->solver_tolerance * r0 && r > rounding && r < 0.5f * prev) {
+        prev = r;
+        im_hierarchy(c);
+        const float aim = 0.5f * p->solver_tolerance * r0, step = 0.05f * r;
+        int its = 0;
+        if ((st = im_pcg(c, aim > step ? aim : step, p->cg_iterations, &its)) != CS_OK) return st;
+        stats->cg += its;
+        /* the backtracking line search: a = 1, 1/2, 1/4, 1/8 while the residual does not fall */
+        k_im_keep<<<nb, IM_THREADS, 0, c->stream>>>(S, w->xo, n);
+        float a = 1.0f, rn = r;
+        for (int tries = 0; tries < 4; tries++, a *= 0.5f) {
+            k_im_move<<<nb, IM_THREADS, 0, c->stream>>>(S, w->xo, w->dx, w->base, w->lv[0].mask, a, inv_h, n);
+            if ((st = im_assemble(c, S, L0, 1, &rn)) != CS_OK) return st;
+            if (rn < r) break;
+        }
+        if (!(rn < r)) { /* no step along dx helps: back to x_k, and stop */
+            k_im_move<<<nb, IM_THREADS, 0, c->stream>>>(S, w->xo, w->dx, w->base, w->lv[0].mask, 0.0f, inv_h, n);
+            if ((st = im_assemble(c, S, L0, 1, &rn)) != CS_OK) return st;
+            prev = rn;
+        }
+        k++;
+        r = rn;
+    }
+    stats->newton += k;
+    const float rel = r0 > 0.0f ? r / r0 : 0.0f;
+    stats->residual = rel > stats->residual ? rel : stats->residual;
+    stats->substeps++;
+    k_im_accel<<<nb, IM_THREADS, 0, c->stream>>>(S, w->base, w->lv[0].mask, c->vb.acc, inv_h, n);
+    c->cur ^= 1;
+    if (p->strain_on) {
+        /* symplectic Euler's strain pass (cs_strain_update per owned spring, as cs_cpu_strain_row)
+         * on the new positions, with the part's phys */
+        k_strain<<<nb, 256, 0, c->stream>>>(w->sc, bufs_of(c, c->cur, c->rest_cur));
+        c->rest_cur ^= 1;
+    }
+    CUDA_CHECK(cudaGetLastError());
+    return CS_OK;
+}
+
+/* Substeps of implicit_euler on the device state (cs_im_step of implicit_cpu.c): the solver's
+ * statistics into rep; torn springs and a non-finite state into the flags. */
+static cs_status im_step(cuda_ctx *c, const cs_model *m, int32_t substeps, cs_step_report *rep)
+{
+    const cs_phys *p = &m->phys;
+    cs_solver_stats stats;
+    memset(&stats, 0, sizeof stats);
+    rep->solver = stats;
+    if (c->host_sc.nr > 0) {
+        snprintf(c->err, sizeof c->err, "integrator implicit_euler with rocks is not implemented on the CUDA backend");
+        return CS_E_BACKEND;
+    }
+    cs_status st = im_fit(c, p);
+    if (st != CS_OK) return st;
+    for (int32_t k = 0; k < substeps; k++) {
+        /* fastest() of implicit_cpu.c: with no rocks, no speed asks for parts */
+        const int32_t parts = cs_im_splits(0.0f, p->dt, p->contact_offset, p->most_splits);
+        const float h = p->dt / (float)parts;
+        for (int32_t q = 0; q < parts; q++)
+            if ((st = im_part(c, p, h, &stats)) != CS_OK) return st;
+    }
+    k_im_finite<<<im_blocks(p->n), IM_THREADS, 0, c->stream>>>(c->vb.state[c->cur], p->n, c->flags);
+    CUDA_CHECK(cudaGetLastError());
+    rep->solver = stats;
+    return CS_OK;
+}
+
+/* cs_im_refresh: the accelerations a = F/m of the state as it is (the force law at v = v_n). */
+static cs_status im_refresh(cuda_ctx *c, const cs_model *m)
+{
+    const cs_phys *p = &m->phys;
+    if (c->host_sc.nr > 0) {
+        snprintf(c->err, sizeof c->err, "integrator implicit_euler with rocks is not implemented on the CUDA backend");
+        return CS_E_BACKEND;
+    }
+    cs_status st = im_fit(c, p);
+    if (st == CS_OK) st = im_scene(c, p);
+    if (st != CS_OK) return st;
+    im_work *w = c->im;
+    const float *S = c->vb.state[c->cur];
+    k_im_begin<<<im_blocks(p->n), IM_THREADS, 0, c->stream>>>(w->sc, S, NULL, w->base, c->vb.mask, w->lv[0].mask, 0);
+    float r;
+    if ((st = im_assemble(c, S, c->vb.rest[c->rest_cur], 0, &r)) != CS_OK) return st;
+    k_im_refresh_accel<<<im_blocks(p->n), IM_THREADS, 0, c->stream>>>(w->sc, w->R, w->lv[0].mask, c->vb.acc);
+    CUDA_CHECK(cudaGetLastError());
+    return CS_OK;
+}
+
 /* Accelerations of cloth and rocks from the current state, on the device; nothing waits. */
 static cs_status cuda_refresh(void *ctx, const cs_model *m, cs_state *s)
 {
@@ -1426,6 +2087,11 @@ static cs_status cuda_refresh(void *ctx, const cs_model *m, cs_state *s)
     c->pending = 1;
     const cs_status st = join_batch(c);
     if (st != CS_OK) return st;
+    if (m->phys.integrator == CS_IMPLICIT_EULER) {
+        const cs_status is = im_refresh(c, m);
+        c->frame_call = -1;
+        return is;
+    }
     cloth(c, MODE_ACCEL, false, c->cur, c->rest_cur);
     CUDA_CHECK(cudaGetLastError());
     rocks(c, ROCKS_ACCEL, c->cur, c->rest_cur);
@@ -1590,7 +2256,14 @@ static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t su
     if (js != CS_OK) return js;
     CUDA_CHECK(cudaMemsetAsync(c->flags, 0, FLAG_COUNT * sizeof(int), c->stream));
     const int strain = m->phys.strain_on != 0;
-    for (int32_t left = substeps; left > 0;) {
+    const int implicit = m->phys.integrator == CS_IMPLICIT_EULER;
+    if (implicit) {
+        /* implicit_euler: its own launches, which swap the buffers as they go (no advance) */
+        const cs_status is = im_step(c, m, substeps, rep);
+        if (is != CS_OK) return is;
+        c->calls++;
+    }
+    for (int32_t left = implicit ? 0 : substeps; left > 0;) {
         graph_key k;
         memset(&k, 0, sizeof k);
         k.len = left < graph_len(m) ? left : graph_len(m);
@@ -1607,7 +2280,7 @@ static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t su
         CUDA_CHECK(cudaGraphLaunch(exec, c->stream));
         left -= k.len;
     }
-    advance(c, substeps, strain);
+    if (!implicit) advance(c, substeps, strain);
     const cs_status fs = copy_frame(c);
     if (fs != CS_OK) return fs;
     CUDA_CHECK(cudaMemcpyAsync(c->host_flags, c->flags, FLAG_COUNT * sizeof(int), cudaMemcpyDeviceToHost, c->stream));
@@ -1747,6 +2420,7 @@ static cs_status batch_run(cuda_ctx *c, batch_ctx *b, cs_batch_item *items, int 
      * the launch covers only theirs blocks. */
     int32_t m = 0;
     for (int k = 0; k < n; k++) {
+        if (items[k].m->phys.integrator == CS_IMPLICIT_EULER) continue; /* stepped alone (cuda_step_batch) */
         items[k].rep.torn = 0, items[k].rep.finite = 1, items[k].status = CS_OK;
         if (items[k].substeps <= 0) continue;
         int32_t at = m++;
@@ -1849,6 +2523,13 @@ static cs_status cuda_step_batch(cs_batch_item *items, int n)
                 items[j].status = cuda_step(items[j].ctx, items[j].m, items[j].s, items[j].substeps, &items[j].rep);
             return CS_OK;
         }
+    /* implicit_euler runs its own sequence of launches: those scenes step alone, as the CPU
+     * backend's cpu_step_batch does; batch_run leaves them out. */
+    for (int k = 0; k < n; k++)
+        if (items[k].m->phys.integrator == CS_IMPLICIT_EULER) {
+            memset(&items[k].rep, 0, sizeof items[k].rep);
+            items[k].status = cuda_step(items[k].ctx, items[k].m, items[k].s, items[k].substeps, &items[k].rep);
+        }
     std::lock_guard<std::mutex> hold(batch_lock);
     const cs_status st = batch_run(c, &batch, items, n);
     if (st != CS_OK) {
@@ -1920,9 +2601,68 @@ static double peak_bandwidth(int dev)
  * mask (1 byte), the six owned rest lengths, the state written; with strain the change byte (read
  * and, where it flips, written) and the rest lengths of vertices whose springs are changing (none
  * at rest); the acceleration where a graph ends. (A vertex at a border owns fewer springs.) Rock kernels scale with rocks, not vertices. */
+/* implicit_euler's rows: its launches scale with the solver's iterations, which depend on the
+ * state, so the model takes nominal counts - IM_NEWTON Newton iterations a substep, each with one
+ * line-search assembly and IM_CG conjugate-gradient iterations (about what the default cloth takes:
+ * MODEL.md's table) - and the bytes per vertex each kernel's loads and stores name (a vertex's
+ * own; neighbours' reads come from cache). A V-cycle's coarse levels add about a third of level 0's
+ * traffic (2 x 2 aggregation), counted in its rows. Rough by design: what bench measures is the
+ * truth; the copies of the partials back to the host (4 bytes a chunk) and the waits for them, one
+ * per sum, are not bytes a vertex but they bound a small cloth's speed. */
+#define IM_NEWTON 3.0
+#define IM_CG 5.0
+static void im_cost(const cs_model *m, cs_cost_model *out)
+{
+    const cs_phys *p = &m->phys;
+    const double F = m->substeps, N = IM_NEWTON, C = IM_CG, levels = 4.0 / 3.0;
+    const bool strain = p->strain_on != 0;
+    /* A level's matrix per vertex: D and the four forward blocks (180 bytes); level 0's bending
+     * blocks (72). Rows: bytes a vertex per run, runs a substep, launches a run. */
+    const double blocks = 5 * 36.0, bend = 2 * 36.0;
+    /* a V-cycle's launches: per level above the coarsest a sweep each way, three products A x, the
+     * residual, restriction and prolongation; the coarsest's 16 sweeps (the default 4 levels) */
+    const double vcycle_launches = 3.0 * 7.0 + 2.0 * CS_IM_COARSE_SWEEPS - 1.0;
+#define IM_ROW(name, rd, wr, runs, launches) cs_cost_add(out, name, rd, wr, 0, runs, (runs) * F * (launches))
+    IM_ROW("k_im_reach (the part's largest coordinate)", 12.0, 0.0, 1.0, 1.0);
+    IM_ROW("k_im_begin (x_n, v_n kept; the first guess)", 24.0 + 1.0, 24.0 + 4.0 + 24.0, 1.0, 1.0);
+    /* the state (24), x_n's velocity (12), rest lengths (24), mask (4); R, the springs' force,
+     * level 0's D, forward and bending blocks */
+    IM_ROW("k_im_assemble (residual and level 0's matrix)", 64.0, 12.0 + 12.0 + blocks + bend, 1.0 + N, 1.0);
+    /* each coarse level's Galerkin product reads the finer level's blocks and writes its own;
+     * every level's Dinv */
+    IM_ROW("k_im_galerkin, k_im_inverse (the hierarchy)", levels * 36.0 + 0.25 * levels * (blocks + 4.0),
+           levels * 36.0 + 0.25 * levels * (blocks + 4.0), N, 7.0);
+    /* per CG iteration: A p with bending (the blocks, p, the mask; A p written), three dot
+     * products, the two vector updates, a V-cycle (smoothing sweeps, products, residual,
+     * restriction, prolongation; the coarse levels a third more than level 0) */
+    IM_ROW("k_im_apply (A p, bending included)", blocks + bend + 12.0 + 4.0, 12.0, N * C, 1.0);
+    IM_ROW("k_im_dot (chunk partials)", 24.0, 0.0, N * (3.0 * C + 1.0), 1.0);
+    IM_ROW("k_im_cg_step, k_im_cg_dir", 48.0 + 24.0, 24.0 + 12.0, N * C, 2.0);
+    IM_ROW("V-cycle (k_im_jacobi, k_im_apply, k_im_sub, k_im_restrict, k_im_prolong)",
+           levels * (2 * (36.0 + 40.0) + 3 * (blocks + 16.0) + 24.0 + 12.0 + 24.0),
+           levels * (2 * 12.0 + 3 * 12.0 + 12.0 + 3.0 + 12.0), N * (C + 1.0), vcycle_launches);
+    IM_ROW("k_im_keep, k_im_move (the line search)", 12.0 + 12.0 + 12.0 + 12.0 + 4.0, 12.0 + 24.0, N, 2.0);
+    IM_ROW("k_im_accel", 24.0 + 4.0, 12.0, 1.0, 1.0);
+    if (strain) IM_ROW("k_strain", 12.0 + 24.0 + 1.0, 0.0, 1.0, 1.0);
+    IM_ROW("k_im_finite (a step call's end)", 24.0, 0.0, 1.0 / F, 1.0);
+#undef IM_ROW
+    cs_cost_add(out, "frame copy (positions, on the device)", 12.0, 12.0, 0, 1.0 / F, 0);
+    out->graphs_per_frame = 0.0; /* plain launches */
+    /* every launch waits for the one before */
+    out->nodes_per_substep = out->launches_per_frame / F;
+    /* stepped alone in a batch (cuda_step_batch): every launch and copy is its own call */
+    out->batch_calls_per_scene = out->launches_per_frame;
+    out->batch_calls_per_read_scene = out->launches_per_frame + 3.0;
+}
+
 static void cuda_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
 {
     const cs_phys *p = &m->phys;
+    if (p->integrator == CS_IMPLICIT_EULER) {
+        memset(out, 0, sizeof *out);
+        im_cost(m, out);
+        return;
+    }
     const double G = graph_len(m), F = m->substeps, graphs = ceil(F / G);
     const bool verlet = p->integrator == CS_VELOCITY_VERLET, strain = p->strain_on != 0;
     const double rock = (double)sizeof(cs_rock_state);
@@ -1980,7 +2720,7 @@ static const char *cuda_error(void *ctx) { return ((cuda_ctx *)ctx)->err; }
 
 static const cs_backend cuda_backend = {
     "cuda", cuda_available, cuda_create, cuda_destroy, cuda_upload, cuda_download, cuda_refresh, cuda_step,
-    cuda_device, cuda_error, cuda_stats, cuda_cost, CS_CAP_SURFACE_CONTACT, cuda_step_batch,
+    cuda_device, cuda_error, cuda_stats, cuda_cost, CS_CAP_SURFACE_CONTACT | CS_CAP_IMPLICIT, cuda_step_batch,
 };
 
 extern "C" const cs_backend *cs_backend_cuda(void) { return &cuda_backend; }

@@ -760,9 +760,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state 
         w->xb[v] = s->x[v], w->yb[v] = s->y[v], w->zb[v] = s->z[v];
         w->vxb[v] = s->vx[v], w->vyb[v] = s->vy[v], w->vzb[v] = s->vz[v];
         cs_vec3 x = LOADX(v);
-        const float ax = fabsf(x.x) > fabsf(x.y) ? fabsf(x.x) : fabsf(x.y), az = fabsf(x.z);
-        reach = ax > reach ? ax : reach;
-        reach = az > reach ? az : reach;
+        reach = cs_im_reach(x, reach);
         if (s->w[v] != 0.0f)
             x = cs_add(x, cs_add(cs_scale(LOADV(v), h), cs_scale(p->gravity, h * h)));
         else if (v == g)

@@ -11,9 +11,12 @@
  * than 64 rocks, vertices touching two rocks at once, more than 64 chunks with rocks, rows of
  * several chunks, a 3 x 2 cloth; both contact models (surface: stone rocks resting over a
  * triangle, an edge, a vertex and a diagonal, with friction from spin and a sliding kinematic rock,
- * two rocks sharing vertices, 40 rocks, a tearing grab); and commands mid-run: releasing the grab,
- * moving a rock, set_params, switching integrator, friction model and contact model, a snapshot
- * saved by the CPU backend and loaded into both, a scene resized.
+ * two rocks sharing vertices, 40 rocks, a tearing grab); implicit_euler without rocks (the ground
+ * within reach, plasticity and tearing, a grab and one that tears, rows of two chunks; its solver's
+ * statistics compared too, in shorter calls: each substep is a solve); and commands mid-run:
+ * releasing the grab, moving a rock, set_params, switching integrator (also to and from
+ * implicit_euler), friction model and contact model, a snapshot saved by the CPU backend and
+ * loaded into both, a scene resized.
  *
  * Plain C (no cmocka: a GPU machine may have no -dev packages). Exit 0 pass, 1 fail, 77 skipped (no
  * CUDA build or no device). `test_parity cuda` runs the CUDA backend - on a GPU in tests/gpu/run.sh,
@@ -56,7 +59,8 @@ enum {
     S_RESIZE = 64,   /* cs_sim_set_scene to another size, rocks added again */
     S_PAIR = 128,    /* two rocks side by side, sunk to the cloth: vertices between touch both */
     S_SPOTS = 256,   /* stone rocks resting over a triangle, a structural edge, a vertex, a diagonal */
-    S_CONTACT = 512  /* contact_model switched mid-run, then switched back */
+    S_CONTACT = 512, /* contact_model switched mid-run, then switched back */
+    S_SWITCH_IM = 1024 /* integrator switched between velocity_verlet and implicit_euler, then back */
 };
 
 typedef struct variant {
@@ -69,6 +73,7 @@ typedef struct variant {
 
 #define VV CS_VELOCITY_VERLET
 #define SE CS_SYMPLECTIC_EULER
+#define IM CS_IMPLICIT_EULER
 #define CV CS_FRICTION_COULOMB_VISCOUS
 #define RS CS_FRICTION_RESULTANT
 static const variant variants[] = {
@@ -95,6 +100,13 @@ static const variant variants[] = {
     {"surface: 40 rocks", 40, 40, SE, CV, 1, 40, 0, 0.025f, 1},
     {"surface: params, switches, contact model", 40, 36, VV, CV, 1, 4, S_GRAB | S_PARAMS | S_SWITCH | S_CONTACT, 0, 1},
     {"surface: wide rows, tearing grab", 600, 6, VV, CV, 1, 3, S_GRAB | S_TEAR, 0, 1},
+    /* implicit_euler (no rocks: refused under it for now); the ground close below the cloth */
+    {"implicit: plain, ground", 24, 20, IM, CV, 0, 0, 0, 0, 0},
+    {"implicit: strain, grab, ground", 24, 20, IM, RS, 1, 0, S_GRAB, 0, 0},
+    {"implicit: grab that tears", 24, 20, IM, CV, 1, 0, S_GRAB | S_TEAR, 0, 0},
+    {"implicit: switched to and from velocity_verlet", 24, 20, VV, CV, 1, 0, S_GRAB | S_SWITCH_IM, 0, 0},
+    {"implicit: snapshot loaded into both", 24, 20, IM, CV, 1, 0, S_GRAB | S_SNAPSHOT, 0, 0},
+    {"implicit: wide rows (2 chunks a row), grab", 300, 3, IM, CV, 1, 0, S_GRAB, 0, 0},
 };
 
 static void scene_of(const variant *vr, int nx, int ny, cs_scene *sc)
@@ -197,6 +209,8 @@ static void params_of(const variant *vr, const cs_scene *sc, cs_params *p)
     p->plastic_rate = vr->strain ? 30.0f : 0.0f;
     p->tear_strain = vr->strain ? ((vr->script & S_TEAR) ? 0.15f : 0.3f) : 0.0f;
     p->ground_z = sc->height - 0.3f;
+    /* implicit_euler's scenes are short: the ground within reach of the sagging cloth */
+    if (vr->integrator == CS_IMPLICIT_EULER || (vr->script & S_SWITCH_IM)) p->ground_z = sc->height - 0.02f;
     p->wind[1] = 2.0f;
     p->max_substeps = 100000;
     p->contact_model = vr->contact;
@@ -261,6 +275,12 @@ static void compare_frame(pair *pr)
         report(pr, "step, size, rocks or substeps", 0, (double)ia.step, (double)ib.step);
         return;
     }
+    /* implicit_euler's solver statistics of the last call (zeros under the others) */
+    if (ia.solver.substeps != ib.solver.substeps || ia.solver.newton != ib.solver.newton ||
+        ia.solver.cg != ib.solver.cg || ia.solver.lost != ib.solver.lost)
+        report(pr, "solver substeps, Newton or CG iterations", 0, (double)ia.solver.newton * 1e6 + ia.solver.cg,
+               (double)ib.solver.newton * 1e6 + ib.solver.cg);
+    same_floats(pr, "solver residual", &ia.solver.residual, &ib.solver.residual, 1);
     const size_t n3 = (size_t)ia.n_vertices * 3;
     float *fa = malloc(sizeof(float) * n3), *fb = malloc(sizeof(float) * n3);
     if (cs_read_positions(pr->a, fa, n3) != CS_OK || cs_read_positions(pr->b, fb, n3) != CS_OK)
@@ -372,6 +392,19 @@ static int shared_contacts(cs_sim *sim)
     return count;
 }
 
+/* The lowest z of the cloth now. */
+static float lowest(cs_sim *sim)
+{
+    cs_info info;
+    cs_sim_info(sim, &info);
+    const size_t n3 = (size_t)info.n_vertices * 3;
+    float *x = malloc(sizeof(float) * n3), low = 3.0e38f;
+    if (x && cs_read_positions(sim, x, n3) == CS_OK)
+        for (size_t v = 0; v < n3; v += 3) low = x[v + 2] < low ? x[v + 2] : low;
+    free(x);
+    return low;
+}
+
 /* The script: calls of odd lengths with frames read between them, and the variant's commands. */
 static int run(const variant *vr, const char *other, int other_threads)
 {
@@ -391,7 +424,10 @@ static int run(const variant *vr, const char *other, int other_threads)
     }
     /* Under sanitizers (CLOTHD_SANITIZED, with quick) only the first three calls: the same paths. */
     const int64_t full[] = {1, 7, 37, 101, 231, 353, 270}, fast[] = {1, 7, 13, 29, 23, 27};
-    const int64_t *calls = quick ? fast : full;
+    /* implicit_euler's substeps are a solve each (a few hundred launches): fewer of them */
+    const int64_t implicit_calls[] = {1, 3, 5, 7, 9, 5, 3};
+    const int is_implicit = vr->integrator == CS_IMPLICIT_EULER || (vr->script & S_SWITCH_IM);
+    const int64_t *calls = is_implicit ? implicit_calls : quick ? fast : full;
     const int n_calls = quick ? (getenv("CLOTHD_SANITIZED") ? 4 : 6) : 7;
     cs_params p;
     cs_sim_params(pr.a, &p);
@@ -402,12 +438,23 @@ static int run(const variant *vr, const char *other, int other_threads)
     for (int32_t r = 0; r < n_before; r++) cs_rock_at(pr.a, r, &before[r]);
     compare_all(&pr);
     const int shared = (vr->script & S_PAIR) ? shared_contacts(pr.a) : -1;
-    int pushed = vr->rocks == 0;
+    /* (the wide rows' one free row sags too little to reach the ground) */
+    int pushed = vr->rocks == 0, solved = !is_implicit, grounded = !is_implicit || vr->ny < 10;
     for (int k = 0; k < n_calls && !pr.fail; k++) {
         char phase[64];
         snprintf(phase, sizeof phase, "call %d (%lld substeps)", k + 1, (long long)calls[k]);
         pr.phase = phase;
         if (step_both(&pr, calls[k]) != 0) break;
+        if (is_implicit) {
+            /* implicit_euler's calls: the solver ran, and the cloth came down to the ground */
+            cs_info now_info;
+            cs_params now_p;
+            cs_sim_info(pr.b, &now_info);
+            cs_sim_params(pr.b, &now_p);
+            solved |= now_p.integrator == IM && now_info.solver.substeps == calls[k] && now_info.solver.newton > 0 &&
+                       now_info.solver.cg > 0;
+            if (k == n_calls - 1 && lowest(pr.b) < now_p.ground_z + now_p.contact_offset) grounded = 1;
+        }
         if (k == 1 && !pushed) pushed = rocks_were_pushed(pr.a, before, n_before, 8 * info.dt, p.gravity);
         compare_frame(&pr);
         if (k == 1 && (vr->script & S_GRAB) && !(vr->script & S_TEAR)) both(&pr, cs_release(pr.a), cs_release(pr.b), "release");
@@ -433,6 +480,12 @@ static int run(const variant *vr, const char *other, int other_threads)
             q.integrator = q.integrator == VV ? SE : VV;
             q.friction_model = q.friction_model == CV ? RS : CV;
             both(&pr, cs_sim_set_params(pr.a, &q), cs_sim_set_params(pr.b, &q), "switching integrator and friction");
+        }
+        if ((k == 2 || k == 4) && (vr->script & S_SWITCH_IM)) {
+            cs_params q;
+            cs_sim_params(pr.a, &q);
+            q.integrator = q.integrator == IM ? VV : IM;
+            both(&pr, cs_sim_set_params(pr.a, &q), cs_sim_set_params(pr.b, &q), "switching integrator to or from implicit_euler");
         }
         if ((k == 2 || k == 4) && (vr->script & S_CONTACT)) {
             cs_params q;
@@ -470,6 +523,14 @@ static int run(const variant *vr, const char *other, int other_threads)
         printf("%-46s no rock touched the cloth in the first calls: the scene tests less than it says\n", vr->name);
         pr.fail = 1;
     }
+    if (!solved) {
+        printf("%-46s no call ran implicit_euler's solver\n", vr->name);
+        pr.fail = 1;
+    }
+    if (!grounded) {
+        printf("%-46s the cloth did not reach the ground\n", vr->name);
+        pr.fail = 1;
+    }
     if (shared == 0) {
         printf("%-46s no vertex touches both rocks\n", vr->name);
         pr.fail = 1;
@@ -497,9 +558,10 @@ static const variant batch_variants[] = {
     {"batch: surface contact, two rocks at once", 21, 21, VV, CV, 1, 2, S_PAIR, 0.05f, 1},
     {"batch: 66 rocks (the split rock kernels)", 20, 20, SE, CV, 1, 66, 0, 0.012f, 0},
     {"batch: wide rows (2 chunks a row), grab", 300, 3, VV, RS, 1, 1, S_GRAB, 0, 0},
+    {"batch: implicit_euler strain grab (steps alone)", 18, 12, IM, CV, 1, 0, S_GRAB, 0, 0},
     {"batch: joins mid-run, euler surface", 18, 18, SE, CV, 1, 2, 0, 0, 1},
 };
-#define BATCH_N 6 /* the first six start together; the seventh joins when the third leaves */
+#define BATCH_N 7 /* the first seven start together; the eighth joins when the second leaves */
 
 typedef struct batch_scene {
     const variant *vr;
@@ -639,6 +701,8 @@ static int run_batch(const char *other)
         for (int k = 0; k <= BATCH_N; k++)
             if (sc[k].live) {
                 substeps[n] = base[r] + 2 * k; /* each its own: the shorter ones idle */
+                /* implicit_euler's substeps are a solve each: fewer */
+                if (sc[k].vr->integrator == IM) substeps[n] = 1 + 2 * r;
                 if (k == 2 && substeps[n] > soft_call) soft_call = substeps[n];
                 batch[n] = sc[k].batched;
                 of[n++] = k;

@@ -515,6 +515,14 @@ SIM_HD static inline float cs_im_float_floor(const cs_phys *p, float reach)
     return 1.2e-8f * reach * 4.0f * (p->k[CS_SX] + p->k[CS_D1] + p->k[CS_BX]) * sqrtf((float)p->n);
 }
 
+/* The largest coordinate of x and r (for cs_im_float_floor's reach; max is exact in any order). */
+SIM_HD static inline float cs_im_reach(cs_vec3 x, float r)
+{
+    const float ax = fabsf(x.x) > fabsf(x.y) ? fabsf(x.x) : fabsf(x.y), az = fabsf(x.z);
+    r = ax > r ? ax : r;
+    return az > r ? az : r;
+}
+
 /* The speed past which a body crosses the contact layer (contact_offset) in a substep h: the
  * substep is then cut into equal parts (MODEL.md): how many, for the fastest speed vmax, at most
  * most. */
