@@ -83,7 +83,7 @@ static void test_free_fall(void **unused)
 
 /* A column of N vertices hanging from its top: the link below row j carries the j vertices
  * under it, so the column stretches by m g / k (1 + 2 + ... + (N - 1)) = m g N (N - 1) / (2 k) -
- * the stiffness the explicit integrators need 270 substeps a frame for, here in 2. */
+ * the stiffness the explicit integrators need 270 substeps a frame for, here in one. */
 static void test_hanging_column_extension(void **unused)
 {
     (void)unused;
