@@ -1787,16 +1787,12 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     if (!w) return CS_E_NOMEM;
     w->nx = p->nx, w->ny = p->ny, w->n = p->n, w->nchunks = p->nchunks;
     size_t floats = (size_t)w->n * (6 + 3 + 18 + 18) + (size_t)w->nchunks;
-    int32_t lx = p->nx, ly = p->ny;
-    int L = 0;
-    for (;;) {
-        w->lv[L].nx = lx, w->lv[L].ny = ly, w->lv[L].n = lx * ly;
-        floats += (size_t)lx * (size_t)ly * (9 * 6 + 1 + 9);
-        L++;
-        if (L == CS_IM_MAX_LEVELS || (lx <= CS_IM_COARSEST && ly <= CS_IM_COARSEST)) break;
-        lx = cs_im_coarse(lx), ly = cs_im_coarse(ly);
+    int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
+    const int L = w->levels = cs_im_levels(p->nx, p->ny, lx, ly);
+    for (int l = 0; l < L; l++) {
+        w->lv[l].nx = lx[l], w->lv[l].ny = ly[l], w->lv[l].n = lx[l] * ly[l];
+        floats += (size_t)w->lv[l].n * CS_IM_LEVEL_FLOATS;
     }
-    w->levels = L;
     cudaError_t e = cudaMalloc(&w->mem, sizeof(float) * floats);
     if (e == cudaSuccess) e = cudaMalloc((void **)&w->sc, sizeof(cuda_scene));
     if (e == cudaSuccess) e = cudaMallocHost((void **)&w->host_part, sizeof(float) * (size_t)w->nchunks);

@@ -61,17 +61,22 @@ void cs_cost_add(cs_cost_model *c, const char *name, double read, double written
     c->launches_per_frame += per_frame;
 }
 
-int cs_backend_covers(const cs_backend *b, const cs_params *p, char *why, size_t why_len)
+const char *cs_backend_lacks(const cs_backend *b, const cs_params *p, char *why, size_t why_len)
 {
     if (p->contact_model == CS_CONTACT_SURFACE && !(b->caps & CS_CAP_SURFACE_CONTACT)) {
         snprintf(why, why_len, "the %s backend does not have contact_model surface yet (use contact_model vertex, or "
                  "the cpu backend)", b->name);
-        return 0;
+        return "contact_model";
     }
     if (p->integrator == CS_IMPLICIT_EULER && !(b->caps & CS_CAP_IMPLICIT)) {
         snprintf(why, why_len, "the %s backend does not have integrator implicit_euler yet (use velocity_verlet, or "
                  "the cpu backend)", b->name);
-        return 0;
+        return "integrator";
     }
-    return 1;
+    return NULL;
+}
+
+int cs_backend_covers(const cs_backend *b, const cs_params *p, char *why, size_t why_len)
+{
+    return cs_backend_lacks(b, p, why, why_len) == NULL;
 }

@@ -93,9 +93,8 @@ cs_status cs_guard_eval(cs_sim *sim, const cs_combos *combos, const cs_scene *sc
         return cs_fail(sim, CS_E_UNSTABLE, param ? param : "integrator",
                        "integrator implicit_euler does not couple rocks yet: remove the rocks, or use velocity_verlet "
                        "or symplectic_euler");
-    /* implicit_euler: the cloth's springs and contacts are solved implicitly and bound nothing;
-     * rock-rock and rock-ground contact sub-cycle within a substep (cs_phys.rock_dt). What is left
-     * is a rock's coupling to the cloth, below. */
+    /* implicit_euler: the cloth's springs and contacts are solved implicitly and bound nothing
+     * (and it has no rocks, above) */
     for (int c = 0; c < (implicit ? 0 : combos->n); c++) {
         const double ns = combos->c[c][0], nsh = combos->c[c][1], nb = combos->c[c][2];
         const double K = ns * p->k_structural + nsh * p->k_shear + nb * p->k_bend + mult * p->k_contact;
@@ -107,8 +106,8 @@ cs_status cs_guard_eval(cs_sim *sim, const cs_combos *combos, const cs_scene *sc
     for (int32_t r = 0; r < n_rocks; r++) {
         if (rocks[r].kinematic) continue;
         const double M = rocks[r].mass;
-        double K = implicit ? 0.0 : p->k_rock * M, C = implicit ? 0.0 : p->c_rock * M;
-        if (implicit || p->contact_model == CS_CONTACT_SURFACE) {
+        double K = p->k_rock * M, C = p->c_rock * M;
+        if (p->contact_model == CS_CONTACT_SURFACE) {
             const double reach = (double)rocks[r].radius + p->contact_offset;
             const double contacts = floor(4 * 3.14159265358979323846 * reach * reach / face) + 3; /* cs_surface_max_touch */
             K += contacts * p->k_contact;

@@ -4,17 +4,20 @@
  *
  * A substep of length h (cut into equal parts while a rock or vertex would cross the contact layer
  * in it: cs_im_splits), each part:
- *   1. the rocks: sub-cycled to cs_phys.rock_dt, each sub-cycle v += d (a_cloth + F_other / M),
- *      w likewise, then drift - a_cloth being the cloth's force over mass of the last solve (the
- *      rock's a, alpha), F_other the rocks', the ground's and gravity (cs_rock_force without the
- *      cloth);
- *   2. the cloth: x_n and v_n kept aside, the first guess x = x_n + h v_n + h^2 g (pinned vertices
- *      stay, the grabbed one moves at its grab velocity), then Newton: assemble (residual, blocks,
- *      the rocks' partials) at the iterate, stop when its norm is solver_tolerance of the first or
- *      after solver_iterations, else solve A dx = R by conjugate gradients preconditioned with one
- *      multigrid V-cycle (at most cg_iterations), x += dx, v = (x - x_n)/h;
+ *   1. the rocks predicted: sub-cycled to cs_phys.rock_dt, each sub-cycle v += d (a_cloth + F_other
+ *      / M), w likewise, then drift - a_cloth being the cloth's force over mass of the last solve
+ *      (the rock's a, alpha), F_other the rocks', the ground's and gravity (cs_rock_force without
+ *      the cloth); the rock contacts taken for the part (cs_im_contact, at the part's start);
+ *   2. the cloth and the dynamic rocks' translation: x_n and v_n kept aside, the first guess x = x_n
+ *      + h v_n + h^2 g (pinned vertices stay, the grabbed one moves at its grab velocity), then
+ *      Newton: assemble (residual, blocks, the rocks' partials and rows) at the iterate, stop at
+ *      solver_tolerance of the first residual, at float's floor, after solver_iterations or once an
+ *      iteration no longer halves it, else solve A dx = R by conjugate gradients preconditioned with
+ *      one multigrid V-cycle (at most cg_iterations) and step along dx with a backtracking line
+ *      search, v = (x - x_n)/h;
  *   3. a = (v - v_n)/h; the rocks' a, alpha from the last assembly's partials; with strain, the rest
  *      lengths from the new positions (cs_cpu_strain_row), swapped.
+ * (Rocks are refused under implicit_euler for now, by the guard: MODEL.md's "Known gaps".)
  * Every loop's iterations are independent (each writes its own vertex or chunk), and every sum goes
  * through per-chunk trees summed in chunk order, so the result is the same for any thread count. */
 #include <math.h>
@@ -66,18 +69,14 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     cs_im_work *w = calloc(1, sizeof *w);
     if (!w) return NULL;
     w->nx = nx, w->ny = ny, w->n = nx * ny, w->nchunks = nchunks;
-    int32_t lx = nx, ly = ny;
     size_t floats = (size_t)w->n * (9 + 3 + 18 + 15 + 18) + (size_t)nchunks + 6 * 3 * (size_t)CS_MAX_ROCKS +
                     (9 + 9 + 3) * (size_t)CS_MAX_ROCKS;
-    int L = 0;
-    for (;;) {
-        w->lv[L].nx = lx, w->lv[L].ny = ly, w->lv[L].n = lx * ly;
-        floats += (size_t)lx * ly * (9 * 6 + 1 + 9);
-        L++;
-        if (L == CS_IM_MAX_LEVELS || (lx <= CS_IM_COARSEST && ly <= CS_IM_COARSEST)) break;
-        lx = cs_im_coarse(lx), ly = cs_im_coarse(ly);
+    int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
+    const int L = w->levels = cs_im_levels(nx, ny, lx, ly);
+    for (int l = 0; l < L; l++) {
+        w->lv[l].nx = lx[l], w->lv[l].ny = ly[l], w->lv[l].n = lx[l] * ly[l];
+        floats += (size_t)w->lv[l].n * CS_IM_LEVEL_FLOATS;
     }
-    w->levels = L;
     float *m = malloc(sizeof(float) * floats);
     w->ct = malloc(sizeof *w->ct * (size_t)w->n * CS_IM_SLOTS);
     w->lost = calloc((size_t)nchunks, sizeof *w->lost);
@@ -147,6 +146,14 @@ static void put3(float *a, int32_t v, cs_vec3 x)
 static void put9(float *a, int32_t v, const cs_mat3 *m) { memcpy(a + 9 * (size_t)v, m->m, sizeof m->m); }
 
 /* ---- assembly ---- */
+
+/* Chunk c: its row j and columns i0 .. i1 (physics.h, CS_CHUNK). */
+static void chunk_span(const cs_phys *p, int32_t c, int32_t *j, int32_t *i0, int32_t *i1)
+{
+    *j = c / p->nseg;
+    *i0 = (c % p->nseg) * CS_CHUNK;
+    *i1 = *i0 + CS_CHUNK < p->nx ? *i0 + CS_CHUNK : p->nx;
+}
 
 #define LOADX(o) cs_v3(s->x[(o)], s->y[(o)], s->z[(o)])
 #define LOADV(o) cs_v3(s->vx[(o)], s->vy[(o)], s->vz[(o)])
@@ -246,8 +253,6 @@ static void ring_of(const cs_phys *p, const cs_state *s, const float *ro, int32_
     *reach = most;
 }
 
-/* Contacts of chunk (row j, columns i0 .. i1) in rock order, then the ground: forces onto R,
- * blocks onto level 0's D, each rock's reaction from the chunk into its partial (chunk tree). */
 /* The box (lo, hi) of rows j-1 .. j+1 over columns i0-1 .. i1: every triangle of the chunk's
  * rings. */
 static void chunk_box(const cs_phys *p, const cs_state *s, int32_t j, int32_t i0, int32_t i1, cs_vec3 *lo, cs_vec3 *hi)
@@ -451,17 +456,17 @@ static float rocks_residual(const cs_phys *p, float h, const cs_state *s, cs_im_
 static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, float *partials, int blocks,
                       int threads)
 {
-    const int32_t nseg = p->nseg, nchunks = p->nchunks;
+    const int32_t nchunks = p->nchunks;
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t c = 0; c < nchunks; c++) {
-        const int32_t j = c / nseg, g = c % nseg;
-        const int32_t i0 = g * CS_CHUNK, i1 = i0 + CS_CHUNK < p->nx ? i0 + CS_CHUNK : p->nx;
+        int32_t j, i0, i1;
+        chunk_span(p, c, &j, &i0, &i1);
         chunk_owned(p, h, s, w, j, i0, i1, blocks);
     }
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 4)
     for (int32_t c = 0; c < nchunks; c++) {
-        const int32_t j = c / nseg, g = c % nseg;
-        const int32_t i0 = g * CS_CHUNK, i1 = i0 + CS_CHUNK < p->nx ? i0 + CS_CHUNK : p->nx;
+        int32_t j, i0, i1;
+        chunk_span(p, c, &j, &i0, &i1);
         chunk_springs(p, h, s, w, j, i0, i1, blocks);
         chunk_contacts(p, h, s, w, j, i0, i1, c, partials, blocks);
         chunk_residual(p, h, s, w, j, i0, i1, c, blocks);
@@ -473,12 +478,12 @@ static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *
 /* The part's rock contacts (chunk_contact_setup) from the state as it is; returns those lost. */
 static int32_t contact_setup(const cs_phys *p, const cs_state *s, cs_im_work *w, int threads)
 {
-    const int32_t nseg = p->nseg, nchunks = p->nchunks;
+    const int32_t nchunks = p->nchunks;
     const float margin = p->contact_offset + 1e-3f;
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 4)
     for (int32_t c = 0; c < nchunks; c++) {
-        const int32_t j = c / nseg, g = c % nseg;
-        const int32_t i0 = g * CS_CHUNK, i1 = i0 + CS_CHUNK < p->nx ? i0 + CS_CHUNK : p->nx;
+        int32_t j, i0, i1;
+        chunk_span(p, c, &j, &i0, &i1);
         w->lost[c] = chunk_contact_setup(p, s, w, j, i0, i1, margin);
     }
     int32_t lost = 0;
@@ -491,11 +496,10 @@ static int32_t contact_setup(const cs_phys *p, const cs_state *s, cs_im_work *w,
 /* a . b over level 0 (chunk trees, then chunks in order), then the rocks' entries in order. */
 static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b, int nr, int threads)
 {
-    const int32_t nseg = p->nseg;
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t c = 0; c < p->nchunks; c++) {
-        const int32_t j = c / nseg, i0 = (c % nseg) * CS_CHUNK;
-        const int32_t i1 = i0 + CS_CHUNK < p->nx ? i0 + CS_CHUNK : p->nx;
+        int32_t j, i0, i1;
+        chunk_span(p, c, &j, &i0, &i1);
         float buf[CS_CHUNK];
         for (int k = 0; k < CS_CHUNK; k++) buf[k] = 0.0f;
         for (int32_t i = i0; i < i1; i++) buf[i - i0] = cs_im_dot3(a, b, j * p->nx + i);
@@ -704,9 +708,8 @@ static void rocks_advance(const cs_phys *p, cs_state *s, cs_im_work *w, float h)
 }
 
 /* The rocks' a and alpha: the cloth's force and torque over mass and inertia (step 3, and a
- * refresh); with h > 0 the cloth's torque also turns each rock over h (its force has moved it in
- * the solve). */
-static void rocks_take(const cs_phys *p, cs_state *s, const float *partials, float h)
+ * refresh), which the next part's prediction applies. */
+static void rocks_take(const cs_phys *p, cs_state *s, const float *partials)
 {
     for (int32_t r = 0; r < s->n_rocks; r++) {
         cs_rock_state *q = &s->rocks[r];
@@ -714,7 +717,6 @@ static void rocks_take(const cs_phys *p, cs_state *s, const float *partials, flo
         cs_rock_cloth_force(partials, s->n_rocks, r, p->nchunks, &F, &T);
         q->a = cs_scale(F, q->inv_mass);
         q->alpha = cs_scale(T, q->inv_inertia);
-        if (h > 0.0f) q->w = cs_add(q->w, cs_scale(q->alpha, h));
     }
 }
 
@@ -810,7 +812,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state 
         s->ay[v] = (s->vy[v] - w->vyb[v]) * inv_h * s->w[v];
         s->az[v] = (s->vz[v] - w->vzb[v]) * inv_h * s->w[v];
     }
-    rocks_take(p, s, partials, 0.0f);
+    rocks_take(p, s, partials);
     int64_t torn = 0;
     if (p->strain_on) {
 #pragma omp parallel for num_threads(threads) schedule(static) reduction(+ : torn)
@@ -882,6 +884,6 @@ cs_status cs_im_refresh(cs_im_work **wp, float *partials, const cs_model *m, cs_
         s->ax[v] = w->R[3 * (size_t)v] * k, s->ay[v] = w->R[3 * (size_t)v + 1] * k;
         s->az[v] = w->R[3 * (size_t)v + 2] * k;
     }
-    rocks_take(p, s, partials, 0.0f);
+    rocks_take(p, s, partials);
     return CS_OK;
 }

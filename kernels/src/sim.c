@@ -268,12 +268,8 @@ cs_status cs_sim_set_params(cs_sim *sim, const cs_params *params)
     cs_status st = check_params(sim, params);
     if (st != CS_OK) return st;
     char why[200];
-    if (!cs_backend_covers(sim->backend, params, why, sizeof why))
-        return cs_fail(sim, CS_E_RANGE,
-                       params->integrator == CS_IMPLICIT_EULER && !(sim->backend->caps & CS_CAP_IMPLICIT)
-                           ? "integrator"
-                           : "contact_model",
-                       "%s", why);
+    const char *lacks = cs_backend_lacks(sim->backend, params, why, sizeof why);
+    if (lacks) return cs_fail(sim, CS_E_RANGE, lacks, "%s", why);
     int32_t substeps;
     double dt_max;
     st = cs_guard_eval(sim, &sim->combos, &sim->model.scene, params, sim->state.rocks, sim->state.n_rocks,

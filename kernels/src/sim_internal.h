@@ -89,6 +89,8 @@ void cs_model_derive(cs_model *m, const cs_scene *scene, const cs_params *p, int
 cs_status cs_backend_pick(const char *name, const cs_backend **out, char *note, size_t note_len);
 /* Whether backend b implements everything parameters p ask for; else 0 and the reason in why. */
 int cs_backend_covers(const cs_backend *b, const cs_params *p, char *why, size_t why_len);
+/* The parameter of p that backend b lacks (its reason in why), or NULL when it has everything. */
+const char *cs_backend_lacks(const cs_backend *b, const cs_params *p, char *why, size_t why_len);
 
 /* sim.c */
 /* Records a backend failure with the backend's own detail. */

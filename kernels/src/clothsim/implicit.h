@@ -410,6 +410,23 @@ SIM_HD static inline cs_vec3 cs_im_jacobi(const cs_im_level *L, int32_t v, cs_ve
 /* The coarse level's size along an axis of n fine vertices. */
 SIM_HD static inline int32_t cs_im_coarse(int32_t n) { return (n + 1) / 2; }
 
+/* Floats a level's arrays take per vertex: D, Dinv and the four forward blocks (9 each), the mask,
+ * and the V-cycle's three vectors (right side, solution, scratch: 3 each). */
+#define CS_IM_LEVEL_FLOATS (9 * 6 + 1 + 9)
+
+/* The hierarchy of an nx x ny grid: each level's size into lx[], ly[] (CS_IM_MAX_LEVELS slots),
+ * halving while either side is above CS_IM_COARSEST; returns the number of levels. */
+SIM_HD static inline int cs_im_levels(int32_t nx, int32_t ny, int32_t *lx, int32_t *ly)
+{
+    int L = 0;
+    for (;;) {
+        lx[L] = nx, ly[L] = ny;
+        L++;
+        if (L == CS_IM_MAX_LEVELS || (nx <= CS_IM_COARSEST && ny <= CS_IM_COARSEST)) return L;
+        nx = cs_im_coarse(nx), ny = cs_im_coarse(ny);
+    }
+}
+
 /* The Galerkin product's row of coarse vertex (I, J) of level C from the fine level L (2 x 2
  * aggregation): D_C = the sum of the aggregate's diagonal blocks and of the blocks coupling two of
  * its vertices (both ways), F_C,t = the sum of the blocks coupling the aggregate to aggregate
