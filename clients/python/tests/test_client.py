@@ -115,6 +115,9 @@ def test_every_operation_is_a_method_and_the_answers_hold_what_the_protocol_says
     c.create_scene(id="rec", scene={"nx": 4, "ny": 4})
     assert c.scene("rec").record(1, id="ops2")["scene"] == "rec"
     assert sorted(r["id"] for r in c.recordings.list()["recordings"]) == ["ops", "ops2"]
+    # The sim thread writes the hello and the first frame at its next pose, after the answer.
+    until("the recording's first frame written",
+          lambda: [r["frames"] >= 1 for r in c.recordings.list()["recordings"] if r["id"] == "ops"] == [True])
     rec = c.recordings.read("ops")
     assert rec.hello["recording"]["id"] == "ops" and rec.decode(0).n_vertices == 480
     assert c.recordings.get("ops")[:4] == b"CLR1"
