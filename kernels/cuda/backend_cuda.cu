@@ -1442,7 +1442,7 @@ static void rocks(const cuda_ctx *c, int mode, int pos, int rest)
  * cs_im_chunk_total, then computes the solver's scalars (residual norms, alpha, beta) in float as
  * the CPU does. A copy back and a wait per dot product: simple, not fast.
  *
- * Rocks are refused under implicit_euler (guard.c), so there is no rock contact here: a part is a
+ * Rocks are refused under implicit_euler on this backend (it lacks CS_CAP_IMPLICIT_ROCKS: guard.c), so there is no rock contact here: a part is a
  * whole substep (cs_im_splits of no rock speed is 1) and the contacts are the ground's. */
 
 /* One level's arrays (device memory); level 0's mask is the state's, as floats. */

@@ -965,7 +965,7 @@ static cs_status cpu_refresh(void *ctx, const cs_model *m, cs_state *s)
     const int threads = threads_of(m);
     if (p->integrator == CS_IMPLICIT_EULER) {
         if (reserve(c, m, s) != CS_OK) return CS_E_NOMEM;
-        const cs_status st = cs_im_refresh(&c->im, c->partials, m, s, threads);
+        const cs_status st = cs_im_refresh(&c->im, m, s, threads);
         take_torn(c);
         return st;
     }
@@ -1047,7 +1047,7 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
     if (m->phys.integrator == CS_IMPLICIT_EULER) {
         int64_t torn = 0;
         if (reserve(c, m, s) != CS_OK) return CS_E_NOMEM;
-        const cs_status st = cs_im_step(&c->im, c->partials, m, s, substeps, threads, rep, &torn);
+        const cs_status st = cs_im_step(&c->im, m, s, substeps, threads, rep, &torn);
         if (st != CS_OK) return st;
         c->torn += torn;
         step_report(c, s, rep);
@@ -1263,5 +1263,5 @@ static void cpu_stats(void *ctx, const cs_model *m, cs_backend_stats *out)
 
 const cs_backend cs_backend_cpu = {
     "cpu", cpu_available, cpu_create, cpu_destroy, cpu_upload, cpu_download, cpu_refresh, cpu_step, cpu_device,
-    cpu_error, cpu_stats, cpu_cost, CS_CAP_SURFACE_CONTACT | CS_CAP_IMPLICIT, cpu_step_batch,
+    cpu_error, cpu_stats, cpu_cost, CS_CAP_SURFACE_CONTACT | CS_CAP_IMPLICIT | CS_CAP_IMPLICIT_ROCKS, cpu_step_batch,
 };

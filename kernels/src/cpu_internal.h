@@ -15,12 +15,12 @@ int cs_cpu_strain_row(const cs_phys *p, cs_state *s, int32_t r);
 /* implicit_cpu.c: the workspace of implicit_euler (NULL until first used), freed with the context. */
 typedef struct cs_im_work cs_im_work;
 void cs_im_free(cs_im_work *w);
-/* Runs substeps of implicit_euler on threads threads; partials: the rock partials (nchunks x rocks
- * x 6, reserved). Returns CS_OK, or CS_E_NOMEM (nothing changed). *torn receives springs torn. */
-cs_status cs_im_step(cs_im_work **w, float *partials, const cs_model *m, cs_state *s, int32_t substeps, int threads,
+/* Runs substeps of implicit_euler on threads threads. Returns CS_OK, or CS_E_NOMEM (nothing
+ * changed). *torn receives springs torn. */
+cs_status cs_im_step(cs_im_work **w, const cs_model *m, cs_state *s, int32_t substeps, int threads,
                      cs_step_report *rep, int64_t *torn);
-/* The cloth's forces at the current state (a = F/m) and the rocks' share of them (their a and
- * alpha under implicit_euler: the cloth's force and torque over mass and inertia). */
-cs_status cs_im_refresh(cs_im_work **w, float *partials, const cs_model *m, cs_state *s, int threads);
+/* The cloth's forces at the current state (a = F/m); the rocks' a and alpha stay (under
+ * implicit_euler the cloth's last push over a part, rocks_push). */
+cs_status cs_im_refresh(cs_im_work **w, const cs_model *m, cs_state *s, int threads);
 
 #endif

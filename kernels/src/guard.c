@@ -87,14 +87,14 @@ cs_status cs_guard_eval(cs_sim *sim, const cs_combos *combos, const cs_scene *sc
     const double mult = cs_guard_contact_weight(p);
     const int implicit = p->integrator == CS_IMPLICIT_EULER;
     double lim = INFINITY;
-    /* implicit_euler does not hold rocks yet: its cloth lets a rock through (MODEL.md, "Known
-     * gaps"), so a rock under it is refused rather than simulated wrong */
-    if (implicit && n_rocks > 0)
+    if (implicit && n_rocks > 0 && sim && sim->backend && !(sim->backend->caps & CS_CAP_IMPLICIT_ROCKS))
         return cs_fail(sim, CS_E_UNSTABLE, param ? param : "integrator",
-                       "integrator implicit_euler does not couple rocks yet: remove the rocks, or use velocity_verlet "
-                       "or symplectic_euler");
-    /* implicit_euler: the cloth's springs and contacts are solved implicitly and bound nothing
-     * (and it has no rocks, above) */
+                       "the %s backend does not have rocks under integrator implicit_euler yet: remove the rocks, "
+                       "use velocity_verlet, or the cpu backend",
+                       sim->backend->name);
+    /* implicit_euler: the cloth's springs are solved implicitly, its rock contacts are a
+     * constraint after the solve and the rocks' own contacts sub-cycle at rock_dt: none bounds the
+     * substep (contact cuts it into parts as it runs: cs_im_splits) */
     for (int c = 0; c < (implicit ? 0 : combos->n); c++) {
         const double ns = combos->c[c][0], nsh = combos->c[c][1], nb = combos->c[c][2];
         const double K = ns * p->k_structural + nsh * p->k_shear + nb * p->k_bend + mult * p->k_contact;
@@ -103,7 +103,7 @@ cs_status cs_guard_eval(cs_sim *sim, const cs_combos *combos, const cs_scene *sc
         if (l < lim) lim = l;
     }
     const double face = (double)scene->size_x / (scene->nx - 1) * scene->size_y / (scene->ny - 1) / 2;
-    for (int32_t r = 0; r < n_rocks; r++) {
+    for (int32_t r = 0; r < (implicit ? 0 : n_rocks); r++) {
         if (rocks[r].kinematic) continue;
         const double M = rocks[r].mass;
         double K = p->k_rock * M, C = p->c_rock * M;

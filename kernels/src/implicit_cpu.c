@@ -4,20 +4,21 @@
  *
  * A substep of length h (cut into equal parts while a rock or vertex would cross the contact layer
  * in it: cs_im_splits), each part:
- *   1. the rocks predicted: sub-cycled to cs_phys.rock_dt, each sub-cycle v += d (a_cloth + F_other
- *      / M), w likewise, then drift - a_cloth being the cloth's force over mass of the last solve
- *      (the rock's a, alpha), F_other the rocks', the ground's and gravity (cs_rock_force without
- *      the cloth); the rock contacts taken for the part (cs_im_contact, at the part's start);
- *   2. the cloth and the dynamic rocks' translation: x_n and v_n kept aside, the first guess x = x_n
- *      + h v_n + h^2 g (pinned vertices stay, the grabbed one moves at its grab velocity), then
- *      Newton: assemble (residual, blocks, the rocks' partials and rows) at the iterate, stop at
- *      solver_tolerance of the first residual, at float's floor, after solver_iterations or once an
- *      iteration no longer halves it, else solve A dx = R by conjugate gradients preconditioned with
- *      one multigrid V-cycle (at most cg_iterations) and step along dx with a backtracking line
+ *   1. the rocks advanced without the cloth (rocks_advance: sub-cycled to cs_phys.rock_dt under
+ *      gravity, rock-rock and ground contact), and the mass each dynamic rock lends the vertices
+ *      that may touch it in the part (rocks_share; implicit.h, "rock contact");
+ *   2. the cloth: x_n and v_n kept aside, the first guess x = x_n + h v_n + h^2 g (pinned vertices
+ *      stay, the grabbed one moves at its grab velocity), then Newton: assemble (residual and
+ *      blocks, the carried mass and the ground included) at the iterate, stop at solver_tolerance
+ *      of the first residual, at float's floor, after solver_iterations or once an iteration no
+ *      longer halves it, else solve A dx = R by conjugate gradients preconditioned with one
+ *      multigrid V-cycle (at most cg_iterations) and step along dx with a backtracking line
  *      search, v = (x - x_n)/h;
- *   3. a = (v - v_n)/h; the rocks' a, alpha from the last assembly's partials; with strain, the rest
- *      lengths from the new positions (cs_cpu_strain_row), swapped.
- * (Rocks are refused under implicit_euler for now, by the guard: MODEL.md's "Known gaps".)
+ *   3. the rocks moved by what their vertices carried, then rocks and cloth pushed apart
+ *      (rocks_push); a = (v - v_n)/h; with strain, the rest lengths from the new positions
+ *      (cs_cpu_strain_row), swapped.
+ * The rock steps (rocks_share, rocks_push) run on one thread in a fixed order: they touch only
+ * the few triangles near each rock after one scan of the grid.
  * Every loop's iterations are independent (each writes its own vertex or chunk), and every sum goes
  * through per-chunk trees summed in chunk order, so the result is the same for any thread count. */
 #include <math.h>
@@ -42,13 +43,11 @@ struct cs_im_work {
     float *B[2];                           /* bending blocks of level 0 */
     float *dx, *r, *z, *p, *q;             /* conjugate gradients, 3 n each */
     float *part;                           /* per-chunk partials of a dot product */
-    cs_im_contact *ct;                     /* the part's rock contacts, CS_IM_SLOTS a vertex */
-    /* The rocks in the solve: their translation is solved with the cloth (entries 3 n + 3 r of
-     * every vector; 0 for a kinematic rock). */
     cs_rock_state *star;                   /* each rock where it would be without the cloth */
-    float *rD, *rDinv;                     /* its diagonal block M/h^2 + its contacts' blocks */
-    float *rxo;                            /* its position where a line search starts */
-    int32_t *lost;                         /* per chunk: contacts that did not fit */
+    int32_t *cand;                         /* a rock's triangles (2 quad + face) or vertices near it */
+    float *sh, *sn, *sj;                   /* per vertex: the rock mass it carries, its normal (3 n), impulse */
+    int32_t *sr;                           /* per vertex: the rock it carries (-1 none) */
+    cs_vec3 rx0[CS_MAX_ROCKS];             /* each rock at the part's start */
     im_level lv[CS_IM_MAX_LEVELS];
     void *mem;
 };
@@ -57,9 +56,9 @@ void cs_im_free(cs_im_work *w)
 {
     if (!w) return;
     free(w->mem);
-    free(w->ct);
-    free(w->lost);
     free(w->star);
+    free(w->cand);
+    free(w->sr);
     free(w);
 }
 
@@ -69,8 +68,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     cs_im_work *w = calloc(1, sizeof *w);
     if (!w) return NULL;
     w->nx = nx, w->ny = ny, w->n = nx * ny, w->nchunks = nchunks;
-    size_t floats = (size_t)w->n * (9 + 3 + 18 + 15 + 18) + (size_t)nchunks + 6 * 3 * (size_t)CS_MAX_ROCKS +
-                    (9 + 9 + 3) * (size_t)CS_MAX_ROCKS;
+    size_t floats = (size_t)w->n * (9 + 3 + 18 + 15 + 18 + 5) + (size_t)nchunks;
     int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
     const int L = w->levels = cs_im_levels(nx, ny, lx, ly);
     for (int l = 0; l < L; l++) {
@@ -78,13 +76,13 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
         floats += (size_t)w->lv[l].n * CS_IM_LEVEL_FLOATS;
     }
     float *m = malloc(sizeof(float) * floats);
-    w->ct = malloc(sizeof *w->ct * (size_t)w->n * CS_IM_SLOTS);
-    w->lost = calloc((size_t)nchunks, sizeof *w->lost);
     w->star = calloc(CS_MAX_ROCKS, sizeof *w->star);
-    if (!m || !w->ct || !w->lost || !w->star) {
+    w->cand = malloc(sizeof *w->cand * 2 * (size_t)w->n);
+    w->sr = malloc(sizeof *w->sr * (size_t)w->n);
+    if (!m || !w->star || !w->cand || !w->sr) {
+        free(w->cand);
+        free(w->sr);
         free(m);
-        free(w->ct);
-        free(w->lost);
         free(w->star);
         free(w);
         return NULL;
@@ -95,14 +93,13 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     w->xb = TAKE(n), w->yb = TAKE(n), w->zb = TAKE(n);
     w->vxb = TAKE(n), w->vyb = TAKE(n), w->vzb = TAKE(n);
     w->xo = TAKE(n), w->yo = TAKE(n), w->zo = TAKE(n);
-    const size_t nv = 3 * n + 3 * (size_t)CS_MAX_ROCKS; /* a vector: the cloth, then the rocks */
+    const size_t nv = 3 * n;
     w->R = TAKE(nv);
     w->B[0] = TAKE(9 * n), w->B[1] = TAKE(9 * n);
     w->fo = TAKE(18 * n);
     w->dx = TAKE(nv), w->r = TAKE(nv), w->z = TAKE(nv), w->p = TAKE(nv), w->q = TAKE(nv);
-    w->rD = TAKE(9 * (size_t)CS_MAX_ROCKS), w->rDinv = TAKE(9 * (size_t)CS_MAX_ROCKS);
-    w->rxo = TAKE(3 * (size_t)CS_MAX_ROCKS);
     w->part = TAKE((size_t)nchunks);
+    w->sh = TAKE(n), w->sn = TAKE(3 * n), w->sj = TAKE(n);
     for (int l = 0; l < L; l++) {
         im_level *v = &w->lv[l];
         const size_t k = (size_t)v->n;
@@ -113,6 +110,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     }
 #undef TAKE
     memset(w->mem, 0, sizeof(float) * floats);
+    for (int32_t v = 0; v < w->n; v++) w->sr[v] = -1;
     return w;
 }
 
@@ -234,41 +232,6 @@ static void add9(float *a, int32_t v, const cs_mat3 *m)
     for (int k = 0; k < 9; k++) a[9 * (size_t)v + k] += m->m[k];
 }
 
-/* The 1-ring of vertex (i, j) at the iterate (cs_ring; slots off the grid repeat the vertex). */
-static void ring_of(const cs_phys *p, const cs_state *s, const float *ro, int32_t i, int32_t j, cs_ring *g,
-                    float *reach)
-{
-    const int32_t nx = p->nx, ny = p->ny, v = j * nx + i;
-    float most = 0.0f;
-    for (int k = 0; k < CS_RING; k++) {
-        const int32_t ii = i + cs_ring_di(k), jj = j + cs_ring_dj(k);
-        const int32_t o = (ii >= 0 && ii < nx && jj >= 0 && jj < ny) ? jj * nx + ii : v;
-        g->x[k] = LOADX(o);
-        const float d = cs_len(cs_sub(g->x[k], g->x[0]));
-        most = d > most ? d : most;
-    }
-    g->v = LOADV(v);
-    g->ro = cs_v3(ro[3 * (size_t)v], ro[3 * (size_t)v + 1], ro[3 * (size_t)v + 2]);
-    g->faces = cs_ring_faces(s->L0, nx, ny, i, j);
-    *reach = most;
-}
-
-/* The box (lo, hi) of rows j-1 .. j+1 over columns i0-1 .. i1: every triangle of the chunk's
- * rings. */
-static void chunk_box(const cs_phys *p, const cs_state *s, int32_t j, int32_t i0, int32_t i1, cs_vec3 *lo, cs_vec3 *hi)
-{
-    const int32_t nx = p->nx, ny = p->ny, r0 = j > 0 ? j - 1 : 0, r1 = j + 1 < ny ? j + 1 : j;
-    const int32_t c0 = i0 > 0 ? i0 - 1 : 0, c1 = i1 < nx ? i1 : nx - 1;
-    cs_vec3 l = LOADX(r0 * nx + c0), h = l;
-    for (int32_t jj = r0; jj <= r1; jj++)
-        for (int32_t ii = c0; ii <= c1; ii++) {
-            const cs_vec3 x = LOADX(jj * nx + ii);
-            l = cs_v3(x.x < l.x ? x.x : l.x, x.y < l.y ? x.y : l.y, x.z < l.z ? x.z : l.z);
-            h = cs_v3(x.x > h.x ? x.x : h.x, x.y > h.y ? x.y : h.y, x.z > h.z ? x.z : h.z);
-        }
-    *lo = l, *hi = h;
-}
-
 /* Whether a sphere (c, reach) may touch the box (never a false no). */
 static int near_box(cs_vec3 c, float reach, cs_vec3 lo, cs_vec3 hi)
 {
@@ -279,92 +242,21 @@ static int near_box(cs_vec3 c, float reach, cs_vec3 lo, cs_vec3 hi)
     return ex * ex + ey * ey + ez * ez <= r * r;
 }
 
-/* A part's contacts with the rocks (cs_im_contact), taken at its start for chunk (row j, columns
- * i0 .. i1): each vertex's, in rock order, into its CS_IM_SLOTS slots; returns those that did not
- * fit (counted, never silently dropped). */
-static int32_t chunk_contact_setup(const cs_phys *p, const cs_state *s, cs_im_work *w, int32_t j, int32_t i0,
-                                   int32_t i1, float margin)
-{
-    const int32_t nx = p->nx, nr = s->n_rocks;
-    int32_t lost = 0;
-    for (int32_t i = i0; i < i1; i++)
-        for (int k = 0; k < CS_IM_SLOTS; k++) w->ct[(size_t)(j * nx + i) * CS_IM_SLOTS + k].rock = -1;
-    if (!nr) return 0;
-    cs_vec3 lo, hi;
-    chunk_box(p, s, j, i0, i1, &lo, &hi);
-    for (int32_t r = 0; r < nr; r++) {
-        cs_rock_state grown = s->rocks[r];
-        grown.radius += margin; /* so that what comes within margin in the part is taken */
-        const float lim = cs_surface_lim(&grown, p);
-        if (!near_box(grown.x, lim, lo, hi)) continue;
-        for (int32_t i = i0; i < i1; i++) {
-            const int32_t v = j * nx + i;
-            cs_im_contact c;
-            c.rock = r;
-            int got;
-            if (p->contact_model == CS_CONTACT_SURFACE) {
-                cs_ring g;
-                float ext;
-                ring_of(p, s, w->q, i, j, &g, &ext);
-                if (cs_len(cs_sub(g.x[0], grown.x)) > lim * 1.001f + 1e-6f + ext) continue;
-                /* touching now: its own force; else what the margin finds, less the margin */
-                cs_surface_out o;
-                cs_surface_gather(&g, &s->rocks[r], p, cs_v3(0.0f, 0.0f, 0.0f), 0.0f, &o);
-                got = cs_im_contact_surface(&o, &s->rocks[r], p, 0.0f, &c);
-                if (!got) {
-                    cs_surface_gather(&g, &grown, p, cs_v3(0.0f, 0.0f, 0.0f), 0.0f, &o);
-                    got = cs_im_contact_surface(&o, &s->rocks[r], p, margin, &c);
-                }
-            } else {
-                got = cs_im_contact_vertex(LOADX(v), &s->rocks[r], p, margin, &c);
-            }
-            if (!got) continue;
-            cs_im_contact *slot = w->ct + (size_t)v * CS_IM_SLOTS;
-            int k = 0;
-            while (k < CS_IM_SLOTS && slot[k].rock >= 0) k++;
-            if (k == CS_IM_SLOTS) lost++;
-            else slot[k] = c;
-        }
-    }
-    return lost;
-}
-
-/* Contacts of chunk (row j, columns i0 .. i1) in rock order (the part's slots), then the ground:
- * forces onto R, blocks onto level 0's D, each rock's reaction from the chunk into its partial
- * (chunk tree). */
+/* Contacts of chunk (row j, columns i0 .. i1): the rock mass each vertex carries (rocks_share),
+ * then the ground: forces onto R, blocks onto level 0's D (blocks: 1). */
 static void chunk_contacts(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, int32_t j, int32_t i0,
-                           int32_t i1, int32_t chunk, float *partials, int blocks)
+                           int32_t i1, int blocks)
 {
-    const int32_t nx = p->nx, nr = s->n_rocks;
-    float contrib[6][CS_CHUNK];
-    uint8_t idx[CS_CHUNK];
+    const int32_t nx = p->nx;
     float *D = w->lv[0].D;
-    for (int32_t r = 0; r < nr; r++) {
-        const cs_rock_state *rock = &s->rocks[r];
-        int n_idx = 0;
-        for (int32_t i = i0; i < i1; i++) {
-            const int32_t v = j * nx + i, l = i - i0;
-            const cs_im_contact *slot = w->ct + (size_t)v * CS_IM_SLOTS;
-            for (int k = 0; k < CS_IM_SLOTS && slot[k].rock >= 0; k++) {
-                if (slot[k].rock != r) continue;
-                const cs_vec3 ro = cs_v3(w->q[3 * (size_t)v], w->q[3 * (size_t)v + 1], w->q[3 * (size_t)v + 2]);
-                cs_mat3 b;
-                const cs_vec3 dr = cs_sub(rock->x, w->star[r].x);
-                const cs_vec3 F = cs_im_contact_force(&slot[k], LOADX(v), cs_v3(w->xb[v], w->yb[v], w->zb[v]), dr,
-                                                      LOADV(v), ro, rock, p, h, s->w[v], &b);
-                add3(w->R, v, F);
-                if (blocks) {
-                    add9(D, v, &b);
-                    memcpy(w->ct[(size_t)v * CS_IM_SLOTS + k].K, b.m, sizeof b.m);
-                }
-                const cs_vec3 Rr = cs_neg(F), T = cs_cross(cs_v3(slot[k].arm[0], slot[k].arm[1], slot[k].arm[2]), Rr);
-                contrib[0][l] = Rr.x, contrib[1][l] = Rr.y, contrib[2][l] = Rr.z;
-                contrib[3][l] = T.x, contrib[4][l] = T.y, contrib[5][l] = T.z;
-                idx[n_idx++] = (uint8_t)l;
-            }
-        }
-        cs_cpu_tree_sum_sparse((const float(*)[CS_CHUNK])contrib, idx, n_idx, 0,
-                               partials + ((size_t)chunk * (size_t)nr + (size_t)r) * 6);
+    for (int32_t i = i0; i < i1; i++) {
+        const int32_t v = j * nx + i, r = w->sr[v];
+        if (r < 0 || s->w[v] == 0.0f) continue;
+        const cs_vec3 n = cs_v3_from(w->sn + 3 * (size_t)v);
+        const cs_vec3 d = cs_sub(cs_sub(LOADX(v), cs_v3(w->xb[v], w->yb[v], w->zb[v])), cs_sub(w->star[r].x, w->rx0[r]));
+        cs_mat3 b;
+        add3(w->R, v, cs_im_carried(n, w->sh[v], d, h, &b));
+        if (blocks) add9(D, v, &b);
     }
     if (!p->ground) return;
     for (int32_t i = i0; i < i1; i++) {
@@ -408,53 +300,9 @@ static void chunk_residual(const cs_phys *p, float h, const cs_state *s, cs_im_w
 /* Whether rock r's translation is solved (a dynamic rock). */
 static int rock_free(const cs_state *s, int32_t r) { return s->rocks[r].inv_mass > 0.0f; }
 
-/* The rocks' rows: the residual F_cloth - M (v - v*)/h of each dynamic rock (v* its velocity
- * without the cloth; 0 for a kinematic one) into R after the cloth's, and with blocks its
- * diagonal block M/h^2 + the blocks of its contacts (vertex by vertex, in order) and its inverse.
- * Returns the rocks' part of |R|^2, rock by rock. */
-static float rocks_residual(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, const float *partials,
-                            int blocks)
-{
-    const int32_t nr = s->n_rocks;
-    const size_t o = 3 * (size_t)p->n;
-    float sum = 0.0f;
-    for (int32_t r = 0; r < nr; r++) {
-        const cs_rock_state *q = &s->rocks[r];
-        cs_vec3 F, T, R = cs_v3(0.0f, 0.0f, 0.0f);
-        if (rock_free(s, r)) {
-            cs_rock_cloth_force(partials, nr, r, p->nchunks, &F, &T);
-            /* the prediction applied M a of it already */
-            R = cs_sub(cs_sub(F, cs_scale(w->star[r].a, q->mass)), cs_scale(cs_sub(q->v, w->star[r].v), q->mass / h));
-        }
-        put3(w->R + o, r, R);
-        sum += cs_dot(R, R);
-        if (blocks) {
-            cs_mat3 d = cs_m3_diag(rock_free(s, r) ? q->mass / (h * h) : 1.0f);
-            put9(w->rD, r, &d);
-        }
-    }
-    if (blocks && nr) {
-        for (int32_t v = 0; v < p->n; v++) {
-            const cs_im_contact *slot = w->ct + (size_t)v * CS_IM_SLOTS;
-            for (int k = 0; k < CS_IM_SLOTS && slot[k].rock >= 0; k++)
-                if (rock_free(s, slot[k].rock)) {
-                    cs_mat3 K;
-                    memcpy(K.m, slot[k].K, sizeof K.m);
-                    add9(w->rD, slot[k].rock, &K);
-                }
-        }
-        for (int32_t r = 0; r < nr; r++) {
-            const cs_mat3 inv = cs_m3_inverse(w->rD + 9 * (size_t)r);
-            put9(w->rDinv, r, &inv);
-        }
-    }
-    return sum;
-}
-
-/* Assembles at the iterate (the state's x and v): R, and with blocks level 0's matrix; rock
- * partials; the rocks' rows. Returns |R|. */
-static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, float *partials, int blocks,
-                      int threads)
+/* Assembles at the iterate (the state's x and v): R, and with blocks level 0's matrix. Returns
+ * |R|. */
+static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, int blocks, int threads)
 {
     const int32_t nchunks = p->nchunks;
 #pragma omp parallel for num_threads(threads) schedule(static)
@@ -468,33 +316,16 @@ static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *
         int32_t j, i0, i1;
         chunk_span(p, c, &j, &i0, &i1);
         chunk_springs(p, h, s, w, j, i0, i1, blocks);
-        chunk_contacts(p, h, s, w, j, i0, i1, c, partials, blocks);
+        chunk_contacts(p, h, s, w, j, i0, i1, blocks);
         chunk_residual(p, h, s, w, j, i0, i1, c, blocks);
     }
-    const float cloth = cs_im_chunk_total(w->part, nchunks);
-    return sqrtf(cloth + rocks_residual(p, h, s, w, partials, blocks));
-}
-
-/* The part's rock contacts (chunk_contact_setup) from the state as it is; returns those lost. */
-static int32_t contact_setup(const cs_phys *p, const cs_state *s, cs_im_work *w, int threads)
-{
-    const int32_t nchunks = p->nchunks;
-    const float margin = p->contact_offset + 1e-3f;
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 4)
-    for (int32_t c = 0; c < nchunks; c++) {
-        int32_t j, i0, i1;
-        chunk_span(p, c, &j, &i0, &i1);
-        w->lost[c] = chunk_contact_setup(p, s, w, j, i0, i1, margin);
-    }
-    int32_t lost = 0;
-    for (int32_t c = 0; c < nchunks; c++) lost += w->lost[c];
-    return lost;
+    return sqrtf(cs_im_chunk_total(w->part, nchunks));
 }
 
 /* ---- the linear solve ---- */
 
-/* a . b over level 0 (chunk trees, then chunks in order), then the rocks' entries in order. */
-static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b, int nr, int threads)
+/* a . b over level 0 (chunk trees, then chunks in order). */
+static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b, int threads)
 {
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t c = 0; c < p->nchunks; c++) {
@@ -505,10 +336,7 @@ static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b
         for (int32_t i = i0; i < i1; i++) buf[i - i0] = cs_im_dot3(a, b, j * p->nx + i);
         w->part[c] = cs_tree_sum(buf);
     }
-    float sum = cs_im_chunk_total(w->part, p->nchunks);
-    const size_t o = 3 * (size_t)p->n;
-    for (int32_t r = 0; r < nr; r++) sum += cs_im_dot3(a + o, b + o, r);
-    return sum;
+    return cs_im_chunk_total(w->part, p->nchunks);
 }
 
 /* y = A x on level l (bend: the true operator of level 0, bending blocks included). */
@@ -602,62 +430,21 @@ static void hierarchy(cs_im_work *w, const cs_state *s, int threads)
     }
 }
 
-/* y = A x with the rocks: the cloth's operator (bending included), then each contact's coupling
- * between its vertex and its rock (the vertices' in parallel, each rock's row vertex by vertex in
- * order). */
-static void apply_full(const cs_phys *p, cs_im_work *w, const cs_state *s, const float *x, float *y, int threads)
-{
-    const cs_im_level L0 = view(w, 0, s);
-    apply(&L0, x, y, 1, threads);
-    const int32_t nr = s->n_rocks, n = p->n;
-    if (!nr) return;
-    const size_t o = 3 * (size_t)n;
-#pragma omp parallel for num_threads(threads) schedule(static)
-    for (int32_t v = 0; v < n; v++) {
-        if (s->w[v] == 0.0f) continue;
-        const cs_im_contact *slot = w->ct + (size_t)v * CS_IM_SLOTS;
-        for (int k = 0; k < CS_IM_SLOTS && slot[k].rock >= 0; k++)
-            if (rock_free(s, slot[k].rock))
-                put3(y, v, cs_sub(cs_v3_from(y + 3 * (size_t)v), cs_m3_mul(slot[k].K, cs_v3_from(x + o + 3 * (size_t)slot[k].rock))));
-    }
-    for (int32_t r = 0; r < nr; r++)
-        put3(y + o, r, rock_free(s, r) ? cs_m3_mul(w->rD + 9 * (size_t)r, cs_v3_from(x + o + 3 * (size_t)r))
-                                       : cs_v3(0.0f, 0.0f, 0.0f));
-    for (int32_t v = 0; v < n; v++) {
-        const cs_im_contact *slot = w->ct + (size_t)v * CS_IM_SLOTS;
-        for (int k = 0; k < CS_IM_SLOTS && slot[k].rock >= 0; k++) {
-            const int32_t r = slot[k].rock;
-            if (rock_free(s, r) && s->w[v] != 0.0f)
-                put3(y + o, r, cs_sub(cs_v3_from(y + o + 3 * (size_t)r), cs_m3_mul(slot[k].K, cs_v3_from(x + 3 * (size_t)v))));
-        }
-    }
-}
-
-/* The preconditioner: the V-cycle on the cloth, each rock's block inverted. */
-static void precondition(const cs_phys *p, cs_im_work *w, const cs_state *s, const float *r, float *z, int threads)
-{
-    vcycle(w, s, 0, r, z, threads);
-    const size_t o = 3 * (size_t)p->n;
-    for (int32_t k = 0; k < s->n_rocks; k++)
-        put3(z + o, k, rock_free(s, k) ? cs_m3_mul(w->rDinv + 9 * (size_t)k, cs_v3_from(r + o + 3 * (size_t)k))
-                                       : cs_v3(0.0f, 0.0f, 0.0f));
-}
-
-/* Conjugate gradients on A dx = R, preconditioned by a V-cycle; stops at |r| <= target or after
+/* Conjugate gradients on A dx = R (bending included), preconditioned by a V-cycle; stops at |r| <= target or after
  * most iterations. Returns the iterations run. */
 static int pcg(const cs_phys *p, cs_im_work *w, const cs_state *s, float target, int most, int threads)
 {
-    const int nr = s->n_rocks;
-    const int32_t n3 = 3 * p->n + 3 * nr;
+    const int32_t n3 = 3 * p->n;
+    const cs_im_level L0 = view(w, 0, s);
     memset(w->dx, 0, sizeof(float) * (size_t)n3);
     memcpy(w->r, w->R, sizeof(float) * (size_t)n3);
-    precondition(p, w, s, w->r, w->z, threads);
+    vcycle(w, s, 0, w->r, w->z, threads);
     memcpy(w->p, w->z, sizeof(float) * (size_t)n3);
-    float rz = dot(p, w, w->r, w->z, nr, threads);
+    float rz = dot(p, w, w->r, w->z, threads);
     int it = 0;
     while (it < most) {
-        apply_full(p, w, s, w->p, w->q, threads);
-        const float pq = dot(p, w, w->p, w->q, nr, threads);
+        apply(&L0, w->p, w->q, 1, threads);
+        const float pq = dot(p, w, w->p, w->q, threads);
         if (!(pq > 0.0f) || !(rz > 0.0f)) break;
         const float alpha = rz / pq;
 #pragma omp parallel for num_threads(threads) schedule(static)
@@ -666,9 +453,9 @@ static int pcg(const cs_phys *p, cs_im_work *w, const cs_state *s, float target,
             w->r[k] -= alpha * w->q[k];
         }
         it++;
-        if (!(sqrtf(dot(p, w, w->r, w->r, nr, threads)) > target)) break;
-        precondition(p, w, s, w->r, w->z, threads);
-        const float rz2 = dot(p, w, w->r, w->z, nr, threads);
+        if (!(sqrtf(dot(p, w, w->r, w->r, threads)) > target)) break;
+        vcycle(w, s, 0, w->r, w->z, threads);
+        const float rz2 = dot(p, w, w->r, w->z, threads);
         const float beta = rz2 / rz;
         rz = rz2;
 #pragma omp parallel for num_threads(threads) schedule(static)
@@ -679,15 +466,15 @@ static int pcg(const cs_phys *p, cs_im_work *w, const cs_state *s, float target,
 
 /* ---- the substep ---- */
 
-/* The rocks over h as predicted: sub-cycles of at most rock_dt under their own contacts and
- * gravity (cs_rock_force without the cloth) and the cloth's last force (a, alpha), each v += d (a
- * + F / M), w likewise, then drift (step 1) - so that a rock the cloth holds against the ground is
- * not first driven through it. Where that leaves each rock is kept (w->star): the solve moves the
- * dynamic ones from there by the cloth's force less the last one. */
+/* The rocks over h without the cloth: sub-cycles of at most rock_dt under their own contacts and
+ * gravity (cs_rock_force without the cloth), each v += d F / M, w likewise, then drift (step 1).
+ * Where each starts (w->rx0) and where this leaves it (w->star) are kept: the solve's carried mass
+ * follows that path, and rocks_push moves the rock from there. */
 static void rocks_advance(const cs_phys *p, cs_state *s, cs_im_work *w, float h)
 {
     const int32_t nr = s->n_rocks;
     if (!nr) return;
+    for (int32_t r = 0; r < nr; r++) w->rx0[r] = s->rocks[r].x;
     int32_t sub = 1;
     if (p->rock_dt > 0.0f && h > p->rock_dt) {
         const float k = h / p->rock_dt;
@@ -699,38 +486,17 @@ static void rocks_advance(const cs_phys *p, cs_state *s, cs_im_work *w, float h)
         for (int32_t r = 0; r < nr; r++) cs_rock_force(s->rocks, nr, r, NULL, 0, p, &F[r], &T[r]);
         for (int32_t r = 0; r < nr; r++) {
             cs_rock_state *q = &s->rocks[r];
-            q->v = cs_add(q->v, cs_scale(cs_add(q->a, cs_scale(F[r], q->inv_mass)), d));
-            q->w = cs_add(q->w, cs_scale(cs_add(q->alpha, cs_scale(T[r], q->inv_inertia)), d));
+            q->v = cs_add(q->v, cs_scale(F[r], q->inv_mass * d));
+            q->w = cs_add(q->w, cs_scale(T[r], q->inv_inertia * d));
             cs_rock_drift(q, d);
         }
     }
     memcpy(w->star, s->rocks, sizeof *s->rocks * (size_t)nr);
 }
 
-/* The rocks' a and alpha: the cloth's force and torque over mass and inertia (step 3, and a
- * refresh), which the next part's prediction applies. */
-static void rocks_take(const cs_phys *p, cs_state *s, const float *partials)
-{
-    for (int32_t r = 0; r < s->n_rocks; r++) {
-        cs_rock_state *q = &s->rocks[r];
-        cs_vec3 F, T;
-        cs_rock_cloth_force(partials, s->n_rocks, r, p->nchunks, &F, &T);
-        q->a = cs_scale(F, q->inv_mass);
-        q->alpha = cs_scale(T, q->inv_inertia);
-    }
-}
-
-/* x = x_k + a dx for the vertices and rocks in the solve, and v = (x - x_n)/h (a rock's: v* +
- * (x - x*)/h). */
+/* x = x_k + a dx for the vertices in the solve, and v = (x - x_n)/h. */
 static void move(cs_im_work *w, cs_state *s, float a, float inv_h, int threads)
 {
-    const float *d = w->dx + 3 * (size_t)s->n;
-    for (int32_t r = 0; r < s->n_rocks; r++) {
-        if (!rock_free(s, r)) continue;
-        cs_rock_state *q = &s->rocks[r];
-        q->x = cs_add(cs_v3_from(w->rxo + 3 * (size_t)r), cs_scale(cs_v3_from(d + 3 * (size_t)r), a));
-        q->v = cs_add(w->star[r].v, cs_scale(cs_sub(q->x, w->star[r].x), inv_h));
-    }
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t v = 0; v < s->n; v++) {
         if (s->w[v] == 0.0f) continue;
@@ -743,8 +509,164 @@ static void move(cs_im_work *w, cs_state *s, float a, float inv_h, int threads)
     }
 }
 
+/* Rock q's candidates into w->cand, in grid order: the intact triangles (2 quad + face) whose box
+ * comes within reach of its centre c (surface model), or the vertices (vertex model). */
+static int32_t rock_candidates(const cs_phys *p, const cs_state *s, cs_im_work *w, cs_vec3 c, float reach)
+{
+    const int32_t nx = p->nx, ny = p->ny;
+    int32_t nc = 0;
+    if (p->contact_model != CS_CONTACT_SURFACE) {
+        for (int32_t v = 0; v < p->n; v++)
+            if (near_box(c, reach, LOADX(v), LOADX(v))) w->cand[nc++] = v;
+        return nc;
+    }
+    for (int32_t j = 0; j + 1 < ny; j++)
+        for (int32_t i = 0; i + 1 < nx; i++) {
+            const int32_t f = cs_quad_faces(s->L0, nx, ny, i, j);
+            if (!f) continue;
+            const int32_t v = j * nx + i;
+            cs_vec3 lo = LOADX(v), hi = lo;
+            const int32_t o[3] = {v + 1, v + nx, v + nx + 1};
+            for (int k = 0; k < 3; k++) {
+                const cs_vec3 x = LOADX(o[k]);
+                lo = cs_v3(x.x < lo.x ? x.x : lo.x, x.y < lo.y ? x.y : lo.y, x.z < lo.z ? x.z : lo.z);
+                hi = cs_v3(x.x > hi.x ? x.x : hi.x, x.y > hi.y ? x.y : hi.y, x.z > hi.z ? x.z : hi.z);
+            }
+            if (!near_box(c, reach, lo, hi)) continue;
+            if (f & 1) w->cand[nc++] = 2 * v;
+            if (f & 2) w->cand[nc++] = 2 * v + 1;
+        }
+    return nc;
+}
+
+/* Candidate k's vertices (a vertex three times, vertex model). */
+static void cand_vertices(const cs_phys *p, const cs_im_work *w, int32_t k, int32_t t[3])
+{
+    if (p->contact_model != CS_CONTACT_SURFACE) {
+        t[0] = t[1] = t[2] = w->cand[k];
+        return;
+    }
+    const int32_t v = w->cand[k] >> 1, face = w->cand[k] & 1, nx = p->nx;
+    t[0] = v, t[1] = face ? v + nx + 1 : v + 1, t[2] = face ? v + nx : v + nx + 1;
+}
+
+/* Step 1 of a part, after rocks_advance: the mass each dynamic rock lends the vertices that may
+ * touch it in the part (implicit.h, cs_im_share): taken from the state as it is, so that nothing
+ * carries over from part to part. */
+static void rocks_share(const cs_phys *p, const cs_state *s, cs_im_work *w)
+{
+    const int32_t n = p->n, nr = s->n_rocks;
+    for (int32_t v = 0; v < n; v++) w->sr[v] = -1;
+    for (int32_t r = 0; r < nr; r++) {
+        const cs_rock_state *q = &s->rocks[r];
+        if (!rock_free(s, r)) continue;
+        const float Rc = q->radius + p->contact_offset + p->contact_offset;
+        const int32_t nc = rock_candidates(p, s, w, w->rx0[r], Rc);
+        float total = 0.0f;
+        for (int32_t k = 0; k < nc; k++) {
+            int32_t t[3];
+            cand_vertices(p, w, k, t);
+            cs_vec3 x[3];
+            float b[3];
+            for (int e = 0; e < 3; e++) x[e] = LOADX(t[e]);
+            cs_vec3 nn;
+            if (!cs_im_share_tri(x, w->rx0[r], Rc, b, &nn)) continue;
+            for (int e = 0; e < (p->contact_model == CS_CONTACT_SURFACE ? 3 : 1); e++) {
+                const int32_t v = t[e];
+                if (s->w[v] == 0.0f || b[e] == 0.0f || (w->sr[v] >= 0 && w->sr[v] != r)) continue;
+                if (w->sr[v] < 0) w->sr[v] = r, w->sh[v] = 0.0f, put3(w->sn, v, cs_v3(0.0f, 0.0f, 0.0f));
+                w->sh[v] += b[e];
+                put3(w->sn, v, cs_add(cs_v3_from(w->sn + 3 * (size_t)v), cs_scale(nn, b[e])));
+                total += b[e];
+            }
+        }
+        for (int32_t k = 0; k < nc && total > 0.0f; k++) {
+            int32_t t[3];
+            cand_vertices(p, w, k, t);
+            for (int e = 0; e < 3; e++) {
+                const int32_t v = t[e];
+                if (w->sr[v] != r || w->sj[v] == 1.0f) continue;
+                w->sj[v] = 1.0f; /* done */
+                const cs_vec3 nv = cs_v3_from(w->sn + 3 * (size_t)v);
+                const float len = cs_len(nv);
+                w->sh[v] = q->mass * (w->sh[v] / total);
+                put3(w->sn, v, len > 0.0f ? cs_scale(nv, 1.0f / len) : cs_v3(0.0f, 0.0f, 0.0f));
+            }
+        }
+        for (int32_t k = 0; k < nc; k++) {
+            int32_t t[3];
+            cand_vertices(p, w, k, t);
+            for (int e = 0; e < 3; e++) w->sj[t[e]] = 0.0f;
+        }
+    }
+}
+
+/* Step 3 of a part: the rocks follow what their vertices carried in the solve (each dynamic rock
+ * moved by the mass-weighted mean of its vertices' normal moves beyond its own path: the momentum
+ * the carrying took from the cloth), then the rocks and the cloth pushed apart (implicit.h,
+ * cs_im_push_tri): rock by rock, its candidates swept CS_IM_PUSH_SWEEPS times; each moved vertex's
+ * velocity (x - x_n)/h, each rock's v += (what it moved)/h. */
+static void rocks_push(const cs_phys *p, cs_state *s, cs_im_work *w, float h)
+{
+    const int32_t nr = s->n_rocks, n = p->n;
+    if (!nr) return;
+    const float inv_h = 1.0f / h;
+    cs_vec3 acc[CS_MAX_ROCKS];
+    for (int32_t r = 0; r < nr; r++) acc[r] = cs_v3(0.0f, 0.0f, 0.0f);
+    for (int32_t v = 0; v < n; v++) {
+        const int32_t r = w->sr[v];
+        if (r < 0 || s->w[v] == 0.0f) continue;
+        const cs_vec3 nv = cs_v3_from(w->sn + 3 * (size_t)v);
+        const cs_vec3 d = cs_sub(cs_sub(LOADX(v), cs_v3(w->xb[v], w->yb[v], w->zb[v])), cs_sub(w->star[r].x, w->rx0[r]));
+        acc[r] = cs_add(acc[r], cs_scale(nv, w->sh[v] * s->rocks[r].inv_mass * cs_dot(nv, d)));
+    }
+    for (int32_t r = 0; r < nr; r++) {
+        cs_rock_state *q = &s->rocks[r];
+        if (!rock_free(s, r)) continue;
+        q->x = cs_add(w->star[r].x, acc[r]);
+        q->v = cs_add(w->star[r].v, cs_scale(acc[r], inv_h));
+    }
+    const int surface = p->contact_model == CS_CONTACT_SURFACE;
+    for (int32_t r = 0; r < nr; r++) {
+        cs_rock_state *q = &s->rocks[r];
+        const cs_vec3 c0 = q->x;
+        const int32_t nc = rock_candidates(p, s, w, c0, cs_surface_lim(q, p));
+        /* what the rock moves, summed apart from its position: a heavy rock's share of one push
+         * can be below the float spacing of its coordinates */
+        cs_vec3 moved = cs_v3(0.0f, 0.0f, 0.0f);
+        for (int sweep = 0; sweep < CS_IM_PUSH_SWEEPS && nc; sweep++)
+            for (int32_t k = 0; k < nc; k++) {
+                int32_t t[3];
+                cand_vertices(p, w, k, t);
+                cs_vec3 x[3], dx[3], dc;
+                float wv[3];
+                for (int e = 0; e < 3; e++) {
+                    x[e] = LOADX(t[e]);
+                    wv[e] = surface || e == 0 ? p->inv_mass * s->w[t[e]] : 0.0f;
+                }
+                if (cs_im_push_tri(x, wv, cs_add(c0, moved), q->inv_mass, q->radius + p->contact_offset, dx, &dc) == 0.0f)
+                    continue;
+                for (int e = 0; e < (surface ? 3 : 1); e++) {
+                    const cs_vec3 y = cs_add(x[e], dx[e]);
+                    s->x[t[e]] = y.x, s->y[t[e]] = y.y, s->z[t[e]] = y.z;
+                }
+                moved = cs_add(moved, dc);
+            }
+        q->x = cs_add(c0, moved);
+        q->v = cs_add(q->v, cs_scale(moved, inv_h));
+        q->a = cs_scale(cs_sub(q->v, w->star[r].v), inv_h); /* the cloth's, as the state reports it */
+        q->alpha = cs_v3(0.0f, 0.0f, 0.0f);
+    }
+    for (int32_t v = 0; v < n; v++) {
+        if (s->w[v] == 0.0f) continue;
+        s->vx[v] = (s->x[v] - w->xb[v]) * inv_h;
+        s->vy[v] = (s->y[v] - w->yb[v]) * inv_h;
+        s->vz[v] = (s->z[v] - w->zb[v]) * inv_h;
+    }
+}
+
 /* One part of a substep, of length h (the sequence at the top). */
-static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state *s, float h, int threads,
+static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int threads,
                     cs_solver_stats *st)
 {
     cs_phys P = *p0; /* the part's own step */
@@ -753,7 +675,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state 
     if (p->plastic_rate > 0.0f) p->plastic_f = p->plastic_rate * h < 1.0f ? p->plastic_rate * h : 1.0f;
     const int32_t n = p->n, g = s->grab;
     rocks_advance(p, s, w, h);
-    st->lost += contact_setup(p, s, w, threads);
+    rocks_share(p, s, w);
     const cs_vec3 vg = g >= 0 ? cs_grab_velocity(LOADX(g), s->grab_target, p) : cs_v3(0.0f, 0.0f, 0.0f);
     const float inv_h = 1.0f / h;
     float reach = 0.0f; /* the largest coordinate, for float's floor (cs_im_float_floor) */
@@ -771,7 +693,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state 
         s->vx[v] = (x.x - w->xb[v]) * inv_h, s->vy[v] = (x.y - w->yb[v]) * inv_h, s->vz[v] = (x.z - w->zb[v]) * inv_h;
     }
     const int most = p->solver_iterations;
-    float r = assemble(p, h, s, w, partials, 1, threads);
+    float r = assemble(p, h, s, w, 1, threads);
     const float r0 = r;
     int k = 0;
     float prev = 2.0f * r0 + 1.0f;
@@ -787,16 +709,15 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state 
          * switches on or off within the step makes a full Newton step overshoot) */
 #pragma omp parallel for num_threads(threads) schedule(static)
         for (int32_t v = 0; v < n; v++) w->xo[v] = s->x[v], w->yo[v] = s->y[v], w->zo[v] = s->z[v];
-        for (int32_t q = 0; q < s->n_rocks; q++) put3(w->rxo, q, s->rocks[q].x);
         float a = 1.0f, rn = r;
         for (int tries = 0; tries < 4; tries++, a *= 0.5f) {
             move(w, s, a, inv_h, threads);
-            rn = assemble(p, h, s, w, partials, 1, threads);
+            rn = assemble(p, h, s, w, 1, threads);
             if (rn < r) break;
         }
         if (!(rn < r)) { /* no step along dx helps: back to x_k, and stop */
             move(w, s, 0.0f, inv_h, threads);
-            rn = assemble(p, h, s, w, partials, 1, threads);
+            rn = assemble(p, h, s, w, 1, threads);
             prev = rn;
         }
         k++;
@@ -806,13 +727,13 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, float *partials, cs_state 
     const float rel = r0 > 0.0f ? r / r0 : 0.0f;
     st->residual = rel > st->residual ? rel : st->residual;
     st->substeps++;
+    rocks_push(p, s, w, h);
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t v = 0; v < n; v++) {
         s->ax[v] = (s->vx[v] - w->vxb[v]) * inv_h * s->w[v];
         s->ay[v] = (s->vy[v] - w->vyb[v]) * inv_h * s->w[v];
         s->az[v] = (s->vz[v] - w->vzb[v]) * inv_h * s->w[v];
     }
-    rocks_take(p, s, partials);
     int64_t torn = 0;
     if (p->strain_on) {
 #pragma omp parallel for num_threads(threads) schedule(static) reduction(+ : torn)
@@ -845,7 +766,7 @@ static float fastest(const cs_phys *p, const cs_state *s, float h, int threads)
     return vv > most ? vv : most;
 }
 
-cs_status cs_im_step(cs_im_work **wp, float *partials, const cs_model *m, cs_state *s, int32_t substeps, int threads,
+cs_status cs_im_step(cs_im_work **wp, const cs_model *m, cs_state *s, int32_t substeps, int threads,
                      cs_step_report *rep, int64_t *torn)
 {
     const cs_phys *p = &m->phys;
@@ -856,14 +777,14 @@ cs_status cs_im_step(cs_im_work **wp, float *partials, const cs_model *m, cs_sta
     for (int32_t k = 0; k < substeps; k++) {
         const int32_t parts = cs_im_splits(fastest(p, s, p->dt, threads), p->dt, p->contact_offset, p->most_splits);
         const float h = p->dt / (float)parts;
-        for (int32_t q = 0; q < parts; q++) t += part(p, w, partials, s, h, threads, &st);
+        for (int32_t q = 0; q < parts; q++) t += part(p, w, s, h, threads, &st);
     }
     rep->solver = st;
     *torn = t;
     return CS_OK;
 }
 
-cs_status cs_im_refresh(cs_im_work **wp, float *partials, const cs_model *m, cs_state *s, int threads)
+cs_status cs_im_refresh(cs_im_work **wp, const cs_model *m, cs_state *s, int threads)
 {
     const cs_phys *p = &m->phys;
     if (work_fit(wp, p) != CS_OK) return CS_E_NOMEM;
@@ -875,15 +796,13 @@ cs_status cs_im_refresh(cs_im_work **wp, float *partials, const cs_model *m, cs_
     memcpy(w->xb, s->x, sizeof(float) * (size_t)n);
     memcpy(w->yb, s->y, sizeof(float) * (size_t)n);
     memcpy(w->zb, s->z, sizeof(float) * (size_t)n);
-    if (s->n_rocks) memcpy(w->star, s->rocks, sizeof *s->rocks * (size_t)s->n_rocks);
-    contact_setup(p, s, w, threads);
-    assemble(p, p->dt, s, w, partials, 0, threads);
+    for (int32_t v = 0; v < n; v++) w->sr[v] = -1; /* nothing carried: the cloth's own force */
+    assemble(p, p->dt, s, w, 0, threads);
     /* R = F there (v = v_n): the cloth's force */
     for (int32_t v = 0; v < n; v++) {
         const float k = p->inv_mass * s->w[v];
         s->ax[v] = w->R[3 * (size_t)v] * k, s->ay[v] = w->R[3 * (size_t)v + 1] * k;
         s->az[v] = w->R[3 * (size_t)v + 2] * k;
     }
-    rocks_take(p, s, partials);
     return CS_OK;
 }

@@ -29,13 +29,6 @@
 
 #include "clothsim/physics.h"
 
-/* The surface contact's hold (cs_im_contact_force), implicit_euler's form of the explicit law's
- * velocity level: a damper of CS_IM_HOLD m' / h (m' the vertex's mass against its share of the
- * rock's, cs_surface_max_touch) against a free vertex's approach to the rock's surface, quadratic up
- * to CS_IM_HOLD_EPS (so Newton crosses zero approach smoothly), with Coulomb friction of its force. */
-#define CS_IM_HOLD 100.0f
-#define CS_IM_HOLD_EPS 0.1f /* m/s */
-
 /* Forward directions of a level's off-diagonal blocks (t = 0..3). */
 SIM_HD static inline int cs_im_fwd_di(int t) { return t == 3 ? -1 : (t == 1 ? 0 : 1); }
 SIM_HD static inline int cs_im_fwd_dj(int t) { return t == 0 ? 0 : 1; }
@@ -167,114 +160,64 @@ SIM_HD static inline cs_mat3 cs_im_ground_block(cs_vec3 xi, cs_vec3 vi, const cs
                            p->friction, p->max_sep);
 }
 
-/* ---- rock contact, linearised per part ----
+/* ---- rock contact: carried mass in the solve, a constraint after it ----
  *
- * A rock's contact with a vertex is taken once at the start of each part of a substep, with the
- * rock where it will be at the part's end and the cloth where it is, and held as a half-space
- * for the part: normal n, the elastic force e0 there (negative: not touching yet, by how much) and
- * the stiffness kw along n. At the iterate x the elastic force is e0 - kw (x - x_n) . n and the
- * contact law acts on it as on the explicit one (normal damping, the separation cap, friction by
- * model); the surface model's hold (below) replaces its velocity level. This is smooth in x (a
- * plane, not a sphere that a vertex can slip round) and convex, so Newton converges where the
- * contact at the new state made it stall; a part never moves anything farther than
- * contact_offset (cs_im_splits), which bounds the error of the linearisation. The vertex's force
- * goes to the rock whole (reaction and torque about its centre by the arm). */
-#define CS_IM_SLOTS 4
-typedef struct cs_im_contact {
-    int32_t rock;       /* index, or -1 */
-    float n[3];         /* normal, from the rock toward the vertex */
-    float arm[3];       /* from the rock's centre to the contact */
-    float e0;           /* elastic force along n at the part's start (k delta; < 0 apart) */
-    float kw;           /* its stiffness along n: k_contact times the contact's weight */
-    float w;            /* the contact's weight (damping and friction scale with it) */
-    float K[9];         /* its block at the last assembly (the rock's coupling to the vertex) */
-} cs_im_contact;
+ * A rock's contact with the cloth is not a force in the solve (a penalty stiff enough to hold a
+ * heavy rock makes Newton stall, and a vertex's own tangent plane lets a rock into a stretched
+ * face). Instead, at each part's start every dynamic rock lends its mass M to the vertices that
+ * may touch it within the part - those of the triangles (surface model; vertices, vertex model)
+ * whose closest point to the rock's centre lies within R + 2 contact_offset - in proportion to
+ * their barycentric weights there, along the weighted mean normal n_i (cs_im_share_tri): in the
+ * solve vertex i carries mass m_i' along n_i, a force -(m_i'/h^2) n_i (n_i . (x_i - x_n,i - d_r))
+ * where d_r is the rock's own path over the part (gravity, rock-rock and ground contact), so the
+ * cloth under a rock feels the rock's inertia and the cloth's springs decelerate it. After the
+ * solve the rock moves by sum m_i'/M n_i (n_i . (x_i - x_n,i - d_r)) beyond its path (the
+ * momentum it lent), and then every rock and the cloth are pushed apart to the contact sphere
+ * R + contact_offset: the point p of a triangle closest to the centre c, with barycentric weights
+ * b, and the centre move along n = (p - c)/|p - c| in inverse proportion to their masses - dx_k
+ * = b_k w_k lambda n, dc = -w_r lambda n, lambda = (R + offset - |p - c|) / (w_r + sum b_k^2
+ * w_k) - which conserves momentum, and what each moved is added to its velocity (dx / h).
+ * CS_IM_PUSH_SWEEPS sweeps over each rock's triangles in grid order. Normal only: no friction
+ * acts between rock and cloth under implicit_euler (MODEL.md). */
+#define CS_IM_PUSH_SWEEPS 4
 
-/* vertex model: the sphere's tangent plane at the vertex's nearest point, reached within margin. */
-SIM_HD static inline int cs_im_contact_vertex(cs_vec3 xb, const cs_rock_state *r, const cs_phys *p, float margin,
-                                              cs_im_contact *c)
+/* Triangle x[3] against a rock centred at c: the barycentric weights b of its point closest to c,
+ * and the normal n from c to it, when that point lies within reach; 0 when not. */
+SIM_HD static inline int cs_im_share_tri(const cs_vec3 x[3], cs_vec3 c, float reach, float b[3], cs_vec3 *n)
 {
-    const cs_vec3 rr = cs_sub(xb, r->x);
-    const float len = cs_len(rr), delta = r->radius + p->contact_offset - len;
-    if (!(delta > -margin && len > CS_MIN_LEN)) return 0;
-    const cs_vec3 n = cs_scale(rr, 1.0f / len);
-    c->n[0] = n.x, c->n[1] = n.y, c->n[2] = n.z;
-    c->arm[0] = rr.x, c->arm[1] = rr.y, c->arm[2] = rr.z;
-    c->e0 = p->k_contact * delta, c->kw = p->k_contact, c->w = 1.0f;
+    cs_closest_on_triangle(c, x[0], x[1], x[2], b);
+    const cs_vec3 p = cs_add(cs_add(cs_scale(x[0], b[0]), cs_scale(x[1], b[1])), cs_scale(x[2], b[2]));
+    const cs_vec3 d = cs_sub(p, c);
+    const float len = cs_len(d);
+    if (!(len < reach) || !(len > CS_MIN_LEN)) return 0;
+    *n = cs_scale(d, 1.0f / len);
     return 1;
 }
 
-/* surface model: the gather against the rock grown by margin (o: cs_surface_gather's output for
- * that rock), its net elastic force E and weight W, less what the margin added (k W margin). */
-SIM_HD static inline int cs_im_contact_surface(const cs_surface_out *o, const cs_rock_state *r, const cs_phys *p,
-                                               float margin, cs_im_contact *c)
+/* Triangle x[3] (inverse masses wv) against rock centre c (inverse mass wr) and sphere Rc: the
+ * vertices' moves dx and the centre's dc (the caller applies them); returns lambda, 0 when apart. */
+SIM_HD static inline float cs_im_push_tri(const cs_vec3 x[3], const float wv[3], cs_vec3 c, float wr, float Rc,
+                                          cs_vec3 dx[3], cs_vec3 *dc)
 {
-    const float e = cs_len(o->E), W = o->weight;
-    if (!(e > 0.0f) || !o->touches || !(W > 0.0f)) return 0;
-    const cs_vec3 n = cs_scale(o->E, 1.0f / e);
-    c->n[0] = n.x, c->n[1] = n.y, c->n[2] = n.z;
-    c->arm[0] = n.x * r->radius, c->arm[1] = n.y * r->radius, c->arm[2] = n.z * r->radius;
-    c->kw = p->k_contact * W, c->w = W;
-    c->e0 = e - c->kw * margin;
-    return 1;
+    float b[3];
+    cs_vec3 n;
+    if (!cs_im_share_tri(x, c, Rc, b, &n)) return 0.0f;
+    const cs_vec3 p = cs_add(cs_add(cs_scale(x[0], b[0]), cs_scale(x[1], b[1])), cs_scale(x[2], b[2]));
+    const float W = wr + b[0] * b[0] * wv[0] + b[1] * b[1] * wv[1] + b[2] * b[2] * wv[2];
+    if (!(W > 0.0f)) return 0.0f;
+    const float lambda = (Rc - cs_len(cs_sub(p, c))) / W;
+    for (int k = 0; k < 3; k++) dx[k] = cs_scale(n, b[k] * wv[k] * lambda);
+    *dc = cs_scale(n, -wr * lambda);
+    return lambda;
 }
 
-/* The force of contact c on the vertex at x (started at xb, velocity vi; Ro its non-contact
- * resultant; dr: how far the rock has moved since the contact was taken) and its block, which acts
- * on the vertex's displacement relative to the rock's; free: the vertex's w (the hold acts on free
- * vertices only). */
-SIM_HD static inline cs_vec3 cs_im_contact_force(const cs_im_contact *c, cs_vec3 x, cs_vec3 xb, cs_vec3 dr, cs_vec3 vi,
-                                                cs_vec3 Ro, const cs_rock_state *r, const cs_phys *p, float h,
-                                                float free, cs_mat3 *blk)
+/* The carried mass's force on a vertex displaced d beyond the rock's path (n its normal, m' its
+ * mass, h the part) and its block. */
+SIM_HD static inline cs_vec3 cs_im_carried(cs_vec3 n, float m, cs_vec3 d, float h, cs_mat3 *blk)
 {
-    const cs_vec3 n = cs_v3(c->n[0], c->n[1], c->n[2]), arm = cs_v3(c->arm[0], c->arm[1], c->arm[2]);
-    const float e = c->e0 - c->kw * cs_dot(cs_sub(cs_sub(x, xb), dr), n);
-    const cs_vec3 vrel = cs_sub(vi, cs_add(r->v, cs_cross(r->w, arm)));
-    const float vn = cs_dot(vrel, n);
-    const float cw = p->c_contact * c->w;
-    float fn = e - cw * vn;
-    const int on = fn > 0.0f && e > 0.0f && vn <= p->max_sep;
-    fn = on ? fn : 0.0f;
-    cs_vec3 F = cs_scale(n, fn);
-    float kn = on ? c->kw + cw / h : 0.0f, kt = 0.0f;
-    if (p->friction == CS_FRICTION_COULOMB_VISCOUS) {
-        const cs_vec3 vt = cs_sub(vrel, cs_scale(n, vn));
-        const float vt_len = cs_len(vt);
-        if (vt_len >= CS_MIN_LEN && on) {
-            const float a = p->mu * fn, b = p->c_tangent * c->w * vt_len;
-            F = cs_add(F, cs_scale(vt, -(a < b ? a : b) / vt_len));
-            kt = p->c_tangent * c->w / h;
-        }
-    } else if (on) {
-        const float ron = cs_dot(Ro, n);
-        if (ron < 0.0f) {
-            const cs_vec3 rot = cs_sub(Ro, cs_scale(n, ron));
-            const float rot_len = cs_len(rot);
-            if (rot_len >= CS_MIN_LEN) {
-                const float b = p->mu * -ron, s = c->w < 1.0f ? c->w : 1.0f;
-                F = cs_add(F, cs_scale(rot, -(rot_len < b ? rot_len : b) * s / rot_len));
-            }
-        }
-    }
-    if (free > 0.0f && e > 0.0f && vn < 0.0f && p->contact_model == CS_CONTACT_SURFACE) {
-        /* the hold: a damper CS_IM_HOLD m' / h against approach, C1 at vn = 0 */
-        const float m = 1.0f / (p->inv_mass + cs_surface_max_touch(r, p) * r->inv_mass);
-        const float kappa = CS_IM_HOLD * m / h, eps = CS_IM_HOLD_EPS;
-        const float f = vn > -eps ? kappa * vn * vn / (2.0f * eps) : kappa * (-vn - 0.5f * eps);
-        F = cs_add(F, cs_scale(n, f));
-        kn += (vn > -eps ? kappa * -vn / eps : kappa) / h;
-        /* and its Coulomb friction, as the velocity level's: up to mu f against the sliding,
-         * viscous (kappa) below that */
-        const cs_vec3 vt = cs_sub(vrel, cs_scale(n, vn));
-        const float vt_len = cs_len(vt);
-        if (vt_len >= CS_MIN_LEN) {
-            const float a = p->mu * f, b = kappa * vt_len;
-            F = cs_add(F, cs_scale(vt, -(a < b ? a : b) / vt_len));
-            kt += (a < b ? a / vt_len : kappa) / h;
-        }
-    }
-    *blk = cs_im_contact_block(n, kn, kt);
-    return F;
+    const float k = m / (h * h);
+    *blk = cs_m3_axial(n, k, 0.0f);
+    return cs_scale(n, -k * cs_dot(n, d));
 }
 
 /* ---- a vertex's residual and diagonal ---- */
