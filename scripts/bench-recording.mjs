@@ -1,5 +1,5 @@
 // bench-recording.mjs - what a recording costs and how fast one seeks. A benchmark, not a test:
-// it prints figures (README "Recordings").
+// it prints figures (docs/performance.md "Recordings").
 //   1. Bytes per second of simulated time of the default scene (64 x 64, rocks dropping), one
 //      recording per encoding of the same seconds, recorded at once.
 //   2. Seek time in a 10-minute recording: the delta recording of part 1 repeated to 10 minutes

@@ -180,8 +180,8 @@ size_t delta_encode(delta_enc *e, const float *xyz, int32_t n, int32_t row, uint
         e->key_wanted = 0;
     }
     /* One zstd frame per axis: each gets literal statistics of its own (z's residuals spread
-     * wider than x's and y's: one frame of all three took 7 % more, README "Speed"). A delta
-     * tries both bases per axis and keeps the smaller: on a cloth in motion the grid values
+     * wider than x's and y's: one frame of all three took 7 % more, docs/developing.md "Why this
+     * layout"). A delta tries both bases per axis and keeps the smaller: on a cloth in motion the grid values
      * themselves often predict better than their difference from a keyframe up to a second old,
      * on a cloth at rest the difference is all zeros. */
     /* The basis is chosen on the fast parser's sizes; a cloth of up to DELTA_TIGHT_MAX_N vertices

@@ -21,16 +21,16 @@
  * often: a client asking a thousand times a second gets four. */
 #define DELTA_KEY_INTERVAL_NS 1000000000ull
 #define DELTA_KEY_MIN_GAP_NS 250000000ull
-/* zstd's level: 1, the fastest, compresses these planes as well as 3 (measured, README); its
- * shortest match 7 bytes: shorter ones in planes of near-random low bytes cost more than they
+/* zstd's level: 1, the fastest, compresses these planes as well as 3 (measured:
+ * docs/developing.md); its shortest match 7 bytes: shorter ones in planes of near-random low bytes cost more than they
  * save (1.52 bytes a vertex instead of 1.56 on the default scene, at the same speed). */
 #define DELTA_ZSTD_LEVEL 1
 #define DELTA_ZSTD_MIN_MATCH 7
 /* Cloths of up to this many vertices (90 x 90) have each axis's chosen block compressed again
  * with zstd's optimal parser (btultra, matches of 7 bytes or more, long enough at 16, one search
  * step): 1.6 % smaller at 64 x 64 and 6 % at 128 x 128 than the fast parser, at 6 to 12 times its
- * time (README "Speed"). It costs about 0.75 ms a frame at 64 x 64 but 3 ms at 128 x 128, where
- * the fast parser alone keeps many scenes' streams cheap for the server. */
+ * time (docs/developing.md "Why this layout"). It costs about 0.75 ms a frame at 64 x 64 but
+ * 3 ms at 128 x 128, where the fast parser alone keeps many scenes' streams cheap for the server. */
 #define DELTA_TIGHT_MAX_N 8192u
 #define DELTA_ZSTD_TIGHT_TARGET 16
 

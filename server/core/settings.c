@@ -426,8 +426,8 @@ void settings_usage(FILE *out)
     }
 }
 
-/* The startup settings as a Markdown table, for README's "Configuration" section (a test diffs the
- * two). The web_root default is the build tree's own path, so it is named, not printed. Help texts
+/* The startup settings as a Markdown table, for docs/operating.md's "Configuration" section (a
+ * test diffs the two). The web_root default is the build tree's own path, so it is named, not printed. Help texts
  * are escaped for a table cell (| < >). */
 static void md_text(FILE *out, const char *s)
 {

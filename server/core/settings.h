@@ -206,7 +206,7 @@ int settings_load(clothd_config *c, int argc, char **argv, char **env, const cha
 /* Help text of every row, for --help. */
 void settings_usage(FILE *out);
 
-/* The startup settings as a Markdown table (clothd --help-markdown), for README. */
+/* The startup settings as a Markdown table (clothd --help-markdown), for docs/operating.md. */
 void settings_markdown(FILE *out);
 
 #endif

@@ -625,8 +625,8 @@ void recordings_scene_gone(scene *sc)
 /* ---- HTTP threads ---- */
 
 /* Positions bytes a vertex that meshopt and delta frames typically take on a moving cloth (the
- * default scene with rocks falling: 4.2-4.5 and 1.6, README "The stream"); a cloth at rest takes
- * far less, and a recording that outgrows its estimate stops at the cap with its file whole. */
+ * default scene with rocks falling: 4.2-4.5 and 1.6, docs/performance.md "The stream"); a cloth
+ * at rest takes far less, and a recording that outgrows its estimate stops at the cap with its file whole. */
 #define REC_MESHOPT_TYPICAL 4.5
 #define REC_DELTA_TYPICAL 1.75
 

@@ -1,5 +1,5 @@
 // bench.test.mjs - the viewer's speed in headless Chromium (software WebGL, SwiftShader) against a
-// real clothd, printed as figures (README "Speed" quotes them) and saved to
+// real clothd, printed as figures (docs/performance.md "Viewer" quotes them) and saved to
 // $CLOTHD_ARTIFACTS/viewer-bench.json. It asserts only that each figure was measured; speed is
 // not a pass/fail matter on a shared machine.
 //   decode: the page's own decoder on one frame into the GPU buffer's array, per encoding, for a

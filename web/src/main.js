@@ -78,7 +78,8 @@ const rockSpeed = { id: null, last: null, speed: null };
 
 const view = new View($('view'));
 // Frames: q16 on this machine (loopback: bytes are free, decoding is cheapest), delta from
-// anywhere else (a real network: a third of q16's bytes on a moving cloth, README "Delta frames").
+// anywhere else (a real network: a third of q16's bytes on a moving cloth, docs/performance.md
+// "The stream").
 const LOOPBACK = /^(localhost|127(\.\d{1,3}){3}|\[::1\])$/.test(location.hostname);
 const ENCODING = LOOPBACK ? 'q16' : 'delta';
 const viewValues = { mode: 'surface', camera: 'orbit', encoding: ENCODING, dropRadius: 0.1, dropDensity: 2500, chart: true };

@@ -1,7 +1,7 @@
 /* test_settings.c - the one settings table (core/settings.c): every tunable the daemon takes, in
  * one row shape; defaults; text from the config file, CLOTHD_* variables and flags, in that
- * order of precedence, and their refusals; the README table's rows; the daemon-loop settings an
- * old snapshot still holds. */
+ * order of precedence, and their refusals; the rows of docs/operating.md's table; the daemon-loop
+ * settings an old snapshot still holds. */
 #include <unistd.h>
 
 #include "core/params_json.h"
@@ -147,7 +147,7 @@ static void test_precedence(void **unused)
     unlink(path);
 }
 
-/* README's table is made of the startup rows. */
+/* docs/operating.md's table (clothd --help-markdown) is made of the startup rows. */
 static void test_markdown(void **unused)
 {
     (void)unused;
