@@ -1442,8 +1442,15 @@ static void rocks(const cuda_ctx *c, int mode, int pos, int rest)
  * cs_im_chunk_total, then computes the solver's scalars (residual norms, alpha, beta) in float as
  * the CPU does. A copy back and a wait per dot product: simple, not fast.
  *
- * Rocks are refused under implicit_euler on this backend (it lacks CS_CAP_IMPLICIT_ROCKS: guard.c), so there is no rock contact here: a part is a
- * whole substep (cs_im_splits of no rock speed is 1) and the contacts are the ground's. */
+ * Rocks (implicit.h, "rock contact" and "the rock steps of a part"): with rocks, each substep
+ * first asks how many parts it takes (k_im_fastest_chunks, k_im_fastest: the speed copied back for
+ * cs_im_splits); each part advances the rocks without the cloth and shares their mass
+ * (k_im_rocks_begin) before the solve, whose assembly adds the carried term (cs_im_carried_at),
+ * and pushes rocks and cloth apart after it (k_im_rocks_push, then k_im_push_velocity a thread a
+ * vertex). The rock steps are serial by design (a fixed order, as the CPU backend runs them): each
+ * is a kernel of one thread over the grid (cs_im_rocks_advance, _share, _push of implicit.h, the
+ * code the CPU backend runs), the rocks and the workspace staying on the device. One thread
+ * scanning the grid is slow on a large cloth; it is what keeps the bits for now. */
 
 /* One level's arrays (device memory); level 0's mask is the state's, as floats. */
 struct im_level_bufs {
@@ -1460,6 +1467,15 @@ struct im_work {
     float *B[2];               /* bending blocks of level 0 */
     float *part;               /* per-chunk partials of a sum */
     float *host_part;          /* their pinned host copy */
+    float *fast;               /* k_im_fastest's answer (1 float) */
+    /* the rock steps' workspace (cs_im_rocks): per vertex the mass carried (sh), its normal (sn,
+     * 3 n), a mark (sj); the rock carried (sr) and the candidates (cand, 2 n); per rock where it
+     * would be without the cloth (star), where it started (rx0) and scratch (rf, rt) */
+    float *sh, *sn, *sj;
+    int32_t *ints;             /* cand, then sr: 3 n, one allocation */
+    int32_t *cand, *sr;
+    cs_rock_state *star;       /* CS_MAX_ROCKS */
+    cs_vec3 *rv3;              /* rx0, rf, rt: CS_MAX_ROCKS each, one allocation */
     im_level_bufs lv[CS_IM_MAX_LEVELS];
     cuda_scene *sc;            /* the scene with the part's phys (its dt is the part's h) */
     cuda_scene host_sc;        /* what sc holds */
@@ -1473,6 +1489,9 @@ static void im_free(im_work *w)
 {
     if (!w) return;
     cudaFree(w->mem);
+    cudaFree(w->ints);
+    cudaFree(w->star);
+    cudaFree(w->rv3);
     cudaFree(w->sc);
     cudaFreeHost(w->host_part);
     free(w);
@@ -1489,6 +1508,26 @@ static cs_im_level im_view(const im_work *w, int l)
     for (int t = 0; t < 4; t++) L.F[t] = v->F[t];
     L.B[0] = l == 0 ? w->B[0] : NULL, L.B[1] = l == 0 ? w->B[1] : NULL;
     return L;
+}
+
+/* The rock steps' view (cs_im_rocks) of the device arrays: the cloth's state S (SoA, 6 n: positions
+ * and velocities), the part's start, level 0's mask, the rest lengths L0, the rocks. */
+static cs_im_rocks im_rocks(const cuda_ctx *c, float *S, const float *L0)
+{
+    const im_work *w = c->im;
+    const size_t n = (size_t)w->n;
+    cs_im_rocks R;
+    R.x = S, R.y = S + n, R.z = S + 2 * n, R.vx = S + 3 * n, R.vy = S + 4 * n, R.vz = S + 5 * n;
+    R.xb = w->base, R.yb = w->base + n, R.zb = w->base + 2 * n;
+    R.w = w->lv[0].mask;
+    R.L0 = L0;
+    R.rocks = c->rb.rocks;
+    R.nr = c->host_sc.nr;
+    R.star = w->star;
+    R.rx0 = w->rv3, R.F = w->rv3 + CS_MAX_ROCKS, R.T = w->rv3 + 2 * CS_MAX_ROCKS;
+    R.cand = w->cand, R.sr = w->sr;
+    R.sh = w->sh, R.sn = w->sn, R.sj = w->sj;
+    return R;
 }
 
 __device__ static inline void im_put3(float *a, int32_t v, cs_vec3 x)
@@ -1564,16 +1603,79 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_reach(const cuda_scene *__restr
     if (t == 0) part[c] = buf[0];
 }
 
-/* What an assembly writes (device pointers). */
+/* The largest squared speed (cs_im_speed2) of chunk blockIdx.x's vertices at a substep's start,
+ * for its parts when there are rocks (fastest of implicit_cpu.c; a NaN is never taken): the
+ * chunk's largest into part (a maximum: any order gives the same). */
+__global__ void __launch_bounds__(CS_CHUNK) k_im_fastest_chunks(const cuda_scene *__restrict__ sc, const float *in,
+                                                               float *part)
+{
+    CS_DYNAMIC_SHARED(float, buf);
+    const cs_phys *p = &sc->p;
+    const int t = (int)threadIdx.x;
+    const int32_t c = (int32_t)blockIdx.x, j = c / p->nseg, i = (c % p->nseg) * CS_CHUNK + t;
+    float most = 0.0f;
+    if (i < p->nx) {
+        const int32_t v = j * p->nx + i;
+        const cs_vec3 u = IM_V(in, p->n, v);
+        const float q = cs_im_speed2(u.x, u.y, u.z);
+        most = q > most ? q : most;
+    }
+    buf[t] = most;
+    for (int s = CS_CHUNK / 2; s > 0; s >>= 1) {
+        __syncthreads();
+        if (t < s) buf[t] = buf[t + s] > buf[t] ? buf[t + s] : buf[t];
+    }
+    if (t == 0) part[c] = buf[0];
+}
+
+/* The fastest a rock or a cloth vertex moves toward a contact over a substep h (cs_im_fastest of
+ * the rocks and the chunks' largest squared speeds), into out[0]. One thread. */
+__global__ void k_im_fastest(const cuda_scene *__restrict__ sc, const cs_rock_state *rocks, const float *part,
+                             int32_t nchunks, float h, float *out)
+{
+    float vv = 0.0f;
+    for (int32_t c = 0; c < nchunks; c++) vv = part[c] > vv ? part[c] : vv;
+    out[0] = cs_im_fastest(rocks, sc->nr, vv, cs_len(sc->p.gravity) * h);
+}
+
+/* Step 1 of a part with rocks: the rocks advanced without the cloth, then the mass they lend
+ * (cs_im_rocks_advance, cs_im_rocks_share; R.x the part's start). One thread: the rock steps are
+ * serial by design (a fixed order, the CPU backend's), so this single-thread kernel scans the grid
+ * alone - slow on a large cloth, kept for the bits until a parallel scan with the same order is
+ * written. */
+__global__ void k_im_rocks_begin(const cuda_scene *__restrict__ sc, cs_im_rocks R, float h)
+{
+    cs_im_rocks_advance(&sc->p, &R, h);
+    cs_im_rocks_share(&sc->p, &R);
+}
+
+/* Step 3 of a part with rocks: the rocks follow what their vertices carried, then rocks and cloth
+ * pushed apart (cs_im_rocks_push; R.x the solved iterate). One thread, as k_im_rocks_begin. */
+__global__ void k_im_rocks_push(const cuda_scene *__restrict__ sc, cs_im_rocks R, float h)
+{
+    cs_im_rocks_push(&sc->p, &R, h);
+}
+
+/* ... and then each vertex's velocity (x - x_n)/h (cs_im_push_velocity), a thread a vertex. */
+__global__ void k_im_push_velocity(cs_im_rocks R, float inv_h, int32_t n)
+{
+    const int32_t v = im_vertex();
+    if (v < n) cs_im_push_velocity(&R, v, inv_h);
+}
+
+/* What an assembly writes (device pointers), and the rocks' carried mass it adds (rocks: 1). */
 struct im_asm {
     float *R, *q, *D, *F[4], *B[2], *part;
     const float *mask0;
+    cs_im_rocks rk;
+    int rocks;
 };
 
 /* Assembly at the iterate S of chunk blockIdx.x, a thread per vertex (chunk_springs,
- * chunk_contacts without rocks, chunk_residual of implicit_cpu.c): the springs, air and gravity,
- * then the ground contact, then the residual R = F - m (v - v_n)/h (0 out of the solve, whose D
- * is the identity); with blocks, level 0's matrix; the chunk's partial of |R|^2. */
+ * chunk_contacts, chunk_residual of implicit_cpu.c): the springs, air and gravity, then the
+ * contacts - the rock mass the vertex carries (cs_im_carried_at, with rocks), the ground - then the
+ * residual R = F - m (v - v_n)/h (0 out of the solve, whose D is the identity); with blocks, level
+ * 0's matrix; the chunk's partial of |R|^2. */
 __global__ void __launch_bounds__(CS_CHUNK) k_im_assemble(const cuda_scene *__restrict__ sc, const float *S,
                                                          const float *__restrict__ base, const float *__restrict__ L0,
                                                          im_asm a, int blocks)
@@ -1615,9 +1717,16 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_assemble(const cuda_scene *__re
                 im_put9(to[t], v, &b);
             }
         }
-        /* the contacts: no rocks (refused under implicit_euler), then the ground */
+        /* the contacts: the rock mass carried, then the ground (whose friction reads the
+         * springs' resultant F) */
         float f[3] = {F.x, F.y, F.z};
         cs_vec3 Fc;
+        cs_mat3 cb;
+        if (a.rocks && cs_im_carried_at(&a.rk, v, xi, IM_X(base, n, v), h, &Fc, &cb)) {
+            f[0] += Fc.x, f[1] += Fc.y, f[2] += Fc.z;
+            if (blocks)
+                for (int k = 0; k < 9; k++) D.m[k] += cb.m[k];
+        }
         if (p->ground && cs_vertex_ground_contact(xi, vi, F, p, &Fc)) {
             f[0] += Fc.x, f[1] += Fc.y, f[2] += Fc.z;
             if (blocks) {
@@ -1766,14 +1875,16 @@ __global__ void k_im_refresh_accel(const cuda_scene *__restrict__ sc, const floa
     for (int q = 0; q < 3; q++) acc[(size_t)q * (size_t)n + v] = R[3 * (size_t)v + q] * k;
 }
 
-/* FLAG_NONFINITE where a position or velocity of the state is not finite (the CPU's
- * state_finite). */
-__global__ void k_im_finite(const float *S, int32_t n, int *flags)
+/* FLAG_NONFINITE where a position or velocity of the state, or a rock's position, velocity or
+ * spin, is not finite (the CPU's state_finite). */
+__global__ void k_im_finite(const float *S, int32_t n, const cs_rock_state *rocks, int32_t nr, int *flags)
 {
     const int32_t v = im_vertex();
     if (v >= n) return;
     int bad = 0;
     for (int q = 0; q < 6; q++) bad |= !isfinite(S[(size_t)q * (size_t)n + v]);
+    if (v == 0)
+        for (int32_t r = 0; r < nr; r++) bad |= !finite3(rocks[r].x) || !finite3(rocks[r].v) || !finite3(rocks[r].w);
     if (bad) atomicOr(&flags[FLAG_NONFINITE], 1);
 }
 
@@ -1786,7 +1897,7 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     im_work *w = (im_work *)calloc(1, sizeof *w);
     if (!w) return CS_E_NOMEM;
     w->nx = p->nx, w->ny = p->ny, w->n = p->n, w->nchunks = p->nchunks;
-    size_t floats = (size_t)w->n * (6 + 3 + 18 + 18) + (size_t)w->nchunks;
+    size_t floats = (size_t)w->n * (6 + 3 + 18 + 18 + 5) + (size_t)w->nchunks + 1;
     int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
     const int L = w->levels = cs_im_levels(p->nx, p->ny, lx, ly);
     for (int l = 0; l < L; l++) {
@@ -1796,7 +1907,11 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     cudaError_t e = cudaMalloc(&w->mem, sizeof(float) * floats);
     if (e == cudaSuccess) e = cudaMalloc((void **)&w->sc, sizeof(cuda_scene));
     if (e == cudaSuccess) e = cudaMallocHost((void **)&w->host_part, sizeof(float) * (size_t)w->nchunks);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&w->ints, sizeof(int32_t) * 3 * (size_t)w->n);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&w->star, sizeof(cs_rock_state) * CS_MAX_ROCKS);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&w->rv3, sizeof(cs_vec3) * 3 * CS_MAX_ROCKS);
     if (e == cudaSuccess) e = cudaMemsetAsync(w->mem, 0, sizeof(float) * floats, c->stream);
+    if (e == cudaSuccess) e = cudaMemsetAsync(w->ints, 0xff, sizeof(int32_t) * 3 * (size_t)w->n, c->stream); /* sr -1 */
     if (e != cudaSuccess) {
         im_free(w);
         return cuda_fail(c, e, "allocating implicit_euler's workspace", __LINE__);
@@ -1809,6 +1924,9 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     w->r = TAKE(3 * n), w->z = TAKE(3 * n), w->p = TAKE(3 * n);
     w->B[0] = TAKE(9 * n), w->B[1] = TAKE(9 * n);
     w->part = TAKE((size_t)w->nchunks);
+    w->sh = TAKE(n), w->sn = TAKE(3 * n), w->sj = TAKE(n); /* sj 0 between uses, as the CPU's */
+    w->fast = TAKE(1);
+    w->cand = w->ints, w->sr = w->ints + 2 * n;
     for (int l = 0; l < L; l++) {
         im_level_bufs *v = &w->lv[l];
         const size_t k = (size_t)v->n;
@@ -1849,19 +1967,22 @@ static cs_status im_total(cuda_ctx *c, float *out)
     return CS_OK;
 }
 
-/* Assembles at the iterate S (rest lengths L0): R, with blocks level 0's matrix; |R| into r. */
-static cs_status im_assemble(cuda_ctx *c, const float *S, const float *L0, int blocks, float *r)
+/* Assembles at the iterate S (rest lengths L0): R, with blocks level 0's matrix; |R| into r. With
+ * rocks (a part's solve), the carried mass the part's rocks_share left in the workspace. */
+static cs_status im_assemble(cuda_ctx *c, float *S, const float *L0, int blocks, int rocks, float *r)
 {
     im_work *w = c->im;
     im_asm a;
     a.R = w->R, a.q = w->q, a.D = w->lv[0].D, a.part = w->part, a.mask0 = w->lv[0].mask;
     for (int t = 0; t < 4; t++) a.F[t] = w->lv[0].F[t];
     a.B[0] = w->B[0], a.B[1] = w->B[1];
+    a.rk = im_rocks(c, S, L0);
+    a.rocks = rocks;
     k_im_assemble<<<(unsigned)w->nchunks, CS_CHUNK, sizeof(float) * CS_CHUNK, c->stream>>>(w->sc, S, w->base, L0, a,
                                                                                            blocks);
     float total = 0.0f;
     const cs_status st = im_total(c, &total);
-    *r = sqrtf(total + 0.0f); /* the rocks' rows after the cloth's: none (refused under implicit_euler) */
+    *r = sqrtf(total);
     return st;
 }
 
@@ -1953,8 +2074,8 @@ static cs_status im_pcg(cuda_ctx *c, float target, int most, int *its)
     return CS_OK;
 }
 
-/* One part of a substep, of length h (part of implicit_cpu.c without rocks): from state[cur] into
- * state[cur ^ 1], which then holds the state; torn springs counted into the flags. */
+/* One part of a substep, of length h (part of implicit_cpu.c): from state[cur] into state[cur ^ 1],
+ * which then holds the state; torn springs counted into the flags. */
 static cs_status im_part(cuda_ctx *c, const cs_phys *p0, float h, cs_solver_stats *stats)
 {
     im_work *w = c->im;
@@ -1976,12 +2097,16 @@ static cs_status im_part(cuda_ctx *c, const cs_phys *p0, float h, cs_solver_stat
     CUDA_CHECK(cudaMemcpyAsync(w->host_part, w->part, sizeof(float) * (size_t)w->nchunks, cudaMemcpyDeviceToHost,
                                c->stream));
     k_im_begin<<<nb, IM_THREADS, 0, c->stream>>>(w->sc, c->vb.state[c->cur], S, w->base, c->vb.mask, w->lv[0].mask, 1);
+    /* the rocks over the part without the cloth, and the mass they lend, from the part's start
+     * (after k_im_begin: it reads level 0's mask) */
+    const int rocks = c->host_sc.nr > 0;
+    if (rocks) k_im_rocks_begin<<<1, 1, 0, c->stream>>>(w->sc, im_rocks(c, c->vb.state[c->cur], L0), h);
     CUDA_CHECK(cudaStreamSynchronize(c->stream));
     float reach = 0.0f;
     for (int32_t q = 0; q < w->nchunks; q++) reach = w->host_part[q] > reach ? w->host_part[q] : reach;
     const int most = p->solver_iterations;
     float r;
-    if ((st = im_assemble(c, S, L0, 1, &r)) != CS_OK) return st;
+    if ((st = im_assemble(c, S, L0, 1, rocks, &r)) != CS_OK) return st;
     const float r0 = r;
     int k = 0;
     float prev = 2.0f * r0 + 1.0f;
@@ -2000,12 +2125,12 @@ static cs_status im_part(cuda_ctx *c, const cs_phys *p0, float h, cs_solver_stat
         float a = 1.0f, rn = r;
         for (int tries = 0; tries < 4; tries++, a *= 0.5f) {
             k_im_move<<<nb, IM_THREADS, 0, c->stream>>>(S, w->xo, w->dx, w->base, w->lv[0].mask, a, inv_h, n);
-            if ((st = im_assemble(c, S, L0, 1, &rn)) != CS_OK) return st;
+            if ((st = im_assemble(c, S, L0, 1, rocks, &rn)) != CS_OK) return st;
             if (rn < r) break;
         }
         if (!(rn < r)) { /* no step along dx helps: back to x_k, and stop */
             k_im_move<<<nb, IM_THREADS, 0, c->stream>>>(S, w->xo, w->dx, w->base, w->lv[0].mask, 0.0f, inv_h, n);
-            if ((st = im_assemble(c, S, L0, 1, &rn)) != CS_OK) return st;
+            if ((st = im_assemble(c, S, L0, 1, rocks, &rn)) != CS_OK) return st;
             prev = rn;
         }
         k++;
@@ -2015,6 +2140,12 @@ static cs_status im_part(cuda_ctx *c, const cs_phys *p0, float h, cs_solver_stat
     const float rel = r0 > 0.0f ? r / r0 : 0.0f;
     stats->residual = rel > stats->residual ? rel : stats->residual;
     stats->substeps++;
+    if (rocks) {
+        /* the rocks follow their vertices, rocks and cloth pushed apart, the velocities again */
+        const cs_im_rocks R = im_rocks(c, S, L0);
+        k_im_rocks_push<<<1, 1, 0, c->stream>>>(w->sc, R, h);
+        k_im_push_velocity<<<nb, IM_THREADS, 0, c->stream>>>(R, inv_h, n);
+    }
     k_im_accel<<<nb, IM_THREADS, 0, c->stream>>>(S, w->base, w->lv[0].mask, c->vb.acc, inv_h, n);
     c->cur ^= 1;
     if (p->strain_on) {
@@ -2035,20 +2166,28 @@ static cs_status im_step(cuda_ctx *c, const cs_model *m, int32_t substeps, cs_st
     cs_solver_stats stats;
     memset(&stats, 0, sizeof stats);
     rep->solver = stats;
-    if (c->host_sc.nr > 0) {
-        snprintf(c->err, sizeof c->err, "integrator implicit_euler with rocks is not implemented on the CUDA backend");
-        return CS_E_BACKEND;
-    }
     cs_status st = im_fit(c, p);
     if (st != CS_OK) return st;
+    im_work *w = c->im;
+    const int32_t nr = c->host_sc.nr;
     for (int32_t k = 0; k < substeps; k++) {
-        /* fastest() of implicit_cpu.c: with no rocks, no speed asks for parts */
-        const int32_t parts = cs_im_splits(0.0f, p->dt, p->contact_offset, p->most_splits);
+        /* fastest() of implicit_cpu.c: the rocks' speeds and, with rocks, the cloth's (0 without) */
+        float vmax = 0.0f;
+        if (nr > 0) {
+            k_im_fastest_chunks<<<(unsigned)w->nchunks, CS_CHUNK, sizeof(float) * CS_CHUNK, c->stream>>>(
+                c->sc, c->vb.state[c->cur], w->part);
+            k_im_fastest<<<1, 1, 0, c->stream>>>(c->sc, c->rb.rocks, w->part, w->nchunks, p->dt, w->fast);
+            CUDA_CHECK(cudaGetLastError());
+            CUDA_CHECK(cudaMemcpyAsync(w->host_part, w->fast, sizeof(float), cudaMemcpyDeviceToHost, c->stream));
+            CUDA_CHECK(cudaStreamSynchronize(c->stream));
+            vmax = w->host_part[0];
+        }
+        const int32_t parts = cs_im_splits(vmax, p->dt, p->contact_offset, p->most_splits);
         const float h = p->dt / (float)parts;
         for (int32_t q = 0; q < parts; q++)
             if ((st = im_part(c, p, h, &stats)) != CS_OK) return st;
     }
-    k_im_finite<<<im_blocks(p->n), IM_THREADS, 0, c->stream>>>(c->vb.state[c->cur], p->n, c->flags);
+    k_im_finite<<<im_blocks(p->n), IM_THREADS, 0, c->stream>>>(c->vb.state[c->cur], p->n, c->rb.rocks, nr, c->flags);
     CUDA_CHECK(cudaGetLastError());
     rep->solver = stats;
     return CS_OK;
@@ -2058,18 +2197,15 @@ static cs_status im_step(cuda_ctx *c, const cs_model *m, int32_t substeps, cs_st
 static cs_status im_refresh(cuda_ctx *c, const cs_model *m)
 {
     const cs_phys *p = &m->phys;
-    if (c->host_sc.nr > 0) {
-        snprintf(c->err, sizeof c->err, "integrator implicit_euler with rocks is not implemented on the CUDA backend");
-        return CS_E_BACKEND;
-    }
     cs_status st = im_fit(c, p);
     if (st == CS_OK) st = im_scene(c, p);
     if (st != CS_OK) return st;
     im_work *w = c->im;
-    const float *S = c->vb.state[c->cur];
+    float *S = c->vb.state[c->cur];
     k_im_begin<<<im_blocks(p->n), IM_THREADS, 0, c->stream>>>(w->sc, S, NULL, w->base, c->vb.mask, w->lv[0].mask, 0);
     float r;
-    if ((st = im_assemble(c, S, c->vb.rest[c->rest_cur], 0, &r)) != CS_OK) return st;
+    /* nothing carried (the rocks are left as they are): the cloth's own force */
+    if ((st = im_assemble(c, S, c->vb.rest[c->rest_cur], 0, 0, &r)) != CS_OK) return st;
     k_im_refresh_accel<<<im_blocks(p->n), IM_THREADS, 0, c->stream>>>(w->sc, w->R, w->lv[0].mask, c->vb.acc);
     CUDA_CHECK(cudaGetLastError());
     return CS_OK;
@@ -2607,7 +2743,7 @@ static double peak_bandwidth(int dev)
  * per sum, are not bytes a vertex but they bound a small cloth's speed. */
 #define IM_NEWTON 3.0
 #define IM_CG 5.0
-static void im_cost(const cs_model *m, cs_cost_model *out)
+static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
 {
     const cs_phys *p = &m->phys;
     const double F = m->substeps, N = IM_NEWTON, C = IM_CG, levels = 4.0 / 3.0;
@@ -2638,6 +2774,17 @@ static void im_cost(const cs_model *m, cs_cost_model *out)
            levels * (2 * (36.0 + 40.0) + 3 * (blocks + 16.0) + 24.0 + 12.0 + 24.0),
            levels * (2 * 12.0 + 3 * 12.0 + 12.0 + 3.0 + 12.0), N * (C + 1.0), vcycle_launches);
     IM_ROW("k_im_keep, k_im_move (the line search)", 12.0 + 12.0 + 12.0 + 12.0 + 4.0, 12.0 + 24.0, N, 2.0);
+    if (n_rocks > 0) {
+        /* With rocks (nominally one part a substep; contact cuts substeps into more): the
+         * substep's speed (velocities; the rocks), and a part's rock steps - the one-thread
+         * kernels scan the cloth twice for each rock (positions and, surface model, rest lengths:
+         * about 28 bytes a vertex), read the rock carried (4) and write it with the mass and
+         * normal (20); then the velocities again (positions, start, mask read; 12 written) */
+        const double rock = (double)sizeof(cs_rock_state) * n_rocks;
+        cs_cost_add(out, "k_im_fastest_chunks, k_im_fastest (a substep's parts)", 12.0, 0.0, rock, 1.0, 2.0 * F);
+        cs_cost_add(out, "k_im_rocks_begin, k_im_rocks_push (one thread), k_im_push_velocity",
+                    2.0 * n_rocks * 28.0 + 4.0 + 24.0 + 4.0, 20.0 + 12.0, 3.0 * rock, 1.0, 3.0 * F);
+    }
     IM_ROW("k_im_accel", 24.0 + 4.0, 12.0, 1.0, 1.0);
     if (strain) IM_ROW("k_strain", 12.0 + 24.0 + 1.0, 0.0, 1.0, 1.0);
     IM_ROW("k_im_finite (a step call's end)", 24.0, 0.0, 1.0 / F, 1.0);
@@ -2656,7 +2803,7 @@ static void cuda_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     const cs_phys *p = &m->phys;
     if (p->integrator == CS_IMPLICIT_EULER) {
         memset(out, 0, sizeof *out);
-        im_cost(m, out);
+        im_cost(m, n_rocks, out);
         return;
     }
     const double G = graph_len(m), F = m->substeps, graphs = ceil(F / G);
@@ -2716,7 +2863,8 @@ static const char *cuda_error(void *ctx) { return ((cuda_ctx *)ctx)->err; }
 
 static const cs_backend cuda_backend = {
     "cuda", cuda_available, cuda_create, cuda_destroy, cuda_upload, cuda_download, cuda_refresh, cuda_step,
-    cuda_device, cuda_error, cuda_stats, cuda_cost, CS_CAP_SURFACE_CONTACT | CS_CAP_IMPLICIT, cuda_step_batch,
+    cuda_device, cuda_error, cuda_stats, cuda_cost, CS_CAP_SURFACE_CONTACT | CS_CAP_IMPLICIT | CS_CAP_IMPLICIT_ROCKS,
+    cuda_step_batch,
 };
 
 extern "C" const cs_backend *cs_backend_cuda(void) { return &cuda_backend; }

@@ -4,9 +4,10 @@
  *
  * A substep of length h (cut into equal parts while a rock or vertex would cross the contact layer
  * in it: cs_im_splits), each part:
- *   1. the rocks advanced without the cloth (rocks_advance: sub-cycled to cs_phys.rock_dt under
- *      gravity, rock-rock and ground contact), and the mass each dynamic rock lends the vertices
- *      that may touch it in the part (rocks_share; implicit.h, "rock contact");
+ *   1. the rocks advanced without the cloth (cs_im_rocks_advance: sub-cycled to cs_phys.rock_dt
+ *      under gravity, rock-rock and ground contact), and the mass each dynamic rock lends the
+ *      vertices that may touch it in the part (cs_im_rocks_share; implicit.h, "rock contact" and
+ *      "the rock steps of a part");
  *   2. the cloth: x_n and v_n kept aside, the first guess x = x_n + h v_n + h^2 g (pinned vertices
  *      stay, the grabbed one moves at its grab velocity), then Newton: assemble (residual and
  *      blocks, the carried mass and the ground included) at the iterate, stop at solver_tolerance
@@ -15,10 +16,11 @@
  *      multigrid V-cycle (at most cg_iterations) and step along dx with a backtracking line
  *      search, v = (x - x_n)/h;
  *   3. the rocks moved by what their vertices carried, then rocks and cloth pushed apart
- *      (rocks_push); a = (v - v_n)/h; with strain, the rest lengths from the new positions
- *      (cs_cpu_strain_row), swapped.
- * The rock steps (rocks_share, rocks_push) run on one thread in a fixed order: they touch only
- * the few triangles near each rock after one scan of the grid.
+ *      (cs_im_rocks_push), the cloth's velocities (x - x_n)/h again; a = (v - v_n)/h; with strain,
+ *      the rest lengths from the new positions (cs_cpu_strain_row), swapped.
+ * The rock steps (cs_im_rocks_advance, _share, _push: implicit.h, shared with the CUDA backend)
+ * run on one thread in a fixed order: they touch only the few triangles near each rock after one
+ * scan of the grid.
  * Every loop's iterations are independent (each writes its own vertex or chunk), and every sum goes
  * through per-chunk trees summed in chunk order, so the result is the same for any thread count. */
 #include <math.h>
@@ -45,9 +47,10 @@ struct cs_im_work {
     float *part;                           /* per-chunk partials of a dot product */
     cs_rock_state *star;                   /* each rock where it would be without the cloth */
     int32_t *cand;                         /* a rock's triangles (2 quad + face) or vertices near it */
-    float *sh, *sn, *sj;                   /* per vertex: the rock mass it carries, its normal (3 n), impulse */
+    float *sh, *sn, *sj;                   /* per vertex: the rock mass it carries, its normal (3 n), a mark */
     int32_t *sr;                           /* per vertex: the rock it carries (-1 none) */
     cs_vec3 rx0[CS_MAX_ROCKS];             /* each rock at the part's start */
+    cs_vec3 rf[CS_MAX_ROCKS], rt[CS_MAX_ROCKS]; /* the rock steps' scratch (cs_im_rocks' F, T) */
     im_level lv[CS_IM_MAX_LEVELS];
     void *mem;
 };
@@ -232,30 +235,19 @@ static void add9(float *a, int32_t v, const cs_mat3 *m)
     for (int k = 0; k < 9; k++) a[9 * (size_t)v + k] += m->m[k];
 }
 
-/* Whether a sphere (c, reach) may touch the box (never a false no). */
-static int near_box(cs_vec3 c, float reach, cs_vec3 lo, cs_vec3 hi)
-{
-    const float ex = c.x < lo.x ? lo.x - c.x : c.x > hi.x ? c.x - hi.x : 0.0f;
-    const float ey = c.y < lo.y ? lo.y - c.y : c.y > hi.y ? c.y - hi.y : 0.0f;
-    const float ez = c.z < lo.z ? lo.z - c.z : c.z > hi.z ? c.z - hi.z : 0.0f;
-    const float r = reach * 1.001f + 1e-6f;
-    return ex * ex + ey * ey + ez * ez <= r * r;
-}
-
-/* Contacts of chunk (row j, columns i0 .. i1): the rock mass each vertex carries (rocks_share),
- * then the ground: forces onto R, blocks onto level 0's D (blocks: 1). */
-static void chunk_contacts(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, int32_t j, int32_t i0,
-                           int32_t i1, int blocks)
+/* Contacts of chunk (row j, columns i0 .. i1): the rock mass each vertex carries (rocks_share:
+ * cs_im_carried_at), then the ground: forces onto R, blocks onto level 0's D (blocks: 1). */
+static void chunk_contacts(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, const cs_im_rocks *rv,
+                           int32_t j, int32_t i0, int32_t i1, int blocks)
 {
     const int32_t nx = p->nx;
     float *D = w->lv[0].D;
     for (int32_t i = i0; i < i1; i++) {
-        const int32_t v = j * nx + i, r = w->sr[v];
-        if (r < 0 || s->w[v] == 0.0f) continue;
-        const cs_vec3 n = cs_v3_from(w->sn + 3 * (size_t)v);
-        const cs_vec3 d = cs_sub(cs_sub(LOADX(v), cs_v3(w->xb[v], w->yb[v], w->zb[v])), cs_sub(w->star[r].x, w->rx0[r]));
+        const int32_t v = j * nx + i;
+        cs_vec3 F;
         cs_mat3 b;
-        add3(w->R, v, cs_im_carried(n, w->sh[v], d, h, &b));
+        if (!cs_im_carried_at(rv, v, LOADX(v), cs_v3(w->xb[v], w->yb[v], w->zb[v]), h, &F, &b)) continue;
+        add3(w->R, v, F);
         if (blocks) add9(D, v, &b);
     }
     if (!p->ground) return;
@@ -297,12 +289,10 @@ static void chunk_residual(const cs_phys *p, float h, const cs_state *s, cs_im_w
     w->part[chunk] = cs_tree_sum(buf);
 }
 
-/* Whether rock r's translation is solved (a dynamic rock). */
-static int rock_free(const cs_state *s, int32_t r) { return s->rocks[r].inv_mass > 0.0f; }
-
-/* Assembles at the iterate (the state's x and v): R, and with blocks level 0's matrix. Returns
- * |R|. */
-static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, int blocks, int threads)
+/* Assembles at the iterate (the state's x and v; the carried mass as rv holds it): R, and with
+ * blocks level 0's matrix. Returns |R|. */
+static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, const cs_im_rocks *rv, int blocks,
+                      int threads)
 {
     const int32_t nchunks = p->nchunks;
 #pragma omp parallel for num_threads(threads) schedule(static)
@@ -316,7 +306,7 @@ static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *
         int32_t j, i0, i1;
         chunk_span(p, c, &j, &i0, &i1);
         chunk_springs(p, h, s, w, j, i0, i1, blocks);
-        chunk_contacts(p, h, s, w, j, i0, i1, blocks);
+        chunk_contacts(p, h, s, w, rv, j, i0, i1, blocks);
         chunk_residual(p, h, s, w, j, i0, i1, c, blocks);
     }
     return sqrtf(cs_im_chunk_total(w->part, nchunks));
@@ -466,34 +456,6 @@ static int pcg(const cs_phys *p, cs_im_work *w, const cs_state *s, float target,
 
 /* ---- the substep ---- */
 
-/* The rocks over h without the cloth: sub-cycles of at most rock_dt under their own contacts and
- * gravity (cs_rock_force without the cloth), each v += d F / M, w likewise, then drift (step 1).
- * Where each starts (w->rx0) and where this leaves it (w->star) are kept: the solve's carried mass
- * follows that path, and rocks_push moves the rock from there. */
-static void rocks_advance(const cs_phys *p, cs_state *s, cs_im_work *w, float h)
-{
-    const int32_t nr = s->n_rocks;
-    if (!nr) return;
-    for (int32_t r = 0; r < nr; r++) w->rx0[r] = s->rocks[r].x;
-    int32_t sub = 1;
-    if (p->rock_dt > 0.0f && h > p->rock_dt) {
-        const float k = h / p->rock_dt;
-        sub = k > 1e6f ? 1000000 : (int32_t)k + 1;
-    }
-    const float d = h / (float)sub;
-    cs_vec3 F[CS_MAX_ROCKS], T[CS_MAX_ROCKS];
-    for (int32_t k = 0; k < sub; k++) {
-        for (int32_t r = 0; r < nr; r++) cs_rock_force(s->rocks, nr, r, NULL, 0, p, &F[r], &T[r]);
-        for (int32_t r = 0; r < nr; r++) {
-            cs_rock_state *q = &s->rocks[r];
-            q->v = cs_add(q->v, cs_scale(F[r], q->inv_mass * d));
-            q->w = cs_add(q->w, cs_scale(T[r], q->inv_inertia * d));
-            cs_rock_drift(q, d);
-        }
-    }
-    memcpy(w->star, s->rocks, sizeof *s->rocks * (size_t)nr);
-}
-
 /* x = x_k + a dx for the vertices in the solve, and v = (x - x_n)/h. */
 static void move(cs_im_work *w, cs_state *s, float a, float inv_h, int threads)
 {
@@ -509,160 +471,29 @@ static void move(cs_im_work *w, cs_state *s, float a, float inv_h, int threads)
     }
 }
 
-/* Rock q's candidates into w->cand, in grid order: the intact triangles (2 quad + face) whose box
- * comes within reach of its centre c (surface model), or the vertices (vertex model). */
-static int32_t rock_candidates(const cs_phys *p, const cs_state *s, cs_im_work *w, cs_vec3 c, float reach)
+/* The rock steps' view of the state and the workspace (implicit.h, "the rock steps of a part"):
+ * the state's positions, the part's start, the rest lengths the state holds now. */
+static cs_im_rocks rock_view(cs_state *s, cs_im_work *w)
 {
-    const int32_t nx = p->nx, ny = p->ny;
-    int32_t nc = 0;
-    if (p->contact_model != CS_CONTACT_SURFACE) {
-        for (int32_t v = 0; v < p->n; v++)
-            if (near_box(c, reach, LOADX(v), LOADX(v))) w->cand[nc++] = v;
-        return nc;
-    }
-    for (int32_t j = 0; j + 1 < ny; j++)
-        for (int32_t i = 0; i + 1 < nx; i++) {
-            const int32_t f = cs_quad_faces(s->L0, nx, ny, i, j);
-            if (!f) continue;
-            const int32_t v = j * nx + i;
-            cs_vec3 lo = LOADX(v), hi = lo;
-            const int32_t o[3] = {v + 1, v + nx, v + nx + 1};
-            for (int k = 0; k < 3; k++) {
-                const cs_vec3 x = LOADX(o[k]);
-                lo = cs_v3(x.x < lo.x ? x.x : lo.x, x.y < lo.y ? x.y : lo.y, x.z < lo.z ? x.z : lo.z);
-                hi = cs_v3(x.x > hi.x ? x.x : hi.x, x.y > hi.y ? x.y : hi.y, x.z > hi.z ? x.z : hi.z);
-            }
-            if (!near_box(c, reach, lo, hi)) continue;
-            if (f & 1) w->cand[nc++] = 2 * v;
-            if (f & 2) w->cand[nc++] = 2 * v + 1;
-        }
-    return nc;
+    cs_im_rocks R;
+    R.x = s->x, R.y = s->y, R.z = s->z, R.vx = s->vx, R.vy = s->vy, R.vz = s->vz;
+    R.xb = w->xb, R.yb = w->yb, R.zb = w->zb;
+    R.w = s->w, R.L0 = s->L0;
+    R.rocks = s->rocks, R.nr = s->n_rocks;
+    R.star = w->star, R.rx0 = w->rx0, R.F = w->rf, R.T = w->rt;
+    R.cand = w->cand, R.sr = w->sr, R.sh = w->sh, R.sn = w->sn, R.sj = w->sj;
+    return R;
 }
 
-/* Candidate k's vertices (a vertex three times, vertex model). */
-static void cand_vertices(const cs_phys *p, const cs_im_work *w, int32_t k, int32_t t[3])
+/* Step 3 of a part: the rocks follow what their vertices carried and rocks and cloth are pushed
+ * apart (cs_im_rocks_push, one thread), then each vertex's velocity (x - x_n)/h. */
+static void rocks_push(const cs_phys *p, const cs_im_rocks *rv, float h, int threads)
 {
-    if (p->contact_model != CS_CONTACT_SURFACE) {
-        t[0] = t[1] = t[2] = w->cand[k];
-        return;
-    }
-    const int32_t v = w->cand[k] >> 1, face = w->cand[k] & 1, nx = p->nx;
-    t[0] = v, t[1] = face ? v + nx + 1 : v + 1, t[2] = face ? v + nx : v + nx + 1;
-}
-
-/* Step 1 of a part, after rocks_advance: the mass each dynamic rock lends the vertices that may
- * touch it in the part (implicit.h, cs_im_share): taken from the state as it is, so that nothing
- * carries over from part to part. */
-static void rocks_share(const cs_phys *p, const cs_state *s, cs_im_work *w)
-{
-    const int32_t n = p->n, nr = s->n_rocks;
-    for (int32_t v = 0; v < n; v++) w->sr[v] = -1;
-    for (int32_t r = 0; r < nr; r++) {
-        const cs_rock_state *q = &s->rocks[r];
-        if (!rock_free(s, r)) continue;
-        const float Rc = q->radius + p->contact_offset + p->contact_offset;
-        const int32_t nc = rock_candidates(p, s, w, w->rx0[r], Rc);
-        float total = 0.0f;
-        for (int32_t k = 0; k < nc; k++) {
-            int32_t t[3];
-            cand_vertices(p, w, k, t);
-            cs_vec3 x[3];
-            float b[3];
-            for (int e = 0; e < 3; e++) x[e] = LOADX(t[e]);
-            cs_vec3 nn;
-            if (!cs_im_share_tri(x, w->rx0[r], Rc, b, &nn)) continue;
-            for (int e = 0; e < (p->contact_model == CS_CONTACT_SURFACE ? 3 : 1); e++) {
-                const int32_t v = t[e];
-                if (s->w[v] == 0.0f || b[e] == 0.0f || (w->sr[v] >= 0 && w->sr[v] != r)) continue;
-                if (w->sr[v] < 0) w->sr[v] = r, w->sh[v] = 0.0f, put3(w->sn, v, cs_v3(0.0f, 0.0f, 0.0f));
-                w->sh[v] += b[e];
-                put3(w->sn, v, cs_add(cs_v3_from(w->sn + 3 * (size_t)v), cs_scale(nn, b[e])));
-                total += b[e];
-            }
-        }
-        for (int32_t k = 0; k < nc && total > 0.0f; k++) {
-            int32_t t[3];
-            cand_vertices(p, w, k, t);
-            for (int e = 0; e < 3; e++) {
-                const int32_t v = t[e];
-                if (w->sr[v] != r || w->sj[v] == 1.0f) continue;
-                w->sj[v] = 1.0f; /* done */
-                const cs_vec3 nv = cs_v3_from(w->sn + 3 * (size_t)v);
-                const float len = cs_len(nv);
-                w->sh[v] = q->mass * (w->sh[v] / total);
-                put3(w->sn, v, len > 0.0f ? cs_scale(nv, 1.0f / len) : cs_v3(0.0f, 0.0f, 0.0f));
-            }
-        }
-        for (int32_t k = 0; k < nc; k++) {
-            int32_t t[3];
-            cand_vertices(p, w, k, t);
-            for (int e = 0; e < 3; e++) w->sj[t[e]] = 0.0f;
-        }
-    }
-}
-
-/* Step 3 of a part: the rocks follow what their vertices carried in the solve (each dynamic rock
- * moved by the mass-weighted mean of its vertices' normal moves beyond its own path: the momentum
- * the carrying took from the cloth), then the rocks and the cloth pushed apart (implicit.h,
- * cs_im_push_tri): rock by rock, its candidates swept CS_IM_PUSH_SWEEPS times; each moved vertex's
- * velocity (x - x_n)/h, each rock's v += (what it moved)/h. */
-static void rocks_push(const cs_phys *p, cs_state *s, cs_im_work *w, float h)
-{
-    const int32_t nr = s->n_rocks, n = p->n;
-    if (!nr) return;
+    if (!rv->nr) return;
+    cs_im_rocks_push(p, rv, h);
     const float inv_h = 1.0f / h;
-    cs_vec3 acc[CS_MAX_ROCKS];
-    for (int32_t r = 0; r < nr; r++) acc[r] = cs_v3(0.0f, 0.0f, 0.0f);
-    for (int32_t v = 0; v < n; v++) {
-        const int32_t r = w->sr[v];
-        if (r < 0 || s->w[v] == 0.0f) continue;
-        const cs_vec3 nv = cs_v3_from(w->sn + 3 * (size_t)v);
-        const cs_vec3 d = cs_sub(cs_sub(LOADX(v), cs_v3(w->xb[v], w->yb[v], w->zb[v])), cs_sub(w->star[r].x, w->rx0[r]));
-        acc[r] = cs_add(acc[r], cs_scale(nv, w->sh[v] * s->rocks[r].inv_mass * cs_dot(nv, d)));
-    }
-    for (int32_t r = 0; r < nr; r++) {
-        cs_rock_state *q = &s->rocks[r];
-        if (!rock_free(s, r)) continue;
-        q->x = cs_add(w->star[r].x, acc[r]);
-        q->v = cs_add(w->star[r].v, cs_scale(acc[r], inv_h));
-    }
-    const int surface = p->contact_model == CS_CONTACT_SURFACE;
-    for (int32_t r = 0; r < nr; r++) {
-        cs_rock_state *q = &s->rocks[r];
-        const cs_vec3 c0 = q->x;
-        const int32_t nc = rock_candidates(p, s, w, c0, cs_surface_lim(q, p));
-        /* what the rock moves, summed apart from its position: a heavy rock's share of one push
-         * can be below the float spacing of its coordinates */
-        cs_vec3 moved = cs_v3(0.0f, 0.0f, 0.0f);
-        for (int sweep = 0; sweep < CS_IM_PUSH_SWEEPS && nc; sweep++)
-            for (int32_t k = 0; k < nc; k++) {
-                int32_t t[3];
-                cand_vertices(p, w, k, t);
-                cs_vec3 x[3], dx[3], dc;
-                float wv[3];
-                for (int e = 0; e < 3; e++) {
-                    x[e] = LOADX(t[e]);
-                    wv[e] = surface || e == 0 ? p->inv_mass * s->w[t[e]] : 0.0f;
-                }
-                if (cs_im_push_tri(x, wv, cs_add(c0, moved), q->inv_mass, q->radius + p->contact_offset, dx, &dc) == 0.0f)
-                    continue;
-                for (int e = 0; e < (surface ? 3 : 1); e++) {
-                    const cs_vec3 y = cs_add(x[e], dx[e]);
-                    s->x[t[e]] = y.x, s->y[t[e]] = y.y, s->z[t[e]] = y.z;
-                }
-                moved = cs_add(moved, dc);
-            }
-        q->x = cs_add(c0, moved);
-        q->v = cs_add(q->v, cs_scale(moved, inv_h));
-        q->a = cs_scale(cs_sub(q->v, w->star[r].v), inv_h); /* the cloth's, as the state reports it */
-        q->alpha = cs_v3(0.0f, 0.0f, 0.0f);
-    }
-    for (int32_t v = 0; v < n; v++) {
-        if (s->w[v] == 0.0f) continue;
-        s->vx[v] = (s->x[v] - w->xb[v]) * inv_h;
-        s->vy[v] = (s->y[v] - w->yb[v]) * inv_h;
-        s->vz[v] = (s->z[v] - w->zb[v]) * inv_h;
-    }
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t v = 0; v < p->n; v++) cs_im_push_velocity(rv, v, inv_h);
 }
 
 /* One part of a substep, of length h (the sequence at the top). */
@@ -674,8 +505,9 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
     p->dt = h, p->hdt = 0.5f * h;
     if (p->plastic_rate > 0.0f) p->plastic_f = p->plastic_rate * h < 1.0f ? p->plastic_rate * h : 1.0f;
     const int32_t n = p->n, g = s->grab;
-    rocks_advance(p, s, w, h);
-    rocks_share(p, s, w);
+    const cs_im_rocks rv = rock_view(s, w);
+    cs_im_rocks_advance(p, &rv, h);
+    cs_im_rocks_share(p, &rv);
     const cs_vec3 vg = g >= 0 ? cs_grab_velocity(LOADX(g), s->grab_target, p) : cs_v3(0.0f, 0.0f, 0.0f);
     const float inv_h = 1.0f / h;
     float reach = 0.0f; /* the largest coordinate, for float's floor (cs_im_float_floor) */
@@ -693,7 +525,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
         s->vx[v] = (x.x - w->xb[v]) * inv_h, s->vy[v] = (x.y - w->yb[v]) * inv_h, s->vz[v] = (x.z - w->zb[v]) * inv_h;
     }
     const int most = p->solver_iterations;
-    float r = assemble(p, h, s, w, 1, threads);
+    float r = assemble(p, h, s, w, &rv, 1, threads);
     const float r0 = r;
     int k = 0;
     float prev = 2.0f * r0 + 1.0f;
@@ -712,12 +544,12 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
         float a = 1.0f, rn = r;
         for (int tries = 0; tries < 4; tries++, a *= 0.5f) {
             move(w, s, a, inv_h, threads);
-            rn = assemble(p, h, s, w, 1, threads);
+            rn = assemble(p, h, s, w, &rv, 1, threads);
             if (rn < r) break;
         }
         if (!(rn < r)) { /* no step along dx helps: back to x_k, and stop */
             move(w, s, 0.0f, inv_h, threads);
-            rn = assemble(p, h, s, w, 1, threads);
+            rn = assemble(p, h, s, w, &rv, 1, threads);
             prev = rn;
         }
         k++;
@@ -727,7 +559,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
     const float rel = r0 > 0.0f ? r / r0 : 0.0f;
     st->residual = rel > st->residual ? rel : st->residual;
     st->substeps++;
-    rocks_push(p, s, w, h);
+    rocks_push(p, &rv, h, threads);
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t v = 0; v < n; v++) {
         s->ax[v] = (s->vx[v] - w->vxb[v]) * inv_h * s->w[v];
@@ -746,24 +578,18 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
 }
 
 /* The fastest a rock, or with rocks about a cloth vertex, moves toward a contact now (for the
- * parts of a substep): rocks at their speed plus what gravity adds in h. */
+ * parts of a substep: cs_im_fastest). */
 static float fastest(const cs_phys *p, const cs_state *s, float h, int threads)
 {
-    float most = 0.0f;
-    const float gain = cs_len(p->gravity) * h;
-    for (int32_t r = 0; r < s->n_rocks; r++) {
-        const float v = cs_len(s->rocks[r].v) + (s->rocks[r].kinematic ? 0.0f : gain);
-        most = v > most ? v : most;
-    }
-    if (!s->n_rocks) return most;
     float sq = 0.0f;
+    if (s->n_rocks) {
 #pragma omp parallel for num_threads(threads) schedule(static) reduction(max : sq)
-    for (int32_t v = 0; v < s->n; v++) {
-        const float q = s->vx[v] * s->vx[v] + s->vy[v] * s->vy[v] + s->vz[v] * s->vz[v];
-        sq = q > sq ? q : sq;
+        for (int32_t v = 0; v < s->n; v++) {
+            const float q = cs_im_speed2(s->vx[v], s->vy[v], s->vz[v]);
+            sq = q > sq ? q : sq;
+        }
     }
-    const float vv = sqrtf(sq) + gain;
-    return vv > most ? vv : most;
+    return cs_im_fastest(s->rocks, s->n_rocks, sq, cs_len(p->gravity) * h);
 }
 
 cs_status cs_im_step(cs_im_work **wp, const cs_model *m, cs_state *s, int32_t substeps, int threads,
@@ -797,7 +623,8 @@ cs_status cs_im_refresh(cs_im_work **wp, const cs_model *m, cs_state *s, int thr
     memcpy(w->yb, s->y, sizeof(float) * (size_t)n);
     memcpy(w->zb, s->z, sizeof(float) * (size_t)n);
     for (int32_t v = 0; v < n; v++) w->sr[v] = -1; /* nothing carried: the cloth's own force */
-    assemble(p, p->dt, s, w, 0, threads);
+    const cs_im_rocks rv = rock_view(s, w);
+    assemble(p, p->dt, s, w, &rv, 0, threads);
     /* R = F there (v = v_n): the cloth's force */
     for (int32_t v = 0; v < n; v++) {
         const float k = p->inv_mass * s->w[v];

@@ -11,12 +11,15 @@
  * than 64 rocks, vertices touching two rocks at once, more than 64 chunks with rocks, rows of
  * several chunks, a 3 x 2 cloth; both contact models (surface: stone rocks resting over a
  * triangle, an edge, a vertex and a diagonal, with friction from spin and a sliding kinematic rock,
- * two rocks sharing vertices, 40 rocks, a tearing grab); implicit_euler without rocks (the ground
- * within reach, plasticity and tearing, a grab and one that tears, rows of two chunks; its solver's
- * statistics compared too, in shorter calls: each substep is a solve); and commands mid-run:
- * releasing the grab, moving a rock, set_params, switching integrator (also to and from
- * implicit_euler), friction model and contact model, a snapshot saved by the CPU backend and
- * loaded into both, a scene resized.
+ * two rocks sharing vertices, 40 rocks, a tearing grab); implicit_euler (the ground within reach,
+ * plasticity and tearing, a grab and one that tears, rows of two chunks; its solver's statistics
+ * compared too, in shorter calls: each substep is a solve), without rocks and with them (a rock
+ * thrown onto the cloth with surface contact, two rocks at once with vertex contact, two rocks
+ * and a grab that tears, a dynamic rock and a kinematic one: the carried mass, the push and
+ * substeps cut into parts, up to the cap; shorter calls still: each part is a solve); and commands
+ * mid-run: releasing the grab, moving a rock, set_params, switching integrator (also to and from
+ * implicit_euler, with a rock in contact too), friction model and contact model, a snapshot saved
+ * by the CPU backend and loaded into both (under implicit_euler with rocks too), a scene resized.
  *
  * Plain C (no cmocka: a GPU machine may have no -dev packages). Exit 0 pass, 1 fail, 77 skipped (no
  * CUDA build or no device). `test_parity cuda` runs the CUDA backend - on a GPU in tests/gpu/run.sh,
@@ -26,7 +29,8 @@
  * emulated backend) it stops after 50.
  *
  * Every full run ends with the batch check (run_batch; `batch` as the second argument runs it
- * alone): mixed scenes stepped together by cs_sims_step, each bitwise equal to a copy stepped
+ * alone): mixed scenes (two under implicit_euler, with rocks and without, which the batch steps
+ * one by one) stepped together by cs_sims_step, each bitwise equal to a copy stepped
  * alone on the same backend and to one on the CPU backend, with scenes leaving and joining between
  * rounds and one poisoned scene failing alone. */
 #include <math.h>
@@ -60,7 +64,8 @@ enum {
     S_PAIR = 128,    /* two rocks side by side, sunk to the cloth: vertices between touch both */
     S_SPOTS = 256,   /* stone rocks resting over a triangle, a structural edge, a vertex, a diagonal */
     S_CONTACT = 512, /* contact_model switched mid-run, then switched back */
-    S_SWITCH_IM = 1024 /* integrator switched between velocity_verlet and implicit_euler, then back */
+    S_SWITCH_IM = 1024, /* integrator switched between velocity_verlet and implicit_euler, then back */
+    S_REST = 2048       /* the rocks set down on the cloth at rest (not thrown), spinning */
 };
 
 typedef struct variant {
@@ -100,13 +105,19 @@ static const variant variants[] = {
     {"surface: 40 rocks", 40, 40, SE, CV, 1, 40, 0, 0.025f, 1},
     {"surface: params, switches, contact model", 40, 36, VV, CV, 1, 4, S_GRAB | S_PARAMS | S_SWITCH | S_CONTACT, 0, 1},
     {"surface: wide rows, tearing grab", 600, 6, VV, CV, 1, 3, S_GRAB | S_TEAR, 0, 1},
-    /* implicit_euler (no rocks: refused under it for now); the ground close below the cloth */
+    /* implicit_euler; the ground close below the cloth */
     {"implicit: plain, ground", 24, 20, IM, CV, 0, 0, 0, 0, 0},
     {"implicit: strain, grab, ground", 24, 20, IM, RS, 1, 0, S_GRAB, 0, 0},
     {"implicit: grab that tears", 24, 20, IM, CV, 1, 0, S_GRAB | S_TEAR, 0, 0},
     {"implicit: switched to and from velocity_verlet", 24, 20, VV, CV, 1, 0, S_GRAB | S_SWITCH_IM, 0, 0},
     {"implicit: snapshot loaded into both", 24, 20, IM, CV, 1, 0, S_GRAB | S_SNAPSHOT, 0, 0},
     {"implicit: wide rows (2 chunks a row), grab", 300, 3, IM, CV, 1, 0, S_GRAB, 0, 0},
+    /* implicit_euler with rocks: carried mass, the push, substeps cut into parts (and the cap) */
+    {"implicit: a rock thrown on the cloth, surface", 24, 20, IM, CV, 1, 1, 0, 0.06f, 1},
+    {"implicit: vertex contact, two rocks at once", 21, 21, IM, RS, 1, 2, S_PAIR, 0.02f, 0},
+    {"implicit: two rocks, a grab that tears", 16, 14, IM, CV, 1, 2, S_GRAB | S_TEAR, 0, 1},
+    {"implicit: switched to and from verlet, a rock", 24, 20, VV, CV, 1, 1, S_GRAB | S_SWITCH_IM | S_REST, 0.06f, 1},
+    {"implicit: snapshot loaded into both, rocks", 24, 20, IM, CV, 1, 2, S_SNAPSHOT, 0, 0},
 };
 
 static void scene_of(const variant *vr, int nx, int ny, cs_scene *sc)
@@ -158,7 +169,7 @@ static int add_rocks(cs_sim *sim, const variant *vr, const cs_scene *sc, const c
                         0.3f * (float)(r % 2) * d.radius;
         if (vr->rocks <= 8) d.position[1] = 0.02f * (float)r;
         d.position[2] = sc->height + d.radius + 0.5f * p->contact_offset;
-        d.velocity[2] = vr->rocks > 8 ? -0.5f : -2.5f;
+        d.velocity[2] = (vr->script & S_REST) ? 0.0f : vr->rocks > 8 ? -0.5f : -2.5f;
         d.angular_velocity[0] = 4.0f;
         d.angular_velocity[2] = -3.0f;
         if (vr->script & S_SPOTS) {
@@ -213,6 +224,10 @@ static void params_of(const variant *vr, const cs_scene *sc, cs_params *p)
     if (vr->integrator == CS_IMPLICIT_EULER || (vr->script & S_SWITCH_IM)) p->ground_z = sc->height - 0.02f;
     p->wind[1] = 2.0f;
     p->max_substeps = 100000;
+    /* implicit_euler with rocks: at most 6 parts a substep, max_substeps / implicit_substeps (the
+     * cap taken too: torn and thrown pieces are fast, and each part is a solve); substeps, unused
+     * under it, brought within max_substeps */
+    if (vr->integrator == CS_IMPLICIT_EULER && vr->rocks) p->max_substeps = p->substeps = 6 * p->implicit_substeps;
     p->contact_model = vr->contact;
     /* The scenes start with rocks sunk into the cloth and into each other: allowed here. */
     p->placement_overlap = 1.0f;
@@ -426,8 +441,12 @@ static int run(const variant *vr, const char *other, int other_threads)
     const int64_t full[] = {1, 7, 37, 101, 231, 353, 270}, fast[] = {1, 7, 13, 29, 23, 27};
     /* implicit_euler's substeps are a solve each (a few hundred launches): fewer of them */
     const int64_t implicit_calls[] = {1, 3, 5, 7, 9, 5, 3};
+    /* with rocks contact cuts them into parts (a solve each): fewer still (a switch to and from it
+     * runs two calls of it: those of the others) */
+    const int64_t implicit_rock_calls[] = {1, 2, 5, 3, 2, 1, 1};
     const int is_implicit = vr->integrator == CS_IMPLICIT_EULER || (vr->script & S_SWITCH_IM);
-    const int64_t *calls = is_implicit ? implicit_calls : quick ? fast : full;
+    const int64_t *calls = quick ? fast : full;
+    if (is_implicit) calls = vr->rocks && vr->integrator == IM ? implicit_rock_calls : implicit_calls;
     const int n_calls = quick ? (getenv("CLOTHD_SANITIZED") ? 4 : 6) : 7;
     cs_params p;
     cs_sim_params(pr.a, &p);
@@ -440,6 +459,7 @@ static int run(const variant *vr, const char *other, int other_threads)
     const int shared = (vr->script & S_PAIR) ? shared_contacts(pr.a) : -1;
     /* (the wide rows' one free row sags too little to reach the ground) */
     int pushed = vr->rocks == 0, solved = !is_implicit, grounded = !is_implicit || vr->ny < 10;
+    int cut = !(vr->integrator == IM && vr->rocks); /* with rocks: some substep cut into parts */
     for (int k = 0; k < n_calls && !pr.fail; k++) {
         char phase[64];
         snprintf(phase, sizeof phase, "call %d (%lld substeps)", k + 1, (long long)calls[k]);
@@ -451,8 +471,10 @@ static int run(const variant *vr, const char *other, int other_threads)
             cs_params now_p;
             cs_sim_info(pr.b, &now_info);
             cs_sim_params(pr.b, &now_p);
-            solved |= now_p.integrator == IM && now_info.solver.substeps == calls[k] && now_info.solver.newton > 0 &&
+            /* (a solve a part: contact cuts a substep into parts, so at least a solve a substep) */
+            solved |= now_p.integrator == IM && now_info.solver.substeps >= calls[k] && now_info.solver.newton > 0 &&
                        now_info.solver.cg > 0;
+            cut |= now_p.integrator == IM && now_info.solver.substeps > calls[k];
             if (k == n_calls - 1 && lowest(pr.b) < now_p.ground_z + now_p.contact_offset) grounded = 1;
         }
         if (k == 1 && !pushed) pushed = rocks_were_pushed(pr.a, before, n_before, 8 * info.dt, p.gravity);
@@ -527,6 +549,10 @@ static int run(const variant *vr, const char *other, int other_threads)
         printf("%-46s no call ran implicit_euler's solver\n", vr->name);
         pr.fail = 1;
     }
+    if (!cut) {
+        printf("%-46s no substep was cut into parts\n", vr->name);
+        pr.fail = 1;
+    }
     if (!grounded) {
         printf("%-46s the cloth did not reach the ground\n", vr->name);
         pr.fail = 1;
@@ -559,9 +585,10 @@ static const variant batch_variants[] = {
     {"batch: 66 rocks (the split rock kernels)", 20, 20, SE, CV, 1, 66, 0, 0.012f, 0},
     {"batch: wide rows (2 chunks a row), grab", 300, 3, VV, RS, 1, 1, S_GRAB, 0, 0},
     {"batch: implicit_euler strain grab (steps alone)", 18, 12, IM, CV, 1, 0, S_GRAB, 0, 0},
+    {"batch: implicit_euler rocks (steps alone)", 18, 12, IM, CV, 1, 2, 0, 0, 1},
     {"batch: joins mid-run, euler surface", 18, 18, SE, CV, 1, 2, 0, 0, 1},
 };
-#define BATCH_N 7 /* the first seven start together; the eighth joins when the second leaves */
+#define BATCH_N 8 /* the first eight start together; the ninth joins when the second leaves */
 
 typedef struct batch_scene {
     const variant *vr;
@@ -701,8 +728,8 @@ static int run_batch(const char *other)
         for (int k = 0; k <= BATCH_N; k++)
             if (sc[k].live) {
                 substeps[n] = base[r] + 2 * k; /* each its own: the shorter ones idle */
-                /* implicit_euler's substeps are a solve each: fewer */
-                if (sc[k].vr->integrator == IM) substeps[n] = 1 + 2 * r;
+                /* implicit_euler's substeps are a solve each (with rocks, a solve a part): fewer */
+                if (sc[k].vr->integrator == IM) substeps[n] = sc[k].vr->rocks ? 1 + r : 1 + 2 * r;
                 if (k == 2 && substeps[n] > soft_call) soft_call = substeps[n];
                 batch[n] = sc[k].batched;
                 of[n++] = k;

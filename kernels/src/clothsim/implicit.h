@@ -1,8 +1,9 @@
 /* clothsim/implicit.h - the pieces of integrator implicit_euler (kernels/MODEL.md, "The implicit
  * solver"), written once for every backend: the Hessian blocks of the springs and contacts, the
- * per-vertex residual and diagonal, the multigrid hierarchy's Galerkin product, its smoother, and
- * the fixed-order sums the conjugate gradients need. Rules as physics.h: SIM_HD, no libc beyond
- * sqrtf, no globals, plain structs; every sum in a fixed order.
+ * per-vertex residual and diagonal, the multigrid hierarchy's Galerkin product, its smoother, the
+ * fixed-order sums the conjugate gradients need, and the rock steps of a part (serial, one thread
+ * in a fixed order). Rules as physics.h: SIM_HD, no libc beyond sqrtf, no globals, plain structs;
+ * every sum in a fixed order.
  *
  * A substep of length h solves backward Euler, x = argmin G(x) with
  *   G(x) = 1/(2 h^2) |x - y|^2_M + E(x),  y = x_n + h v_n,  v = (x - x_n) / h,
@@ -218,6 +219,280 @@ SIM_HD static inline cs_vec3 cs_im_carried(cs_vec3 n, float m, cs_vec3 d, float 
     const float k = m / (h * h);
     *blk = cs_m3_axial(n, k, 0.0f);
     return cs_scale(n, -k * cs_dot(n, d));
+}
+
+/* ---- the rock steps of a part, written once for every backend ----
+ *
+ * A part of a substep (implicit_cpu.c's sequence) takes its rocks in three steps around the
+ * cloth's solve: cs_im_rocks_advance (the rocks over the part without the cloth), cs_im_rocks_share
+ * (the mass each dynamic rock lends the vertices that may touch it), and after the solve
+ * cs_im_rocks_push (the rocks follow what their vertices carried, then rocks and cloth are pushed
+ * apart) and cs_im_push_velocity for every vertex. The first three are serial by design: one
+ * thread runs each in a fixed order (they touch only the few triangles near each rock after one
+ * scan of the grid), so every backend gets the same bits. In the solve, cs_im_carried_at is a
+ * vertex's carried term. A backend hands them its arrays in a cs_im_rocks. */
+typedef struct cs_im_rocks {
+    float *x, *y, *z;          /* the cloth's positions: the part's start (share), the iterate (push) */
+    float *vx, *vy, *vz;       /* its velocities (cs_im_push_velocity) */
+    const float *xb, *yb, *zb; /* the part's start x_n (the carried term, push) */
+    const float *w;            /* per vertex: 0 out of the solve (pinned, grabbed) */
+    const float *L0;           /* rest lengths, type-major (which triangles are intact) */
+    cs_rock_state *rocks;
+    int32_t nr;
+    cs_rock_state *star;       /* each rock where cs_im_rocks_advance leaves it (without the cloth) */
+    cs_vec3 *rx0;              /* each rock at the part's start */
+    cs_vec3 *F, *T;            /* scratch, nr each: the rocks' forces and torques; the carried moves */
+    int32_t *cand;             /* 2 n: a rock's triangles (2 quad + face) or vertices near it */
+    int32_t *sr;               /* per vertex: the rock whose mass it carries (-1 none) */
+    float *sh, *sn, *sj;       /* per vertex: the mass it carries, its normal (3 n), a mark (0 between uses) */
+} cs_im_rocks;
+
+SIM_HD static inline cs_vec3 cs_im_rock_x(const cs_im_rocks *R, int32_t v) { return cs_v3(R->x[v], R->y[v], R->z[v]); }
+SIM_HD static inline cs_vec3 cs_im_rock_xb(const cs_im_rocks *R, int32_t v)
+{
+    return cs_v3(R->xb[v], R->yb[v], R->zb[v]);
+}
+
+/* Whether a sphere (c, reach) may touch the box lo .. hi (never a false no). */
+SIM_HD static inline int cs_im_near_box(cs_vec3 c, float reach, cs_vec3 lo, cs_vec3 hi)
+{
+    const float ex = c.x < lo.x ? lo.x - c.x : c.x > hi.x ? c.x - hi.x : 0.0f;
+    const float ey = c.y < lo.y ? lo.y - c.y : c.y > hi.y ? c.y - hi.y : 0.0f;
+    const float ez = c.z < lo.z ? lo.z - c.z : c.z > hi.z ? c.z - hi.z : 0.0f;
+    const float r = reach * 1.001f + 1e-6f;
+    return ex * ex + ey * ey + ez * ez <= r * r;
+}
+
+/* A vertex's move over the part beyond rock r's own path: (x - x_n) - (star_r - rx0_r). */
+SIM_HD static inline cs_vec3 cs_im_beyond(const cs_im_rocks *R, int32_t r, cs_vec3 x, cs_vec3 xn)
+{
+    return cs_sub(cs_sub(x, xn), cs_sub(R->star[r].x, R->rx0[r]));
+}
+
+/* A rock's candidates (centre c) into R->cand, in grid order: the intact triangles (2 quad + face)
+ * whose box comes within reach of c (surface model), or the vertices (vertex model); returns how
+ * many. */
+SIM_HD static inline int32_t cs_im_rock_candidates(const cs_phys *p, const cs_im_rocks *R, cs_vec3 c, float reach)
+{
+    const int32_t nx = p->nx, ny = p->ny;
+    int32_t nc = 0;
+    if (p->contact_model != CS_CONTACT_SURFACE) {
+        for (int32_t v = 0; v < p->n; v++)
+            if (cs_im_near_box(c, reach, cs_im_rock_x(R, v), cs_im_rock_x(R, v))) R->cand[nc++] = v;
+        return nc;
+    }
+    for (int32_t j = 0; j + 1 < ny; j++)
+        for (int32_t i = 0; i + 1 < nx; i++) {
+            const int32_t f = cs_quad_faces(R->L0, nx, ny, i, j);
+            if (!f) continue;
+            const int32_t v = j * nx + i;
+            cs_vec3 lo = cs_im_rock_x(R, v), hi = lo;
+            const int32_t o[3] = {v + 1, v + nx, v + nx + 1};
+            for (int k = 0; k < 3; k++) {
+                const cs_vec3 x = cs_im_rock_x(R, o[k]);
+                lo = cs_v3(x.x < lo.x ? x.x : lo.x, x.y < lo.y ? x.y : lo.y, x.z < lo.z ? x.z : lo.z);
+                hi = cs_v3(x.x > hi.x ? x.x : hi.x, x.y > hi.y ? x.y : hi.y, x.z > hi.z ? x.z : hi.z);
+            }
+            if (!cs_im_near_box(c, reach, lo, hi)) continue;
+            if (f & 1) R->cand[nc++] = 2 * v;
+            if (f & 2) R->cand[nc++] = 2 * v + 1;
+        }
+    return nc;
+}
+
+/* Candidate k's vertices (a vertex three times, vertex model). */
+SIM_HD static inline void cs_im_cand_vertices(const cs_phys *p, const cs_im_rocks *R, int32_t k, int32_t t[3])
+{
+    if (p->contact_model != CS_CONTACT_SURFACE) {
+        t[0] = t[1] = t[2] = R->cand[k];
+        return;
+    }
+    const int32_t v = R->cand[k] >> 1, face = R->cand[k] & 1, nx = p->nx;
+    t[0] = v, t[1] = face ? v + nx + 1 : v + 1, t[2] = face ? v + nx : v + nx + 1;
+}
+
+/* Step 1 of a part: the rocks over h without the cloth, sub-cycled at most rock_dt under their own
+ * contacts and gravity (cs_rock_force without the cloth), each v += d F / M, w likewise, then
+ * drift. Where each starts (rx0) and where this leaves it (star) are kept: the solve's carried
+ * mass follows that path, and cs_im_rocks_push moves the rock from there. */
+SIM_HD static inline void cs_im_rocks_advance(const cs_phys *p, const cs_im_rocks *R, float h)
+{
+    const int32_t nr = R->nr;
+    if (!nr) return;
+    for (int32_t r = 0; r < nr; r++) R->rx0[r] = R->rocks[r].x;
+    int32_t sub = 1;
+    if (p->rock_dt > 0.0f && h > p->rock_dt) {
+        const float k = h / p->rock_dt;
+        sub = k > 1e6f ? 1000000 : (int32_t)k + 1;
+    }
+    const float d = h / (float)sub;
+    for (int32_t k = 0; k < sub; k++) {
+        for (int32_t r = 0; r < nr; r++) cs_rock_force(R->rocks, nr, r, NULL, 0, p, &R->F[r], &R->T[r]);
+        for (int32_t r = 0; r < nr; r++) {
+            cs_rock_state *q = &R->rocks[r];
+            q->v = cs_add(q->v, cs_scale(R->F[r], q->inv_mass * d));
+            q->w = cs_add(q->w, cs_scale(R->T[r], q->inv_inertia * d));
+            cs_rock_drift(q, d);
+        }
+    }
+    for (int32_t r = 0; r < nr; r++) R->star[r] = R->rocks[r];
+}
+
+/* Step 1, after cs_im_rocks_advance: the mass each dynamic rock lends the vertices that may touch it
+ * in the part (cs_im_share_tri over its candidates near rx0 within R + 2 contact_offset; a vertex
+ * carries one rock, the first that reaches it), taken from the cloth as it is (R->x: the part's
+ * start), so that nothing carries over from part to part: into sr, sh (M times the vertex's share
+ * of the rock's weights) and sn (the unit mean normal). */
+SIM_HD static inline void cs_im_rocks_share(const cs_phys *p, const cs_im_rocks *R)
+{
+    const int32_t n = p->n, nr = R->nr;
+    const int surface = p->contact_model == CS_CONTACT_SURFACE;
+    for (int32_t v = 0; v < n; v++) R->sr[v] = -1;
+    for (int32_t r = 0; r < nr; r++) {
+        const cs_rock_state *q = &R->rocks[r];
+        if (!(q->inv_mass > 0.0f)) continue; /* a dynamic rock's translation only */
+        const float Rc = q->radius + p->contact_offset + p->contact_offset;
+        const int32_t nc = cs_im_rock_candidates(p, R, R->rx0[r], Rc);
+        float total = 0.0f;
+        for (int32_t k = 0; k < nc; k++) {
+            int32_t t[3];
+            cs_im_cand_vertices(p, R, k, t);
+            cs_vec3 x[3];
+            float b[3];
+            for (int e = 0; e < 3; e++) x[e] = cs_im_rock_x(R, t[e]);
+            cs_vec3 nn;
+            if (!cs_im_share_tri(x, R->rx0[r], Rc, b, &nn)) continue;
+            for (int e = 0; e < (surface ? 3 : 1); e++) {
+                const int32_t v = t[e];
+                if (R->w[v] == 0.0f || b[e] == 0.0f || (R->sr[v] >= 0 && R->sr[v] != r)) continue;
+                if (R->sr[v] < 0) {
+                    R->sr[v] = r, R->sh[v] = 0.0f;
+                    R->sn[3 * (size_t)v] = R->sn[3 * (size_t)v + 1] = R->sn[3 * (size_t)v + 2] = 0.0f;
+                }
+                R->sh[v] += b[e];
+                const cs_vec3 s = cs_add(cs_v3_from(R->sn + 3 * (size_t)v), cs_scale(nn, b[e]));
+                R->sn[3 * (size_t)v] = s.x, R->sn[3 * (size_t)v + 1] = s.y, R->sn[3 * (size_t)v + 2] = s.z;
+                total += b[e];
+            }
+        }
+        for (int32_t k = 0; k < nc && total > 0.0f; k++) {
+            int32_t t[3];
+            cs_im_cand_vertices(p, R, k, t);
+            for (int e = 0; e < 3; e++) {
+                const int32_t v = t[e];
+                if (R->sr[v] != r || R->sj[v] == 1.0f) continue;
+                R->sj[v] = 1.0f; /* done */
+                const cs_vec3 nv = cs_v3_from(R->sn + 3 * (size_t)v);
+                const float len = cs_len(nv);
+                R->sh[v] = q->mass * (R->sh[v] / total);
+                const cs_vec3 u = len > 0.0f ? cs_scale(nv, 1.0f / len) : cs_v3(0.0f, 0.0f, 0.0f);
+                R->sn[3 * (size_t)v] = u.x, R->sn[3 * (size_t)v + 1] = u.y, R->sn[3 * (size_t)v + 2] = u.z;
+            }
+        }
+        for (int32_t k = 0; k < nc; k++) {
+            int32_t t[3];
+            cs_im_cand_vertices(p, R, k, t);
+            for (int e = 0; e < 3; e++) R->sj[t[e]] = 0.0f;
+        }
+    }
+}
+
+/* In the solve: vertex v's carried term at the iterate x (x_n its start), when it carries a rock's
+ * mass (cs_im_rocks_share): its force into F and block into b (cs_im_carried); 0 when it carries
+ * none. */
+SIM_HD static inline int cs_im_carried_at(const cs_im_rocks *R, int32_t v, cs_vec3 x, cs_vec3 xn, float h, cs_vec3 *F,
+                                          cs_mat3 *b)
+{
+    const int32_t r = R->sr[v];
+    if (r < 0 || R->w[v] == 0.0f) return 0;
+    *F = cs_im_carried(cs_v3_from(R->sn + 3 * (size_t)v), R->sh[v], cs_im_beyond(R, r, x, xn), h, b);
+    return 1;
+}
+
+/* Step 3 of a part, after the solve (R->x the iterate): the rocks follow what their vertices
+ * carried in it (each dynamic rock moved by the mass-weighted mean of its vertices' normal moves
+ * beyond its own path: the momentum the carrying took from the cloth), then the rocks and the
+ * cloth pushed apart (cs_im_push_tri): rock by rock, its candidates swept CS_IM_PUSH_SWEEPS times;
+ * each rock's v += (what it moved)/h, a = its change of velocity over the part / h. The moved
+ * vertices' velocities follow from cs_im_push_velocity, vertex by vertex, after. */
+SIM_HD static inline void cs_im_rocks_push(const cs_phys *p, const cs_im_rocks *R, float h)
+{
+    const int32_t nr = R->nr, n = p->n;
+    if (!nr) return;
+    const float inv_h = 1.0f / h;
+    cs_vec3 *acc = R->F;
+    for (int32_t r = 0; r < nr; r++) acc[r] = cs_v3(0.0f, 0.0f, 0.0f);
+    for (int32_t v = 0; v < n; v++) {
+        const int32_t r = R->sr[v];
+        if (r < 0 || R->w[v] == 0.0f) continue;
+        const cs_vec3 nv = cs_v3_from(R->sn + 3 * (size_t)v);
+        const cs_vec3 d = cs_im_beyond(R, r, cs_im_rock_x(R, v), cs_im_rock_xb(R, v));
+        acc[r] = cs_add(acc[r], cs_scale(nv, R->sh[v] * R->rocks[r].inv_mass * cs_dot(nv, d)));
+    }
+    for (int32_t r = 0; r < nr; r++) {
+        cs_rock_state *q = &R->rocks[r];
+        if (!(q->inv_mass > 0.0f)) continue;
+        q->x = cs_add(R->star[r].x, acc[r]);
+        q->v = cs_add(R->star[r].v, cs_scale(acc[r], inv_h));
+    }
+    const int surface = p->contact_model == CS_CONTACT_SURFACE;
+    for (int32_t r = 0; r < nr; r++) {
+        cs_rock_state *q = &R->rocks[r];
+        const cs_vec3 c0 = q->x;
+        const int32_t nc = cs_im_rock_candidates(p, R, c0, cs_surface_lim(q, p));
+        /* what the rock moves, summed apart from its position: a heavy rock's share of one push
+         * can be below the float spacing of its coordinates */
+        cs_vec3 moved = cs_v3(0.0f, 0.0f, 0.0f);
+        for (int sweep = 0; sweep < CS_IM_PUSH_SWEEPS && nc; sweep++)
+            for (int32_t k = 0; k < nc; k++) {
+                int32_t t[3];
+                cs_im_cand_vertices(p, R, k, t);
+                cs_vec3 x[3], dx[3], dc;
+                float wv[3];
+                for (int e = 0; e < 3; e++) {
+                    x[e] = cs_im_rock_x(R, t[e]);
+                    wv[e] = surface || e == 0 ? p->inv_mass * R->w[t[e]] : 0.0f;
+                }
+                if (cs_im_push_tri(x, wv, cs_add(c0, moved), q->inv_mass, q->radius + p->contact_offset, dx, &dc) == 0.0f)
+                    continue;
+                for (int e = 0; e < (surface ? 3 : 1); e++) {
+                    const cs_vec3 y = cs_add(x[e], dx[e]);
+                    R->x[t[e]] = y.x, R->y[t[e]] = y.y, R->z[t[e]] = y.z;
+                }
+                moved = cs_add(moved, dc);
+            }
+        q->x = cs_add(c0, moved);
+        q->v = cs_add(q->v, cs_scale(moved, inv_h));
+        q->a = cs_scale(cs_sub(q->v, R->star[r].v), inv_h); /* the cloth's, as the state reports it */
+        q->alpha = cs_v3(0.0f, 0.0f, 0.0f);
+    }
+}
+
+/* After cs_im_rocks_push (with rocks): vertex v's velocity (x - x_n)/h, inv_h = 1/h (a vertex in
+ * the solve; the others keep theirs). */
+SIM_HD static inline void cs_im_push_velocity(const cs_im_rocks *R, int32_t v, float inv_h)
+{
+    if (R->w[v] == 0.0f) return;
+    R->vx[v] = (R->x[v] - R->xb[v]) * inv_h;
+    R->vy[v] = (R->y[v] - R->yb[v]) * inv_h;
+    R->vz[v] = (R->z[v] - R->zb[v]) * inv_h;
+}
+
+/* The fastest a rock, or with rocks about a cloth vertex, moves toward a contact (for the parts of
+ * a substep, cs_im_splits): each rock at its speed plus gain (gravity's |g| h) unless kinematic;
+ * with rocks, also sqrt(vv) + gain, vv the largest squared speed of a cloth vertex
+ * (cs_im_speed2). */
+SIM_HD static inline float cs_im_speed2(float vx, float vy, float vz) { return vx * vx + vy * vy + vz * vz; }
+SIM_HD static inline float cs_im_fastest(const cs_rock_state *rocks, int32_t nr, float vv, float gain)
+{
+    float most = 0.0f;
+    for (int32_t r = 0; r < nr; r++) {
+        const float v = cs_len(rocks[r].v) + (rocks[r].kinematic ? 0.0f : gain);
+        most = v > most ? v : most;
+    }
+    if (!nr) return most;
+    const float c = sqrtf(vv) + gain;
+    return c > most ? c : most;
 }
 
 /* ---- a vertex's residual and diagonal ---- */
