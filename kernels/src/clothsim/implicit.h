@@ -244,7 +244,7 @@ typedef struct cs_im_rocks {
     cs_vec3 *F, *T;            /* scratch, nr each: the rocks' forces and torques; the carried moves */
     int32_t *cand;             /* 2 n: a rock's triangles (2 quad + face) or vertices near it */
     int32_t *sr;               /* per vertex: the rock whose mass it carries (-1 none) */
-    float *sh, *sn, *sj;       /* per vertex: the mass it carries, its normal (3 n), a mark (0 between uses) */
+    float *sh, *sn;            /* per vertex: the mass it carries, its normal (3 n) */
 } cs_im_rocks;
 
 SIM_HD static inline cs_vec3 cs_im_rock_x(const cs_im_rocks *R, int32_t v) { return cs_v3(R->x[v], R->y[v], R->z[v]); }
@@ -375,24 +375,14 @@ SIM_HD static inline void cs_im_rocks_share(const cs_phys *p, const cs_im_rocks 
                 total += b[e];
             }
         }
-        for (int32_t k = 0; k < nc && total > 0.0f; k++) {
-            int32_t t[3];
-            cs_im_cand_vertices(p, R, k, t);
-            for (int e = 0; e < 3; e++) {
-                const int32_t v = t[e];
-                if (R->sr[v] != r || R->sj[v] == 1.0f) continue;
-                R->sj[v] = 1.0f; /* done */
-                const cs_vec3 nv = cs_v3_from(R->sn + 3 * (size_t)v);
-                const float len = cs_len(nv);
-                R->sh[v] = q->mass * (R->sh[v] / total);
-                const cs_vec3 u = len > 0.0f ? cs_scale(nv, 1.0f / len) : cs_v3(0.0f, 0.0f, 0.0f);
-                R->sn[3 * (size_t)v] = u.x, R->sn[3 * (size_t)v + 1] = u.y, R->sn[3 * (size_t)v + 2] = u.z;
-            }
-        }
-        for (int32_t k = 0; k < nc; k++) {
-            int32_t t[3];
-            cs_im_cand_vertices(p, R, k, t);
-            for (int e = 0; e < 3; e++) R->sj[t[e]] = 0.0f;
+        /* each of its vertices once: M times its share of the weights, the unit mean normal */
+        for (int32_t v = 0; v < n && total > 0.0f; v++) {
+            if (R->sr[v] != r) continue;
+            const cs_vec3 nv = cs_v3_from(R->sn + 3 * (size_t)v);
+            const float len = cs_len(nv);
+            R->sh[v] = q->mass * (R->sh[v] / total);
+            const cs_vec3 u = len > 0.0f ? cs_scale(nv, 1.0f / len) : cs_v3(0.0f, 0.0f, 0.0f);
+            R->sn[3 * (size_t)v] = u.x, R->sn[3 * (size_t)v + 1] = u.y, R->sn[3 * (size_t)v + 2] = u.z;
         }
     }
 }
