@@ -510,13 +510,18 @@ test('max_kbps: fewer whole frames within the byte budget, not a growing delay; 
   const newest = (await ok(d, 'GET', '/v1/sim')).sim_time;
   assert.ok(newest - got.at(-1).simTime < 0.5, `${newest - got.at(-1).simTime} s behind`);
   // /metrics has each client's frames, bytes and achieved frame rate: the slow one's within its
-  // budget, the fast one's near 60 (one series per connected client, by id).
-  const m = (await call(d, 'GET', '/metrics')).text;
-  const fps = [...m.matchAll(/^clothd_stream_client_fps\{client="(\d+)",encoding="f32"\} ([\d.]+)$/gm)].map((x) => Number(x[2]));
-  assert.equal(fps.length, 2, m);
-  const [lo, hi] = fps.sort((a, b) => a - b);
-  assert.ok(lo >= 5 && lo <= 13, `slow client at ${lo} fps`);
-  assert.ok(hi > 2 * lo, `fast client at ${hi} fps`);
+  // budget, the fast one's near 60 (one series per connected client, by id). The rate is a gauge
+  // of about the last second, refreshed once a second: a read just after the loaded machine
+  // stalled the sim for part of that second shows the stall (3.5 fps once, on CI), so the next
+  // refreshes, for 3 s, are awaited.
+  let m = '', lo = 0, hi = 0;
+  await until('the slow client within its budget and the fast one above it in /metrics', async () => {
+    m = (await call(d, 'GET', '/metrics')).text;
+    const fps = [...m.matchAll(/^clothd_stream_client_fps\{client="(\d+)",encoding="f32"\} ([\d.]+)$/gm)].map((x) => Number(x[2]));
+    assert.equal(fps.length, 2, m);
+    [lo, hi] = fps.sort((a, b) => a - b);
+    return lo >= 5 && lo <= 13 && hi > 2 * lo;
+  }, { timeout: 3000, every: 250 }).catch((e) => assert.fail(`${e.message}: slow client at ${lo} fps, fast at ${hi}`));
   const bytesOf = [...m.matchAll(/^clothd_stream_client_bytes_total\{client="\d+"\} (\d+)$/gm)].map((x) => Number(x[1]));
   assert.equal(bytesOf.length, 2);
   assert.equal(metric(m, 'clothd_stream_client_frames_total') > 0, true);
