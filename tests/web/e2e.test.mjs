@@ -120,6 +120,8 @@ test('shift-drag moves a kinematic rock', opts, async () => {
   assert.ok(left.x < at.x - 50, `on screen from ${at.x.toFixed(0)} to ${left.x.toFixed(0)}`);
   assert.ok(Math.abs(left.y - at.y) < 10, `stayed at the mouse's height: ${at.y.toFixed(0)} -> ${left.y.toFixed(0)}`);
   assert.equal(rock.kinematic, true);
+  // The page's last move may still be on its way: deleting the rock under it would answer 404.
+  await until('the page\'s moves to finish', () => page.evaluate(() => !window.__clothd.rockMoving()));
   await ok(daemon, 'DELETE', '/v1/rocks');
   await ok(daemon, 'POST', '/v1/sim/resume');
   assert.deepEqual(page.errors, []);

@@ -446,6 +446,7 @@ window.__clothd = {
   ready: false, api, scene: () => cur.id, stream, view, interaction, state, rates, problems,
   inject: (data) => stream.inject(data),
   playback: () => playback, bar,
+  rockMoving: () => rockMove !== null,
   setView: setViewValue,
 };
 
