@@ -1469,9 +1469,10 @@ struct im_work {
     float *host_part;          /* their pinned host copy */
     float *fast;               /* k_im_fastest's answer (1 float) */
     /* the rock steps' workspace (cs_im_rocks): per vertex the mass carried (sh), its normal (sn,
-     * 3 n); the rock carried (sr) and the candidates (cand, 2 n); per rock where it
-     * would be without the cloth (star), where it started (rx0) and scratch (rf, rt) */
-    float *sh, *sn;
+     * 3 n), what a push moved it (sg, 0 between pushes); the rock carried (sr) and the candidates
+     * (cand, 2 n); per rock where it would be without the cloth (star), where it started (rx0) and
+     * scratch (rf, rt) */
+    float *sh, *sn, *sg;
     int32_t *ints;             /* cand, then sr: 3 n, one allocation */
     int32_t *cand, *sr;
     cs_rock_state *star;       /* CS_MAX_ROCKS */
@@ -1526,7 +1527,7 @@ static cs_im_rocks im_rocks(const cuda_ctx *c, float *S, const float *L0)
     R.star = w->star;
     R.rx0 = w->rv3, R.F = w->rv3 + CS_MAX_ROCKS, R.T = w->rv3 + 2 * CS_MAX_ROCKS;
     R.cand = w->cand, R.sr = w->sr;
-    R.sh = w->sh, R.sn = w->sn;
+    R.sh = w->sh, R.sn = w->sn, R.sg = w->sg;
     return R;
 }
 
@@ -1897,7 +1898,7 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     im_work *w = (im_work *)calloc(1, sizeof *w);
     if (!w) return CS_E_NOMEM;
     w->nx = p->nx, w->ny = p->ny, w->n = p->n, w->nchunks = p->nchunks;
-    size_t floats = (size_t)w->n * (6 + 3 + 18 + 18 + 4) + (size_t)w->nchunks + 1;
+    size_t floats = (size_t)w->n * (6 + 3 + 18 + 18 + 5) + (size_t)w->nchunks + 1;
     int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
     const int L = w->levels = cs_im_levels(p->nx, p->ny, lx, ly);
     for (int l = 0; l < L; l++) {
@@ -1924,7 +1925,7 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     w->r = TAKE(3 * n), w->z = TAKE(3 * n), w->p = TAKE(3 * n);
     w->B[0] = TAKE(9 * n), w->B[1] = TAKE(9 * n);
     w->part = TAKE((size_t)w->nchunks);
-    w->sh = TAKE(n), w->sn = TAKE(3 * n);
+    w->sh = TAKE(n), w->sn = TAKE(3 * n), w->sg = TAKE(n);
     w->fast = TAKE(1);
     w->cand = w->ints, w->sr = w->ints + 2 * n;
     for (int l = 0; l < L; l++) {

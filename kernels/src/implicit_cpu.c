@@ -48,6 +48,7 @@ struct cs_im_work {
     cs_rock_state *star;                   /* each rock where it would be without the cloth */
     int32_t *cand;                         /* a rock's triangles (2 quad + face) or vertices near it */
     float *sh, *sn;                        /* per vertex: the rock mass it carries, its normal (3 n) */
+    float *sg;                             /* per vertex: what a rock's push moved it (0 between pushes) */
     int32_t *sr;                           /* per vertex: the rock it carries (-1 none) */
     cs_vec3 rx0[CS_MAX_ROCKS];             /* each rock at the part's start */
     cs_vec3 rf[CS_MAX_ROCKS], rt[CS_MAX_ROCKS]; /* the rock steps' scratch (cs_im_rocks' F, T) */
@@ -71,7 +72,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     cs_im_work *w = calloc(1, sizeof *w);
     if (!w) return NULL;
     w->nx = nx, w->ny = ny, w->n = nx * ny, w->nchunks = nchunks;
-    size_t floats = (size_t)w->n * (9 + 3 + 18 + 15 + 18 + 4) + (size_t)nchunks;
+    size_t floats = (size_t)w->n * (9 + 3 + 18 + 15 + 18 + 5) + (size_t)nchunks;
     int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
     const int L = w->levels = cs_im_levels(nx, ny, lx, ly);
     for (int l = 0; l < L; l++) {
@@ -102,7 +103,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     w->fo = TAKE(18 * n);
     w->dx = TAKE(nv), w->r = TAKE(nv), w->z = TAKE(nv), w->p = TAKE(nv), w->q = TAKE(nv);
     w->part = TAKE((size_t)nchunks);
-    w->sh = TAKE(n), w->sn = TAKE(3 * n);
+    w->sh = TAKE(n), w->sn = TAKE(3 * n), w->sg = TAKE(n);
     for (int l = 0; l < L; l++) {
         im_level *v = &w->lv[l];
         const size_t k = (size_t)v->n;
@@ -481,7 +482,7 @@ static cs_im_rocks rock_view(cs_state *s, cs_im_work *w)
     R.w = s->w, R.L0 = s->L0;
     R.rocks = s->rocks, R.nr = s->n_rocks;
     R.star = w->star, R.rx0 = w->rx0, R.F = w->rf, R.T = w->rt;
-    R.cand = w->cand, R.sr = w->sr, R.sh = w->sh, R.sn = w->sn;
+    R.cand = w->cand, R.sr = w->sr, R.sh = w->sh, R.sn = w->sn, R.sg = w->sg;
     return R;
 }
 

@@ -178,8 +178,11 @@ SIM_HD static inline cs_mat3 cs_im_ground_block(cs_vec3 xi, cs_vec3 vi, const cs
  * b, and the centre move along n = (p - c)/|p - c| in inverse proportion to their masses - dx_k
  * = b_k w_k lambda n, dc = -w_r lambda n, lambda = (R + offset - |p - c|) / (w_r + sum b_k^2
  * w_k) - which conserves momentum, and what each moved is added to its velocity (dx / h).
- * CS_IM_PUSH_SWEEPS sweeps over each rock's triangles in grid order. Normal only: no friction
- * acts between rock and cloth under implicit_euler (MODEL.md). */
+ * CS_IM_PUSH_SWEEPS sweeps over each rock's triangles in grid order. Then Coulomb friction, once
+ * per rock (cs_im_rock_friction): the rock's contact point (its surface toward the cloth, spin
+ * included) and the patch of cloth pressing on it (each vertex weighted by the normal impulse it
+ * gave: carried and pushed) are brought to the same tangential move over the part, by an impulse
+ * shared in inverse proportion to their masses, at most mu times the rock's normal impulse. */
 #define CS_IM_PUSH_SWEEPS 4
 
 /* Triangle x[3] against a rock centred at c: the barycentric weights b of its point closest to c,
@@ -196,13 +199,14 @@ SIM_HD static inline int cs_im_share_tri(const cs_vec3 x[3], cs_vec3 c, float re
 }
 
 /* Triangle x[3] (inverse masses wv) against rock centre c (inverse mass wr) and sphere Rc: the
- * vertices' moves dx and the centre's dc (the caller applies them); returns lambda, 0 when apart. */
+ * vertices' moves dx and the centre's dc (the caller applies them), the barycentric weights b and
+ * the normal n (centre to cloth) of the closest point; returns lambda, 0 when apart. */
 SIM_HD static inline float cs_im_push_tri(const cs_vec3 x[3], const float wv[3], cs_vec3 c, float wr, float Rc,
-                                          cs_vec3 dx[3], cs_vec3 *dc)
+                                          cs_vec3 dx[3], cs_vec3 *dc, float b[3], cs_vec3 *nout)
 {
-    float b[3];
     cs_vec3 n;
     if (!cs_im_share_tri(x, c, Rc, b, &n)) return 0.0f;
+    *nout = n;
     const cs_vec3 p = cs_add(cs_add(cs_scale(x[0], b[0]), cs_scale(x[1], b[1])), cs_scale(x[2], b[2]));
     const float W = wr + b[0] * b[0] * wv[0] + b[1] * b[1] * wv[1] + b[2] * b[2] * wv[2];
     if (!(W > 0.0f)) return 0.0f;
@@ -245,6 +249,7 @@ typedef struct cs_im_rocks {
     int32_t *cand;             /* 2 n: a rock's triangles (2 quad + face) or vertices near it */
     int32_t *sr;               /* per vertex: the rock whose mass it carries (-1 none) */
     float *sh, *sn;            /* per vertex: the mass it carries, its normal (3 n) */
+    float *sg;                 /* per vertex, 0 outside cs_im_rocks_push: what the rock pushed it */
 } cs_im_rocks;
 
 SIM_HD static inline cs_vec3 cs_im_rock_x(const cs_im_rocks *R, int32_t v) { return cs_v3(R->x[v], R->y[v], R->z[v]); }
@@ -399,6 +404,65 @@ SIM_HD static inline int cs_im_carried_at(const cs_im_rocks *R, int32_t v, cs_ve
     return 1;
 }
 
+/* Vertex v's normal weight against rock r after the push (in kg m: its normal impulse over the part
+ * times h): what the rock pushed it (sg), plus, when it carries r, its carried mass times how far
+ * it moved toward the rock's path (sh max(0, -n . d)). */
+SIM_HD static inline float cs_im_pressed(const cs_im_rocks *R, int32_t r, int32_t v)
+{
+    float c = R->sg[v];
+    if (R->sr[v] == r && R->w[v] != 0.0f) {
+        const float nd = cs_dot(cs_v3_from(R->sn + 3 * (size_t)v), cs_im_beyond(R, r, cs_im_rock_x(R, v), cs_im_rock_xb(R, v)));
+        c += nd < 0.0f ? -R->sh[v] * nd : 0.0f;
+    }
+    return c;
+}
+
+/* Coulomb friction between rock r and the cloth over a part h (after the push; P the rock's normal
+ * impulse times h, carried and pushed, away from the cloth): the patch's move D, the mean of its
+ * vertices' moves weighted by cs_im_pressed, and the rock's contact point's move (centre plus
+ * spin at the arm a = -R P/|P|) are brought to the same tangential move u_t by J = -u_t /
+ * (1/M + R^2/I + sum beta_v^2 / m_v) (beta_v the weights normalised), at most mu |P|: the rock
+ * gains J (and a x J of spin), the vertices -beta_v J, so momentum is kept and the spin's change
+ * matches the torque at the contact; sticks within the cone, slides at mu beyond it. Clears sg. */
+SIM_HD static inline void cs_im_rock_friction(const cs_phys *p, const cs_im_rocks *R, int32_t r, float h, cs_vec3 P)
+{
+    const int32_t n = p->n;
+    cs_rock_state *q = &R->rocks[r];
+    const float pn = cs_len(P);
+    float B = 0.0f, W2 = 0.0f;
+    cs_vec3 D = cs_v3(0.0f, 0.0f, 0.0f);
+    for (int32_t v = 0; v < n; v++) {
+        const float c = cs_im_pressed(R, r, v);
+        if (!(c > 0.0f)) continue;
+        B += c;
+        D = cs_add(D, cs_scale(cs_sub(cs_im_rock_x(R, v), cs_im_rock_xb(R, v)), c));
+        W2 += c * c * p->inv_mass * R->w[v];
+    }
+    cs_vec3 J = cs_v3(0.0f, 0.0f, 0.0f);
+    if (B > 0.0f && pn > 0.0f && p->mu > 0.0f) {
+        const cs_vec3 nb = cs_scale(P, 1.0f / pn), a = cs_scale(nb, -q->radius);
+        D = cs_scale(D, 1.0f / B);
+        const cs_vec3 dr = cs_add(cs_sub(q->x, R->rx0[r]), cs_scale(cs_cross(q->w, a), h));
+        const cs_vec3 u = cs_sub(dr, D), ut = cs_sub(u, cs_scale(nb, cs_dot(nb, u)));
+        const float W = q->inv_mass + q->radius * q->radius * q->inv_inertia + W2 / (B * B);
+        if (W > 0.0f) {
+            J = cs_scale(ut, -1.0f / W);
+            const float j = cs_len(J), cap = p->mu * pn;
+            if (j > cap) J = cs_scale(J, cap / j);
+        }
+        q->x = cs_add(q->x, cs_scale(J, q->inv_mass));
+        q->v = cs_add(q->v, cs_scale(J, q->inv_mass / h));
+        q->w = cs_add(q->w, cs_scale(cs_cross(a, J), q->inv_inertia / h));
+    }
+    for (int32_t v = 0; v < n; v++) {
+        const float c = cs_im_pressed(R, r, v);
+        R->sg[v] = 0.0f;
+        if (!(c > 0.0f)) continue;
+        const cs_vec3 y = cs_sub(cs_im_rock_x(R, v), cs_scale(J, c / B * p->inv_mass * R->w[v]));
+        R->x[v] = y.x, R->y[v] = y.y, R->z[v] = y.z;
+    }
+}
+
 /* Step 3 of a part, after the solve (R->x the iterate): the rocks follow what their vertices
  * carried in it (each dynamic rock moved by the mass-weighted mean of its vertices' normal moves
  * beyond its own path: the momentum the carrying took from the cloth), then the rocks and the
@@ -424,6 +488,7 @@ SIM_HD static inline void cs_im_rocks_push(const cs_phys *p, const cs_im_rocks *
         if (!(q->inv_mass > 0.0f)) continue;
         q->x = cs_add(R->star[r].x, acc[r]);
         q->v = cs_add(R->star[r].v, cs_scale(acc[r], inv_h));
+        acc[r] = cs_scale(acc[r], q->mass); /* the carried impulse times h, for friction */
     }
     const int surface = p->contact_model == CS_CONTACT_SURFACE;
     for (int32_t r = 0; r < nr; r++) {
@@ -432,27 +497,31 @@ SIM_HD static inline void cs_im_rocks_push(const cs_phys *p, const cs_im_rocks *
         const int32_t nc = cs_im_rock_candidates(p, R, c0, cs_surface_lim(q, p));
         /* what the rock moves, summed apart from its position: a heavy rock's share of one push
          * can be below the float spacing of its coordinates */
-        cs_vec3 moved = cs_v3(0.0f, 0.0f, 0.0f);
+        cs_vec3 moved = cs_v3(0.0f, 0.0f, 0.0f), P = q->inv_mass > 0.0f ? acc[r] : cs_v3(0.0f, 0.0f, 0.0f);
         for (int sweep = 0; sweep < CS_IM_PUSH_SWEEPS && nc; sweep++)
             for (int32_t k = 0; k < nc; k++) {
                 int32_t t[3];
                 cs_im_cand_vertices(p, R, k, t);
-                cs_vec3 x[3], dx[3], dc;
-                float wv[3];
+                cs_vec3 x[3], dx[3], dc, nk;
+                float wv[3], b[3];
                 for (int e = 0; e < 3; e++) {
                     x[e] = cs_im_rock_x(R, t[e]);
                     wv[e] = surface || e == 0 ? p->inv_mass * R->w[t[e]] : 0.0f;
                 }
-                if (cs_im_push_tri(x, wv, cs_add(c0, moved), q->inv_mass, q->radius + p->contact_offset, dx, &dc) == 0.0f)
-                    continue;
+                const float lambda = cs_im_push_tri(x, wv, cs_add(c0, moved), q->inv_mass, q->radius + p->contact_offset,
+                                                    dx, &dc, b, &nk);
+                if (lambda == 0.0f) continue;
                 for (int e = 0; e < (surface ? 3 : 1); e++) {
                     const cs_vec3 y = cs_add(x[e], dx[e]);
                     R->x[t[e]] = y.x, R->y[t[e]] = y.y, R->z[t[e]] = y.z;
+                    R->sg[t[e]] += (surface ? b[e] : 1.0f) * lambda;
                 }
                 moved = cs_add(moved, dc);
+                P = cs_sub(P, cs_scale(nk, lambda));
             }
         q->x = cs_add(c0, moved);
         q->v = cs_add(q->v, cs_scale(moved, inv_h));
+        cs_im_rock_friction(p, R, r, h, P);
         q->a = cs_scale(cs_sub(q->v, R->star[r].v), inv_h); /* the cloth's, as the state reports it */
         q->alpha = cs_v3(0.0f, 0.0f, 0.0f);
     }
