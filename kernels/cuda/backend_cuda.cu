@@ -1443,8 +1443,8 @@ static void rocks(const cuda_ctx *c, int mode, int pos, int rest)
  * the CPU does. A copy back and a wait per dot product: simple, not fast.
  *
  * Rocks (implicit.h, "rock contact" and "the rock steps of a part"): with rocks, each substep
- * first asks how many parts it takes (k_im_fastest_chunks, k_im_fastest: the speed copied back for
- * cs_im_splits); each part advances the rocks without the cloth and shares their mass
+ * first asks how many parts it takes (k_im_fastest_chunks, k_im_fastest: the fastest closing speed
+ * of cs_im_closing copied back for cs_im_splits); each part advances the rocks without the cloth and shares their mass
  * (k_im_rocks_begin) before the solve, whose assembly adds the carried term (cs_im_carried_at),
  * and pushes rocks and cloth apart after it (k_im_rocks_push, then k_im_push_velocity a thread a
  * vertex). The rock steps are serial by design (a fixed order, as the CPU backend runs them): each
@@ -1604,21 +1604,21 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_reach(const cuda_scene *__restr
     if (t == 0) part[c] = buf[0];
 }
 
-/* The largest squared speed (cs_im_speed2) of chunk blockIdx.x's vertices at a substep's start,
- * for its parts when there are rocks (fastest of implicit_cpu.c; a NaN is never taken): the
- * chunk's largest into part (a maximum: any order gives the same). */
-__global__ void __launch_bounds__(CS_CHUNK) k_im_fastest_chunks(const cuda_scene *__restrict__ sc, const float *in,
-                                                               float *part)
+/* The fastest chunk blockIdx.x's vertices close on a rock near them at a substep's start (cs_im_closing,
+ * fastest of implicit_cpu.c; a NaN is never taken): the chunk's largest into part (a maximum: any
+ * order gives the same). */
+__global__ void __launch_bounds__(CS_CHUNK) k_im_fastest_chunks(const cuda_scene *__restrict__ sc, const cs_rock_state *rocks,
+                                                               const float *in, float h, float *part)
 {
     CS_DYNAMIC_SHARED(float, buf);
     const cs_phys *p = &sc->p;
     const int t = (int)threadIdx.x;
     const int32_t c = (int32_t)blockIdx.x, j = c / p->nseg, i = (c % p->nseg) * CS_CHUNK + t;
+    const size_t n = (size_t)p->n;
     float most = 0.0f;
     if (i < p->nx) {
-        const int32_t v = j * p->nx + i;
-        const cs_vec3 u = IM_V(in, p->n, v);
-        const float q = cs_im_speed2(u.x, u.y, u.z);
+        const float q = cs_im_closing(p, rocks, sc->nr, in, in + n, in + 2 * n, in + 3 * n, in + 4 * n, in + 5 * n,
+                                      j * p->nx + i, h);
         most = q > most ? q : most;
     }
     buf[t] = most;
@@ -1629,14 +1629,12 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_fastest_chunks(const cuda_scene
     if (t == 0) part[c] = buf[0];
 }
 
-/* The fastest a rock or a cloth vertex moves toward a contact over a substep h (cs_im_fastest of
- * the rocks and the chunks' largest squared speeds), into out[0]. One thread. */
-__global__ void k_im_fastest(const cuda_scene *__restrict__ sc, const cs_rock_state *rocks, const float *part,
-                             int32_t nchunks, float h, float *out)
+/* The chunks' largest closing speeds' maximum, into out[0]. One thread. */
+__global__ void k_im_fastest(const float *part, int32_t nchunks, float *out)
 {
-    float vv = 0.0f;
-    for (int32_t c = 0; c < nchunks; c++) vv = part[c] > vv ? part[c] : vv;
-    out[0] = cs_im_fastest(rocks, sc->nr, vv, cs_len(sc->p.gravity) * h);
+    float most = 0.0f;
+    for (int32_t c = 0; c < nchunks; c++) most = part[c] > most ? part[c] : most;
+    out[0] = most;
 }
 
 /* Step 1 of a part with rocks: the rocks advanced without the cloth, then the mass they lend
@@ -2172,12 +2170,12 @@ static cs_status im_step(cuda_ctx *c, const cs_model *m, int32_t substeps, cs_st
     im_work *w = c->im;
     const int32_t nr = c->host_sc.nr;
     for (int32_t k = 0; k < substeps; k++) {
-        /* fastest() of implicit_cpu.c: the rocks' speeds and, with rocks, the cloth's (0 without) */
+        /* fastest() of implicit_cpu.c: how fast the cloth closes on a rock near it (0 without rocks) */
         float vmax = 0.0f;
         if (nr > 0) {
             k_im_fastest_chunks<<<(unsigned)w->nchunks, CS_CHUNK, sizeof(float) * CS_CHUNK, c->stream>>>(
-                c->sc, c->vb.state[c->cur], w->part);
-            k_im_fastest<<<1, 1, 0, c->stream>>>(c->sc, c->rb.rocks, w->part, w->nchunks, p->dt, w->fast);
+                c->sc, c->rb.rocks, c->vb.state[c->cur], p->dt, w->part);
+            k_im_fastest<<<1, 1, 0, c->stream>>>(w->part, w->nchunks, w->fast);
             CUDA_CHECK(cudaGetLastError());
             CUDA_CHECK(cudaMemcpyAsync(w->host_part, w->fast, sizeof(float), cudaMemcpyDeviceToHost, c->stream));
             CUDA_CHECK(cudaStreamSynchronize(c->stream));

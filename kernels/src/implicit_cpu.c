@@ -2,8 +2,8 @@
  * clothsim/implicit.h looped over the grid with OpenMP, in the sequence below (kernels/MODEL.md,
  * "The implicit solver").
  *
- * A substep of length h (cut into equal parts while a rock or vertex would cross the contact layer
- * in it: cs_im_splits), each part:
+ * A substep of length h (cut into equal parts while a cloth vertex near a rock would close on it
+ * by more than the contact layer in it: cs_im_closing, cs_im_splits), each part:
  *   1. the rocks advanced without the cloth (cs_im_rocks_advance: sub-cycled to cs_phys.rock_dt
  *      under gravity, rock-rock and ground contact), and the mass each dynamic rock lends the
  *      vertices that may touch it in the part (cs_im_rocks_share; implicit.h, "rock contact" and
@@ -578,19 +578,18 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
     return torn;
 }
 
-/* The fastest a rock, or with rocks about a cloth vertex, moves toward a contact now (for the
- * parts of a substep: cs_im_fastest). */
+/* The fastest a cloth vertex closes on a rock near it now (cs_im_closing; the parts of a substep). */
 static float fastest(const cs_phys *p, const cs_state *s, float h, int threads)
 {
-    float sq = 0.0f;
+    float most = 0.0f;
     if (s->n_rocks) {
-#pragma omp parallel for num_threads(threads) schedule(static) reduction(max : sq)
+#pragma omp parallel for num_threads(threads) schedule(static) reduction(max : most)
         for (int32_t v = 0; v < s->n; v++) {
-            const float q = cs_im_speed2(s->vx[v], s->vy[v], s->vz[v]);
-            sq = q > sq ? q : sq;
+            const float c = cs_im_closing(p, s->rocks, s->n_rocks, s->x, s->y, s->z, s->vx, s->vy, s->vz, v, h);
+            most = c > most ? c : most;
         }
     }
-    return cs_im_fastest(s->rocks, s->n_rocks, sq, cs_len(p->gravity) * h);
+    return most;
 }
 
 cs_status cs_im_step(cs_im_work **wp, const cs_model *m, cs_state *s, int32_t substeps, int threads,

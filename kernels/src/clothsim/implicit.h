@@ -537,21 +537,39 @@ SIM_HD static inline void cs_im_push_velocity(const cs_im_rocks *R, int32_t v, f
     R->vz[v] = (R->z[v] - R->zb[v]) * inv_h;
 }
 
-/* The fastest a rock, or with rocks about a cloth vertex, moves toward a contact (for the parts of
- * a substep, cs_im_splits): each rock at its speed plus gain (gravity's |g| h) unless kinematic;
- * with rocks, also sqrt(vv) + gain, vv the largest squared speed of a cloth vertex
- * (cs_im_speed2). */
-SIM_HD static inline float cs_im_speed2(float vx, float vy, float vz) { return vx * vx + vy * vy + vz * vz; }
-SIM_HD static inline float cs_im_fastest(const cs_rock_state *rocks, int32_t nr, float vv, float gain)
+/* How fast cloth vertex v may close on a rock over a substep h (for the parts of a substep,
+ * cs_im_splits): the largest |v_v - v_r| + gain (gravity's |g| h) over the rocks that it, or a
+ * triangle it belongs to, may reach within the substep - those whose centre lies within
+ * R + contact_offset + ring + (|v_r| + |v_v| + 2 gain) h, ring the longest distance from v to its
+ * six render neighbours (a triangle's closest point lies within its longest edge of each of its
+ * vertices); 0 when no rock is that near, so a fast cloth far from every rock, or a rock falling
+ * through the air, costs no parts. x..vz: the state's arrays (a NaN is never taken). */
+SIM_HD static inline float cs_im_closing(const cs_phys *p, const cs_rock_state *rocks, int32_t nr, const float *x,
+                                         const float *y, const float *z, const float *vx, const float *vy,
+                                         const float *vz, int32_t v, float h)
 {
+    if (!nr) return 0.0f;
+    const int32_t nx = p->nx, ny = p->ny, i = v % nx, j = v / nx;
+    const cs_vec3 xv = cs_v3(x[v], y[v], z[v]), uv = cs_v3(vx[v], vy[v], vz[v]);
+    float ring = 0.0f;
+    for (int e = 0; e < 6; e++) { /* (1,0) (-1,0) (0,1) (0,-1) (1,1) (-1,-1): the faces' diagonal */
+        const int di = e < 2 ? (e == 0 ? 1 : -1) : e < 4 ? 0 : (e == 4 ? 1 : -1);
+        const int dj = e < 2 ? 0 : e < 4 ? (e == 2 ? 1 : -1) : (e == 4 ? 1 : -1);
+        if (i + di < 0 || i + di >= nx || j + dj < 0 || j + dj >= ny) continue;
+        const int32_t o = v + dj * nx + di;
+        const float l = cs_len(cs_sub(cs_v3(x[o], y[o], z[o]), xv));
+        ring = l > ring ? l : ring;
+    }
+    const float gain = cs_len(p->gravity) * h, sv = cs_len(uv);
     float most = 0.0f;
     for (int32_t r = 0; r < nr; r++) {
-        const float v = cs_len(rocks[r].v) + (rocks[r].kinematic ? 0.0f : gain);
-        most = v > most ? v : most;
+        const cs_rock_state *q = &rocks[r];
+        const float reach = q->radius + p->contact_offset + ring + (cs_len(q->v) + sv + 2.0f * gain) * h;
+        if (!(cs_len(cs_sub(q->x, xv)) < reach)) continue;
+        const float c = cs_len(cs_sub(uv, q->v)) + gain;
+        most = c > most ? c : most;
     }
-    if (!nr) return most;
-    const float c = sqrtf(vv) + gain;
-    return c > most ? c : most;
+    return most;
 }
 
 /* ---- a vertex's residual and diagonal ---- */
