@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs every test: installs what is missing, builds, then ctest (unit, physics, server and viewer
 # tests); then the same suite again on a build with AddressSanitizer and UndefinedBehaviorSanitizer
-# (build-asan), where any report fails the test that saw it; then each fuzz target for 30 s
+# (build-asan), where any report fails the test that saw it; then each fuzz target for 20 s
 # (scripts/fuzz.sh; CLOTHD_FUZZ_SECONDS to change it). CLOTHD_TEST_QUICK=1 stops after the first
 # ctest, for quick runs while working: CI runs everything.
 set -euo pipefail
@@ -29,5 +29,5 @@ export UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1"
 (cd "$root/build-asan" && ctest --output-on-failure -j "$jobs")
 unset ASAN_OPTIONS UBSAN_OPTIONS
 
-echo "test: fuzz targets, ${CLOTHD_FUZZ_SECONDS:-30} s each (build-fuzz)" >&2
-"$root/scripts/fuzz.sh" "${CLOTHD_FUZZ_SECONDS:-30}"
+echo "test: fuzz targets, ${CLOTHD_FUZZ_SECONDS:-20} s each (build-fuzz)" >&2
+"$root/scripts/fuzz.sh" "${CLOTHD_FUZZ_SECONDS:-20}"
