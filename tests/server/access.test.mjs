@@ -1,4 +1,4 @@
-// access.test.mjs - who may use clothd (SECURITY.md "Access"): loopback without a token by
+// access.test.mjs - who may use clothd (docs/security.md "Access"): loopback without a token by
 // default, no other address without a token unless --insecure; the control and view tokens on
 // every API route and on the stream (query parameter or subprotocol); the Host header (DNS
 // rebinding) and the Origin of stream connections.

@@ -1,4 +1,4 @@
-// crosssite.test.mjs - a page of another origin cannot change anything (SECURITY.md "Access",
+// crosssite.test.mjs - a page of another origin cannot change anything (docs/security.md "Access",
 // the cross-site rule of PROTOCOL.md), tried with the headers a browser sends: Origin (another site, another
 // port of this machine, `null`) and Sec-Fetch-Site. The viewer's own origin, clients that send
 // neither header (curl) and origins of allowed_origins may; reads stay open, without

@@ -1,4 +1,4 @@
-// limits.test.mjs - every limit of SECURITY.md "Limits" hit by a test: connections (in all, per
+// limits.test.mjs - every limit of docs/security.md "Limits" hit by a test: connections (in all, per
 // address, idle time), changing requests per second (429 with Retry-After), rocks, the memory a
 // scene or a snapshot would take, stream clients. A refused request changes nothing (the state
 // hash of a paused daemon stays). Bodies over max_body, oversized stream messages and stalled

@@ -1,4 +1,4 @@
-// memory.test.mjs - memory is bounded in bytes, not in counts (SECURITY.md "Limits"): the journal
+// memory.test.mjs - memory is bounded in bytes, not in counts (docs/security.md "Limits"): the journal
 // keeps journal_max_mb of entries (then starts afresh from a new base snapshot, as at
 // journal_max) and the stream's event ring stream_events_mb of events, so accepted commands of
 // 1 MiB each do not pile up; and max_state_mb counts what a scene really costs (its state twice,

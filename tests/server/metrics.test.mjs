@@ -1,4 +1,4 @@
-// metrics.test.mjs - /metrics stays well-formed and bounded whatever clients send (SECURITY.md
+// metrics.test.mjs - /metrics stays well-formed and bounded whatever clients send (docs/security.md
 // "Limits"): label values come from closed sets (methods HTTP defines, else "other"; routes from
 // the route table) and are escaped as the text format asks; Prometheus' own promtool checks a
 // scrape taken after hostile traffic (skipped, saying so, only where promtool is missing:

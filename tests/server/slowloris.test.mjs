@@ -1,4 +1,4 @@
-// slowloris.test.mjs - clients that send slowly cannot hold the HTTP server (SECURITY.md "Limits"):
+// slowloris.test.mjs - clients that send slowly cannot hold the HTTP server (docs/security.md "Limits"):
 // a request's head must arrive within header_timeout whatever its pace (connection_timeout counts
 // idle gaps only, which a byte every half second never leaves), a body must keep min_body_rate,
 // and when max_connections are taken by connections that wait, a new client from another address

@@ -1,6 +1,6 @@
 // soak.mjs - load, slow clients and hostile input at once against one real clothd (loopback only,
 // bounded in time and count; everything stops by itself). Used by scripts/soak.mjs (the long run,
-// figures in SECURITY.md) and tests/server/soak.test.mjs (the short run in ctest).
+// figures in docs/performance.md) and tests/server/soak.test.mjs (the short run in ctest).
 //
 // Two phases over one daemon (CPU backend, a control token set):
 //  1. running, `seconds` long: wrk reads the API (GET /v1/sim, /v1/params, /v1/rocks, /metrics,

@@ -1,4 +1,4 @@
-// source.test.mjs - promises of SECURITY.md that are about the source itself.
+// source.test.mjs - promises of docs/security.md that are about the source itself.
 //
 // CVE-2025-11677: libwebsockets up to 4.3.x (Debian 12 ships 4.1.6) frees memory that a callback
 // handling LWS_CALLBACK_HTTP_CONFIRM_UPGRADE may still read through `in`. clothd never handles

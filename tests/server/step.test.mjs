@@ -1,4 +1,4 @@
-// step.test.mjs - nothing keeps the sim thread from its queue for long (SECURITY.md "Limits"): a
+// step.test.mjs - nothing keeps the sim thread from its queue for long (docs/security.md "Limits"): a
 // POST /v1/sim/step of up to 100000 frames runs in slices, between which reads are answered and
 // progress is published; a pause, DELETE /v1/sim/step, another step or a changing command ends
 // it, and its answer says how far it got; SIGTERM saves the state file within 2 s whatever is
