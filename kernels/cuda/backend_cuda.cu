@@ -1443,12 +1443,12 @@ static void rocks(const cuda_ctx *c, int mode, int pos, int rest)
  * the CPU does. A copy back and a wait per dot product: simple, not fast.
  *
  * Rocks (implicit.h, "rock contact" and "the rock steps of a part"): with rocks, each substep
- * first asks how many parts it takes (k_im_fastest_chunks, k_im_fastest: the fastest closing speed
- * of cs_im_closing copied back for cs_im_splits); each part advances the rocks without the cloth and shares their mass
- * (k_im_rocks_begin) before the solve, whose assembly adds the carried term (cs_im_carried_at),
- * and pushes rocks and cloth apart after it (k_im_rocks_push, then k_im_push_velocity a thread a
- * vertex). The rock steps are serial by design (a fixed order, as the CPU backend runs them): each
- * is a kernel of one thread over the grid (cs_im_rocks_advance, _share, _push of implicit.h, the
+ * first asks how many parts it takes (k_im_fastest_chunks, k_im_fastest: the fastest closing
+ * speed of cs_im_closing copied back for cs_im_splits); each part advances the rocks without the
+ * cloth and shares their mass (k_im_rocks_begin) before the solve, whose assembly adds the carried
+ * term (cs_im_carried_at), and after it pushes rocks and cloth apart, stops their approach and
+ * applies friction (k_im_rocks_push). The rock steps are serial by design (a fixed order, as the
+ * CPU backend runs them): each is a kernel of one thread over the grid (cs_im_rocks_advance, _share, _push of implicit.h, the
  * code the CPU backend runs), the rocks and the workspace staying on the device. One thread
  * scanning the grid is slow on a large cloth; it is what keeps the bits for now. */
 
@@ -1655,12 +1655,6 @@ __global__ void k_im_rocks_push(const cuda_scene *__restrict__ sc, cs_im_rocks R
     cs_im_rocks_push(&sc->p, &R, h);
 }
 
-/* ... and then each vertex's velocity (x - x_n)/h (cs_im_push_velocity), a thread a vertex. */
-__global__ void k_im_push_velocity(cs_im_rocks R, float inv_h, int32_t n)
-{
-    const int32_t v = im_vertex();
-    if (v < n) cs_im_push_velocity(&R, v, inv_h);
-}
 
 /* What an assembly writes (device pointers), and the rocks' carried mass it adds (rocks: 1). */
 struct im_asm {
@@ -2140,10 +2134,9 @@ static cs_status im_part(cuda_ctx *c, const cs_phys *p0, float h, cs_solver_stat
     stats->residual = rel > stats->residual ? rel : stats->residual;
     stats->substeps++;
     if (rocks) {
-        /* the rocks follow their vertices, rocks and cloth pushed apart, the velocities again */
-        const cs_im_rocks R = im_rocks(c, S, L0);
-        k_im_rocks_push<<<1, 1, 0, c->stream>>>(w->sc, R, h);
-        k_im_push_velocity<<<nb, IM_THREADS, 0, c->stream>>>(R, inv_h, n);
+        /* the rocks follow their vertices, rocks and cloth pushed apart, the approach stopped,
+         * friction */
+        k_im_rocks_push<<<1, 1, 0, c->stream>>>(w->sc, im_rocks(c, S, L0), h);
     }
     k_im_accel<<<nb, IM_THREADS, 0, c->stream>>>(S, w->base, w->lv[0].mask, c->vb.acc, inv_h, n);
     c->cur ^= 1;
@@ -2775,14 +2768,17 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     IM_ROW("k_im_keep, k_im_move (the line search)", 12.0 + 12.0 + 12.0 + 12.0 + 4.0, 12.0 + 24.0, N, 2.0);
     if (n_rocks > 0) {
         /* With rocks (nominally one part a substep; contact cuts substeps into more): the
-         * substep's speed (velocities; the rocks), and a part's rock steps - the one-thread
-         * kernels scan the cloth twice for each rock (positions and, surface model, rest lengths:
-         * about 28 bytes a vertex), read the rock carried (4) and write it with the mass and
-         * normal (20); then the velocities again (positions, start, mask read; 12 written) */
+         * substep's closing speed (positions and velocities; the rocks), and a part's rock steps -
+         * the one-thread kernels scan the cloth twice for each rock for its candidates (positions
+         * and, surface model, rest lengths: about 28 bytes a vertex) and twice for its friction
+         * (positions, start, velocities, the carried rock, mass and normal, what the push moved:
+         * about 60 bytes a vertex, the push's mark cleared: 4), read the rock carried (4) and
+         * write it with the mass and normal (20) */
         const double rock = (double)sizeof(cs_rock_state) * n_rocks;
-        cs_cost_add(out, "k_im_fastest_chunks, k_im_fastest (a substep's parts)", 12.0, 0.0, rock, 1.0, 2.0 * F);
-        cs_cost_add(out, "k_im_rocks_begin, k_im_rocks_push (one thread), k_im_push_velocity",
-                    2.0 * n_rocks * 28.0 + 4.0 + 24.0 + 4.0, 20.0 + 12.0, 3.0 * rock, 1.0, 3.0 * F);
+        cs_cost_add(out, "k_im_fastest_chunks, k_im_fastest (a substep's parts)", 24.0, 0.0, rock, 1.0, 2.0 * F);
+        cs_cost_add(out, "k_im_rocks_begin, k_im_rocks_push (one thread)",
+                    n_rocks * (2.0 * 28.0 + 2.0 * 60.0) + 4.0 + 24.0 + 4.0, 20.0 + 4.0 * n_rocks, 3.0 * rock, 1.0,
+                    2.0 * F);
     }
     IM_ROW("k_im_accel", 24.0 + 4.0, 12.0, 1.0, 1.0);
     if (strain) IM_ROW("k_strain", 12.0 + 24.0 + 1.0, 0.0, 1.0, 1.0);

@@ -486,15 +486,11 @@ static cs_im_rocks rock_view(cs_state *s, cs_im_work *w)
     return R;
 }
 
-/* Step 3 of a part: the rocks follow what their vertices carried and rocks and cloth are pushed
- * apart (cs_im_rocks_push, one thread), then each vertex's velocity (x - x_n)/h. */
-static void rocks_push(const cs_phys *p, const cs_im_rocks *rv, float h, int threads)
+/* Step 3 of a part: the rocks follow what their vertices carried, rocks and cloth are pushed
+ * apart, the approach is stopped and friction acts (cs_im_rocks_push, one thread). */
+static void rocks_push(const cs_phys *p, const cs_im_rocks *rv, float h)
 {
-    if (!rv->nr) return;
-    cs_im_rocks_push(p, rv, h);
-    const float inv_h = 1.0f / h;
-#pragma omp parallel for num_threads(threads) schedule(static)
-    for (int32_t v = 0; v < p->n; v++) cs_im_push_velocity(rv, v, inv_h);
+    if (rv->nr) cs_im_rocks_push(p, rv, h);
 }
 
 /* One part of a substep, of length h (the sequence at the top). */
@@ -560,7 +556,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
     const float rel = r0 > 0.0f ? r / r0 : 0.0f;
     st->residual = rel > st->residual ? rel : st->residual;
     st->substeps++;
-    rocks_push(p, &rv, h, threads);
+    rocks_push(p, &rv, h);
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t v = 0; v < n; v++) {
         s->ax[v] = (s->vx[v] - w->vxb[v]) * inv_h * s->w[v];

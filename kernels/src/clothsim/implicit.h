@@ -177,13 +177,18 @@ SIM_HD static inline cs_mat3 cs_im_ground_block(cs_vec3 xi, cs_vec3 vi, const cs
  * R + contact_offset: the point p of a triangle closest to the centre c, with barycentric weights
  * b, and the centre move along n = (p - c)/|p - c| in inverse proportion to their masses - dx_k
  * = b_k w_k lambda n, dc = -w_r lambda n, lambda = (R + offset - |p - c|) / (w_r + sum b_k^2
- * w_k) - which conserves momentum, and what each moved is added to its velocity (dx / h).
- * CS_IM_PUSH_SWEEPS sweeps over each rock's triangles in grid order. Then Coulomb friction, once
- * per rock (cs_im_rock_friction): the rock's contact point (its surface toward the cloth, spin
- * included) and the patch of cloth pressing on it (each vertex weighted by the normal impulse it
- * gave: carried and pushed) are brought to the same tangential move over the part, by an impulse
- * shared in inverse proportion to their masses, at most mu times the rock's normal impulse. */
+ * w_k), CS_IM_PUSH_SWEEPS sweeps over each rock's triangles in grid order. The push moves
+ * positions only: a correction turned into velocity (dx / h) made the cloth around a stone
+ * jitter at metres a second. The velocities meet the contact inelastically instead: each
+ * contact's approach along its normal is stopped by an impulse shared the same way
+ * (cs_im_stop_tri, CS_IM_STOP_SWEEPS sweeps), so momentum is kept and no energy is added. Then
+ * Coulomb friction, once per rock (cs_im_rock_friction): the rock's contact point (its surface
+ * toward the cloth, spin included) and the patch of cloth pressing on it (each vertex weighted by
+ * the normal impulse it gave: carried and stopped) are brought to the same tangential
+ * velocity by an impulse shared in inverse proportion to their masses, at most mu times the
+ * rock's normal impulse. */
 #define CS_IM_PUSH_SWEEPS 4
+#define CS_IM_STOP_SWEEPS 2
 
 /* Triangle x[3] against a rock centred at c: the barycentric weights b of its point closest to c,
  * and the normal n from c to it, when that point lies within reach; 0 when not. */
@@ -231,13 +236,13 @@ SIM_HD static inline cs_vec3 cs_im_carried(cs_vec3 n, float m, cs_vec3 d, float 
  * cloth's solve: cs_im_rocks_advance (the rocks over the part without the cloth), cs_im_rocks_share
  * (the mass each dynamic rock lends the vertices that may touch it), and after the solve
  * cs_im_rocks_push (the rocks follow what their vertices carried, then rocks and cloth are pushed
- * apart) and cs_im_push_velocity for every vertex. The first three are serial by design: one
+ * apart, the approach stopped, friction). The three are serial by design: one
  * thread runs each in a fixed order (they touch only the few triangles near each rock after one
  * scan of the grid), so every backend gets the same bits. In the solve, cs_im_carried_at is a
  * vertex's carried term. A backend hands them its arrays in a cs_im_rocks. */
 typedef struct cs_im_rocks {
     float *x, *y, *z;          /* the cloth's positions: the part's start (share), the iterate (push) */
-    float *vx, *vy, *vz;       /* its velocities (cs_im_push_velocity) */
+    float *vx, *vy, *vz;       /* its velocities: the iterate's (x - x_n)/h (push) */
     const float *xb, *yb, *zb; /* the part's start x_n (the carried term, push) */
     const float *w;            /* per vertex: 0 out of the solve (pinned, grabbed) */
     const float *L0;           /* rest lengths, type-major (which triangles are intact) */
@@ -249,7 +254,7 @@ typedef struct cs_im_rocks {
     int32_t *cand;             /* 2 n: a rock's triangles (2 quad + face) or vertices near it */
     int32_t *sr;               /* per vertex: the rock whose mass it carries (-1 none) */
     float *sh, *sn;            /* per vertex: the mass it carries, its normal (3 n) */
-    float *sg;                 /* per vertex, 0 outside cs_im_rocks_push: what the rock pushed it */
+    float *sg;                 /* per vertex, 0 outside cs_im_rocks_push: the stop's impulse times h */
 } cs_im_rocks;
 
 SIM_HD static inline cs_vec3 cs_im_rock_x(const cs_im_rocks *R, int32_t v) { return cs_v3(R->x[v], R->y[v], R->z[v]); }
@@ -405,8 +410,8 @@ SIM_HD static inline int cs_im_carried_at(const cs_im_rocks *R, int32_t v, cs_ve
 }
 
 /* Vertex v's normal weight against rock r after the push (in kg m: its normal impulse over the part
- * times h): what the rock pushed it (sg), plus, when it carries r, its carried mass times how far
- * it moved toward the rock's path (sh max(0, -n . d)). */
+ * times h): the impulse that stopped its approach times h (sg), plus, when it carries r, its
+ * carried mass times how far it moved toward the rock's path (sh max(0, -n . d)). */
 SIM_HD static inline float cs_im_pressed(const cs_im_rocks *R, int32_t r, int32_t v)
 {
     float c = R->sg[v];
@@ -417,58 +422,83 @@ SIM_HD static inline float cs_im_pressed(const cs_im_rocks *R, int32_t r, int32_
     return c;
 }
 
-/* Coulomb friction between rock r and the cloth over a part h (after the push; P the rock's normal
- * impulse times h, carried and pushed, away from the cloth): the patch's move D, the mean of its
- * vertices' moves weighted by cs_im_pressed, and the rock's contact point's move (centre plus
- * spin at the arm a = -R P/|P|) are brought to the same tangential move u_t by J = -u_t /
- * (1/M + R^2/I + sum beta_v^2 / m_v) (beta_v the weights normalised), at most mu |P|: the rock
- * gains J (and a x J of spin), the vertices -beta_v J, so momentum is kept and the spin's change
- * matches the torque at the contact; sticks within the cone, slides at mu beyond it. Clears sg. */
+/* Coulomb friction between rock r and the cloth at the end of a part h (after the push; P the
+ * rock's normal impulse times h, carried and stopped, away from the cloth): the patch's velocity V,
+ * the mean of its vertices' weighted by cs_im_pressed, and the velocity of the rock's contact point
+ * (centre plus spin at the arm a = -R P/|P|) are brought to the same tangential velocity by the
+ * impulse J = -u_t / (1/M + R^2/I + sum beta_v^2 / m_v) (beta_v the weights normalised), at most
+ * mu |P| / h: the rock gains J (and a x J of spin), the vertices -beta_v J, each moving by its
+ * change of velocity times h, so momentum is kept and the spin's change matches the torque at the
+ * contact; sticks within the cone, slides at mu beyond it. Clears sg. */
 SIM_HD static inline void cs_im_rock_friction(const cs_phys *p, const cs_im_rocks *R, int32_t r, float h, cs_vec3 P)
 {
     const int32_t n = p->n;
     cs_rock_state *q = &R->rocks[r];
     const float pn = cs_len(P);
     float B = 0.0f, W2 = 0.0f;
-    cs_vec3 D = cs_v3(0.0f, 0.0f, 0.0f);
+    cs_vec3 V = cs_v3(0.0f, 0.0f, 0.0f);
     for (int32_t v = 0; v < n; v++) {
         const float c = cs_im_pressed(R, r, v);
         if (!(c > 0.0f)) continue;
         B += c;
-        D = cs_add(D, cs_scale(cs_sub(cs_im_rock_x(R, v), cs_im_rock_xb(R, v)), c));
+        V = cs_add(V, cs_scale(cs_v3(R->vx[v], R->vy[v], R->vz[v]), c));
         W2 += c * c * p->inv_mass * R->w[v];
     }
     cs_vec3 J = cs_v3(0.0f, 0.0f, 0.0f);
     if (B > 0.0f && pn > 0.0f && p->mu > 0.0f) {
         const cs_vec3 nb = cs_scale(P, 1.0f / pn), a = cs_scale(nb, -q->radius);
-        D = cs_scale(D, 1.0f / B);
-        const cs_vec3 dr = cs_add(cs_sub(q->x, R->rx0[r]), cs_scale(cs_cross(q->w, a), h));
-        const cs_vec3 u = cs_sub(dr, D), ut = cs_sub(u, cs_scale(nb, cs_dot(nb, u)));
+        V = cs_scale(V, 1.0f / B);
+        const cs_vec3 u = cs_sub(cs_add(q->v, cs_cross(q->w, a)), V), ut = cs_sub(u, cs_scale(nb, cs_dot(nb, u)));
         const float W = q->inv_mass + q->radius * q->radius * q->inv_inertia + W2 / (B * B);
         if (W > 0.0f) {
             J = cs_scale(ut, -1.0f / W);
-            const float j = cs_len(J), cap = p->mu * pn;
+            const float j = cs_len(J), cap = p->mu * pn / h;
             if (j > cap) J = cs_scale(J, cap / j);
         }
-        q->x = cs_add(q->x, cs_scale(J, q->inv_mass));
-        q->v = cs_add(q->v, cs_scale(J, q->inv_mass / h));
-        q->w = cs_add(q->w, cs_scale(cs_cross(a, J), q->inv_inertia / h));
+        q->v = cs_add(q->v, cs_scale(J, q->inv_mass));
+        q->x = cs_add(q->x, cs_scale(J, q->inv_mass * h));
+        q->w = cs_add(q->w, cs_scale(cs_cross(a, J), q->inv_inertia));
     }
     for (int32_t v = 0; v < n; v++) {
         const float c = cs_im_pressed(R, r, v);
         R->sg[v] = 0.0f;
         if (!(c > 0.0f)) continue;
-        const cs_vec3 y = cs_sub(cs_im_rock_x(R, v), cs_scale(J, c / B * p->inv_mass * R->w[v]));
-        R->x[v] = y.x, R->y[v] = y.y, R->z[v] = y.z;
+        const cs_vec3 dv = cs_scale(J, -c / B * p->inv_mass * R->w[v]);
+        R->vx[v] += dv.x, R->vy[v] += dv.y, R->vz[v] += dv.z;
+        R->x[v] += dv.x * h, R->y[v] += dv.y * h, R->z[v] += dv.z * h;
     }
+}
+
+/* Triangle x[3] (velocities u[3], inverse masses wv) in contact with rock q centred at c, at the
+ * contact sphere Rc (within a float's slack of it: after the push): the inelastic impulse along
+ * the normal n (centre to cloth) that stops the triangle's closest point approaching the rock's
+ * surface, into du[3] and the rock's dv (the caller applies them), b its barycentric weights;
+ * returns the impulse, 0 when apart or separating. */
+SIM_HD static inline float cs_im_stop_tri(const cs_vec3 x[3], const cs_vec3 u[3], const float wv[3],
+                                          const cs_rock_state *q, cs_vec3 c, float Rc, cs_vec3 du[3], cs_vec3 *dv,
+                                          float b[3], cs_vec3 *nout)
+{
+    cs_vec3 n;
+    if (!cs_im_share_tri(x, c, Rc * 1.0001f + 1e-6f, b, &n)) return 0.0f;
+    const cs_vec3 up = cs_add(cs_add(cs_scale(u[0], b[0]), cs_scale(u[1], b[1])), cs_scale(u[2], b[2]));
+    const cs_vec3 us = cs_add(q->v, cs_cross(q->w, cs_scale(n, q->radius)));
+    const float vn = cs_dot(cs_sub(up, us), n);
+    const float W = q->inv_mass + b[0] * b[0] * wv[0] + b[1] * b[1] * wv[1] + b[2] * b[2] * wv[2];
+    if (!(vn < 0.0f) || !(W > 0.0f)) return 0.0f;
+    const float lambda = -vn / W;
+    for (int k = 0; k < 3; k++) du[k] = cs_scale(n, b[k] * wv[k] * lambda);
+    *dv = cs_scale(n, -q->inv_mass * lambda);
+    *nout = n;
+    return lambda;
 }
 
 /* Step 3 of a part, after the solve (R->x the iterate): the rocks follow what their vertices
  * carried in it (each dynamic rock moved by the mass-weighted mean of its vertices' normal moves
  * beyond its own path: the momentum the carrying took from the cloth), then the rocks and the
- * cloth pushed apart (cs_im_push_tri): rock by rock, its candidates swept CS_IM_PUSH_SWEEPS times;
- * each rock's v += (what it moved)/h, a = its change of velocity over the part / h. The moved
- * vertices' velocities follow from cs_im_push_velocity, vertex by vertex, after. */
+ * cloth pushed apart (cs_im_push_tri, positions only), rock by rock, its candidates swept
+ * CS_IM_PUSH_SWEEPS times; then the approach along each contact stopped (cs_im_stop_tri, the
+ * velocities only) and friction (cs_im_rock_friction); a = the rock's change of velocity over the
+ * part / h. R->v* must hold the iterate's velocities (x - x_n)/h on entry. */
 SIM_HD static inline void cs_im_rocks_push(const cs_phys *p, const cs_im_rocks *R, float h)
 {
     const int32_t nr = R->nr, n = p->n;
@@ -494,6 +524,7 @@ SIM_HD static inline void cs_im_rocks_push(const cs_phys *p, const cs_im_rocks *
     for (int32_t r = 0; r < nr; r++) {
         cs_rock_state *q = &R->rocks[r];
         const cs_vec3 c0 = q->x;
+        const float Rc = q->radius + p->contact_offset;
         const int32_t nc = cs_im_rock_candidates(p, R, c0, cs_surface_lim(q, p));
         /* what the rock moves, summed apart from its position: a heavy rock's share of one push
          * can be below the float spacing of its coordinates */
@@ -508,42 +539,53 @@ SIM_HD static inline void cs_im_rocks_push(const cs_phys *p, const cs_im_rocks *
                     x[e] = cs_im_rock_x(R, t[e]);
                     wv[e] = surface || e == 0 ? p->inv_mass * R->w[t[e]] : 0.0f;
                 }
-                const float lambda = cs_im_push_tri(x, wv, cs_add(c0, moved), q->inv_mass, q->radius + p->contact_offset,
-                                                    dx, &dc, b, &nk);
+                const float lambda = cs_im_push_tri(x, wv, cs_add(c0, moved), q->inv_mass, Rc, dx, &dc, b, &nk);
                 if (lambda == 0.0f) continue;
                 for (int e = 0; e < (surface ? 3 : 1); e++) {
                     const cs_vec3 y = cs_add(x[e], dx[e]);
                     R->x[t[e]] = y.x, R->y[t[e]] = y.y, R->z[t[e]] = y.z;
-                    R->sg[t[e]] += (surface ? b[e] : 1.0f) * lambda;
                 }
                 moved = cs_add(moved, dc);
-                P = cs_sub(P, cs_scale(nk, lambda));
             }
         q->x = cs_add(c0, moved);
-        q->v = cs_add(q->v, cs_scale(moved, inv_h));
+        /* the velocities: each contact's approach along its normal stopped (inelastic), sweep by
+         * sweep in the same order; the positions stay where the push left them */
+        for (int sweep = 0; sweep < CS_IM_STOP_SWEEPS && nc; sweep++)
+            for (int32_t k = 0; k < nc; k++) {
+                int32_t t[3];
+                cs_im_cand_vertices(p, R, k, t);
+                cs_vec3 x[3], u[3], du[3], dv, nk;
+                float wv[3], b[3];
+                for (int e = 0; e < 3; e++) {
+                    x[e] = cs_im_rock_x(R, t[e]);
+                    u[e] = cs_v3(R->vx[t[e]], R->vy[t[e]], R->vz[t[e]]);
+                    wv[e] = surface || e == 0 ? p->inv_mass * R->w[t[e]] : 0.0f;
+                }
+                const float lambda = cs_im_stop_tri(x, u, wv, q, q->x, Rc, du, &dv, b, &nk);
+                if (lambda == 0.0f) continue;
+                for (int e = 0; e < (surface ? 3 : 1); e++) {
+                    R->vx[t[e]] += du[e].x, R->vy[t[e]] += du[e].y, R->vz[t[e]] += du[e].z;
+                    R->sg[t[e]] += (surface ? b[e] : 1.0f) * lambda * h;
+                }
+                q->v = cs_add(q->v, dv);
+                P = cs_sub(P, cs_scale(nk, lambda * h));
+            }
         cs_im_rock_friction(p, R, r, h, P);
         q->a = cs_scale(cs_sub(q->v, R->star[r].v), inv_h); /* the cloth's, as the state reports it */
         q->alpha = cs_v3(0.0f, 0.0f, 0.0f);
     }
 }
 
-/* After cs_im_rocks_push (with rocks): vertex v's velocity (x - x_n)/h, inv_h = 1/h (a vertex in
- * the solve; the others keep theirs). */
-SIM_HD static inline void cs_im_push_velocity(const cs_im_rocks *R, int32_t v, float inv_h)
-{
-    if (R->w[v] == 0.0f) return;
-    R->vx[v] = (R->x[v] - R->xb[v]) * inv_h;
-    R->vy[v] = (R->y[v] - R->yb[v]) * inv_h;
-    R->vz[v] = (R->z[v] - R->zb[v]) * inv_h;
-}
-
 /* How fast cloth vertex v may close on a rock over a substep h (for the parts of a substep,
- * cs_im_splits): the largest |v_v - v_r| + gain (gravity's |g| h) over the rocks that it, or a
- * triangle it belongs to, may reach within the substep - those whose centre lies within
- * R + contact_offset + ring + (|v_r| + |v_v| + 2 gain) h, ring the longest distance from v to its
- * six render neighbours (a triangle's closest point lies within its longest edge of each of its
- * vertices); 0 when no rock is that near, so a fast cloth far from every rock, or a rock falling
- * through the air, costs no parts. x..vz: the state's arrays (a NaN is never taken). */
+ * cs_im_splits), over the rocks that it, or a triangle it belongs to, may reach within the
+ * substep - those whose centre lies within R + contact_offset + ring + (|v_r| + |v_v| + 2 gain) h,
+ * ring the longest distance from v to its six render neighbours (a triangle's closest point lies
+ * within its longest edge of each of its vertices), gain gravity's |g| h: the largest speed of
+ * the vertex relative to the rock across the cloth's surface there (|(v_v - v_r) . n| over the
+ * normals n of its six triangles; surface model) or toward the rock's centre (vertex model), plus
+ * gain. Motion along the surface cannot carry a rock through it; 0 when no rock is that near, so a
+ * fast cloth far from every rock, or a rock falling through the air, costs no parts. x..vz: the
+ * state's arrays (a NaN is never taken). */
 SIM_HD static inline float cs_im_closing(const cs_phys *p, const cs_rock_state *rocks, int32_t nr, const float *x,
                                          const float *y, const float *z, const float *vx, const float *vy,
                                          const float *vz, int32_t v, float h)
@@ -551,22 +593,45 @@ SIM_HD static inline float cs_im_closing(const cs_phys *p, const cs_rock_state *
     if (!nr) return 0.0f;
     const int32_t nx = p->nx, ny = p->ny, i = v % nx, j = v / nx;
     const cs_vec3 xv = cs_v3(x[v], y[v], z[v]), uv = cs_v3(vx[v], vy[v], vz[v]);
+    /* the ring in turning order: (1,0) (1,1) (0,1) (-1,0) (-1,-1) (0,-1); consecutive pairs and v
+     * are the render triangles about v */
+    cs_vec3 e[6];
+    int has[6];
     float ring = 0.0f;
-    for (int e = 0; e < 6; e++) { /* (1,0) (-1,0) (0,1) (0,-1) (1,1) (-1,-1): the faces' diagonal */
-        const int di = e < 2 ? (e == 0 ? 1 : -1) : e < 4 ? 0 : (e == 4 ? 1 : -1);
-        const int dj = e < 2 ? 0 : e < 4 ? (e == 2 ? 1 : -1) : (e == 4 ? 1 : -1);
-        if (i + di < 0 || i + di >= nx || j + dj < 0 || j + dj >= ny) continue;
+    for (int k = 0; k < 6; k++) {
+        const int di = k == 0 || k == 1 ? 1 : k == 3 || k == 4 ? -1 : 0;
+        const int dj = k == 1 || k == 2 ? 1 : k == 4 || k == 5 ? -1 : 0;
+        has[k] = !(i + di < 0 || i + di >= nx || j + dj < 0 || j + dj >= ny);
+        e[k] = cs_v3(0.0f, 0.0f, 0.0f);
+        if (!has[k]) continue;
         const int32_t o = v + dj * nx + di;
-        const float l = cs_len(cs_sub(cs_v3(x[o], y[o], z[o]), xv));
+        e[k] = cs_sub(cs_v3(x[o], y[o], z[o]), xv);
+        const float l = cs_len(e[k]);
         ring = l > ring ? l : ring;
     }
     const float gain = cs_len(p->gravity) * h, sv = cs_len(uv);
+    const int surface = p->contact_model == CS_CONTACT_SURFACE;
     float most = 0.0f;
     for (int32_t r = 0; r < nr; r++) {
         const cs_rock_state *q = &rocks[r];
+        const cs_vec3 to = cs_sub(q->x, xv), rel = cs_sub(uv, q->v);
+        const float dist = cs_len(to);
         const float reach = q->radius + p->contact_offset + ring + (cs_len(q->v) + sv + 2.0f * gain) * h;
-        if (!(cs_len(cs_sub(q->x, xv)) < reach)) continue;
-        const float c = cs_len(cs_sub(uv, q->v)) + gain;
+        if (!(dist < reach)) continue;
+        float c = 0.0f;
+        if (surface) {
+            for (int k = 0; k < 6; k++) {
+                if (!has[k] || !has[(k + 1) % 6]) continue;
+                const cs_vec3 f = cs_cross(e[k], e[(k + 1) % 6]);
+                const float fl = cs_len(f);
+                const float s = fl > 0.0f ? fabsf(cs_dot(rel, f)) / fl : cs_len(rel);
+                c = s > c ? s : c;
+            }
+        } else {
+            const float s = dist > 0.0f ? cs_dot(rel, to) / dist : cs_len(rel);
+            c = s > 0.0f ? s : 0.0f;
+        }
+        c += gain;
         most = c > most ? c : most;
     }
     return most;
