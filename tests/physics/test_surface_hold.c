@@ -48,18 +48,25 @@ typedef struct drop_result {
     double z_end, under_end;
 } drop_result;
 
+/* The case's cloth (default material and contact, tearing off), without a rock yet. */
+static cs_sim *drop_cloth(const drop_case *c, cs_scene *sc, cs_params *p)
+{
+    cs_scene_default(sc);
+    cs_params_default(p);
+    if (c->integrator) p->integrator = c->integrator;
+    sc->nx = sc->ny = c->n;
+    sc->pins = c->pins;
+    assert_true(p->tear_strain == 0.0f && p->contact_model == CS_CONTACT_SURFACE);
+    cs_sim *sim = tk_sim(sc, p);
+    assert_int_equal(cs_sim_set_threads(sim, c->n >= 64 ? 2 : 1), CS_OK);
+    return sim;
+}
+
 static drop_result run_drop(const drop_case *c)
 {
     cs_scene sc;
     cs_params p;
-    cs_scene_default(&sc);
-    cs_params_default(&p);
-    if (c->integrator) p.integrator = c->integrator;
-    sc.nx = sc.ny = c->n;
-    sc.pins = c->pins;
-    assert_true(p.tear_strain == 0.0f && p.contact_model == CS_CONTACT_SURFACE);
-    cs_sim *sim = tk_sim(&sc, &p);
-    assert_int_equal(cs_sim_set_threads(sim, c->n >= 64 ? 2 : 1), CS_OK);
+    cs_sim *sim = drop_cloth(c, &sc, &p);
     cs_rock_def d;
     cs_rock_def_default(&d);
     d.radius = c->radius;
@@ -122,13 +129,7 @@ static double cloth_gain(const drop_case *c)
 {
     cs_scene sc;
     cs_params p;
-    cs_scene_default(&sc);
-    cs_params_default(&p);
-    if (c->integrator) p.integrator = c->integrator;
-    sc.nx = sc.ny = c->n;
-    sc.pins = c->pins;
-    cs_sim *sim = tk_sim(&sc, &p);
-    assert_int_equal(cs_sim_set_threads(sim, c->n >= 64 ? 2 : 1), CS_OK);
+    cs_sim *sim = drop_cloth(c, &sc, &p);
     cs_info info;
     cs_sim_info(sim, &info);
     cs_energy e;
