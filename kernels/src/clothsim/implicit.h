@@ -204,14 +204,13 @@ SIM_HD static inline int cs_im_share_tri(const cs_vec3 x[3], cs_vec3 c, float re
 }
 
 /* Triangle x[3] (inverse masses wv) against rock centre c (inverse mass wr) and sphere Rc: the
- * vertices' moves dx and the centre's dc (the caller applies them), the barycentric weights b and
- * the normal n (centre to cloth) of the closest point; returns lambda, 0 when apart. */
+ * vertices' moves dx and the centre's dc (the caller applies them); returns lambda, 0 when apart. */
 SIM_HD static inline float cs_im_push_tri(const cs_vec3 x[3], const float wv[3], cs_vec3 c, float wr, float Rc,
-                                          cs_vec3 dx[3], cs_vec3 *dc, float b[3], cs_vec3 *nout)
+                                          cs_vec3 dx[3], cs_vec3 *dc)
 {
+    float b[3];
     cs_vec3 n;
     if (!cs_im_share_tri(x, c, Rc, b, &n)) return 0.0f;
-    *nout = n;
     const cs_vec3 p = cs_add(cs_add(cs_scale(x[0], b[0]), cs_scale(x[1], b[1])), cs_scale(x[2], b[2]));
     const float W = wr + b[0] * b[0] * wv[0] + b[1] * b[1] * wv[1] + b[2] * b[2] * wv[2];
     if (!(W > 0.0f)) return 0.0f;
@@ -533,13 +532,13 @@ SIM_HD static inline void cs_im_rocks_push(const cs_phys *p, const cs_im_rocks *
             for (int32_t k = 0; k < nc; k++) {
                 int32_t t[3];
                 cs_im_cand_vertices(p, R, k, t);
-                cs_vec3 x[3], dx[3], dc, nk;
-                float wv[3], b[3];
+                cs_vec3 x[3], dx[3], dc;
+                float wv[3];
                 for (int e = 0; e < 3; e++) {
                     x[e] = cs_im_rock_x(R, t[e]);
                     wv[e] = surface || e == 0 ? p->inv_mass * R->w[t[e]] : 0.0f;
                 }
-                const float lambda = cs_im_push_tri(x, wv, cs_add(c0, moved), q->inv_mass, Rc, dx, &dc, b, &nk);
+                const float lambda = cs_im_push_tri(x, wv, cs_add(c0, moved), q->inv_mass, Rc, dx, &dc);
                 if (lambda == 0.0f) continue;
                 for (int e = 0; e < (surface ? 3 : 1); e++) {
                     const cs_vec3 y = cs_add(x[e], dx[e]);
