@@ -1443,8 +1443,8 @@ static void rocks(const cuda_ctx *c, int mode, int pos, int rest)
  * the CPU does. A copy back and a wait per dot product: simple, not fast.
  *
  * Rocks (implicit.h, "rock contact" and "the rock steps of a part"): with rocks, each substep
- * first asks how many parts it takes (k_im_fastest_chunks, k_im_fastest: the fastest closing
- * speed of cs_im_closing copied back for cs_im_splits); each part advances the rocks without the
+ * first asks how many parts it takes (k_im_fastest_chunks, k_im_fastest: the largest closing
+ * rate of cs_im_closing copied back for cs_im_splits); each part advances the rocks without the
  * cloth and shares their mass (k_im_rocks_begin) before the solve, whose assembly adds the carried
  * term (cs_im_carried_at), and after it pushes rocks and cloth apart, stops their approach and
  * applies friction (k_im_rocks_push). The rock steps are serial by design (a fixed order, as the
@@ -1629,7 +1629,7 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_fastest_chunks(const cuda_scene
     if (t == 0) part[c] = buf[0];
 }
 
-/* The chunks' largest closing speeds' maximum, into out[0]. One thread. */
+/* The chunks' largest closing rates' maximum, into out[0]. One thread. */
 __global__ void k_im_fastest(const float *part, int32_t nchunks, float *out)
 {
     float most = 0.0f;
@@ -2164,7 +2164,7 @@ static cs_status im_step(cuda_ctx *c, const cs_model *m, int32_t substeps, cs_st
     const int32_t nr = c->host_sc.nr;
     for (int32_t k = 0; k < substeps; k++) {
         /* fastest() of implicit_cpu.c: how fast the cloth closes on a rock near it (0 without rocks) */
-        float vmax = 0.0f;
+        float rate = 0.0f;
         if (nr > 0) {
             k_im_fastest_chunks<<<(unsigned)w->nchunks, CS_CHUNK, sizeof(float) * CS_CHUNK, c->stream>>>(
                 c->sc, c->rb.rocks, c->vb.state[c->cur], p->dt, w->part);
@@ -2172,9 +2172,9 @@ static cs_status im_step(cuda_ctx *c, const cs_model *m, int32_t substeps, cs_st
             CUDA_CHECK(cudaGetLastError());
             CUDA_CHECK(cudaMemcpyAsync(w->host_part, w->fast, sizeof(float), cudaMemcpyDeviceToHost, c->stream));
             CUDA_CHECK(cudaStreamSynchronize(c->stream));
-            vmax = w->host_part[0];
+            rate = w->host_part[0];
         }
-        const int32_t parts = cs_im_splits(vmax, p->dt, p->contact_offset, p->most_splits);
+        const int32_t parts = cs_im_splits(rate, p->dt, p->most_splits);
         const float h = p->dt / (float)parts;
         for (int32_t q = 0; q < parts; q++)
             if ((st = im_part(c, p, h, &stats)) != CS_OK) return st;
@@ -2768,7 +2768,7 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     IM_ROW("k_im_keep, k_im_move (the line search)", 12.0 + 12.0 + 12.0 + 12.0 + 4.0, 12.0 + 24.0, N, 2.0);
     if (n_rocks > 0) {
         /* With rocks (nominally one part a substep; contact cuts substeps into more): the
-         * substep's closing speed (positions and velocities; the rocks), and a part's rock steps -
+         * substep's closing rate (positions and velocities; the rocks), and a part's rock steps -
          * the one-thread kernels scan the cloth twice for each rock for its candidates (positions
          * and, surface model, rest lengths: about 28 bytes a vertex) and twice for its friction
          * (positions, start, velocities, the carried rock, mass and normal, what the push moved:

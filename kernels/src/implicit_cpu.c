@@ -3,7 +3,7 @@
  * "The implicit solver").
  *
  * A substep of length h (cut into equal parts while a cloth vertex near a rock would close on it
- * by more than the contact layer in it: cs_im_closing, cs_im_splits), each part:
+ * by more than cs_im_depth in one: cs_im_closing, cs_im_splits), each part:
  *   1. the rocks advanced without the cloth (cs_im_rocks_advance: sub-cycled to cs_phys.rock_dt
  *      under gravity, rock-rock and ground contact), and the mass each dynamic rock lends the
  *      vertices that may touch it in the part (cs_im_rocks_share; implicit.h, "rock contact" and
@@ -358,6 +358,9 @@ static void jacobi(const cs_im_level *L, float *x, const float *b, const float *
     }
 }
 
+/* The fewest vertices a level shares among threads. */
+#define PARALLEL_MIN 2048
+
 /* One V-cycle from level l: x = B b (x and b on that level; level 0's are the caller's). */
 static void vcycle(cs_im_work *w, const cs_state *s, int l, const float *b, float *x, int threads)
 {
@@ -366,6 +369,9 @@ static void vcycle(cs_im_work *w, const cs_state *s, int l, const float *b, floa
     float *t = lv->t;
     const int last = l + 1 == w->levels;
     const int sweeps = last ? CS_IM_COARSE_SWEEPS : CS_IM_SMOOTH;
+    /* a coarse level is less work than waking the threads: one thread (each vertex is computed on
+     * its own, so the result does not depend on it) */
+    threads = lv->n >= PARALLEL_MIN ? threads : 1;
     jacobi(&L, x, b, t, 1, threads);
     for (int k = 1; k < sweeps; k++) {
         apply(&L, x, t, 0, threads);
@@ -597,7 +603,7 @@ cs_status cs_im_step(cs_im_work **wp, const cs_model *m, cs_state *s, int32_t su
     cs_solver_stats st = {0, 0, 0, 0.0f, 0};
     int64_t t = 0;
     for (int32_t k = 0; k < substeps; k++) {
-        const int32_t parts = cs_im_splits(fastest(p, s, p->dt, threads), p->dt, p->contact_offset, p->most_splits);
+        const int32_t parts = cs_im_splits(fastest(p, s, p->dt, threads), p->dt, p->most_splits);
         const float h = p->dt / (float)parts;
         for (int32_t q = 0; q < parts; q++) t += part(p, w, s, h, threads, &st);
     }

@@ -575,8 +575,20 @@ SIM_HD static inline void cs_im_rocks_push(const cs_phys *p, const cs_im_rocks *
     }
 }
 
-/* How fast cloth vertex v may close on a rock over a substep h (for the parts of a substep,
- * cs_im_splits), over the rocks that it, or a triangle it belongs to, may reach within the
+/* How deep cloth may close on a rock of radius r within one part of a substep: the larger of the
+ * contact layer (contact_offset) and a quarter of the radius. Deeper than the layer the push after
+ * the solve, not the solve's contact, stops the cloth; it moves the cloth back out on the side it
+ * came from while the depth stays well under r (MODEL.md, "Parts"). Never 0 (r > 0). */
+#define CS_IM_DEPTH_OF_RADIUS 0.25f
+SIM_HD static inline float cs_im_depth(const cs_phys *p, float r)
+{
+    const float d = CS_IM_DEPTH_OF_RADIUS * r;
+    return p->contact_offset > d ? p->contact_offset : d;
+}
+
+/* How fast cloth vertex v may close on a rock over a substep h, as a rate: the closing speed over
+ * the depth it may close by in a part (cs_im_depth), 1/s (for the parts of a substep,
+ * cs_im_splits). Over the rocks that it, or a triangle it belongs to, may reach within the
  * substep - those whose centre lies within R + contact_offset + ring + (|v_r| + |v_v| + 2 gain) h,
  * ring the longest distance from v to its six render neighbours (a triangle's closest point lies
  * within its longest edge of each of its vertices), gain gravity's |g| h: the largest speed of
@@ -630,7 +642,7 @@ SIM_HD static inline float cs_im_closing(const cs_phys *p, const cs_rock_state *
             const float s = dist > 0.0f ? cs_dot(rel, to) / dist : cs_len(rel);
             c = s > 0.0f ? s : 0.0f;
         }
-        c += gain;
+        c = (c + gain) / cs_im_depth(p, q->radius);
         most = c > most ? c : most;
     }
     return most;
@@ -899,13 +911,11 @@ SIM_HD static inline float cs_im_reach(cs_vec3 x, float r)
     return az > r ? az : r;
 }
 
-/* The speed past which a body crosses the contact layer (contact_offset) in a substep h: the
- * substep is then cut into equal parts (MODEL.md): how many, for the fastest speed vmax, at most
- * most. */
-SIM_HD static inline int32_t cs_im_splits(float vmax, float h, float layer, int32_t most)
+/* The parts a substep h is cut into so that nothing closes on a rock by more than cs_im_depth in
+ * one (MODEL.md, "Parts"): for the largest closing rate of cs_im_closing (1/s), at most most. */
+SIM_HD static inline int32_t cs_im_splits(float rate, float h, int32_t most)
 {
-    if (!(layer > 0.0f) || !(vmax > 0.0f)) return 1;
-    const float k = vmax * h / layer;
+    const float k = rate * h;
     if (!(k > 1.0f)) return 1;
     return k >= (float)most ? most : (int32_t)k + 1;
 }
