@@ -73,6 +73,10 @@ const char *cs_backend_lacks(const cs_backend *b, const cs_params *p, char *why,
                  "the cpu backend)", b->name);
         return "integrator";
     }
+    if (p->self_collision && !(b->caps & CS_CAP_SELF_COLLISION)) {
+        snprintf(why, why_len, "the %s backend does not have self_collision yet (use the cpu backend)", b->name);
+        return "self_collision";
+    }
     return NULL;
 }
 

@@ -80,6 +80,7 @@ typedef struct cpu_ctx {
     int64_t torn;         /* springs torn since the last report (atomic adds from the team) */
     char device[160];
     cs_im_work *im;       /* implicit_euler's workspace (implicit_cpu.c), once used */
+    cs_sc_work *sc;       /* self_collision's (selfcontact_cpu.c), once used */
 } cpu_ctx;
 
 /* The thread buffers, shared by every CPU simulation of the process. Nothing in one outlives the
@@ -146,6 +147,7 @@ static void cpu_destroy(void *ctx)
     pthread_mutex_unlock(&pool.lock);
     free(c->partials);
     cs_im_free(c->im);
+    cs_sc_free(c->sc);
     free(c);
 }
 
@@ -222,7 +224,11 @@ static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s)
     return CS_OK;
 }
 
-static cs_status cpu_upload(void *ctx, const cs_model *m, cs_state *s) { return reserve(ctx, m, s); }
+static cs_status cpu_upload(void *ctx, const cs_model *m, cs_state *s)
+{
+    cs_sc_forget(((cpu_ctx *)ctx)->sc);
+    return reserve(ctx, m, s);
+}
 
 static cs_status cpu_download(void *ctx, const cs_model *m, cs_state *s, unsigned what)
 {
@@ -963,6 +969,7 @@ static cs_status cpu_refresh(void *ctx, const cs_model *m, cs_state *s)
     cpu_ctx *c = ctx;
     const cs_phys *p = &m->phys;
     const int threads = threads_of(m);
+    cs_sc_forget(c->sc);
     if (p->integrator == CS_IMPLICIT_EULER) {
         if (reserve(c, m, s) != CS_OK) return CS_E_NOMEM;
         const cs_status st = cs_im_refresh(&c->im, m, s, threads);
@@ -1047,7 +1054,7 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
     if (m->phys.integrator == CS_IMPLICIT_EULER) {
         int64_t torn = 0;
         if (reserve(c, m, s) != CS_OK) return CS_E_NOMEM;
-        const cs_status st = cs_im_step(&c->im, m, s, substeps, threads, rep, &torn);
+        const cs_status st = cs_im_step(&c->im, m, s, substeps, threads, rep, &torn, &c->sc);
         if (st != CS_OK) return st;
         c->torn += torn;
         step_report(c, s, rep);
@@ -1055,11 +1062,24 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
     }
     thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(threads, m->phys.nx) : NULL;
     if (!tb) return CS_E_NOMEM;
-    if (threads == 1) {
-        step_team(c, tb[0], m, s, substeps, 1);
-    } else {
+    /* self_collision: one substep at a time, each followed by its passes (the same arithmetic as
+     * substeps run together: velocity Verlet's last half kick and the next first one are the two
+     * half kicks between substeps) */
+    const int self = m->phys.self_on != 0;
+    for (int32_t done = 0; done < substeps;) {
+        const int32_t run = self ? 1 : substeps;
+        if (self && cs_sc_begin(&c->sc, s) != CS_OK) {
+            scratch_give(tb, threads);
+            return CS_E_NOMEM;
+        }
+        if (threads == 1) {
+            step_team(c, tb[0], m, s, run, 1);
+        } else {
 #pragma omp parallel num_threads(threads)
-        step_team(c, tb[thread_id()], m, s, substeps, 0);
+            step_team(c, tb[thread_id()], m, s, run, 0);
+        }
+        if (self) cs_sc_end(c->sc, &m->phys, s, threads, NULL);
+        done += run;
     }
     scratch_give(tb, threads);
     step_report(c, s, rep);
@@ -1165,8 +1185,9 @@ static cs_status cpu_step_batch(cs_batch_item *items, int n)
     int nj = 0;
     for (int i = 0; i < n; i++) {
         if (items[i].substeps <= 0) continue;
-        if (items[i].m->phys.integrator == CS_IMPLICIT_EULER) {
-            /* implicit_euler runs its own parallel loops: stepped alone, as cpu_step does */
+        if (items[i].m->phys.integrator == CS_IMPLICIT_EULER || items[i].m->phys.self_on) {
+            /* implicit_euler and self_collision run their own parallel loops: stepped alone, as
+             * cpu_step does */
             items[i].status = cpu_step(items[i].ctx, items[i].m, items[i].s, items[i].substeps, &items[i].rep);
             continue;
         }
@@ -1263,5 +1284,6 @@ static void cpu_stats(void *ctx, const cs_model *m, cs_backend_stats *out)
 
 const cs_backend cs_backend_cpu = {
     "cpu", cpu_available, cpu_create, cpu_destroy, cpu_upload, cpu_download, cpu_refresh, cpu_step, cpu_device,
-    cpu_error, cpu_stats, cpu_cost, CS_CAP_SURFACE_CONTACT | CS_CAP_IMPLICIT | CS_CAP_IMPLICIT_ROCKS, cpu_step_batch,
+    cpu_error, cpu_stats, cpu_cost, CS_CAP_SURFACE_CONTACT | CS_CAP_IMPLICIT | CS_CAP_IMPLICIT_ROCKS | CS_CAP_SELF_COLLISION,
+    cpu_step_batch,
 };

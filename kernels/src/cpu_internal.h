@@ -1,5 +1,6 @@
 /* cpu_internal.h - what the CPU backend's files share: backend_cpu.c (the explicit integrators and
- * the backend's table) and implicit_cpu.c (integrator implicit_euler). Not installed. */
+ * the backend's table), implicit_cpu.c (integrator implicit_euler) and selfcontact_cpu.c
+ * (self_collision). Not installed. */
 #ifndef CLOTHSIM_CPU_INTERNAL_H
 #define CLOTHSIM_CPU_INTERNAL_H
 
@@ -15,10 +16,26 @@ int cs_cpu_strain_row(const cs_phys *p, cs_state *s, int32_t r);
 /* implicit_cpu.c: the workspace of implicit_euler (NULL until first used), freed with the context. */
 typedef struct cs_im_work cs_im_work;
 void cs_im_free(cs_im_work *w);
-/* Runs substeps of implicit_euler on threads threads. Returns CS_OK, or CS_E_NOMEM (nothing
- * changed). *torn receives springs torn. */
+/* Runs substeps of implicit_euler on threads threads (with self_collision, each part followed by
+ * cs_sc_end on *sc). Returns CS_OK, or CS_E_NOMEM (nothing changed). *torn receives springs torn. */
+/* selfcontact_cpu.c: the workspace of self_collision (NULL until first used), freed with the
+ * context, and what its passes did. */
+typedef struct cs_sc_work cs_sc_work;
+typedef struct cs_sc_stats {
+    int64_t contacts; /* vertex-triangle pairs that pushed apart (counted by each of their vertices) */
+    int64_t cut;      /* vertices whose displacement the bound cut back */
+    int64_t lost;     /* repelling pairs a vertex had no room for (CS_SC_MAX_PAIRS) */
+} cs_sc_stats;
+void cs_sc_free(cs_sc_work *w);
+/* The state changed from outside: the reference that lets passes be skipped is gone. */
+void cs_sc_forget(cs_sc_work *w);
+/* Keeps the positions a substep starts from. CS_E_NOMEM: nothing kept. */
+cs_status cs_sc_begin(cs_sc_work **w, const cs_state *s);
+/* After the substep: repulsion, then the bound (selfcontact.h); st (may be NULL) counts. */
+cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, cs_sc_stats *st);
+
 cs_status cs_im_step(cs_im_work **w, const cs_model *m, cs_state *s, int32_t substeps, int threads,
-                     cs_step_report *rep, int64_t *torn);
+                     cs_step_report *rep, int64_t *torn, cs_sc_work **sc);
 /* The cloth's forces at the current state (a = F/m); the rocks' a and alpha stay (under
  * implicit_euler the cloth's last push over a part, rocks_push). */
 cs_status cs_im_refresh(cs_im_work **w, const cs_model *m, cs_state *s, int threads);

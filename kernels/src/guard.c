@@ -195,4 +195,8 @@ void cs_model_derive(cs_model *m, const cs_scene *scene, const cs_params *p, int
     f->cg_iterations = p->cg_iterations;
     f->solver_tolerance = p->solver_tolerance;
     f->most_splits = substeps > 0 && p->max_substeps / substeps > 1 ? p->max_substeps / substeps : 1;
+    f->self_on = p->self_collision;
+    f->self_thickness = p->self_thickness;
+    f->self_hx = (float)((double)scene->size_x / (scene->nx - 1));
+    f->self_hy = (float)((double)scene->size_y / (scene->ny - 1));
 }

@@ -29,6 +29,7 @@
 
 #include "clothsim/implicit.h"
 #include "cpu_internal.h"
+#include "clothsim/selfcontact.h"
 
 typedef struct im_level {
     int32_t nx, ny, n;
@@ -580,14 +581,19 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
     return torn;
 }
 
-/* The fastest a cloth vertex closes on a rock near it now (cs_im_closing; the parts of a substep). */
+/* The fastest a cloth vertex closes on a rock near it now (cs_im_closing), or with self_collision
+ * on any other part of the cloth (cs_sc_rate), as a rate: the parts of a substep. */
 static float fastest(const cs_phys *p, const cs_state *s, float h, int threads)
 {
     float most = 0.0f;
-    if (s->n_rocks) {
+    if (s->n_rocks || p->self_on) {
 #pragma omp parallel for num_threads(threads) schedule(static) reduction(max : most)
         for (int32_t v = 0; v < s->n; v++) {
-            const float c = cs_im_closing(p, s->rocks, s->n_rocks, s->x, s->y, s->z, s->vx, s->vy, s->vz, v, h);
+            float c = cs_im_closing(p, s->rocks, s->n_rocks, s->x, s->y, s->z, s->vx, s->vy, s->vz, v, h);
+            if (p->self_on) {
+                const float q = cs_sc_rate(p, s->vx, s->vy, s->vz, v, h);
+                c = q > c ? q : c;
+            }
             most = c > most ? c : most;
         }
     }
@@ -595,7 +601,7 @@ static float fastest(const cs_phys *p, const cs_state *s, float h, int threads)
 }
 
 cs_status cs_im_step(cs_im_work **wp, const cs_model *m, cs_state *s, int32_t substeps, int threads,
-                     cs_step_report *rep, int64_t *torn)
+                     cs_step_report *rep, int64_t *torn, cs_sc_work **sc)
 {
     const cs_phys *p = &m->phys;
     if (work_fit(wp, p) != CS_OK) return CS_E_NOMEM;
@@ -605,7 +611,11 @@ cs_status cs_im_step(cs_im_work **wp, const cs_model *m, cs_state *s, int32_t su
     for (int32_t k = 0; k < substeps; k++) {
         const int32_t parts = cs_im_splits(fastest(p, s, p->dt, threads), p->dt, p->most_splits);
         const float h = p->dt / (float)parts;
-        for (int32_t q = 0; q < parts; q++) t += part(p, w, s, h, threads, &st);
+        for (int32_t q = 0; q < parts; q++) {
+            if (p->self_on && cs_sc_begin(sc, s) != CS_OK) return CS_E_NOMEM;
+            t += part(p, w, s, h, threads, &st);
+            if (p->self_on) cs_sc_end(*sc, p, s, threads, NULL);
+        }
     }
     rep->solver = st;
     *torn = t;

@@ -184,6 +184,30 @@ static const table_row table_until_implicit[] = {
     {"auto_substeps", CS_T_BOOL, CS_KIND_LIVE}, {"stability_safety", CS_T_FLOAT, CS_KIND_LIVE},
     {"integrator", CS_T_ENUM, CS_KIND_LIVE}, {"grab_speed", CS_T_FLOAT, CS_KIND_LIVE},
 };
+/* The table before self_collision and self_thickness. */
+static const table_row table_until_self_collision[] = {
+    {"nx", CS_T_INT, CS_KIND_SCENE}, {"ny", CS_T_INT, CS_KIND_SCENE}, {"size_x", CS_T_FLOAT, CS_KIND_SCENE},
+    {"size_y", CS_T_FLOAT, CS_KIND_SCENE}, {"height", CS_T_FLOAT, CS_KIND_SCENE},
+    {"orientation", CS_T_ENUM, CS_KIND_SCENE}, {"pins", CS_T_ENUM, CS_KIND_SCENE},
+    {"areal_density", CS_T_FLOAT, CS_KIND_SCENE}, {"gravity", CS_T_VEC3, CS_KIND_LIVE},
+    {"wind", CS_T_VEC3, CS_KIND_LIVE}, {"k_structural", CS_T_FLOAT, CS_KIND_LIVE},
+    {"k_shear", CS_T_FLOAT, CS_KIND_LIVE}, {"k_bend", CS_T_FLOAT, CS_KIND_LIVE},
+    {"c_spring", CS_T_FLOAT, CS_KIND_LIVE}, {"drag", CS_T_FLOAT, CS_KIND_LIVE},
+    {"plastic_yield", CS_T_FLOAT, CS_KIND_LIVE}, {"tear_strain", CS_T_FLOAT, CS_KIND_LIVE},
+    {"plastic_rate", CS_T_FLOAT, CS_KIND_LIVE}, {"k_contact", CS_T_FLOAT, CS_KIND_LIVE},
+    {"c_contact", CS_T_FLOAT, CS_KIND_LIVE}, {"c_tangent", CS_T_FLOAT, CS_KIND_LIVE},
+    {"mu", CS_T_FLOAT, CS_KIND_LIVE}, {"contact_offset", CS_T_FLOAT, CS_KIND_LIVE},
+    {"friction_model", CS_T_ENUM, CS_KIND_LIVE}, {"contact_model", CS_T_ENUM, CS_KIND_LIVE},
+    {"max_depenetration_speed", CS_T_FLOAT, CS_KIND_LIVE}, {"placement_overlap", CS_T_FLOAT, CS_KIND_LIVE},
+    {"k_rock", CS_T_FLOAT, CS_KIND_LIVE}, {"c_rock", CS_T_FLOAT, CS_KIND_LIVE},
+    {"mu_rock", CS_T_FLOAT, CS_KIND_LIVE}, {"ground", CS_T_BOOL, CS_KIND_LIVE},
+    {"ground_z", CS_T_FLOAT, CS_KIND_LIVE}, {"frame_rate", CS_T_FLOAT, CS_KIND_LIVE},
+    {"substeps", CS_T_INT, CS_KIND_LIVE}, {"max_substeps", CS_T_INT, CS_KIND_LIVE},
+    {"auto_substeps", CS_T_BOOL, CS_KIND_LIVE}, {"stability_safety", CS_T_FLOAT, CS_KIND_LIVE},
+    {"integrator", CS_T_ENUM, CS_KIND_LIVE}, {"grab_speed", CS_T_FLOAT, CS_KIND_LIVE},
+    {"implicit_substeps", CS_T_INT, CS_KIND_LIVE}, {"solver_iterations", CS_T_INT, CS_KIND_LIVE},
+    {"solver_tolerance", CS_T_FLOAT, CS_KIND_LIVE}, {"cg_iterations", CS_T_INT, CS_KIND_LIVE},
+};
 
 /* The tables a snapshot may have been written with: [0] is the engine's table as it is. */
 static const struct {
@@ -194,6 +218,7 @@ static const struct {
     {table_until_daemon_settings, sizeof table_until_daemon_settings / sizeof table_until_daemon_settings[0]},
     {table_until_surface_contact, sizeof table_until_surface_contact / sizeof table_until_surface_contact[0]},
     {table_until_implicit, sizeof table_until_implicit / sizeof table_until_implicit[0]},
+    {table_until_self_collision, sizeof table_until_self_collision / sizeof table_until_self_collision[0]},
 };
 #define N_TABLES (sizeof past_tables / sizeof past_tables[0])
 

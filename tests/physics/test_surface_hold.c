@@ -17,18 +17,8 @@
  * runs again under implicit_euler. */
 #include "testkit.h"
 
-/* Under AddressSanitizer (build-asan, some 20 times slower) every other case of the sweep and the
- * first second of the real rock's drop: the same code paths, within the suite's time. */
-#if defined(__SANITIZE_ADDRESS__)
-#define SANITIZED 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define SANITIZED 1
-#endif
-#endif
-#ifndef SANITIZED
-#define SANITIZED 0
-#endif
+/* Under AddressSanitizer (SANITIZED, testkit.h) every other case of the sweep and the first second
+ * of the real rock's drop: the same code paths, within the suite's time. */
 
 typedef struct drop_case {
     int n;          /* vertices a side */

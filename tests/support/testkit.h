@@ -21,6 +21,19 @@
 
 #define TK_PI 3.14159265358979323846
 
+/* 1 under AddressSanitizer (build-asan, some 20 times slower), where long tests run a shorter
+ * sample of the same code paths. */
+#if defined(__SANITIZE_ADDRESS__)
+#define SANITIZED 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define SANITIZED 1
+#endif
+#endif
+#ifndef SANITIZED
+#define SANITIZED 0
+#endif
+
 /* |a - b| <= tol, reporting both values when not (cmocka 1.1 has no assert_double_equal). */
 #define tk_assert_near(a, b, tol)                                                                        \
     do {                                                                                                 \

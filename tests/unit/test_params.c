@@ -11,7 +11,8 @@ static const char *const design_names[] = {
     "k_contact", "c_contact", "c_tangent", "mu", "contact_offset", "friction_model", "contact_model",
     "max_depenetration_speed", "placement_overlap", "k_rock", "c_rock", "mu_rock",
     "ground", "ground_z", "frame_rate", "substeps", "max_substeps", "auto_substeps", "stability_safety",
-    "integrator", "grab_speed", "implicit_substeps", "solver_iterations", "solver_tolerance", "cg_iterations"};
+    "integrator", "grab_speed", "implicit_substeps", "solver_iterations", "solver_tolerance", "cg_iterations",
+    "self_collision", "self_thickness"};
 
 static void test_table_has_every_design_parameter_once(void **unused)
 {

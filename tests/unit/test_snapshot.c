@@ -547,9 +547,10 @@ static void test_past_table(void **unused)
     assert_int_equal(cs_snapshot_value(file, 100, "seed", v), CS_E_FORMAT);
     size_t now_len;
     unsigned char *now = save(sim, &now_len);
-    /* six rows of one component fewer, seven more (contact_model, max_depenetration_speed,
-     * placement_overlap; implicit_substeps, solver_iterations, solver_tolerance, cg_iterations) */
-    assert_true(now_len == info.length - 6 * 8 + 7 * 8);
+    /* six rows of one component fewer, nine more (contact_model, max_depenetration_speed,
+     * placement_overlap; implicit_substeps, solver_iterations, solver_tolerance, cg_iterations;
+     * self_collision, self_thickness) */
+    assert_true(now_len == info.length - 6 * 8 + 9 * 8);
     assert_int_equal(cs_snapshot_value(now, now_len, "time_scale", v), CS_E_NOT_FOUND);
     assert_int_equal(cs_snapshot_value(now, now_len, "k_bend", v), CS_OK);
     tk_assert_near(v[0], 33, 0);

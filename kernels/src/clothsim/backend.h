@@ -161,6 +161,8 @@ typedef struct cs_backend {
 #define CS_CAP_IMPLICIT 2u
 /* rocks under integrator implicit_euler (implicit.h's push after the solve) */
 #define CS_CAP_IMPLICIT_ROCKS 4u
+/* self_collision (selfcontact.h) */
+#define CS_CAP_SELF_COLLISION 8u
 
 /* Adds a row to a cost model and its totals. */
 void cs_cost_add(cs_cost_model *c, const char *name, double read, double written, double fixed, double per_substep,

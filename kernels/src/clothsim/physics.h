@@ -107,6 +107,9 @@ typedef struct cs_phys {
     int32_t solver_iterations, cg_iterations;
     float solver_tolerance;
     int32_t most_splits;         /* parts a substep may be cut into for contact (max_substeps / substeps) */
+    /* self_collision (selfcontact.h) */
+    int32_t self_on;
+    float self_thickness, self_hx, self_hy; /* and the grid's spacing at rest */
 } cs_phys;
 
 /* A rock as the kernels see it. Kinematic rocks have inv_mass = inv_inertia = 0. */

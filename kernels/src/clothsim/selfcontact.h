@@ -1,0 +1,635 @@
+/* clothsim/selfcontact.h - cloth self-collision (self_collision, self_thickness; kernels/MODEL.md,
+ * "Self-collision"): SIM_HD functions that the CPU backend loops over the grid.
+ *
+ * After each substep (each part under implicit_euler) the cloth has moved from x0 (the substep's
+ * start, free of crossings) to x1. Two passes, each one thread per vertex, gathering only:
+ *
+ * 1. Repulsion (cs_sc_repel). Vertex-triangle and edge-edge pairs closer at x1 than
+ *    self_thickness push apart: the point and the triangle's corners (by its barycentric weights),
+ *    or the two edges' ends (by the closest points' segment weights), each by its inverse mass,
+ *    move apart along the pair's normal until they are self_thickness apart, and their approach
+ *    along it stops (inelastic: momentum kept, no energy added). Left out: pairs within
+ *    CS_SC_RINGS rings of each other in the grid, and pairs closer at rest than the thickness.
+ *    Each vertex averages what its pairs ask of it (Jacobi), summed in the order of the pairs'
+ *    keys (cs_sc_pair_key, cs_sc_ee_key), so whichever list found them gives the same bits.
+ *
+ * 2. The bound (cs_sc_limit). Every vertex-triangle pair and every edge-edge pair that shares no
+ *    vertex, intact triangles and their edges only, as close at x0 as r = self_thickness + 2 M /
+ *    CS_SC_GAMMA (M the largest displacement of any vertex in the substep: a pair further apart
+ *    cannot meet, its vertices' motion relative to each other being at most 2 M) is safe while the
+ *    largest displacement of one of its vertices relative to another of them stays under
+ *    CS_SC_GAMMA times its distance at x0: on the straight path from x0 to x1 its closest points
+ *    then never meet. An unsafe pair's vertices are cut back, each to CS_SC_GAMMA / 2 of that
+ *    distance (then no two of them move apart by more than CS_SC_GAMMA of it); sweeps repeat
+ *    until every pair is safe (a vertex's cut only ever grows, so they end). Two triangles that
+ *    share no vertex cross only after such a pair met (a vertex through a face, or an edge
+ *    through an edge), so none cross: the guarantee needs no continuous collision detection.
+ *    The cut vertex's velocity is scaled as its displacement was.
+ *
+ * The broad phase: vertices in a uniform hash grid of cells as large as the farthest a pair's
+ * vertex can lie from the vertex that gathers it (r plus twice the longest edge), built by a
+ * counting sort in vertex order, so the order every vertex meets its candidates in is fixed. */
+#ifndef CLOTHSIM_SELFCONTACT_H
+#define CLOTHSIM_SELFCONTACT_H
+
+#include "clothsim/physics.h"
+
+/* A pair is safe while its vertices move relative to each other by less than this fraction of
+ * its distance (the rest is left for rounding). */
+#define CS_SC_GAMMA 0.9f
+/* Pairs within this many rings of each other in the grid do not repel. */
+#define CS_SC_RINGS 2
+/* Sweeps of the bound before every pair near enough is cut outright (each sweep is exact). */
+#define CS_SC_SWEEPS 16
+
+SIM_HD static inline float cs_sc_min(float a, float b) { return a < b ? a : b; }
+SIM_HD static inline float cs_sc_max(float a, float b) { return a > b ? a : b; }
+
+/* The hash grid: start[k] .. start[k + 1] index ids (vertices by cell key, in vertex order). */
+typedef struct cs_sc_grid {
+    const int32_t *start, *ids;
+    uint32_t mask; /* table size - 1 (a power of two) */
+    float cell;    /* cell size (m) */
+} cs_sc_grid;
+
+/* The cell coordinate of a position along an axis (clamped far beyond any cloth). */
+SIM_HD static inline int32_t cs_sc_coord(float x, float cell)
+{
+    const float c = floorf(x / cell);
+    return c < -1e9f ? -1000000000 : c > 1e9f ? 1000000000 : (int32_t)c;
+}
+
+SIM_HD static inline uint32_t cs_sc_key(int32_t i, int32_t j, int32_t k, uint32_t mask)
+{
+    return (((uint32_t)i * 73856093u) ^ ((uint32_t)j * 19349663u) ^ ((uint32_t)k * 83492791u)) & mask;
+}
+
+SIM_HD static inline uint32_t cs_sc_key_of(cs_vec3 x, float cell, uint32_t mask)
+{
+    return cs_sc_key(cs_sc_coord(x.x, cell), cs_sc_coord(x.y, cell), cs_sc_coord(x.z, cell), mask);
+}
+
+/* The counting sort: key[v] of every vertex, then start (mask + 2 entries) and ids. One thread. */
+SIM_HD static inline void cs_sc_sort(int32_t n, const uint32_t *key, uint32_t mask, int32_t *start, int32_t *ids)
+{
+    for (uint32_t k = 0; k <= mask + 1; k++) start[k] = 0;
+    for (int32_t v = 0; v < n; v++) start[key[v] + 1]++;
+    for (uint32_t k = 0; k <= mask; k++) start[k + 1] += start[k];
+    /* fill in vertex order: start[k] runs ahead as its cell fills, then is set back */
+    for (int32_t v = 0; v < n; v++) ids[start[key[v]]++] = v;
+    for (uint32_t k = mask + 1; k > 0; k--) start[k] = start[k - 1];
+    start[0] = 0;
+}
+
+/* Distance from p to triangle a b c, and the barycentric weights of its closest point. */
+SIM_HD static inline float cs_sc_point_tri(cs_vec3 p, cs_vec3 a, cs_vec3 b, cs_vec3 c, float w[3])
+{
+    cs_closest_on_triangle(p, a, b, c, w);
+    const cs_vec3 q = cs_add(cs_add(cs_scale(a, w[0]), cs_scale(b, w[1])), cs_scale(c, w[2]));
+    return cs_len(cs_sub(p, q));
+}
+
+/* Distance between segments p0 p1 and q0 q1 (closest points by clamped parameters, then each
+ * re-projected once: exact for non-parallel segments, and for parallel ones a pair of points at
+ * the least distance). */
+SIM_HD static inline float cs_sc_seg_seg_st(cs_vec3 p0, cs_vec3 p1, cs_vec3 q0, cs_vec3 q1, float *ps, float *pt)
+{
+    const cs_vec3 d1 = cs_sub(p1, p0), d2 = cs_sub(q1, q0), r = cs_sub(p0, q0);
+    const float a = cs_dot(d1, d1), e = cs_dot(d2, d2), f = cs_dot(d2, r);
+    float s = 0.0f, t = 0.0f;
+    *ps = 0.0f, *pt = 0.0f;
+    if (!(a > 1e-20f) && !(e > 1e-20f)) return cs_len(r);
+    if (!(a > 1e-20f)) {
+        t = cs_sc_min(cs_sc_max(f / e, 0.0f), 1.0f);
+    } else {
+        const float c = cs_dot(d1, r);
+        if (!(e > 1e-20f)) {
+            s = cs_sc_min(cs_sc_max(-c / a, 0.0f), 1.0f);
+        } else {
+            const float b = cs_dot(d1, d2), den = a * e - b * b;
+            s = den > 1e-12f * a * e ? cs_sc_min(cs_sc_max((b * f - c * e) / den, 0.0f), 1.0f) : 0.0f;
+            t = (b * s + f) / e;
+            if (t < 0.0f) {
+                t = 0.0f;
+                s = cs_sc_min(cs_sc_max(-c / a, 0.0f), 1.0f);
+            } else if (t > 1.0f) {
+                t = 1.0f;
+                s = cs_sc_min(cs_sc_max((b - c) / a, 0.0f), 1.0f);
+            }
+        }
+    }
+    *ps = s, *pt = t;
+    const cs_vec3 cp = cs_add(p0, cs_scale(d1, s)), cq = cs_add(q0, cs_scale(d2, t));
+    return cs_len(cs_sub(cp, cq));
+}
+
+SIM_HD static inline float cs_sc_seg_seg(cs_vec3 p0, cs_vec3 p1, cs_vec3 q0, cs_vec3 q1)
+{
+    float s, t;
+    return cs_sc_seg_seg_st(p0, p1, q0, q1, &s, &t);
+}
+
+/* The intact triangles of quad (i, j) as vertex ids (canonical order, physics.h), into t[f];
+ * returns the bits (1 A, 2 B). */
+SIM_HD static inline int32_t cs_sc_quad_tris(const float *L0, int32_t nx, int32_t ny, int32_t i, int32_t j,
+                                             int32_t t[2][3])
+{
+    const int32_t faces = cs_quad_faces(L0, nx, ny, i, j), v00 = j * nx + i;
+    t[0][0] = v00, t[0][1] = v00 + 1, t[0][2] = v00 + nx + 1;
+    t[1][0] = v00, t[1][1] = v00 + nx + 1, t[1][2] = v00 + nx;
+    return faces;
+}
+
+/* Edge k (0 x, 1 y, 2 diagonal) of vertex (i, j) to (i+1, j), (i, j+1), (i+1, j+1): there while a
+ * triangle it bounds is intact (A(i,j) or B(i,j-1); B(i,j) or A(i-1,j); A(i,j) or B(i,j)). */
+SIM_HD static inline int cs_sc_edge_on(const float *L0, int32_t nx, int32_t ny, int32_t i, int32_t j, int k)
+{
+    if (k == 0) return (cs_quad_faces(L0, nx, ny, i, j) & 1) | (cs_quad_faces(L0, nx, ny, i, j - 1) >> 1);
+    if (k == 1) return (cs_quad_faces(L0, nx, ny, i, j) >> 1) | (cs_quad_faces(L0, nx, ny, i - 1, j) & 1);
+    return cs_quad_faces(L0, nx, ny, i, j) != 0;
+}
+
+/* Grid (Chebyshev) distance between vertices a and b. */
+SIM_HD static inline int32_t cs_sc_rings(int32_t nx, int32_t a, int32_t b)
+{
+    const int32_t di = a % nx - b % nx, dj = a / nx - b / nx;
+    const int32_t ai = di < 0 ? -di : di, aj = dj < 0 ? -dj : dj;
+    return ai > aj ? ai : aj;
+}
+
+/* Distance at rest between vertices a and b (the scene's spacing hx, hy). */
+SIM_HD static inline float cs_sc_rest(int32_t nx, float hx, float hy, int32_t a, int32_t b)
+{
+    const float di = (float)(a % nx - b % nx) * hx, dj = (float)(a / nx - b / nx) * hy;
+    return sqrtf(di * di + dj * dj);
+}
+
+/* Whether point p and triangle t repel (neither near in the grid nor closer at rest than the
+ * thickness). */
+SIM_HD static inline int cs_sc_repels(const cs_phys *ph, int32_t p, const int32_t t[3])
+{
+    for (int q = 0; q < 3; q++) {
+        if (cs_sc_rings(ph->nx, p, t[q]) <= CS_SC_RINGS) return 0;
+        if (cs_sc_rest(ph->nx, ph->self_hx, ph->self_hy, p, t[q]) < ph->self_thickness) return 0;
+    }
+    return 1;
+}
+
+SIM_HD static inline cs_vec3 cs_sc_at(const float *x, const float *y, const float *z, int32_t v)
+{
+    return cs_v3(x[v], y[v], z[v]);
+}
+
+
+/* The vertices a gatherer meets: those in the 27 cells about its own at x0 (each met once: an entry
+ * is taken only in its own cell, whatever cell shares its key), within reach of it; the body is
+ * the trailing arguments (commas and all). */
+#define CS_SC_FOR_NEAR(G, X0, Y0, Z0, XV, REACH, W, ...)                                                   \
+    do {                                                                                                   \
+        const int32_t ci_ = cs_sc_coord((XV).x, (G)->cell), cj_ = cs_sc_coord((XV).y, (G)->cell),          \
+                      ck_ = cs_sc_coord((XV).z, (G)->cell);                                                \
+        for (int dk_ = -1; dk_ <= 1; dk_++)                                                                 \
+            for (int dj_ = -1; dj_ <= 1; dj_++)                                                             \
+                for (int di_ = -1; di_ <= 1; di_++) {                                                       \
+                    const uint32_t key_ = cs_sc_key(ci_ + di_, cj_ + dj_, ck_ + dk_, (G)->mask);             \
+                    for (int32_t e_ = (G)->start[key_]; e_ < (G)->start[key_ + 1]; e_++) {                  \
+                        const int32_t W = (G)->ids[e_];                                                     \
+                        const cs_vec3 xw_ = cs_sc_at(X0, Y0, Z0, W);                                        \
+                        if (cs_sc_coord(xw_.x, (G)->cell) != ci_ + di_ ||                                    \
+                            cs_sc_coord(xw_.y, (G)->cell) != cj_ + dj_ ||                                    \
+                            cs_sc_coord(xw_.z, (G)->cell) != ck_ + dk_)                                      \
+                            continue;                                                                      \
+                        if (!(cs_len(cs_sub(xw_, XV)) < (REACH))) continue;                                 \
+                        __VA_ARGS__                                                                        \
+                    }                                                                                      \
+                }                                                                                          \
+    } while (0)
+
+/* A lower bound of the distance from p to the triangle or segment of corners c[0..k): how far p
+ * lies outside their box (cheap; exact distances only where this is below the pairs' reach). */
+SIM_HD static inline float cs_sc_box_gap(cs_vec3 p, const cs_vec3 *c, int k)
+{
+    cs_vec3 lo = c[0], hi = c[0];
+    for (int q = 1; q < k; q++) {
+        lo = cs_v3(cs_sc_min(lo.x, c[q].x), cs_sc_min(lo.y, c[q].y), cs_sc_min(lo.z, c[q].z));
+        hi = cs_v3(cs_sc_max(hi.x, c[q].x), cs_sc_max(hi.y, c[q].y), cs_sc_max(hi.z, c[q].z));
+    }
+    const float gx = cs_sc_max(cs_sc_max(lo.x - p.x, p.x - hi.x), 0.0f), gy = cs_sc_max(cs_sc_max(lo.y - p.y, p.y - hi.y), 0.0f),
+                gz = cs_sc_max(cs_sc_max(lo.z - p.z, p.z - hi.z), 0.0f);
+    return sqrtf(gx * gx + gy * gy + gz * gz);
+}
+
+/* The gap between the boxes of segments a0 a1 and b0 b1 (a lower bound of their distance). */
+SIM_HD static inline float cs_sc_seg_gap(cs_vec3 a0, cs_vec3 a1, cs_vec3 b0, cs_vec3 b1)
+{
+    const float gx = cs_sc_max(cs_sc_max(cs_sc_min(a0.x, a1.x) - cs_sc_max(b0.x, b1.x), cs_sc_min(b0.x, b1.x) - cs_sc_max(a0.x, a1.x)), 0.0f);
+    const float gy = cs_sc_max(cs_sc_max(cs_sc_min(a0.y, a1.y) - cs_sc_max(b0.y, b1.y), cs_sc_min(b0.y, b1.y) - cs_sc_max(a0.y, a1.y)), 0.0f);
+    const float gz = cs_sc_max(cs_sc_max(cs_sc_min(a0.z, a1.z) - cs_sc_max(b0.z, b1.z), cs_sc_min(b0.z, b1.z) - cs_sc_max(a0.z, a1.z)), 0.0f);
+    return sqrtf(gx * gx + gy * gy + gz * gz);
+}
+
+/* Under implicit_euler a substep is cut into parts (as for rocks: implicit.h, cs_im_splits) so that
+ * no vertex moves more than this fraction of self_thickness in one: the repulsion after each part
+ * then meets layers before the bound has to stop them. */
+#define CS_SC_PART 0.5f
+
+/* Vertex v's rate for the parts of a substep h: (|v| + |g| h) / (CS_SC_PART self_thickness), 1/s. */
+SIM_HD static inline float cs_sc_rate(const cs_phys *ph, const float *vx, const float *vy, const float *vz, int32_t v,
+                                      float h)
+{
+    const float speed = cs_len(cs_v3(vx[v], vy[v], vz[v])) + cs_len(ph->gravity) * h;
+    return speed / (CS_SC_PART * ph->self_thickness);
+}
+
+/* ---- 1. repulsion ---- */
+
+/* What one vertex-triangle pair asks of vertex v (v is point p or a corner of t): the position and
+ * velocity changes dx, dv (added); 1 when the pair touches. x1..v*: the state's arrays after the
+ * substep, w the inverse masses (0 pinned or grabbed). */
+SIM_HD static inline int cs_sc_pair_push(const cs_phys *ph, const float *x, const float *y, const float *z,
+                                         const float *vx, const float *vy, const float *vz, const float *w,
+                                         int32_t p, const int32_t t[3], int32_t v, cs_vec3 *dx, cs_vec3 *dv)
+{
+    const cs_vec3 xp = cs_sc_at(x, y, z, p), a = cs_sc_at(x, y, z, t[0]), b = cs_sc_at(x, y, z, t[1]),
+                  c = cs_sc_at(x, y, z, t[2]);
+    float bw[3];
+    const float d = cs_sc_point_tri(xp, a, b, c, bw);
+    if (!(d < ph->self_thickness)) return 0;
+    const cs_vec3 q = cs_add(cs_add(cs_scale(a, bw[0]), cs_scale(b, bw[1])), cs_scale(c, bw[2]));
+    cs_vec3 n;
+    if (d > 1e-9f) {
+        n = cs_scale(cs_sub(xp, q), 1.0f / d);
+    } else { /* on the face: its normal (its winding decides the side) */
+        n = cs_cross(cs_sub(b, a), cs_sub(c, a));
+        const float l = cs_len(n);
+        if (!(l > 0.0f)) return 0;
+        n = cs_scale(n, 1.0f / l);
+    }
+    const float wp = w[p];
+    float den = wp;
+    for (int k = 0; k < 3; k++) den += bw[k] * bw[k] * w[t[k]];
+    if (!(den > 0.0f)) return 0;
+    /* the separation along n still missing, and the approach along it */
+    const float gap = (ph->self_thickness - d) / den;
+    cs_vec3 vq = cs_v3(0.0f, 0.0f, 0.0f);
+    for (int k = 0; k < 3; k++) vq = cs_add(vq, cs_scale(cs_sc_at(vx, vy, vz, t[k]), bw[k]));
+    const float vn = cs_dot(cs_sub(cs_sc_at(vx, vy, vz, p), vq), n);
+    const float stop = vn < 0.0f ? -vn / den : 0.0f;
+    float share = 0.0f;
+    if (v == p) share = wp;
+    for (int k = 0; k < 3; k++)
+        if (t[k] == v) share = -bw[k] * w[v];
+    *dx = cs_add(*dx, cs_scale(n, gap * share));
+    *dv = cs_add(*dv, cs_scale(n, stop * share));
+    return 1;
+}
+
+/* Render edge id 3 o + k: edge k (cs_sc_edge_on) of its lower end o; its ends into e. */
+SIM_HD static inline void cs_sc_edge_ends(const cs_phys *ph, int32_t id, int32_t e[2])
+{
+    const int32_t o = id / 3, k = id % 3;
+    e[0] = o;
+    e[1] = k == 0 ? o + 1 : k == 1 ? o + ph->nx : o + ph->nx + 1;
+}
+
+/* Whether edges a and b repel (no ends within CS_SC_RINGS rings, none closer at rest than the
+ * thickness; so they share no vertex). */
+SIM_HD static inline int cs_sc_ee_repels(const cs_phys *ph, const int32_t a[2], const int32_t b[2])
+{
+    for (int i = 0; i < 2; i++)
+        for (int k = 0; k < 2; k++) {
+            if (cs_sc_rings(ph->nx, a[i], b[k]) <= CS_SC_RINGS) return 0;
+            if (cs_sc_rest(ph->nx, ph->self_hx, ph->self_hy, a[i], b[k]) < ph->self_thickness) return 0;
+        }
+    return 1;
+}
+
+/* What one edge-edge pair (a, b: a's id the lower) asks of vertex v, as cs_sc_pair_push: the
+ * closest points pushed apart to self_thickness and their approach stopped, each end by its
+ * segment weight and inverse mass. */
+SIM_HD static inline int cs_sc_edge_push(const cs_phys *ph, const float *x, const float *y, const float *z,
+                                         const float *vx, const float *vy, const float *vz, const float *w,
+                                         const int32_t a[2], const int32_t b[2], int32_t v, cs_vec3 *dx, cs_vec3 *dv)
+{
+    const cs_vec3 a0 = cs_sc_at(x, y, z, a[0]), a1 = cs_sc_at(x, y, z, a[1]), b0 = cs_sc_at(x, y, z, b[0]),
+                  b1 = cs_sc_at(x, y, z, b[1]);
+    float ps, pt;
+    const float d = cs_sc_seg_seg_st(a0, a1, b0, b1, &ps, &pt);
+    if (!(d < ph->self_thickness)) return 0;
+    const cs_vec3 cp = cs_add(a0, cs_scale(cs_sub(a1, a0), ps)), cq = cs_add(b0, cs_scale(cs_sub(b1, b0), pt));
+    cs_vec3 n;
+    if (d > 1e-9f) {
+        n = cs_scale(cs_sub(cp, cq), 1.0f / d);
+    } else { /* crossing exactly: across both edges */
+        n = cs_cross(cs_sub(a1, a0), cs_sub(b1, b0));
+        const float l = cs_len(n);
+        if (!(l > 0.0f)) return 0;
+        n = cs_scale(n, 1.0f / l);
+    }
+    const float wt[4] = {1.0f - ps, ps, -(1.0f - pt), -pt};
+    const int32_t id[4] = {a[0], a[1], b[0], b[1]};
+    float den = 0.0f;
+    cs_vec3 vr = cs_v3(0.0f, 0.0f, 0.0f);
+    for (int k = 0; k < 4; k++) {
+        den += wt[k] * wt[k] * w[id[k]];
+        vr = cs_add(vr, cs_scale(cs_sc_at(vx, vy, vz, id[k]), wt[k]));
+    }
+    if (!(den > 0.0f)) return 0;
+    const float gap = (ph->self_thickness - d) / den, vn = cs_dot(vr, n), stop = vn < 0.0f ? -vn / den : 0.0f;
+    float share = 0.0f;
+    for (int k = 0; k < 4; k++)
+        if (id[k] == v) share = wt[k] * w[v];
+    *dx = cs_add(*dx, cs_scale(n, gap * share));
+    *dv = cs_add(*dv, cs_scale(n, stop * share));
+    return 1;
+}
+
+/* Vertex v's own part of every pair it is in: its intact triangles (canonical corners, their
+ * positions and slots) and its spokes that bound one (as edge ids). */
+typedef struct cs_sc_ring {
+    int32_t tri[6][3], slot[6], spoke[6];
+    cs_vec3 c[6][3];
+    int ntri, nspoke;
+} cs_sc_ring;
+
+SIM_HD static inline void cs_sc_ring_of(const cs_phys *ph, const float *L0, const float *x, const float *y,
+                                        const float *z, int32_t v, cs_sc_ring *g)
+{
+    const int32_t nx = ph->nx, ny = ph->ny, vi = v % nx, vj = v / nx;
+    g->ntri = g->nspoke = 0;
+    for (int qj = vj - 1; qj <= vj; qj++)
+        for (int qi = vi - 1; qi <= vi; qi++) {
+            int32_t t[2][3];
+            const int32_t f = cs_sc_quad_tris(L0, nx, ny, qi, qj, t);
+            for (int k = 0; k < 2; k++)
+                if ((f >> k) & 1 && (t[k][0] == v || t[k][1] == v || t[k][2] == v)) {
+                    for (int q = 0; q < 3; q++) {
+                        g->tri[g->ntri][q] = t[k][q];
+                        g->c[g->ntri][q] = cs_sc_at(x, y, z, t[k][q]);
+                    }
+                    g->slot[g->ntri++] = 2 * (qj * (nx - 1) + qi) + k;
+                }
+        }
+    for (int k = 1; k < CS_RING; k++) {
+        const int32_t ui = vi + cs_ring_di(k), uj = vj + cs_ring_dj(k);
+        if (ui < 0 || ui >= nx || uj < 0 || uj >= ny) continue;
+        const int32_t lo = k <= 3 ? v : uj * nx + ui; /* the edge's owner: its lower end */
+        const int e = cs_ring_di(k) != 0 && cs_ring_dj(k) != 0 ? 2 : cs_ring_di(k) != 0 ? 0 : 1;
+        if (cs_sc_edge_on(L0, nx, ny, lo % nx, lo / nx, e)) g->spoke[g->nspoke++] = 3 * lo + e;
+    }
+}
+
+/* Most repelling pairs a vertex keeps in its list (more are counted as lost, the largest keys). */
+#define CS_SC_MAX_PAIRS 48
+
+/* A vertex-triangle pair as one sortable key: the point's id, then the triangle's slot (2 per quad,
+ * physics.h's canonical A then B), so that every list is summed in the same order. */
+SIM_HD static inline int64_t cs_sc_pair_key(const cs_phys *ph, int32_t p, int32_t slot)
+{
+    return (int64_t)p * (2 * (int64_t)(ph->nx - 1) * (ph->ny - 1)) + slot;
+}
+
+/* Edge-edge keys follow every vertex-triangle key: base + lower id 3 n + higher id. */
+SIM_HD static inline int64_t cs_sc_ee_base(const cs_phys *ph)
+{
+    return (int64_t)ph->n * (2 * (int64_t)(ph->nx - 1) * (ph->ny - 1));
+}
+
+SIM_HD static inline int64_t cs_sc_ee_key(const cs_phys *ph, int32_t ea, int32_t eb)
+{
+    const int32_t lo = ea < eb ? ea : eb, hi = ea < eb ? eb : ea;
+    return cs_sc_ee_base(ph) + (int64_t)lo * (3 * (int64_t)ph->n) + hi;
+}
+
+SIM_HD static inline void cs_sc_key_pair(const cs_phys *ph, int64_t key, int32_t *p, int32_t t[3])
+{
+    const int64_t slots = 2 * (int64_t)(ph->nx - 1) * (ph->ny - 1);
+    *p = (int32_t)(key / slots);
+    const int32_t slot = (int32_t)(key % slots), q = slot >> 1, f = slot & 1, nq = ph->nx - 1;
+    const int32_t v00 = (q / nq) * ph->nx + q % nq;
+    t[0] = v00;
+    t[1] = f ? v00 + ph->nx + 1 : v00 + 1;
+    t[2] = f ? v00 + ph->nx : v00 + ph->nx + 1;
+}
+
+/* Adds key to the sorted list keys[0..*n) (at most CS_SC_MAX_PAIRS; beyond, the largest key is
+ * dropped and counted in *lost). */
+SIM_HD static inline void cs_sc_list_add(int64_t *keys, int32_t *n, int64_t key, int32_t *lost)
+{
+    int32_t k = *n;
+    if (k == CS_SC_MAX_PAIRS) {
+        (*lost)++;
+        if (key >= keys[k - 1]) return;
+        k--;
+    } else {
+        (*n)++;
+    }
+    while (k > 0 && keys[k - 1] > key) {
+        keys[k] = keys[k - 1];
+        k--;
+    }
+    keys[k] = key;
+}
+
+/* Vertex v's repelling pairs closer than rad at x0 - vertex-triangle (cs_sc_repels) as the point
+ * (the triangles of its candidates) and as a corner (its six triangles against its candidates),
+ * edge-edge (cs_sc_ee_repels) through its spokes - into keys, sorted; returns how many (*lost
+ * counts those left out). Candidates within reach: rad plus twice the longest edge. */
+SIM_HD static inline int32_t cs_sc_pairs(const cs_phys *ph, const cs_sc_grid *G, const float *L0, const float *x0,
+                                         const float *y0, const float *z0, float reach, float rad, int32_t v,
+                                         int64_t *keys, int32_t *lost)
+{
+    const int32_t nx = ph->nx, ny = ph->ny, vi = v % nx, vj = v / nx;
+    const cs_vec3 xv = cs_sc_at(x0, y0, z0, v);
+    /* a candidate more than 2 CS_SC_RINGS rings away repels with every pair it is in (their vertices
+     * lie more than CS_SC_RINGS rings apart), unless the thickness spans that many rings at rest */
+    const float h = ph->self_hx < ph->self_hy ? ph->self_hx : ph->self_hy;
+    const int fine = ph->self_thickness > (float)(CS_SC_RINGS + 1) * h;
+    int32_t n = 0;
+    cs_sc_ring g;
+    cs_sc_ring_of(ph, L0, x0, y0, z0, v, &g);
+    CS_SC_FOR_NEAR(G, x0, y0, z0, xv, reach, u, {
+        if (u != v) {
+            float bw[3];
+            int32_t t[2][3];
+            const int32_t ui = u % nx, uj = u / nx, f = cs_sc_quad_tris(L0, nx, ny, ui, uj, t);
+            const int32_t di = ui > vi ? ui - vi : vi - ui, dj = uj > vj ? uj - vj : vj - uj;
+            const int32_t rings = di > dj ? di : dj;
+            /* u and v are both in every pair they could share here: within CS_SC_RINGS, none repels */
+            if (rings <= CS_SC_RINGS) continue;
+            const int far = !fine && rings > 2 * CS_SC_RINGS;
+            const cs_vec3 xu = cs_sc_at(x0, y0, z0, u);
+            for (int k = 0; k < 2; k++) {
+                if (!((f >> k) & 1)) continue;
+                const cs_vec3 c[3] = {cs_sc_at(x0, y0, z0, t[k][0]), cs_sc_at(x0, y0, z0, t[k][1]),
+                                      cs_sc_at(x0, y0, z0, t[k][2])};
+                if (!(cs_sc_box_gap(xv, c, 3) < rad) || !(far || cs_sc_repels(ph, v, t[k]))) continue;
+                if (cs_sc_point_tri(xv, c[0], c[1], c[2], bw) < rad)
+                    cs_sc_list_add(keys, &n, cs_sc_pair_key(ph, v, 2 * (uj * (nx - 1) + ui) + k), lost);
+            }
+            for (int k = 0; k < g.ntri; k++) {
+                if (!(cs_sc_box_gap(xu, g.c[k], 3) < rad) || !(far || cs_sc_repels(ph, u, g.tri[k]))) continue;
+                if (cs_sc_point_tri(xu, g.c[k][0], g.c[k][1], g.c[k][2], bw) < rad)
+                    cs_sc_list_add(keys, &n, cs_sc_pair_key(ph, u, g.slot[k]), lost);
+            }
+            /* v's spokes against the edges u owns */
+            for (int e = 0; e < 3; e++) {
+                if ((e != 1 && ui + 1 >= nx) || (e != 0 && uj + 1 >= ny) || !cs_sc_edge_on(L0, nx, ny, ui, uj, e))
+                    continue;
+                int32_t b[2];
+                cs_sc_edge_ends(ph, 3 * u + e, b);
+                const cs_vec3 b0 = cs_sc_at(x0, y0, z0, b[0]), b1 = cs_sc_at(x0, y0, z0, b[1]);
+                for (int k = 0; k < g.nspoke; k++) {
+                    int32_t a[2];
+                    cs_sc_edge_ends(ph, g.spoke[k], a);
+                    const cs_vec3 a0 = cs_sc_at(x0, y0, z0, a[0]), a1 = cs_sc_at(x0, y0, z0, a[1]);
+                    if (!(cs_sc_seg_gap(a0, a1, b0, b1) < rad) || !(far || cs_sc_ee_repels(ph, a, b))) continue;
+                    if (cs_sc_seg_seg(a0, a1, b0, b1) < rad)
+                        cs_sc_list_add(keys, &n, cs_sc_ee_key(ph, g.spoke[k], 3 * u + e), lost);
+                }
+            }
+        }
+    });
+    (void)ny;
+    return n;
+}
+
+/* Vertex v's repulsion from its list of pairs (keys[0..n), sorted): what the pairs that touch at
+ * x1 ask of it, averaged, into *dx, *dv. Returns the pairs that touch. */
+SIM_HD static inline int32_t cs_sc_repel(const cs_phys *ph, const float *x, const float *y, const float *z,
+                                         const float *vx, const float *vy, const float *vz, const float *w,
+                                         const int64_t *keys, int32_t n, int32_t v, cs_vec3 *dx, cs_vec3 *dv)
+{
+    cs_vec3 sx = cs_v3(0.0f, 0.0f, 0.0f), sv = sx;
+    int32_t touching = 0;
+    const int64_t base = cs_sc_ee_base(ph), edges = 3 * (int64_t)ph->n;
+    for (int32_t k = 0; k < n; k++) {
+        if (keys[k] >= base) {
+            int32_t a[2], b[2];
+            cs_sc_edge_ends(ph, (int32_t)((keys[k] - base) / edges), a);
+            cs_sc_edge_ends(ph, (int32_t)((keys[k] - base) % edges), b);
+            touching += cs_sc_edge_push(ph, x, y, z, vx, vy, vz, w, a, b, v, &sx, &sv);
+            continue;
+        }
+        int32_t p, t[3];
+        cs_sc_key_pair(ph, keys[k], &p, t);
+        touching += cs_sc_pair_push(ph, x, y, z, vx, vy, vz, w, p, t, v, &sx, &sv);
+    }
+    if (touching > 0) {
+        const float inv = 1.0f / (float)touching;
+        *dx = cs_scale(sx, inv);
+        *dv = cs_scale(sv, inv);
+    }
+    return touching;
+}
+
+/* ---- 2. the bound ---- */
+
+
+/* The largest displacement of one of a pair's vertices relative to another of its other side:
+ * side a (na vertices) against side b (nb), with each vertex's displacement s d. */
+SIM_HD static inline float cs_sc_relative(const int32_t *a, int na, const int32_t *b, int nb, const float *dx,
+                                          const float *dy, const float *dz, const float *s)
+{
+    float m = 0.0f;
+    for (int i = 0; i < na; i++)
+        for (int k = 0; k < nb; k++) {
+            const float si = s[a[i]], sk = s[b[k]];
+            const cs_vec3 r = cs_sub(cs_scale(cs_sc_at(dx, dy, dz, a[i]), si), cs_scale(cs_sc_at(dx, dy, dz, b[k]), sk));
+            const float l = cs_len(r);
+            m = l > m ? l : m;
+        }
+    return m;
+}
+
+/* Vertex v's cut for one pair (sides a, b; dist its distance at x0): 1 while safe, else the
+ * largest scale that keeps v within CS_SC_GAMMA / 2 of dist. */
+SIM_HD static inline float cs_sc_pair_cut(const int32_t *a, int na, const int32_t *b, int nb, float dist,
+                                          const float *dx, const float *dy, const float *dz, const float *s,
+                                          int32_t v, int outright)
+{
+    if (!outright && cs_sc_relative(a, na, b, nb, dx, dy, dz, s) < CS_SC_GAMMA * dist) return 1.0f;
+    const float l = cs_len(cs_sc_at(dx, dy, dz, v)), lim = 0.5f * CS_SC_GAMMA * dist;
+    return l > lim ? lim / l : 1.0f;
+}
+
+
+/* Vertex v's scale after one sweep: the least of its scale s[v] and the cuts of every pair it
+ * belongs to (vertex-triangle as the point or a corner, edge-edge through its six spokes) that
+ * lies within r at x0 and shares no vertex (outright: cut every such pair, safe or not). d*: the
+ * substep's displacements (x1 - x0). Also the least distance at x0 of those pairs into *dall (r
+ * where none). */
+SIM_HD static inline float cs_sc_limit(const cs_phys *ph, const cs_sc_grid *G, const float *L0, const float *x0,
+                                       const float *y0, const float *z0, const float *dx, const float *dy,
+                                       const float *dz, const float *s, float r, float reach, int32_t v,
+                                       int outright, float *dall)
+{
+    const int32_t nx = ph->nx, ny = ph->ny;
+    const cs_vec3 xv = cs_sc_at(x0, y0, z0, v);
+    float cut = s[v], dmin = r;
+    cs_sc_ring g;
+    cs_sc_ring_of(ph, L0, x0, y0, z0, v, &g);
+    CS_SC_FOR_NEAR(G, x0, y0, z0, xv, reach, u, {
+        if (u != v) {
+            const cs_vec3 xu = cs_sc_at(x0, y0, z0, u);
+            int32_t t[2][3];
+            const int32_t f = cs_sc_quad_tris(L0, nx, ny, u % nx, u / nx, t);
+            float bw[3];
+            /* v against the triangles u owns */
+            for (int k = 0; k < 2; k++) {
+                if (!((f >> k) & 1) || t[k][0] == v || t[k][1] == v || t[k][2] == v) continue;
+                const cs_vec3 c[3] = {cs_sc_at(x0, y0, z0, t[k][0]), cs_sc_at(x0, y0, z0, t[k][1]),
+                                      cs_sc_at(x0, y0, z0, t[k][2])};
+                if (!(cs_sc_box_gap(xv, c, 3) < r)) continue;
+                const float d = cs_sc_point_tri(xv, c[0], c[1], c[2], bw);
+                if (!(d < r)) continue;
+                const float cv = cs_sc_pair_cut(&v, 1, t[k], 3, d, dx, dy, dz, s, v, outright);
+                cut = cv < cut ? cv : cut;
+                dmin = d < dmin ? d : dmin;
+            }
+            /* u against v's triangles */
+            for (int k = 0; k < g.ntri; k++) {
+                if (g.tri[k][0] == u || g.tri[k][1] == u || g.tri[k][2] == u) continue;
+                if (!(cs_sc_box_gap(xu, g.c[k], 3) < r)) continue;
+                const float d = cs_sc_point_tri(xu, g.c[k][0], g.c[k][1], g.c[k][2], bw);
+                if (!(d < r)) continue;
+                const float cv = cs_sc_pair_cut(&u, 1, g.tri[k], 3, d, dx, dy, dz, s, v, outright);
+                cut = cv < cut ? cv : cut;
+                dmin = d < dmin ? d : dmin;
+            }
+            /* v's spokes against the edges u owns */
+            const int32_t ui = u % nx, uj = u / nx;
+            for (int e = 0; e < 3; e++) {
+                if ((e != 1 && ui + 1 >= nx) || (e != 0 && uj + 1 >= ny)) continue;
+                const int32_t z1 = e == 0 ? u + 1 : e == 1 ? u + nx : u + nx + 1;
+                if (z1 == v || !cs_sc_edge_on(L0, nx, ny, ui, uj, e)) continue;
+                const cs_vec3 xz = cs_sc_at(x0, y0, z0, z1);
+                for (int k = 0; k < g.nspoke; k++) {
+                    int32_t ends[2];
+                    cs_sc_edge_ends(ph, g.spoke[k], ends);
+                    const int32_t o = ends[0] == v ? ends[1] : ends[0];
+                    if (o == u || o == z1) continue;
+                    const cs_vec3 xo = cs_sc_at(x0, y0, z0, o);
+                    if (!(cs_sc_seg_gap(xv, xo, xu, xz) < r)) continue;
+                    /* in a canonical order (the edge with the lower first vertex first, each
+                     * from its lower end), so every vertex of the pair computes the same bits */
+                    int32_t ea[2] = {v < o ? v : o, v < o ? o : v}, eb[2] = {u, z1};
+                    if (eb[0] < ea[0]) {
+                        const int32_t t0 = ea[0], t1 = ea[1];
+                        ea[0] = eb[0], ea[1] = eb[1], eb[0] = t0, eb[1] = t1;
+                    }
+                    const float d = cs_sc_seg_seg(cs_sc_at(x0, y0, z0, ea[0]), cs_sc_at(x0, y0, z0, ea[1]),
+                                                  cs_sc_at(x0, y0, z0, eb[0]), cs_sc_at(x0, y0, z0, eb[1]));
+                    if (!(d < r)) continue;
+                    const float cv = cs_sc_pair_cut(ea, 2, eb, 2, d, dx, dy, dz, s, v, outright);
+                    cut = cv < cut ? cv : cut;
+                    dmin = d < dmin ? d : dmin;
+                }
+            }
+        }
+    });
+    *dall = dmin;
+    return cut;
+}
+
+#endif

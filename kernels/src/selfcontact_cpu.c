@@ -1,0 +1,314 @@
+/* selfcontact_cpu.c - self_collision on the CPU backend: the functions of clothsim/selfcontact.h
+ * looped over the grid with OpenMP (kernels/MODEL.md, "Self-collision"). After a substep (a part
+ * under implicit_euler) that began at x0 (cs_sc_begin):
+ *   1. d = x - x0 and M = max |d|, L the longest intact edge at x0: pairs within
+ *      r = self_thickness + 2 M / CS_SC_GAMMA at x0 are the ones that may meet;
+ *   2. the hash grid of x0 (cells of r + 2 L; keys in parallel, the counting sort on one thread);
+ *   3. repulsion (cs_sc_repel) per vertex into scratch, then added;
+ *   4. the bound (cs_sc_limit) in Jacobi sweeps of the scales until none changes (at most
+ *      CS_SC_SWEEPS, then one sweep that cuts every near pair outright); x = x0 + s d, v = s v.
+ * Every maximum is exact in any order and every vertex writes only its own entries, so the result
+ * does not depend on the thread count.
+ *
+ * Passes that provably change nothing are skipped: the bound's first sweep also finds the least
+ * distance at x0 of any pair (and of any pair that repels) within a wider reach R, kept with x0 as
+ * a reference. While every vertex has moved less than C from it, no pair is nearer than that least
+ * distance less 2 C: when that leaves every pair safe for this substep's motion, or no repelling
+ * pair within self_thickness at its end, the pass would leave every vertex as it is and is not
+ * run. So the reference only saves time: the result is the same bits whenever it was taken. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "cpu_internal.h"
+#include "clothsim/selfcontact.h"
+
+struct cs_sc_work {
+    int32_t n;
+    uint32_t mask;
+    float *x0, *y0, *z0, *dx, *dy, *dz, *s, *s2, *px, *pv;
+    float *xr, *dall;        /* the reference (3 n), the least distance of each vertex's pairs there */
+    int64_t *keys;           /* each vertex's repelling pairs (CS_SC_MAX_PAIRS each), sorted */
+    int32_t *count;          /* and how many */
+    uint8_t *look;           /* vertices whose pairs the bound looks at this substep */
+    int have_ref, lists_whole;
+    int64_t pairs;           /* in all the lists */
+    float ref_list, ref_thickness;
+    uint32_t *key;
+    int32_t *start, *ids;
+};
+
+void cs_sc_free(cs_sc_work *w)
+{
+    if (!w) return;
+    free(w->x0);
+    free(w->xr);
+    free(w->keys);
+    free(w->count);
+    free(w->look);
+    free(w->dall);
+    free(w->dx);
+    free(w->s);
+    free(w->px);
+    free(w->key);
+    free(w->start);
+    free(w->ids);
+    free(w);
+}
+
+static cs_status fit(cs_sc_work **wp, int32_t n)
+{
+    if (*wp && (*wp)->n == n) return CS_OK;
+    cs_sc_free(*wp);
+    *wp = NULL;
+    cs_sc_work *w = calloc(1, sizeof *w);
+    if (!w) return CS_E_NOMEM;
+    uint32_t size = 1;
+    while (size < 2u * (uint32_t)n) size <<= 1;
+    w->n = n;
+    w->mask = size - 1;
+    w->x0 = malloc(sizeof(float) * 3 * (size_t)n);
+    w->xr = malloc(sizeof(float) * 3 * (size_t)n);
+    w->keys = malloc(sizeof(int64_t) * CS_SC_MAX_PAIRS * (size_t)n);
+    w->count = malloc(sizeof(int32_t) * (size_t)n);
+    w->look = malloc((size_t)n);
+    w->dall = malloc(sizeof(float) * (size_t)n);
+    w->dx = malloc(sizeof(float) * 3 * (size_t)n);
+    w->s = malloc(sizeof(float) * 2 * (size_t)n);
+    w->px = malloc(sizeof(float) * 6 * (size_t)n);
+    w->key = malloc(sizeof(uint32_t) * (size_t)n);
+    w->start = malloc(sizeof(int32_t) * ((size_t)size + 1));
+    w->ids = malloc(sizeof(int32_t) * (size_t)n);
+    if (!w->x0 || !w->xr || !w->keys || !w->count || !w->look || !w->dall || !w->dx || !w->s || !w->px || !w->key || !w->start || !w->ids) {
+        cs_sc_free(w);
+        return CS_E_NOMEM;
+    }
+    w->y0 = w->x0 + n, w->z0 = w->y0 + n;
+    w->dy = w->dx + n, w->dz = w->dy + n;
+    w->s2 = w->s + n;
+    w->pv = w->px + 3 * (size_t)n;
+    *wp = w;
+    return CS_OK;
+}
+
+void cs_sc_forget(cs_sc_work *w)
+{
+    if (w) w->have_ref = 0;
+}
+
+cs_status cs_sc_begin(cs_sc_work **wp, const cs_state *s)
+{
+    if (fit(wp, s->n) != CS_OK) return CS_E_NOMEM;
+    cs_sc_work *w = *wp;
+    const size_t b = sizeof(float) * (size_t)s->n;
+    memcpy(w->x0, s->x, b);
+    memcpy(w->y0, s->y, b);
+    memcpy(w->z0, s->z, b);
+    return CS_OK;
+}
+
+/* d = x - x0. Returns how far a vertex moves from the middle of all their displacements (the centre
+ * of their box: two vertices move apart by at most twice it, whatever the cloth's motion as a
+ * whole), and into *C (when not NULL) the same of x0 from the reference. Maxima and minima: exact
+ * in any order. */
+static float displacements(cs_sc_work *w, const cs_state *s, int threads, float *C)
+{
+    const int ref = C != NULL;
+    const int32_t n = s->n;
+    float lx = 3e38f, ly = 3e38f, lz = 3e38f, hx = -3e38f, hy = -3e38f, hz = -3e38f;
+    float rlx = 3e38f, rly = 3e38f, rlz = 3e38f, rhx = -3e38f, rhy = -3e38f, rhz = -3e38f;
+#pragma omp parallel for num_threads(threads) schedule(static) reduction(min : lx, ly, lz, rlx, rly, rlz) \
+    reduction(max : hx, hy, hz, rhx, rhy, rhz)
+    for (int32_t v = 0; v < n; v++) {
+        const float dx = s->x[v] - w->x0[v], dy = s->y[v] - w->y0[v], dz = s->z[v] - w->z0[v];
+        w->dx[v] = dx, w->dy[v] = dy, w->dz[v] = dz;
+        lx = dx < lx ? dx : lx, ly = dy < ly ? dy : ly, lz = dz < lz ? dz : lz;
+        hx = dx > hx ? dx : hx, hy = dy > hy ? dy : hy, hz = dz > hz ? dz : hz;
+        if (ref) {
+            const float ex = w->x0[v] - w->xr[v], ey = w->y0[v] - w->xr[n + v], ez = w->z0[v] - w->xr[2 * n + v];
+            rlx = ex < rlx ? ex : rlx, rly = ey < rly ? ey : rly, rlz = ez < rlz ? ez : rlz;
+            rhx = ex > rhx ? ex : rhx, rhy = ey > rhy ? ey : rhy, rhz = ez > rhz ? ez : rhz;
+        }
+    }
+    const cs_vec3 c = cs_v3(0.5f * (lx + hx), 0.5f * (ly + hy), 0.5f * (lz + hz)),
+                  cr = cs_v3(0.5f * (rlx + rhx), 0.5f * (rly + rhy), 0.5f * (rlz + rhz));
+    float most = 0.0f, far = 0.0f;
+#pragma omp parallel for num_threads(threads) schedule(static) reduction(max : most, far)
+    for (int32_t v = 0; v < n; v++) {
+        const float l = cs_len(cs_sub(cs_v3(w->dx[v], w->dy[v], w->dz[v]), c));
+        most = l > most ? l : most;
+        if (ref) {
+            const cs_vec3 e = cs_v3(w->x0[v] - w->xr[v], w->y0[v] - w->xr[n + v], w->z0[v] - w->xr[2 * n + v]);
+            const float f = cs_len(cs_sub(e, cr));
+            far = f > far ? f : far;
+        }
+    }
+    if (C) *C = far;
+    return n > 0 ? most : 0.0f;
+}
+
+/* The longest intact render edge at positions x, y, z (each vertex's three own edges). */
+static float longest_edge(const cs_phys *p, const float *x, const float *y, const float *z, const float *L0,
+                          int threads)
+{
+    float most = 0.0f;
+    const int32_t nx = p->nx, ny = p->ny;
+#pragma omp parallel for num_threads(threads) schedule(static) reduction(max : most)
+    for (int32_t v = 0; v < p->n; v++) {
+        const int32_t i = v % nx, j = v / nx;
+        for (int e = 0; e < 3; e++) {
+            if ((e != 1 && i + 1 >= nx) || (e != 0 && j + 1 >= ny) || !cs_sc_edge_on(L0, nx, ny, i, j, e)) continue;
+            const int32_t o = e == 0 ? v + 1 : e == 1 ? v + nx : v + nx + 1;
+            const float l = cs_len(cs_sub(cs_sc_at(x, y, z, o), cs_sc_at(x, y, z, v)));
+            most = l > most ? l : most;
+        }
+    }
+    return most;
+}
+
+/* The hash grid of positions x, y, z. */
+static cs_sc_grid build_grid(cs_sc_work *w, int32_t n, const float *x, const float *y, const float *z, float cell,
+                             int threads)
+{
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t v = 0; v < n; v++) w->key[v] = cs_sc_key_of(cs_sc_at(x, y, z, v), cell, w->mask);
+    cs_sc_sort(n, w->key, w->mask, w->start, w->ids);
+    return (cs_sc_grid){w->start, w->ids, w->mask, cell};
+}
+
+/* How much wider than the pairs that may meet this substep the bound looks when it takes a new
+ * reference: more work then, and fewer passes after. */
+static float ref_margin(const cs_phys *p)
+{
+    const float h = p->self_hx < p->self_hy ? p->self_hx : p->self_hy;
+    return p->self_thickness > 0.25f * h ? p->self_thickness : 0.25f * h;
+}
+
+/* How far beyond the pairs that may touch in a substep the lists look when the bound takes a new
+ * reference (they stay whole while the cloth moves less than half of it). */
+static float list_margin(const cs_phys *p) { return 2.0f * p->self_thickness; }
+
+/* Every vertex's list of repelling pairs within rad at positions x, y, z (cs_sc_pairs); returns
+ * those lost. */
+static int32_t build_lists(cs_sc_work *w, const cs_phys *p, const float *L0, const float *x, const float *y,
+                           const float *z, const cs_sc_grid *G, float reach, float rad, int threads)
+{
+    int32_t lost = 0;
+    int64_t pairs = 0;
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 256) reduction(+ : lost, pairs)
+    for (int32_t v = 0; v < p->n; v++) {
+        w->count[v] = cs_sc_pairs(p, G, L0, x, y, z, reach, rad, v, w->keys + (size_t)v * CS_SC_MAX_PAIRS, &lost);
+        pairs += w->count[v];
+    }
+    w->pairs = pairs;
+    return lost;
+}
+
+cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, cs_sc_stats *st)
+{
+    const int32_t n = s->n;
+    const float *L0 = s->L0;
+    const int fresh = w->have_ref && w->ref_thickness == p->self_thickness;
+    float C = 0.0f;
+    float M = displacements(w, s, threads, fresh ? &C : NULL);
+    if (!(M < 3.0e38f) || !(C < 3.0e38f)) return CS_OK; /* not finite: the caller reports it */
+    int32_t lost = 0;
+    /* 3. repulsion: from the lists while they are whole and hold every repelling pair that can
+     * touch at x1 (self_thickness + 2 (C + M) under the radius they were taken with), else from
+     * the pairs within self_thickness at x1 found now: the pairs that touch are the same, and each
+     * vertex sums them in the same order (by key) */
+    const int listed = fresh && w->lists_whole && p->self_thickness + 2.0f * (C + M) < 0.95f * w->ref_list;
+    if (!listed) {
+        const float L1 = longest_edge(p, s->x, s->y, s->z, L0, threads), rad = p->self_thickness;
+        const cs_sc_grid G1 = build_grid(w, n, s->x, s->y, s->z, rad + 2.0f * L1, threads);
+        lost = build_lists(w, p, L0, s->x, s->y, s->z, &G1, rad + 2.0f * L1, rad, threads);
+        w->lists_whole = 0;
+    }
+    int32_t touching = 0;
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 256) reduction(+ : touching) if (w->pairs > 0)
+    for (int32_t v = 0; v < n; v++) {
+        if (!w->count[v]) continue;
+        cs_vec3 dx = cs_v3(0.0f, 0.0f, 0.0f), dv = dx;
+        touching += cs_sc_repel(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->w, w->keys + (size_t)v * CS_SC_MAX_PAIRS,
+                                w->count[v], v, &dx, &dv);
+        float *px = w->px + 3 * (size_t)v, *pv = w->pv + 3 * (size_t)v;
+        px[0] = dx.x, px[1] = dx.y, px[2] = dx.z;
+        pv[0] = dv.x, pv[1] = dv.y, pv[2] = dv.z;
+    }
+    if (touching > 0) {
+#pragma omp parallel for num_threads(threads) schedule(static)
+        for (int32_t v = 0; v < n; v++) {
+            if (!w->count[v]) continue; /* nothing asked of it (its scratch not written) */
+            const float *px = w->px + 3 * (size_t)v, *pv = w->pv + 3 * (size_t)v;
+            s->x[v] += px[0], s->y[v] += px[1], s->z[v] += px[2];
+            s->vx[v] += pv[0], s->vy[v] += pv[1], s->vz[v] += pv[2];
+        }
+        M = displacements(w, s, threads, NULL);
+    }
+    /* 4. the bound. A pair is safe by the reference when one of its vertices v is (its least
+     * distance there, less 2 C, leaves room for this substep's motion; margin 5 % for rounding):
+     * only the other vertices look at their pairs, or all of them when the reference is taken
+     * again (when the lists were not whole, or more than an eighth of the cloth would look) */
+    const float r = p->self_thickness + 2.0f * M / CS_SC_GAMMA;
+    int32_t cut = 0, looking = n;
+    int full = !listed;
+    if (!full) {
+        looking = 0;
+#pragma omp parallel for num_threads(threads) schedule(static) reduction(+ : looking)
+        for (int32_t v = 0; v < n; v++) {
+            w->look[v] = !(2.0f * M / CS_SC_GAMMA < 0.95f * (w->dall[v] - 2.0f * C));
+            looking += w->look[v];
+        }
+        full = looking > n / 2;
+    }
+    if (full || looking > 0) {
+        const float L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads);
+        const float R = full ? r + ref_margin(p) : r, Rl = p->self_thickness + 2.0f * M + list_margin(p);
+        const float reach = R + 2.0f * L;
+        /* cells as large as the farthest candidate either pass looks for */
+        const cs_sc_grid G = build_grid(w, n, w->x0, w->y0, w->z0, (full && Rl > R ? Rl : R) + 2.0f * L, threads);
+        if (full) { /* new lists with the new reference */
+            w->lists_whole = build_lists(w, p, L0, w->x0, w->y0, w->z0, &G, Rl + 2.0f * L, Rl, threads) == 0;
+            w->ref_list = Rl;
+        }
+        for (int32_t v = 0; v < n; v++) w->s[v] = w->s2[v] = 1.0f;
+        float *a = w->s, *b = w->s2;
+        int changed = M > 0.0f || full;
+        for (int sweep = 0; changed && sweep <= CS_SC_SWEEPS; sweep++) {
+            const int outright = sweep == CS_SC_SWEEPS;
+            changed = 0;
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 256) reduction(| : changed)
+            for (int32_t v = 0; v < n; v++) {
+                if (!full && !w->look[v]) continue;
+                float da;
+                b[v] = cs_sc_limit(p, &G, L0, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, reach, v, outright,
+                                   &da);
+                if (full && sweep == 0) w->dall[v] = da;
+                changed |= b[v] != a[v];
+            }
+            float *t = a;
+            a = b, b = t;
+        }
+        if (full) { /* the new reference */
+            memcpy(w->xr, w->x0, sizeof(float) * 3 * (size_t)n);
+            w->have_ref = 1;
+            w->ref_thickness = p->self_thickness;
+        }
+#pragma omp parallel for num_threads(threads) schedule(static) reduction(+ : cut)
+        for (int32_t v = 0; v < n; v++) {
+            const float k = a[v];
+            if (!(k < 1.0f)) continue;
+            cut++;
+            s->x[v] = w->x0[v] + k * w->dx[v];
+            s->y[v] = w->y0[v] + k * w->dy[v];
+            s->z[v] = w->z0[v] + k * w->dz[v];
+            s->vx[v] *= k, s->vy[v] *= k, s->vz[v] *= k;
+        }
+    }
+    if (st) {
+        st->contacts += touching;
+        st->cut += cut;
+        st->lost += lost;
+    }
+    return CS_OK;
+}

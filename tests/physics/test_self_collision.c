@@ -1,0 +1,277 @@
+/* test_self_collision.c - self_collision: a folding cloth never passes through itself.
+ *
+ * The scene: a 1 m square cloth hanging free (orientation vertical, no pins) with its lower edge
+ * 0.1 m above the ground, blown sideways by a 2 m/s wind, falls and crumples onto the ground in
+ * folds. The crossing counter is written here from geometry alone: two grid triangles that share
+ * no vertex cross when an edge of one passes through the other (Moller-Trumbore in double
+ * precision), never from the product's contact code. With self_collision off the scene crosses
+ * itself (so it really folds); with it on it never does, at any frame, under each integrator. */
+#include "testkit.h"
+
+#define SIDE 16
+/* Frames run: the lower edge lands at about 0.15 s, the cloth has folded onto itself by 1.1 s. */
+#define FRAMES 80
+
+typedef struct { double x, y, z; } d3;
+static d3 sub3(d3 a, d3 b) { return (d3){a.x - b.x, a.y - b.y, a.z - b.z}; }
+static d3 cross3(d3 a, d3 b) { return (d3){a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
+static double dot3(d3 a, d3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+
+/* Whether segment p q passes through triangle a b c. */
+static int segment_through(d3 p, d3 q, d3 a, d3 b, d3 c)
+{
+    const d3 dir = sub3(q, p), e1 = sub3(b, a), e2 = sub3(c, a), h = cross3(dir, e2);
+    const double det = dot3(e1, h);
+    if (fabs(det) < 1e-18) return 0;
+    const d3 s = sub3(p, a), qq = cross3(s, e1);
+    const double u = dot3(s, h) / det, v = dot3(dir, qq) / det, t = dot3(e2, qq) / det;
+    return u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t >= 0.0 && t <= 1.0;
+}
+
+/* Pairs of the grid's triangles (each quad split on its +x+y diagonal) that share no vertex and
+ * cross. */
+static long crossings(const float *xyz, int nx, int ny)
+{
+    const int nt = 2 * (nx - 1) * (ny - 1);
+    int(*t)[3] = malloc(sizeof *t * (size_t)nt);
+    assert_non_null(t);
+    for (int j = 0, k = 0; j < ny - 1; j++)
+        for (int i = 0; i < nx - 1; i++) {
+            const int v = j * nx + i;
+            t[k][0] = v, t[k][1] = v + 1, t[k][2] = v + nx + 1, k++;
+            t[k][0] = v, t[k][1] = v + nx + 1, t[k][2] = v + nx, k++;
+        }
+    long n = 0;
+    for (int k = 0; k < nt; k++)
+        for (int l = k + 1; l < nt; l++) {
+            int share = 0;
+            for (int a = 0; a < 3; a++)
+                for (int b = 0; b < 3; b++) share |= t[k][a] == t[l][b];
+            if (share) continue;
+            d3 P[3], Q[3];
+            for (int q = 0; q < 3; q++) {
+                P[q] = (d3){xyz[3 * t[k][q]], xyz[3 * t[k][q] + 1], xyz[3 * t[k][q] + 2]};
+                Q[q] = (d3){xyz[3 * t[l][q]], xyz[3 * t[l][q] + 1], xyz[3 * t[l][q] + 2]};
+            }
+            int hit = 0;
+            for (int e = 0; e < 3; e++)
+                hit |= segment_through(P[e], P[(e + 1) % 3], Q[0], Q[1], Q[2]) |
+                       segment_through(Q[e], Q[(e + 1) % 3], P[0], P[1], P[2]);
+            n += hit;
+        }
+    free(t);
+    return n;
+}
+
+static cs_sim *fold_scene(int integrator, int self)
+{
+    cs_scene sc;
+    cs_params p;
+    cs_scene_default(&sc);
+    cs_params_default(&p);
+    sc.nx = sc.ny = SIDE;
+    sc.size_x = sc.size_y = 1.0f;
+    sc.orientation = CS_VERTICAL;
+    sc.pins = CS_PINS_NONE;
+    sc.height = 0.6f;
+    p.integrator = integrator;
+    p.self_collision = self;
+    p.wind[1] = 2.0f;
+    return tk_sim_serial(&sc, &p); /* one thread: ctest runs two tests at once on two cores */
+}
+
+/* Runs the scene; returns the most crossings seen at any frame (and the frame they first showed). */
+static long run_fold(cs_sim *sim, int frames, int *first)
+{
+    float xyz[3 * SIDE * SIDE];
+    long most = 0;
+    *first = -1;
+    for (int f = 0; f < frames; f++) {
+        assert_int_equal(cs_sim_step_frames(sim, 1), CS_OK);
+        assert_int_equal(cs_read_positions(sim, xyz, 3 * SIDE * SIDE), CS_OK);
+        const long c = crossings(xyz, SIDE, SIDE);
+        if (c > 0 && *first < 0) *first = f;
+        most = c > most ? c : most;
+    }
+    return most;
+}
+
+static void check_integrator(int integrator)
+{
+    int first;
+    cs_sim *off = fold_scene(integrator, 0);
+    const long crossed = run_fold(off, FRAMES, &first);
+    print_message("integrator %d, self_collision off: up to %ld crossing pairs (first at frame %d)\n", integrator,
+                  crossed, first);
+    assert_true(crossed > 0); /* the scene folds through itself without it */
+    cs_sim_destroy(off);
+    cs_sim *on = fold_scene(integrator, 1);
+    const long kept = run_fold(on, FRAMES, &first);
+    print_message("integrator %d, self_collision on: up to %ld crossing pairs\n", integrator, kept);
+    assert_int_equal(kept, 0);
+    cs_sim_destroy(on);
+}
+
+/* Under AddressSanitizer (some 20 times slower) implicit_euler's fold and the shorter checks
+ * only: the explicit integrators run the same passes after every substep. */
+static void test_fold_velocity_verlet(void **unused)
+{
+    (void)unused;
+    if (SANITIZED) skip();
+    check_integrator(CS_VELOCITY_VERLET);
+}
+
+static void test_fold_symplectic_euler(void **unused)
+{
+    (void)unused;
+    if (SANITIZED) skip();
+    check_integrator(CS_SYMPLECTIC_EULER);
+}
+
+static void test_fold_implicit_euler(void **unused)
+{
+    (void)unused;
+    check_integrator(CS_IMPLICIT_EULER);
+}
+
+/* The folded cloth at rest on the ground: layers stay at least half the thickness apart (every
+ * vertex from every triangle more than two rings away in the grid, by the distance written here). */
+static double point_triangle(d3 p, d3 a, d3 b, d3 c)
+{
+    /* the least of the distances to the three edges and, when the foot falls inside, to the plane */
+    const d3 n = cross3(sub3(b, a), sub3(c, a));
+    const double nn = dot3(n, n);
+    double best = 1e300;
+    if (nn > 0.0) {
+        const double t = dot3(sub3(p, a), n) / nn;
+        const d3 f = sub3(p, (d3){n.x * t, n.y * t, n.z * t});
+        const d3 e0 = cross3(sub3(b, a), sub3(f, a)), e1 = cross3(sub3(c, b), sub3(f, b)),
+                 e2 = cross3(sub3(a, c), sub3(f, c));
+        if (dot3(e0, n) >= 0.0 && dot3(e1, n) >= 0.0 && dot3(e2, n) >= 0.0) best = fabs(t) * sqrt(nn);
+    }
+    const d3 ends[3][2] = {{a, b}, {b, c}, {c, a}};
+    for (int k = 0; k < 3; k++) {
+        const d3 e = sub3(ends[k][1], ends[k][0]);
+        double s = dot3(sub3(p, ends[k][0]), e) / dot3(e, e);
+        s = s < 0.0 ? 0.0 : s > 1.0 ? 1.0 : s;
+        const d3 q = sub3(sub3(p, ends[k][0]), (d3){e.x * s, e.y * s, e.z * s});
+        const double d = sqrt(dot3(q, q));
+        best = d < best ? d : best;
+    }
+    return best;
+}
+
+static void test_layers_keep_apart(void **unused)
+{
+    (void)unused;
+    cs_sim *sim = fold_scene(CS_IMPLICIT_EULER, 1);
+    int first;
+    if (SANITIZED) skip();
+    assert_int_equal(run_fold(sim, 150, &first), 0);
+    float xyz[3 * SIDE * SIDE];
+    assert_int_equal(cs_read_positions(sim, xyz, 3 * SIDE * SIDE), CS_OK);
+    cs_params p;
+    cs_sim_params(sim, &p);
+    double least = 1e300;
+    int layered = 0;
+    for (int v = 0; v < SIDE * SIDE; v++)
+        for (int j = 0; j < SIDE - 1; j++)
+            for (int i = 0; i < SIDE - 1; i++) {
+                const int q = j * SIDE + i;
+                const int tri[2][3] = {{q, q + 1, q + SIDE + 1}, {q, q + SIDE + 1, q + SIDE}};
+                for (int f = 0; f < 2; f++) {
+                    int near = 0;
+                    for (int k = 0; k < 3; k++) {
+                        const int di = abs(v % SIDE - tri[f][k] % SIDE), dj = abs(v / SIDE - tri[f][k] / SIDE);
+                        near |= (di > dj ? di : dj) <= 2;
+                    }
+                    if (near) continue;
+                    const d3 P = {xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]};
+                    d3 c[3];
+                    for (int k = 0; k < 3; k++)
+                        c[k] = (d3){xyz[3 * tri[f][k]], xyz[3 * tri[f][k] + 1], xyz[3 * tri[f][k] + 2]};
+                    const double d = point_triangle(P, c[0], c[1], c[2]);
+                    layered += d < 2.0 * p.self_thickness;
+                    least = d < least ? d : least;
+                }
+            }
+    print_message("folded cloth: %d vertex-triangle pairs within twice the thickness, the nearest %.2f mm "
+                  "(thickness %.1f mm)\n", layered, least * 1e3, p.self_thickness * 1e3);
+    assert_true(layered > 0); /* it did fold into layers */
+    assert_true(least >= 0.5 * p.self_thickness);
+    cs_sim_destroy(sim);
+}
+
+/* Bitwise the same for one thread or two, and stepped in a batch or alone. */
+static void test_deterministic(void **unused)
+{
+    (void)unused;
+    const int frames = SANITIZED ? 30 : 70;
+    cs_sim *a = fold_scene(CS_VELOCITY_VERLET, 1), *b = fold_scene(CS_VELOCITY_VERLET, 1),
+           *c = fold_scene(CS_VELOCITY_VERLET, 1);
+    cs_sim_set_threads(a, 1);
+    cs_sim_set_threads(b, 2);
+    cs_sim_set_threads(c, 2);
+    assert_int_equal(cs_sim_step_frames(a, frames), CS_OK);
+    assert_int_equal(cs_sim_step_frames(b, frames), CS_OK);
+    cs_info info;
+    cs_sim_info(c, &info);
+    cs_sim *const batch[2] = {c, a};
+    const int64_t substeps[2] = {(int64_t)frames * info.substeps, 0};
+    cs_status each[2];
+    assert_int_equal(cs_sims_step(batch, 2, substeps, each), CS_OK);
+    assert_int_equal(each[0], CS_OK);
+    assert_true(cs_state_hash(a) == cs_state_hash(b));
+    assert_true(cs_state_hash(a) == cs_state_hash(c));
+    cs_sim_destroy(a);
+    cs_sim_destroy(b);
+    cs_sim_destroy(c);
+}
+
+/* self_thickness 0, negative, NaN or past its range: refused, nothing changed. */
+static void test_bad_thickness(void **unused)
+{
+    (void)unused;
+    cs_sim *sim = fold_scene(CS_VELOCITY_VERLET, 1);
+    cs_params before, p;
+    cs_sim_params(sim, &before);
+    const float bad[] = {0.0f, -0.01f, NAN, 1.0f, INFINITY};
+    for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
+        p = before;
+        p.self_thickness = bad[k];
+        assert_int_equal(cs_sim_set_params(sim, &p), CS_E_RANGE);
+        cs_sim_params(sim, &p);
+        assert_memory_equal(&p, &before, sizeof p);
+    }
+    cs_sim_destroy(sim);
+}
+
+/* Turned on in a state that already crosses: the state stays finite, and the crossings it had are
+ * not undone (the bound keeps what does not cross from crossing; docs: kernels/MODEL.md). */
+static void test_on_in_a_crossed_state(void **unused)
+{
+    (void)unused;
+    cs_sim *sim = fold_scene(CS_VELOCITY_VERLET, 0);
+    int first;
+    assert_true(run_fold(sim, 60, &first) > 0);
+    cs_params p;
+    cs_sim_params(sim, &p);
+    p.self_collision = 1;
+    assert_int_equal(cs_sim_set_params(sim, &p), CS_OK);
+    assert_int_equal(cs_sim_step_frames(sim, SANITIZED ? 10 : 30), CS_OK);
+    float xyz[3 * SIDE * SIDE];
+    assert_int_equal(cs_read_positions(sim, xyz, 3 * SIDE * SIDE), CS_OK);
+    for (int k = 0; k < 3 * SIDE * SIDE; k++) assert_true(isfinite(xyz[k]));
+    cs_sim_destroy(sim);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_fold_velocity_verlet),  cmocka_unit_test(test_fold_symplectic_euler),
+        cmocka_unit_test(test_fold_implicit_euler),   cmocka_unit_test(test_layers_keep_apart),
+        cmocka_unit_test(test_deterministic),         cmocka_unit_test(test_bad_thickness),
+        cmocka_unit_test(test_on_in_a_crossed_state),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
