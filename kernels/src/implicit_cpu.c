@@ -296,6 +296,7 @@ static void chunk_residual(const cs_phys *p, float h, const cs_state *s, cs_im_w
 static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, const cs_im_rocks *rv, int blocks,
                       int threads)
 {
+    (void)threads; /* only the OpenMP pragmas read it */
     const int32_t nchunks = p->nchunks;
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t c = 0; c < nchunks; c++) {
@@ -319,6 +320,7 @@ static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *
 /* a . b over level 0 (chunk trees, then chunks in order). */
 static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b, int threads)
 {
+    (void)threads; /* only the OpenMP pragmas read it */
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t c = 0; c < p->nchunks; c++) {
         int32_t j, i0, i1;
@@ -334,6 +336,7 @@ static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b
 /* y = A x on level l (bend: the true operator of level 0, bending blocks included). */
 static void apply(const cs_im_level *L, const float *x, float *y, int bend, int threads)
 {
+    (void)threads; /* only the OpenMP pragmas read it */
     const int32_t e = bend ? 2 : 1, nx = L->nx, ny = L->ny;
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t j = 0; j < ny; j++) {
@@ -350,6 +353,7 @@ static void apply(const cs_im_level *L, const float *x, float *y, int bend, int 
 /* x = x + omega Dinv (b - t) where t = A x (first: x = omega Dinv b, from x = 0). */
 static void jacobi(const cs_im_level *L, float *x, const float *b, const float *t, int first, int threads)
 {
+    (void)threads; /* only the OpenMP pragmas read it */
     const int32_t n = L->nx * L->ny;
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t v = 0; v < n; v++) {
@@ -407,6 +411,7 @@ static void vcycle(cs_im_work *w, const cs_state *s, int l, const float *b, floa
 /* The hierarchy from level 0's matrix: each level's Dinv, the coarse levels' Galerkin products. */
 static void hierarchy(cs_im_work *w, const cs_state *s, int threads)
 {
+    (void)threads; /* only the OpenMP pragmas read it */
     for (int l = 0; l < w->levels; l++) {
         im_level *lv = &w->lv[l];
         if (l > 0) {
@@ -467,6 +472,7 @@ static int pcg(const cs_phys *p, cs_im_work *w, const cs_state *s, float target,
 /* x = x_k + a dx for the vertices in the solve, and v = (x - x_n)/h. */
 static void move(cs_im_work *w, cs_state *s, float a, float inv_h, int threads)
 {
+    (void)threads; /* only the OpenMP pragmas read it */
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t v = 0; v < s->n; v++) {
         if (s->w[v] == 0.0f) continue;
@@ -585,6 +591,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
  * on any other part of the cloth (cs_sc_rate), as a rate: the parts of a substep. */
 static float fastest(const cs_phys *p, const cs_state *s, float h, int threads)
 {
+    (void)threads; /* only the OpenMP pragmas read it */
     float most = 0.0f;
     if (s->n_rocks || p->self_on) {
 #pragma omp parallel for num_threads(threads) schedule(static) reduction(max : most)

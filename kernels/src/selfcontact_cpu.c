@@ -113,6 +113,7 @@ cs_status cs_sc_begin(cs_sc_work **wp, const cs_state *s)
  * in any order. */
 static float displacements(cs_sc_work *w, const cs_state *s, int threads, float *C)
 {
+    (void)threads; /* only the OpenMP pragmas read it */
     const int ref = C != NULL;
     const int32_t n = s->n;
     float lx = 3e38f, ly = 3e38f, lz = 3e38f, hx = -3e38f, hy = -3e38f, hz = -3e38f;
@@ -151,6 +152,7 @@ static float displacements(cs_sc_work *w, const cs_state *s, int threads, float 
 static float longest_edge(const cs_phys *p, const float *x, const float *y, const float *z, const float *L0,
                           int threads)
 {
+    (void)threads; /* only the OpenMP pragmas read it */
     float most = 0.0f;
     const int32_t nx = p->nx, ny = p->ny;
 #pragma omp parallel for num_threads(threads) schedule(static) reduction(max : most)
@@ -170,6 +172,7 @@ static float longest_edge(const cs_phys *p, const float *x, const float *y, cons
 static cs_sc_grid build_grid(cs_sc_work *w, int32_t n, const float *x, const float *y, const float *z, float cell,
                              int threads)
 {
+    (void)threads; /* only the OpenMP pragmas read it */
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t v = 0; v < n; v++) w->key[v] = cs_sc_key_of(cs_sc_at(x, y, z, v), cell, w->mask);
     cs_sc_sort(n, w->key, w->mask, w->start, w->ids);
@@ -193,6 +196,7 @@ static float list_margin(const cs_phys *p) { return 2.0f * p->self_thickness; }
 static int32_t build_lists(cs_sc_work *w, const cs_phys *p, const float *L0, const float *x, const float *y,
                            const float *z, const cs_sc_grid *G, float reach, float rad, int threads)
 {
+    (void)threads; /* only the OpenMP pragmas read it */
     int32_t lost = 0;
     int64_t pairs = 0;
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 256) reduction(+ : lost, pairs)
