@@ -1,21 +1,24 @@
 /* selfcontact_cpu.c - self_collision on the CPU backend: the functions of clothsim/selfcontact.h
  * looped over the grid with OpenMP (kernels/MODEL.md, "Self-collision"). After a substep (a part
  * under implicit_euler) that began at x0 (cs_sc_begin):
- *   1. d = x - x0 and M = max |d|, L the longest intact edge at x0: pairs within
- *      r = self_thickness + 2 M / CS_SC_GAMMA at x0 are the ones that may meet;
- *   2. the hash grid of x0 (cells of r + 2 L; keys in parallel, the counting sort on one thread);
- *   3. repulsion (cs_sc_repel) per vertex into scratch, then added;
- *   4. the bound (cs_sc_limit) in Jacobi sweeps of the scales until none changes (at most
- *      CS_SC_SWEEPS, then one sweep that cuts every near pair outright); x = x0 + s d, v = s v.
+ *   1. d = x - x0 and M, the farthest a vertex moves from the centre of all the displacements:
+ *      pairs within r = self_thickness + 2 M / CS_SC_GAMMA at x0 are the ones that may meet;
+ *   2. repulsion (cs_sc_repel) per vertex into scratch, then added: from each vertex's list of
+ *      repelling pairs while the lists provably hold every pair that can touch, else from lists
+ *      of the pairs within self_thickness at x1 found now (a hash grid of x1);
+ *   3. the bound (cs_sc_limit) over a hash grid of x0 (cells of the reach plus twice the longest
+ *      edge; keys in parallel, the counting sort on one thread), in Jacobi sweeps of the scales
+ *      until none changes (at most CS_SC_SWEEPS, then one sweep that cuts every near pair
+ *      outright); x = x0 + s d, v = s v.
  * Every maximum is exact in any order and every vertex writes only its own entries, so the result
  * does not depend on the thread count.
  *
- * Passes that provably change nothing are skipped: the bound's first sweep also finds the least
- * distance at x0 of any pair (and of any pair that repels) within a wider reach R, kept with x0 as
- * a reference. While every vertex has moved less than C from it, no pair is nearer than that least
- * distance less 2 C: when that leaves every pair safe for this substep's motion, or no repelling
- * pair within self_thickness at its end, the pass would leave every vertex as it is and is not
- * run. So the reference only saves time: the result is the same bits whenever it was taken. */
+ * Passes that provably change nothing are skipped. A full pass of the bound finds each vertex's
+ * least pair distance at x0 within a wider reach and rebuilds the lists there, keeping x0 as the
+ * reference. While every vertex has moved less than C from it (from the centre of all the
+ * motions), no pair is nearer than that least distance less 2 C: a vertex for which that leaves
+ * every pair safe for this substep's motion is not looked at. So the reference only saves time:
+ * the result is the same bits whenever it was taken. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
