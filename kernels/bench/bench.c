@@ -5,7 +5,10 @@
  * contact by each model of --contact (surface, vertex; without rocks the first only); velocity
  * Verlet with every force on (springs with damping, drag, gravity, ground, plasticity and tearing
  * checks, and contact with the rocks). Each case settles briefly, then runs for --seconds of wall
- * time. Prints one line per case (JSON with --json), with the backend's cost model: the bytes each
+ * time. --self-collision turns self_collision on in every case and reports what it did (its
+ * passes, broad phases, pairs, contacts, cuts); --crumple makes each cloth a
+ * free one that a side wind blows onto the ground, and measures it after a simulated second of
+ * folding. Prints one line per case (JSON with --json), with the backend's cost model: the bytes each
  * kernel (or CPU pass) reads and writes per vertex per substep and its launches per frame; for CUDA
  * the bandwidth roofline on an H100 (3.35 TB/s) and an H200 (4.8 TB/s), the launch floor at
  * LAUNCH_US per dependent kernel of a graph, and what this device's memory bandwidth allows.
@@ -46,12 +49,30 @@ static double now(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
+/* What self_collision did while a case was measured: its broad phases and pairs (the lists they
+ * built, on average), the contacts that pushed and the vertices the bound cut, per pass. */
+static void print_self(const cs_self_stats *st, int json)
+{
+    const double passes = st->passes > 0 ? (double)st->passes : 1.0, broad = st->broad > 0 ? (double)st->broad : 1.0;
+    if (json)
+        printf(",\"self_passes\":%d,\"self_broad_phases\":%d,\"self_pairs_per_broad_phase\":%.0f,"
+               "\"self_contacts_per_pass\":%.1f,\"self_cut_per_pass\":%.2f,\"self_lost\":%lld",
+               st->passes, st->broad, (double)st->pairs / broad, (double)st->contacts / passes,
+               (double)st->cut / passes, (long long)st->lost);
+    else
+        printf("        self_collision: %d passes, %d broad phases (%.2f a pass), %.0f pairs in the lists a broad "
+               "phase, %.1f contacts and %.2f vertices cut a pass, %lld vertices without a list\n",
+               st->passes, st->broad, st->broad / passes, (double)st->pairs / broad,
+               (double)st->contacts / passes, (double)st->cut / passes, (long long)st->lost);
+}
+
 static void usage(FILE *f)
 {
     fprintf(f,
             "usage: clothd-bench [--backend cpu|cuda|auto] [--json] [--threads N] [--seconds S]\n"
             "                    [--sizes 64,128,256,512] [--rocks 0,16] [--contact surface,vertex]\n"
             "                    [--integrator velocity_verlet|symplectic_euler|implicit_euler] [--model]\n"
+            "                    [--self-collision] [--crumple]\n"
             "       clothd-bench --batch 1,4,16,64 [--backend B] [--sizes 32,64] [--threads N] [--seconds S]\n"
             "                    [--frames F --only batch|alone] [--read] [--json]\n");
 }
@@ -357,7 +378,7 @@ int main(int argc, char **argv)
     const char *backend = "cpu", *sizes_arg = "64,128,256,512", *integrator = "velocity_verlet", *rocks_arg = "0,16";
     const char *contacts = "surface,vertex";
     const char *batch_arg = NULL, *only = NULL;
-    int json = 0, threads = 0, model_only = 0, sizes_given = 0, read_frames = 0;
+    int json = 0, threads = 0, model_only = 0, sizes_given = 0, read_frames = 0, self_collision = 0, crumple = 0;
     double seconds = 1.5;
     long long frames = 0;
     for (int i = 1; i < argc; i++) {
@@ -376,6 +397,8 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--rocks") == 0 && val) rocks_arg = val, i++;
         else if (strcmp(a, "--contact") == 0 && val) contacts = val, i++;
         else if (strcmp(a, "--integrator") == 0 && val) integrator = val, i++;
+        else if (strcmp(a, "--self-collision") == 0) self_collision = 1;
+        else if (strcmp(a, "--crumple") == 0) crumple = 1;
         else if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             return 0;
@@ -468,6 +491,13 @@ int main(int argc, char **argv)
             p.tear_strain = 2.0f;
             p.max_substeps = 100000;
             p.contact_model = models[mi];
+            p.self_collision = self_collision;
+            if (crumple) { /* crumple_scene: the cloth falls and folds onto the ground first */
+                sc.orientation = CS_VERTICAL;
+                sc.pins = CS_PINS_NONE;
+                sc.height = 0.1f + 0.5f * sc.size_y;
+                p.wind[1] = 2.0f;
+            }
             cs_sim *sim = NULL;
             char err[256];
             /* The model needs the scene and rocks only: a CPU simulation holds them. */
@@ -504,6 +534,11 @@ int main(int argc, char **argv)
                 cs_sim_destroy(sim);
                 continue;
             }
+            /* --crumple: one simulated second of falling and folding first */
+            if (crumple && cs_sim_step_frames(sim, p.frame_rate) != CS_OK) {
+                fprintf(stderr, "clothd-bench: %dx%d: %s\n", size, size, cs_sim_error(sim));
+                return 1;
+            }
             /* Settle, and size a batch to about 1/20 of the measuring time. */
             int64_t batch = 1;
             double t0 = now();
@@ -517,10 +552,15 @@ int main(int argc, char **argv)
             cs_status st = CS_OK;
             t0 = now();
             double t = t0;
+            cs_self_stats self_sum = {0};
             while (t - t0 < seconds && st == CS_OK) {
                 st = cs_sim_step(sim, batch);
                 done += batch;
                 t = now();
+                cs_sim_info(sim, &info);
+                self_sum.passes += info.self.passes, self_sum.broad += info.self.broad;
+                self_sum.pairs += info.self.pairs, self_sum.contacts += info.self.contacts;
+                self_sum.cut += info.self.cut, self_sum.lost += info.self.lost;
             }
             if (st != CS_OK) {
                 fprintf(stderr, "clothd-bench: %dx%d: %s\n", size, size, cs_sim_error(sim));
@@ -546,12 +586,14 @@ int main(int argc, char **argv)
                     printf(",\"peak_bandwidth_gb_s\":%.1f,\"fraction_of_peak\":%.3f", bs.peak_bandwidth / 1e9,
                            traffic / bs.peak_bandwidth);
                 print_model(self->name, &m, (double)size * size, 1, bs.peak_bandwidth);
+                if (self_collision) print_self(&self_sum, 1);
                 printf("}\n");
             } else {
                 /* the real-time factor, and the wall time a simulated second costs per vertex (us) */
                 const double rtf = sps / ((double)p.frame_rate * info.substeps);
                 printf("%-7s %4dx%-4d %5d %-8s %14.0f %22.0f %10.3f %12.1f\n", cs_sim_backend(sim), size, size,
                        info.n_rocks, cm->choices[models[mi]], sps, vsps, rtf, 1e6 / (rtf * size * size));
+                if (self_collision) print_self(&self_sum, 0);
             }
             fflush(stdout);
             cs_sim_destroy(sim);

@@ -1078,7 +1078,7 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
 #pragma omp parallel num_threads(threads)
             step_team(c, tb[thread_id()], m, s, run, 0);
         }
-        if (self) cs_sc_end(c->sc, &m->phys, s, threads, NULL);
+        if (self) cs_sc_end(c->sc, &m->phys, s, threads, &rep->self);
         done += run;
     }
     scratch_give(tb, threads);

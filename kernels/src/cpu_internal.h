@@ -21,18 +21,13 @@ void cs_im_free(cs_im_work *w);
 /* selfcontact_cpu.c: the workspace of self_collision (NULL until first used), freed with the
  * context, and what its passes did. */
 typedef struct cs_sc_work cs_sc_work;
-typedef struct cs_sc_stats {
-    int64_t contacts; /* vertex-triangle pairs that pushed apart (counted by each of their vertices) */
-    int64_t cut;      /* vertices whose displacement the bound cut back */
-    int64_t lost;     /* repelling pairs a vertex had no room for (CS_SC_MAX_PAIRS) */
-} cs_sc_stats;
 void cs_sc_free(cs_sc_work *w);
 /* The state changed from outside: the reference that lets passes be skipped is gone. */
 void cs_sc_forget(cs_sc_work *w);
 /* Keeps the positions a substep starts from. CS_E_NOMEM: nothing kept. */
 cs_status cs_sc_begin(cs_sc_work **w, const cs_state *s);
 /* After the substep: repulsion, then the bound (selfcontact.h); st (may be NULL) counts. */
-cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, cs_sc_stats *st);
+cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, cs_self_stats *st);
 
 cs_status cs_im_step(cs_im_work **w, const cs_model *m, cs_state *s, int32_t substeps, int threads,
                      cs_step_report *rep, int64_t *torn, cs_sc_work **sc);

@@ -621,7 +621,7 @@ cs_status cs_im_step(cs_im_work **wp, const cs_model *m, cs_state *s, int32_t su
         for (int32_t q = 0; q < parts; q++) {
             if (p->self_on && cs_sc_begin(sc, s) != CS_OK) return CS_E_NOMEM;
             t += part(p, w, s, h, threads, &st);
-            if (p->self_on) cs_sc_end(*sc, p, s, threads, NULL);
+            if (p->self_on) cs_sc_end(*sc, p, s, threads, &rep->self);
         }
     }
     rep->solver = st;

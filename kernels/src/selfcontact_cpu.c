@@ -20,6 +20,7 @@
  * every pair safe for this substep's motion is not looked at. So the reference only saves time:
  * the result is the same bits whenever it was taken. */
 #include <math.h>
+#include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -31,22 +32,35 @@ struct cs_sc_work {
     uint32_t mask;
     float *x0, *y0, *z0, *dx, *dy, *dz, *s, *s2, *px, *pv;
     float *xr, *dall;        /* the reference (3 n), the least distance of each vertex's pairs there */
-    int64_t *keys;           /* each vertex's repelling pairs (CS_SC_MAX_PAIRS each), sorted */
-    int32_t *count;          /* and how many */
+    int64_t **chunk;         /* each chunk's lists (CHUNK vertices' repelling pairs, sorted, one after another) */
+    int64_t *chunk_cap;      /* the room in each */
+    int64_t *first;          /* where each vertex's list starts in its chunk's */
+    int32_t *count;          /* and how many pairs it has */
     uint8_t *look;           /* vertices whose pairs the bound looks at this substep */
     int have_ref, lists_whole;
     int64_t pairs;           /* in all the lists */
     float ref_list, ref_thickness;
     uint32_t *key;
-    int32_t *start, *ids;
+    int32_t *start, *ids, *cc;
 };
+
+/* The lists are built a chunk of vertices at a time, each chunk into its own buffer, grown as it
+ * needs: no pair is left out for want of room, and the lists are the same whatever thread built
+ * each chunk. */
+#define CHUNK 64
+
+static int32_t chunks(int32_t n) { return (n + CHUNK - 1) / CHUNK; }
 
 void cs_sc_free(cs_sc_work *w)
 {
     if (!w) return;
+    if (w->chunk)
+        for (int32_t c = 0; c < chunks(w->n); c++) free(w->chunk[c]);
+    free(w->chunk);
+    free(w->chunk_cap);
+    free(w->first);
     free(w->x0);
     free(w->xr);
-    free(w->keys);
     free(w->count);
     free(w->look);
     free(w->dall);
@@ -56,6 +70,7 @@ void cs_sc_free(cs_sc_work *w)
     free(w->key);
     free(w->start);
     free(w->ids);
+    free(w->cc);
     free(w);
 }
 
@@ -72,7 +87,9 @@ static cs_status fit(cs_sc_work **wp, int32_t n)
     w->mask = size - 1;
     w->x0 = malloc(sizeof(float) * 3 * (size_t)n);
     w->xr = malloc(sizeof(float) * 3 * (size_t)n);
-    w->keys = malloc(sizeof(int64_t) * CS_SC_MAX_PAIRS * (size_t)n);
+    w->chunk = calloc((size_t)chunks(n) + 1, sizeof(int64_t *));
+    w->chunk_cap = calloc((size_t)chunks(n) + 1, sizeof(int64_t));
+    w->first = malloc(sizeof(int64_t) * ((size_t)n + 1));
     w->count = malloc(sizeof(int32_t) * (size_t)n);
     w->look = malloc((size_t)n);
     w->dall = malloc(sizeof(float) * (size_t)n);
@@ -82,7 +99,8 @@ static cs_status fit(cs_sc_work **wp, int32_t n)
     w->key = malloc(sizeof(uint32_t) * (size_t)n);
     w->start = malloc(sizeof(int32_t) * ((size_t)size + 1));
     w->ids = malloc(sizeof(int32_t) * (size_t)n);
-    if (!w->x0 || !w->xr || !w->keys || !w->count || !w->look || !w->dall || !w->dx || !w->s || !w->px || !w->key || !w->start || !w->ids) {
+    w->cc = malloc(sizeof(int32_t) * 3 * (size_t)n);
+    if (!w->chunk || !w->chunk_cap || !w->first || !w->x0 || !w->xr || !w->count || !w->look || !w->dall || !w->dx || !w->s || !w->px || !w->key || !w->start || !w->ids || !w->cc) {
         cs_sc_free(w);
         return CS_E_NOMEM;
     }
@@ -177,9 +195,9 @@ static cs_sc_grid build_grid(cs_sc_work *w, int32_t n, const float *x, const flo
 {
     (void)threads; /* only the OpenMP pragmas read it */
 #pragma omp parallel for num_threads(threads) schedule(static)
-    for (int32_t v = 0; v < n; v++) w->key[v] = cs_sc_key_of(cs_sc_at(x, y, z, v), cell, w->mask);
+    for (int32_t v = 0; v < n; v++) w->key[v] = cs_sc_cell_of(cs_sc_at(x, y, z, v), cell, w->mask, w->cc + 3 * (size_t)v);
     cs_sc_sort(n, w->key, w->mask, w->start, w->ids);
-    return (cs_sc_grid){w->start, w->ids, w->mask, cell};
+    return (cs_sc_grid){w->start, w->ids, w->cc, w->mask, cell};
 }
 
 /* How much wider than the pairs that may meet this substep the bound looks when it takes a new
@@ -187,31 +205,65 @@ static cs_sc_grid build_grid(cs_sc_work *w, int32_t n, const float *x, const flo
 static float ref_margin(const cs_phys *p)
 {
     const float h = p->self_hx < p->self_hy ? p->self_hx : p->self_hy;
-    return p->self_thickness > 0.25f * h ? p->self_thickness : 0.25f * h;
+    return p->self_thickness > 0.5f * h ? p->self_thickness : 0.5f * h;
 }
 
 /* How far beyond the pairs that may touch in a substep the lists look when the bound takes a new
  * reference (they stay whole while the cloth moves less than half of it). */
-static float list_margin(const cs_phys *p) { return 2.0f * p->self_thickness; }
+static float list_margin(const cs_phys *p) { return 6.0f * p->self_thickness; }
+
+/* Room for need keys in chunk c (keeping the first len); 0 when there is no memory. */
+static int grow(cs_sc_work *w, int32_t c, int64_t len, int64_t need)
+{
+    if (need <= w->chunk_cap[c]) return 1;
+    const int64_t cap = need > 2 * w->chunk_cap[c] ? need : 2 * w->chunk_cap[c];
+    int64_t *k = malloc(sizeof(int64_t) * (size_t)cap);
+    if (!k) return 0;
+    if (len) memcpy(k, w->chunk[c], sizeof(int64_t) * (size_t)len);
+    free(w->chunk[c]);
+    w->chunk[c] = k;
+    w->chunk_cap[c] = cap;
+    return 1;
+}
+
+static const int64_t *list_of(const cs_sc_work *w, int32_t v) { return w->chunk[v / CHUNK] + w->first[v]; }
 
 /* Every vertex's list of repelling pairs within rad at positions x, y, z (cs_sc_pairs); returns
- * those lost. */
+ * the vertices left without one (no memory for it). */
 static int32_t build_lists(cs_sc_work *w, const cs_phys *p, const float *L0, const float *x, const float *y,
                            const float *z, const cs_sc_grid *G, float reach, float rad, int threads)
 {
     (void)threads; /* only the OpenMP pragmas read it */
     int32_t lost = 0;
     int64_t pairs = 0;
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 256) reduction(+ : lost, pairs)
-    for (int32_t v = 0; v < p->n; v++) {
-        w->count[v] = cs_sc_pairs(p, G, L0, x, y, z, reach, rad, v, w->keys + (size_t)v * CS_SC_MAX_PAIRS, &lost);
-        pairs += w->count[v];
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) reduction(+ : lost, pairs)
+    for (int32_t c = 0; c < chunks(p->n); c++) {
+        const int32_t end = (c + 1) * CHUNK < p->n ? (c + 1) * CHUNK : p->n;
+        int64_t len = 0;
+        for (int32_t v = c * CHUNK; v < end; v++) {
+            int32_t k = -1;
+            while (grow(w, c, len, len + 64)) {
+                const int64_t room = w->chunk_cap[c] - len;
+                const int32_t cap = room < INT32_MAX ? (int32_t)room : INT32_MAX;
+                k = cs_sc_pairs(p, G, L0, x, y, z, reach, rad, v, w->chunk[c] + len, cap);
+                if (k <= cap) break;
+                if (!grow(w, c, len, len + k)) { /* no memory: v has no list */
+                    k = -1;
+                    break;
+                }
+            }
+            w->first[v] = len;
+            w->count[v] = k > 0 ? k : 0;
+            lost += k < 0;
+            len += w->count[v];
+        }
+        pairs += len;
     }
     w->pairs = pairs;
     return lost;
 }
 
-cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, cs_sc_stats *st)
+cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, cs_self_stats *st)
 {
     const int32_t n = s->n;
     const float *L0 = s->L0;
@@ -232,11 +284,11 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         w->lists_whole = 0;
     }
     int32_t touching = 0;
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 256) reduction(+ : touching) if (w->pairs > 0)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 32) reduction(+ : touching) if (w->pairs > 0)
     for (int32_t v = 0; v < n; v++) {
         if (!w->count[v]) continue;
         cs_vec3 dx = cs_v3(0.0f, 0.0f, 0.0f), dv = dx;
-        touching += cs_sc_repel(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->w, w->keys + (size_t)v * CS_SC_MAX_PAIRS,
+        touching += cs_sc_repel(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->w, list_of(w, v),
                                 w->count[v], v, &dx, &dv);
         float *px = w->px + 3 * (size_t)v, *pv = w->pv + 3 * (size_t)v;
         px[0] = dx.x, px[1] = dx.y, px[2] = dx.z;
@@ -275,7 +327,9 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         /* cells as large as the farthest candidate either pass looks for */
         const cs_sc_grid G = build_grid(w, n, w->x0, w->y0, w->z0, (full && Rl > R ? Rl : R) + 2.0f * L, threads);
         if (full) { /* new lists with the new reference */
-            w->lists_whole = build_lists(w, p, L0, w->x0, w->y0, w->z0, &G, Rl + 2.0f * L, Rl, threads) == 0;
+            const int32_t none = build_lists(w, p, L0, w->x0, w->y0, w->z0, &G, Rl + 2.0f * L, Rl, threads);
+            w->lists_whole = none == 0;
+            lost += none;
             w->ref_list = Rl;
         }
         for (int32_t v = 0; v < n; v++) w->s[v] = w->s2[v] = 1.0f;
@@ -284,7 +338,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         for (int sweep = 0; changed && sweep <= CS_SC_SWEEPS; sweep++) {
             const int outright = sweep == CS_SC_SWEEPS;
             changed = 0;
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 256) reduction(| : changed)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 32) reduction(| : changed)
             for (int32_t v = 0; v < n; v++) {
                 if (!full && !w->look[v]) continue;
                 float da;
@@ -313,6 +367,9 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         }
     }
     if (st) {
+        st->passes++;
+        st->broad += full;
+        st->pairs += full ? w->pairs : 0;
         st->contacts += touching;
         st->cut += cut;
         st->lost += lost;

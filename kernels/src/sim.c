@@ -313,6 +313,7 @@ static void step_account(cs_sim *sim, int32_t now, const cs_step_report *rep)
     for (int32_t k = 0; k < now; k++) sim->state.time += sim->model.dt;
     sim->state.n_torn += rep->torn;
     sim->solver = rep->solver;
+    sim->self = rep->self;
 }
 
 static cs_status nonfinite(cs_sim *sim)
@@ -328,10 +329,10 @@ cs_status cs_sim_step(cs_sim *sim, int64_t substeps)
     if (!sim) return CS_E_INVALID;
     cs_status st = step_check(sim, substeps);
     if (st != CS_OK) return st;
-    cs_step_report total = {0, 1, {0, 0, 0, 0.0f, 0}};
+    cs_step_report total = {.finite = 1};
     while (substeps > 0 && total.finite) {
         const int32_t now = substeps > STEP_CALL_MAX ? STEP_CALL_MAX : (int32_t)substeps;
-        cs_step_report rep = {0, 1, {0, 0, 0, 0.0f, 0}};
+        cs_step_report rep = {.finite = 1};
         st = sim->backend->step(sim->ctx, &sim->model, &sim->state, now, &rep);
         if (st != CS_OK) return cs_backend_fail(sim, st, "failed while stepping");
         step_account(sim, now, &rep);
@@ -390,7 +391,7 @@ cs_status cs_sims_step(cs_sim *const *sims, size_t n, const int64_t *substeps, c
             if (left[k] == 0 || sims[k]->backend != b) continue;
             cs_sim *s = sims[k];
             const int32_t now = left[k] > STEP_CALL_MAX ? STEP_CALL_MAX : (int32_t)left[k];
-            items[m] = (cs_batch_item){s->ctx, &s->model, &s->state, now, {0, 1, {0, 0, 0, 0.0f, 0}}, CS_OK};
+            items[m] = (cs_batch_item){s->ctx, &s->model, &s->state, now, {.finite = 1}, CS_OK};
             of[m++] = k;
         }
         batch_round(b, items, m);
@@ -446,6 +447,7 @@ void cs_sim_info(const cs_sim *sim, cs_info *out)
     out->n_springs = (int32_t)(spring_total(m->scene.nx, m->scene.ny) - sim->state.n_torn);
     out->n_rocks = sim->state.n_rocks;
     out->solver = sim->solver;
+    out->self = sim->self;
 }
 
 /* ---- pins and grab ---- */

@@ -30,6 +30,7 @@ struct cs_sim {
     void *memory_ctx;
     int32_t rock_limit;    /* most rocks, 1..CS_MAX_ROCKS */
     cs_solver_stats solver; /* the last step call's, for cs_info */
+    cs_self_stats self;     /* the last step call's, for cs_info */
 };
 
 /* sim.c */

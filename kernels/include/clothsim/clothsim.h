@@ -129,6 +129,17 @@ typedef struct cs_solver_stats {
     int32_t lost;       /* rock contacts a vertex had no room for (more than 4 rocks at once), summed */
 } cs_solver_stats;
 
+/* What self_collision did over the last step call (zeros while it is off, and on a backend
+ * without it). */
+typedef struct cs_self_stats {
+    int32_t passes;   /* its passes: one after each substep (each part under implicit_euler) */
+    int32_t broad;    /* full broad phases: hash grids built and every vertex's pairs found again */
+    int64_t pairs;    /* repelling pairs in the lists those found, summed */
+    int64_t contacts; /* pairs that pushed apart (counted by each of their vertices), summed */
+    int64_t cut;      /* vertices the bound cut back, summed */
+    int64_t lost;     /* vertices left without their list of pairs (no memory), summed */
+} cs_self_stats;
+
 typedef struct cs_info {
     uint64_t step;       /* substeps since the scene was built */
     double time;         /* simulated seconds */
@@ -137,6 +148,7 @@ typedef struct cs_info {
     int32_t n_vertices, n_springs, n_rocks;
     int64_t n_torn;
     cs_solver_stats solver; /* the last step call's (zeros until implicit_euler has run) */
+    cs_self_stats self;     /* the last step call's */
 } cs_info;
 void cs_sim_info(const cs_sim *sim, cs_info *out);
 

@@ -71,6 +71,7 @@ typedef struct cs_step_report {
     int64_t torn;     /* springs torn during the call */
     int finite;       /* 1 when every position, velocity and rock value is finite */
     cs_solver_stats solver; /* implicit_euler: what its solver did in the call (zeros otherwise) */
+    cs_self_stats self;     /* self_collision: what it did in the call (zeros otherwise) */
 } cs_step_report;
 
 /* One simulation of a batch (step_batch): its backend context, model and state, the substeps it

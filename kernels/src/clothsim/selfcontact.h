@@ -45,9 +45,10 @@
 SIM_HD static inline float cs_sc_min(float a, float b) { return a < b ? a : b; }
 SIM_HD static inline float cs_sc_max(float a, float b) { return a > b ? a : b; }
 
-/* The hash grid: start[k] .. start[k + 1] index ids (vertices by cell key, in vertex order). */
+/* The hash grid: start[k] .. start[k + 1] index ids (vertices by cell key, in vertex order);
+ * cc[3 v .. 3 v + 2] is vertex v's cell (cs_sc_coord of each coordinate). */
 typedef struct cs_sc_grid {
-    const int32_t *start, *ids;
+    const int32_t *start, *ids, *cc;
     uint32_t mask; /* table size - 1 (a power of two) */
     float cell;    /* cell size (m) */
 } cs_sc_grid;
@@ -64,9 +65,11 @@ SIM_HD static inline uint32_t cs_sc_key(int32_t i, int32_t j, int32_t k, uint32_
     return (((uint32_t)i * 73856093u) ^ ((uint32_t)j * 19349663u) ^ ((uint32_t)k * 83492791u)) & mask;
 }
 
-SIM_HD static inline uint32_t cs_sc_key_of(cs_vec3 x, float cell, uint32_t mask)
+/* Vertex v's cell into cc[3 v ..] and its key. */
+SIM_HD static inline uint32_t cs_sc_cell_of(cs_vec3 x, float cell, uint32_t mask, int32_t *cc)
 {
-    return cs_sc_key(cs_sc_coord(x.x, cell), cs_sc_coord(x.y, cell), cs_sc_coord(x.z, cell), mask);
+    cc[0] = cs_sc_coord(x.x, cell), cc[1] = cs_sc_coord(x.y, cell), cc[2] = cs_sc_coord(x.z, cell);
+    return cs_sc_key(cc[0], cc[1], cc[2], mask);
 }
 
 /* The counting sort: key[v] of every vertex, then start (mask + 2 entries) and ids. One thread. */
@@ -194,12 +197,10 @@ SIM_HD static inline cs_vec3 cs_sc_at(const float *x, const float *y, const floa
                     const uint32_t key_ = cs_sc_key(ci_ + di_, cj_ + dj_, ck_ + dk_, (G)->mask);             \
                     for (int32_t e_ = (G)->start[key_]; e_ < (G)->start[key_ + 1]; e_++) {                  \
                         const int32_t W = (G)->ids[e_];                                                     \
-                        const cs_vec3 xw_ = cs_sc_at(X0, Y0, Z0, W);                                        \
-                        if (cs_sc_coord(xw_.x, (G)->cell) != ci_ + di_ ||                                    \
-                            cs_sc_coord(xw_.y, (G)->cell) != cj_ + dj_ ||                                    \
-                            cs_sc_coord(xw_.z, (G)->cell) != ck_ + dk_)                                      \
-                            continue;                                                                      \
-                        if (!(cs_len(cs_sub(xw_, XV)) < (REACH))) continue;                                 \
+                        const int32_t *cw_ = (G)->cc + 3 * (size_t)W;                                       \
+                        if (cw_[0] != ci_ + di_ || cw_[1] != cj_ + dj_ || cw_[2] != ck_ + dk_) continue;    \
+                        const cs_vec3 rw_ = cs_sub(cs_sc_at(X0, Y0, Z0, W), XV);                             \
+                        if (!(cs_dot(rw_, rw_) < (REACH) * (REACH))) continue;                               \
                         __VA_ARGS__                                                                        \
                     }                                                                                      \
                 }                                                                                          \
@@ -226,6 +227,15 @@ SIM_HD static inline float cs_sc_seg_gap(cs_vec3 a0, cs_vec3 a1, cs_vec3 b0, cs_
     const float gy = cs_sc_max(cs_sc_max(cs_sc_min(a0.y, a1.y) - cs_sc_max(b0.y, b1.y), cs_sc_min(b0.y, b1.y) - cs_sc_max(a0.y, a1.y)), 0.0f);
     const float gz = cs_sc_max(cs_sc_max(cs_sc_min(a0.z, a1.z) - cs_sc_max(b0.z, b1.z), cs_sc_min(b0.z, b1.z) - cs_sc_max(a0.z, a1.z)), 0.0f);
     return sqrtf(gx * gx + gy * gy + gz * gz);
+}
+
+/* Whether candidate u, dist from v, may be in a pair closer than rad: a triangle with corner u
+ * (or v) lies within the longest edge L of it (vertex-triangle), an edge from u or v within its
+ * length (edge-edge, la + lb for the two). The 1 % and 1 um only leave room for rounding: what is
+ * skipped could never pass the exact tests. */
+SIM_HD static inline int cs_sc_may(float dist, float rad, float span)
+{
+    return dist < 1.01f * rad + span + 1e-6f;
 }
 
 /* Under implicit_euler a substep is cut into parts (as for rocks: implicit.h, cs_im_splits) so that
@@ -345,10 +355,11 @@ SIM_HD static inline int cs_sc_edge_push(const cs_phys *ph, const float *x, cons
 }
 
 /* Vertex v's own part of every pair it is in: its intact triangles (canonical corners, their
- * positions and slots) and its spokes that bound one (as edge ids). */
+ * positions and slots) and its spokes that bound one (as edge ids, and their lengths). */
 typedef struct cs_sc_ring {
     int32_t tri[6][3], slot[6], spoke[6];
     cs_vec3 c[6][3];
+    float slen[6];
     int ntri, nspoke;
 } cs_sc_ring;
 
@@ -375,12 +386,11 @@ SIM_HD static inline void cs_sc_ring_of(const cs_phys *ph, const float *L0, cons
         if (ui < 0 || ui >= nx || uj < 0 || uj >= ny) continue;
         const int32_t lo = k <= 3 ? v : uj * nx + ui; /* the edge's owner: its lower end */
         const int e = cs_ring_di(k) != 0 && cs_ring_dj(k) != 0 ? 2 : cs_ring_di(k) != 0 ? 0 : 1;
-        if (cs_sc_edge_on(L0, nx, ny, lo % nx, lo / nx, e)) g->spoke[g->nspoke++] = 3 * lo + e;
+        if (!cs_sc_edge_on(L0, nx, ny, lo % nx, lo / nx, e)) continue;
+        g->slen[g->nspoke] = cs_len(cs_sub(cs_sc_at(x, y, z, uj * nx + ui), cs_sc_at(x, y, z, v)));
+        g->spoke[g->nspoke++] = 3 * lo + e;
     }
 }
-
-/* Most repelling pairs a vertex keeps in its list (more are counted as lost, the largest keys). */
-#define CS_SC_MAX_PAIRS 48
 
 /* A vertex-triangle pair as one sortable key: the point's id, then the triangle's slot (2 per quad,
  * physics.h's canonical A then B), so that every list is summed in the same order. */
@@ -412,18 +422,12 @@ SIM_HD static inline void cs_sc_key_pair(const cs_phys *ph, int64_t key, int32_t
     t[2] = f ? v00 + ph->nx : v00 + ph->nx + 1;
 }
 
-/* Adds key to the sorted list keys[0..*n) (at most CS_SC_MAX_PAIRS; beyond, the largest key is
- * dropped and counted in *lost). */
-SIM_HD static inline void cs_sc_list_add(int64_t *keys, int32_t *n, int64_t key, int32_t *lost)
+/* Adds key to the sorted list keys[0..*n), which has room for cap: past it the key is only
+ * counted (*n says how many the list needs; its keys are then not all there). */
+SIM_HD static inline void cs_sc_list_add(int64_t *keys, int32_t cap, int32_t *n, int64_t key)
 {
-    int32_t k = *n;
-    if (k == CS_SC_MAX_PAIRS) {
-        (*lost)++;
-        if (key >= keys[k - 1]) return;
-        k--;
-    } else {
-        (*n)++;
-    }
+    int32_t k = (*n)++;
+    if (k >= cap) return;
     while (k > 0 && keys[k - 1] > key) {
         keys[k] = keys[k - 1];
         k--;
@@ -433,11 +437,12 @@ SIM_HD static inline void cs_sc_list_add(int64_t *keys, int32_t *n, int64_t key,
 
 /* Vertex v's repelling pairs closer than rad at x0 - vertex-triangle (cs_sc_repels) as the point
  * (the triangles of its candidates) and as a corner (its six triangles against its candidates),
- * edge-edge (cs_sc_ee_repels) through its spokes - into keys, sorted; returns how many (*lost
- * counts those left out). Candidates within reach: rad plus twice the longest edge. */
+ * edge-edge (cs_sc_ee_repels) through its spokes - into keys (room for cap), sorted; returns how
+ * many there are: more than cap, and the caller makes room and asks again. Candidates within
+ * reach: rad plus twice the longest edge. */
 SIM_HD static inline int32_t cs_sc_pairs(const cs_phys *ph, const cs_sc_grid *G, const float *L0, const float *x0,
                                          const float *y0, const float *z0, float reach, float rad, int32_t v,
-                                         int64_t *keys, int32_t *lost)
+                                         int64_t *keys, int32_t cap)
 {
     const int32_t nx = ph->nx, ny = ph->ny, vi = v % nx, vj = v / nx;
     const cs_vec3 xv = cs_sc_at(x0, y0, z0, v);
@@ -445,6 +450,7 @@ SIM_HD static inline int32_t cs_sc_pairs(const cs_phys *ph, const cs_sc_grid *G,
      * lie more than CS_SC_RINGS rings apart), unless the thickness spans that many rings at rest */
     const float h = ph->self_hx < ph->self_hy ? ph->self_hx : ph->self_hy;
     const int fine = ph->self_thickness > (float)(CS_SC_RINGS + 1) * h;
+    const float L = 0.5f * (reach - rad); /* the longest edge */
     int32_t n = 0;
     cs_sc_ring g;
     cs_sc_ring_of(ph, L0, x0, y0, z0, v, &g);
@@ -459,18 +465,19 @@ SIM_HD static inline int32_t cs_sc_pairs(const cs_phys *ph, const cs_sc_grid *G,
             if (rings <= CS_SC_RINGS) continue;
             const int far = !fine && rings > 2 * CS_SC_RINGS;
             const cs_vec3 xu = cs_sc_at(x0, y0, z0, u);
-            for (int k = 0; k < 2; k++) {
+            const float D = cs_len(cs_sub(xu, xv)), vf = cs_sc_may(D, rad, L);
+            for (int k = 0; k < 2 && vf; k++) {
                 if (!((f >> k) & 1)) continue;
                 const cs_vec3 c[3] = {cs_sc_at(x0, y0, z0, t[k][0]), cs_sc_at(x0, y0, z0, t[k][1]),
                                       cs_sc_at(x0, y0, z0, t[k][2])};
                 if (!(cs_sc_box_gap(xv, c, 3) < rad) || !(far || cs_sc_repels(ph, v, t[k]))) continue;
                 if (cs_sc_point_tri(xv, c[0], c[1], c[2], bw) < rad)
-                    cs_sc_list_add(keys, &n, cs_sc_pair_key(ph, v, 2 * (uj * (nx - 1) + ui) + k), lost);
+                    cs_sc_list_add(keys, cap, &n, cs_sc_pair_key(ph, v, 2 * (uj * (nx - 1) + ui) + k));
             }
-            for (int k = 0; k < g.ntri; k++) {
+            for (int k = 0; k < g.ntri && vf; k++) {
                 if (!(cs_sc_box_gap(xu, g.c[k], 3) < rad) || !(far || cs_sc_repels(ph, u, g.tri[k]))) continue;
                 if (cs_sc_point_tri(xu, g.c[k][0], g.c[k][1], g.c[k][2], bw) < rad)
-                    cs_sc_list_add(keys, &n, cs_sc_pair_key(ph, u, g.slot[k]), lost);
+                    cs_sc_list_add(keys, cap, &n, cs_sc_pair_key(ph, u, g.slot[k]));
             }
             /* v's spokes against the edges u owns */
             for (int e = 0; e < 3; e++) {
@@ -479,13 +486,15 @@ SIM_HD static inline int32_t cs_sc_pairs(const cs_phys *ph, const cs_sc_grid *G,
                 int32_t b[2];
                 cs_sc_edge_ends(ph, 3 * u + e, b);
                 const cs_vec3 b0 = cs_sc_at(x0, y0, z0, b[0]), b1 = cs_sc_at(x0, y0, z0, b[1]);
+                const float lb = cs_len(cs_sub(b1, b0));
                 for (int k = 0; k < g.nspoke; k++) {
+                    if (!cs_sc_may(D, rad, lb + g.slen[k])) continue;
                     int32_t a[2];
                     cs_sc_edge_ends(ph, g.spoke[k], a);
                     const cs_vec3 a0 = cs_sc_at(x0, y0, z0, a[0]), a1 = cs_sc_at(x0, y0, z0, a[1]);
                     if (!(cs_sc_seg_gap(a0, a1, b0, b1) < rad) || !(far || cs_sc_ee_repels(ph, a, b))) continue;
                     if (cs_sc_seg_seg(a0, a1, b0, b1) < rad)
-                        cs_sc_list_add(keys, &n, cs_sc_ee_key(ph, g.spoke[k], 3 * u + e), lost);
+                        cs_sc_list_add(keys, cap, &n, cs_sc_ee_key(ph, g.spoke[k], 3 * u + e));
                 }
             }
         }
@@ -567,6 +576,7 @@ SIM_HD static inline float cs_sc_limit(const cs_phys *ph, const cs_sc_grid *G, c
     const int32_t nx = ph->nx, ny = ph->ny;
     const cs_vec3 xv = cs_sc_at(x0, y0, z0, v);
     float cut = s[v], dmin = r;
+    const float L = 0.5f * (reach - r); /* the longest edge */
     cs_sc_ring g;
     cs_sc_ring_of(ph, L0, x0, y0, z0, v, &g);
     CS_SC_FOR_NEAR(G, x0, y0, z0, xv, reach, u, {
@@ -574,9 +584,11 @@ SIM_HD static inline float cs_sc_limit(const cs_phys *ph, const cs_sc_grid *G, c
             const cs_vec3 xu = cs_sc_at(x0, y0, z0, u);
             int32_t t[2][3];
             const int32_t f = cs_sc_quad_tris(L0, nx, ny, u % nx, u / nx, t);
+            const float D = cs_len(cs_sub(xu, xv));
+            const int vf = cs_sc_may(D, r, L);
             float bw[3];
             /* v against the triangles u owns */
-            for (int k = 0; k < 2; k++) {
+            for (int k = 0; k < 2 && vf; k++) {
                 if (!((f >> k) & 1) || t[k][0] == v || t[k][1] == v || t[k][2] == v) continue;
                 const cs_vec3 c[3] = {cs_sc_at(x0, y0, z0, t[k][0]), cs_sc_at(x0, y0, z0, t[k][1]),
                                       cs_sc_at(x0, y0, z0, t[k][2])};
@@ -588,7 +600,7 @@ SIM_HD static inline float cs_sc_limit(const cs_phys *ph, const cs_sc_grid *G, c
                 dmin = d < dmin ? d : dmin;
             }
             /* u against v's triangles */
-            for (int k = 0; k < g.ntri; k++) {
+            for (int k = 0; k < g.ntri && vf; k++) {
                 if (g.tri[k][0] == u || g.tri[k][1] == u || g.tri[k][2] == u) continue;
                 if (!(cs_sc_box_gap(xu, g.c[k], 3) < r)) continue;
                 const float d = cs_sc_point_tri(xu, g.c[k][0], g.c[k][1], g.c[k][2], bw);
@@ -604,7 +616,9 @@ SIM_HD static inline float cs_sc_limit(const cs_phys *ph, const cs_sc_grid *G, c
                 const int32_t z1 = e == 0 ? u + 1 : e == 1 ? u + nx : u + nx + 1;
                 if (z1 == v || !cs_sc_edge_on(L0, nx, ny, ui, uj, e)) continue;
                 const cs_vec3 xz = cs_sc_at(x0, y0, z0, z1);
+                const float lb = cs_len(cs_sub(xz, xu));
                 for (int k = 0; k < g.nspoke; k++) {
+                    if (!cs_sc_may(D, r, lb + g.slen[k])) continue;
                     int32_t ends[2];
                     cs_sc_edge_ends(ph, g.spoke[k], ends);
                     const int32_t o = ends[0] == v ? ends[1] : ends[0];
