@@ -27,41 +27,100 @@
 #include "cpu_internal.h"
 #include "clothsim/selfcontact.h"
 
+/* Lists of pairs, one per vertex, built a chunk of CHUNK vertices at a time, each chunk into its
+ * own buffer, grown as it needs: no pair is left out for want of room, and the lists are the same
+ * whatever thread built each chunk. */
+#define CHUNK 64
+
+typedef struct sc_lists {
+    int64_t **chunk;   /* each chunk's lists, one after another */
+    int64_t *cap;      /* the room in each */
+    int64_t *first;    /* where each vertex's list starts in its chunk's */
+    int32_t *count;    /* and how many pairs it has */
+} sc_lists;
+
+static int32_t chunks(int32_t n) { return (n + CHUNK - 1) / CHUNK; }
+
+static void lists_free(sc_lists *l, int32_t n)
+{
+    if (l->chunk)
+        for (int32_t c = 0; c < chunks(n); c++) free(l->chunk[c]);
+    free(l->chunk);
+    free(l->cap);
+    free(l->first);
+    free(l->count);
+}
+
+static int lists_alloc(sc_lists *l, int32_t n)
+{
+    l->chunk = calloc((size_t)chunks(n) + 1, sizeof(int64_t *));
+    l->cap = calloc((size_t)chunks(n) + 1, sizeof(int64_t));
+    l->first = malloc(sizeof(int64_t) * ((size_t)n + 1));
+    l->count = malloc(sizeof(int32_t) * ((size_t)n + 1));
+    return l->chunk && l->cap && l->first && l->count;
+}
+
+/* Room for need keys in chunk c (keeping the first len); 0 when there is no memory. */
+static int grow(sc_lists *l, int32_t c, int64_t len, int64_t need)
+{
+    if (need <= l->cap[c]) return 1;
+    const int64_t cap = need > 2 * l->cap[c] ? need : 2 * l->cap[c];
+    int64_t *k = malloc(sizeof(int64_t) * (size_t)cap);
+    if (!k) return 0;
+    if (len) memcpy(k, l->chunk[c], sizeof(int64_t) * (size_t)len);
+    free(l->chunk[c]);
+    l->chunk[c] = k;
+    l->cap[c] = cap;
+    return 1;
+}
+
+static const int64_t *list_of(const sc_lists *l, int32_t v) { return l->chunk[v / CHUNK] + l->first[v]; }
+
+/* Makes room for vertex v's list at len of its chunk and calls fill(keys, cap) until the list
+ * fits (fill returns how many keys it has, past cap too). Returns the count, or -1 when there is
+ * no memory (v then has an empty list). */
+#define LIST_FILL(L, C, LEN, V, KEYS, CAP, FILL)                                                          \
+    do {                                                                                                  \
+        int32_t k_ = -1;                                                                                  \
+        while (grow((L), (C), (LEN), (LEN) + 64)) {                                                       \
+            const int64_t room_ = (L)->cap[C] - (LEN);                                                    \
+            const int32_t CAP = room_ < INT32_MAX ? (int32_t)room_ : INT32_MAX;                           \
+            int64_t *const KEYS = (L)->chunk[C] + (LEN);                                                  \
+            k_ = (FILL);                                                                                  \
+            if (k_ <= CAP) break;                                                                         \
+            if (!grow((L), (C), (LEN), (LEN) + k_)) {                                                     \
+                k_ = -1;                                                                                  \
+                break;                                                                                    \
+            }                                                                                             \
+        }                                                                                                 \
+        (L)->first[V] = (LEN);                                                                            \
+        (L)->count[V] = k_ > 0 ? k_ : 0;                                                                  \
+        (LEN) += (L)->count[V];                                                                           \
+        lost_ += k_ < 0;                                                                                  \
+    } while (0)
+
 struct cs_sc_work {
     int32_t n;
     uint32_t mask;
     float *x0, *y0, *z0, *dx, *dy, *dz, *s, *s2, *px, *pv;
     float *xr, *dall;        /* the reference (3 n), the least distance of each vertex's pairs there */
-    int64_t **chunk;         /* each chunk's lists (CHUNK vertices' repelling pairs, sorted, one after another) */
-    int64_t *chunk_cap;      /* the room in each */
-    int64_t *first;          /* where each vertex's list starts in its chunk's */
-    int32_t *count;          /* and how many pairs it has */
+    sc_lists rl;             /* each vertex's repelling pairs, sorted (cs_sc_pairs) */
+    sc_lists bl;             /* each vertex's pairs within the bound's radius at the reference */
     uint8_t *look;           /* vertices whose pairs the bound looks at this substep */
-    int have_ref, lists_whole;
+    int have_ref, lists_whole, bound_whole;
     int64_t pairs;           /* in all the lists */
-    float ref_list, ref_thickness;
+    float ref_list, ref_bound, ref_thickness;
     uint32_t *key;
     int32_t *start, *ids, *cc;
 };
 
-/* The lists are built a chunk of vertices at a time, each chunk into its own buffer, grown as it
- * needs: no pair is left out for want of room, and the lists are the same whatever thread built
- * each chunk. */
-#define CHUNK 64
-
-static int32_t chunks(int32_t n) { return (n + CHUNK - 1) / CHUNK; }
-
 void cs_sc_free(cs_sc_work *w)
 {
     if (!w) return;
-    if (w->chunk)
-        for (int32_t c = 0; c < chunks(w->n); c++) free(w->chunk[c]);
-    free(w->chunk);
-    free(w->chunk_cap);
-    free(w->first);
+    lists_free(&w->rl, w->n);
+    lists_free(&w->bl, w->n);
     free(w->x0);
     free(w->xr);
-    free(w->count);
     free(w->look);
     free(w->dall);
     free(w->dx);
@@ -87,10 +146,7 @@ static cs_status fit(cs_sc_work **wp, int32_t n)
     w->mask = size - 1;
     w->x0 = malloc(sizeof(float) * 3 * (size_t)n);
     w->xr = malloc(sizeof(float) * 3 * (size_t)n);
-    w->chunk = calloc((size_t)chunks(n) + 1, sizeof(int64_t *));
-    w->chunk_cap = calloc((size_t)chunks(n) + 1, sizeof(int64_t));
-    w->first = malloc(sizeof(int64_t) * ((size_t)n + 1));
-    w->count = malloc(sizeof(int32_t) * (size_t)n);
+    const int lists = lists_alloc(&w->rl, n) && lists_alloc(&w->bl, n);
     w->look = malloc((size_t)n);
     w->dall = malloc(sizeof(float) * (size_t)n);
     w->dx = malloc(sizeof(float) * 3 * (size_t)n);
@@ -100,7 +156,7 @@ static cs_status fit(cs_sc_work **wp, int32_t n)
     w->start = malloc(sizeof(int32_t) * ((size_t)size + 1));
     w->ids = malloc(sizeof(int32_t) * (size_t)n);
     w->cc = malloc(sizeof(int32_t) * 3 * (size_t)n);
-    if (!w->chunk || !w->chunk_cap || !w->first || !w->x0 || !w->xr || !w->count || !w->look || !w->dall || !w->dx || !w->s || !w->px || !w->key || !w->start || !w->ids || !w->cc) {
+    if (!lists || !w->x0 || !w->xr || !w->look || !w->dall || !w->dx || !w->s || !w->px || !w->key || !w->start || !w->ids || !w->cc) {
         cs_sc_free(w);
         return CS_E_NOMEM;
     }
@@ -212,55 +268,24 @@ static float ref_margin(const cs_phys *p)
  * reference (they stay whole while the cloth moves less than half of it). */
 static float list_margin(const cs_phys *p) { return 6.0f * p->self_thickness; }
 
-/* Room for need keys in chunk c (keeping the first len); 0 when there is no memory. */
-static int grow(cs_sc_work *w, int32_t c, int64_t len, int64_t need)
-{
-    if (need <= w->chunk_cap[c]) return 1;
-    const int64_t cap = need > 2 * w->chunk_cap[c] ? need : 2 * w->chunk_cap[c];
-    int64_t *k = malloc(sizeof(int64_t) * (size_t)cap);
-    if (!k) return 0;
-    if (len) memcpy(k, w->chunk[c], sizeof(int64_t) * (size_t)len);
-    free(w->chunk[c]);
-    w->chunk[c] = k;
-    w->chunk_cap[c] = cap;
-    return 1;
-}
-
-static const int64_t *list_of(const cs_sc_work *w, int32_t v) { return w->chunk[v / CHUNK] + w->first[v]; }
-
 /* Every vertex's list of repelling pairs within rad at positions x, y, z (cs_sc_pairs); returns
  * the vertices left without one (no memory for it). */
 static int32_t build_lists(cs_sc_work *w, const cs_phys *p, const float *L0, const float *x, const float *y,
                            const float *z, const cs_sc_grid *G, float reach, float rad, int threads)
 {
     (void)threads; /* only the OpenMP pragmas read it */
-    int32_t lost = 0;
+    int32_t lost_ = 0;
     int64_t pairs = 0;
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) reduction(+ : lost, pairs)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) reduction(+ : lost_, pairs)
     for (int32_t c = 0; c < chunks(p->n); c++) {
         const int32_t end = (c + 1) * CHUNK < p->n ? (c + 1) * CHUNK : p->n;
         int64_t len = 0;
-        for (int32_t v = c * CHUNK; v < end; v++) {
-            int32_t k = -1;
-            while (grow(w, c, len, len + 64)) {
-                const int64_t room = w->chunk_cap[c] - len;
-                const int32_t cap = room < INT32_MAX ? (int32_t)room : INT32_MAX;
-                k = cs_sc_pairs(p, G, L0, x, y, z, reach, rad, v, w->chunk[c] + len, cap);
-                if (k <= cap) break;
-                if (!grow(w, c, len, len + k)) { /* no memory: v has no list */
-                    k = -1;
-                    break;
-                }
-            }
-            w->first[v] = len;
-            w->count[v] = k > 0 ? k : 0;
-            lost += k < 0;
-            len += w->count[v];
-        }
+        for (int32_t v = c * CHUNK; v < end; v++)
+            LIST_FILL(&w->rl, c, len, v, keys, cap, cs_sc_pairs(p, G, L0, x, y, z, reach, rad, v, keys, cap));
         pairs += len;
     }
     w->pairs = pairs;
-    return lost;
+    return lost_;
 }
 
 cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, cs_self_stats *st)
@@ -286,10 +311,10 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
     int32_t touching = 0;
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 32) reduction(+ : touching) if (w->pairs > 0)
     for (int32_t v = 0; v < n; v++) {
-        if (!w->count[v]) continue;
+        if (!w->rl.count[v]) continue;
         cs_vec3 dx = cs_v3(0.0f, 0.0f, 0.0f), dv = dx;
-        touching += cs_sc_repel(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->w, list_of(w, v),
-                                w->count[v], v, &dx, &dv);
+        touching += cs_sc_repel(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->w, list_of(&w->rl, v),
+                                w->rl.count[v], v, &dx, &dv);
         float *px = w->px + 3 * (size_t)v, *pv = w->pv + 3 * (size_t)v;
         px[0] = dx.x, px[1] = dx.y, px[2] = dx.z;
         pv[0] = dv.x, pv[1] = dv.y, pv[2] = dv.z;
@@ -297,7 +322,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
     if (touching > 0) {
 #pragma omp parallel for num_threads(threads) schedule(static)
         for (int32_t v = 0; v < n; v++) {
-            if (!w->count[v]) continue; /* nothing asked of it (its scratch not written) */
+            if (!w->rl.count[v]) continue; /* nothing asked of it (its scratch not written) */
             const float *px = w->px + 3 * (size_t)v, *pv = w->pv + 3 * (size_t)v;
             s->x[v] += px[0], s->y[v] += px[1], s->z[v] += px[2];
             s->vx[v] += pv[0], s->vy[v] += pv[1], s->vz[v] += pv[2];
@@ -321,11 +346,19 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         full = looking > n / 2;
     }
     if (full || looking > 0) {
-        const float L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads);
         const float R = full ? r + ref_margin(p) : r, Rl = p->self_thickness + 2.0f * M + list_margin(p);
-        const float reach = R + 2.0f * L;
-        /* cells as large as the farthest candidate either pass looks for */
-        const cs_sc_grid G = build_grid(w, n, w->x0, w->y0, w->z0, (full && Rl > R ? Rl : R) + 2.0f * L, threads);
+        /* a partial pass takes each looking vertex's pairs from its list while the lists hold every
+         * pair now within r: one beyond ref_bound at the reference is still beyond ref_bound - 2 C
+         * (1 % and 1 um for rounding) */
+        const int from_lists = !full && w->bound_whole && w->ref_bound - 2.0f * C >= 1.01f * r + 1e-6f;
+        cs_sc_grid G = {0};
+        float reach = 0.0f, L = 0.0f;
+        if (!from_lists) {
+            L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads);
+            reach = R + 2.0f * L;
+            /* cells as large as the farthest candidate either pass looks for */
+            G = build_grid(w, n, w->x0, w->y0, w->z0, (full && Rl > R ? Rl : R) + 2.0f * L, threads);
+        }
         if (full) { /* new lists with the new reference */
             const int32_t none = build_lists(w, p, L0, w->x0, w->y0, w->z0, &G, Rl + 2.0f * L, Rl, threads);
             w->lists_whole = none == 0;
@@ -338,14 +371,40 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         for (int sweep = 0; changed && sweep <= CS_SC_SWEEPS; sweep++) {
             const int outright = sweep == CS_SC_SWEEPS;
             changed = 0;
+            if (full && sweep == 0) { /* every vertex, keeping its pairs within R for later */
+                int32_t lost_ = 0;
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) reduction(| : changed) reduction(+ : lost_)
+                for (int32_t c = 0; c < chunks(n); c++) {
+                    const int32_t end = (c + 1) * CHUNK < n ? (c + 1) * CHUNK : n;
+                    int64_t len = 0;
+                    for (int32_t v = c * CHUNK; v < end; v++) {
+                        int32_t nk = 0;
+                        LIST_FILL(&w->bl, c, len, v, keys, cap,
+                                  (b[v] = cs_sc_limit(p, &G, L0, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, reach,
+                                                      v, outright, &w->dall[v], keys, cap, &nk),
+                                   nk));
+                        changed |= b[v] != a[v];
+                    }
+                }
+                w->bound_whole = lost_ == 0;
+                w->ref_bound = R;
+                lost += lost_;
+            } else {
+                const int listed_now = from_lists || (full && w->bound_whole);
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 32) reduction(| : changed)
-            for (int32_t v = 0; v < n; v++) {
-                if (!full && !w->look[v]) continue;
-                float da;
-                b[v] = cs_sc_limit(p, &G, L0, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, reach, v, outright,
-                                   &da);
-                if (full && sweep == 0) w->dall[v] = da;
-                changed |= b[v] != a[v];
+                for (int32_t v = 0; v < n; v++) {
+                    if (!full && !w->look[v]) continue;
+                    if (listed_now) {
+                        b[v] = cs_sc_limit_listed(p, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, v, outright,
+                                                  list_of(&w->bl, v), w->bl.count[v]);
+                    } else {
+                        float da;
+                        int32_t nk;
+                        b[v] = cs_sc_limit(p, &G, L0, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, reach, v,
+                                           outright, &da, NULL, 0, &nk);
+                    }
+                    changed |= b[v] != a[v];
+                }
             }
             float *t = a;
             a = b, b = t;

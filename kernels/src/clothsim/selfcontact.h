@@ -563,15 +563,56 @@ SIM_HD static inline float cs_sc_pair_cut(const int32_t *a, int na, const int32_
 }
 
 
+/* Vertex-triangle pair (point p, triangle t; canonical corners) if it lies within r at x0: vertex
+ * v's cut for it into *cut and its distance into *dmin (each the least kept); returns 1 then. */
+SIM_HD static inline int cs_sc_vf_cut(const float *x0, const float *y0, const float *z0, const float *dx,
+                                      const float *dy, const float *dz, const float *s, int32_t p,
+                                      const int32_t t[3], float r, int32_t v, int outright, float *cut, float *dmin)
+{
+    float bw[3];
+    const float d = cs_sc_point_tri(cs_sc_at(x0, y0, z0, p), cs_sc_at(x0, y0, z0, t[0]), cs_sc_at(x0, y0, z0, t[1]),
+                                    cs_sc_at(x0, y0, z0, t[2]), bw);
+    if (!(d < r)) return 0;
+    const float cv = cs_sc_pair_cut(&p, 1, t, 3, d, dx, dy, dz, s, v, outright);
+    *cut = cv < *cut ? cv : *cut;
+    *dmin = d < *dmin ? d : *dmin;
+    return 1;
+}
+
+/* The same for the edge-edge pair a, b (each from its lower end), taken in a canonical order (the
+ * edge with the lower first vertex first), so every vertex of the pair computes the same bits. */
+SIM_HD static inline int cs_sc_ee_cut(const float *x0, const float *y0, const float *z0, const float *dx,
+                                      const float *dy, const float *dz, const float *s, const int32_t a[2],
+                                      const int32_t b[2], float r, int32_t v, int outright, float *cut, float *dmin)
+{
+    const int swap = b[0] < a[0];
+    const int32_t *ea = swap ? b : a, *eb = swap ? a : b;
+    const float d = cs_sc_seg_seg(cs_sc_at(x0, y0, z0, ea[0]), cs_sc_at(x0, y0, z0, ea[1]), cs_sc_at(x0, y0, z0, eb[0]),
+                                  cs_sc_at(x0, y0, z0, eb[1]));
+    if (!(d < r)) return 0;
+    const float cv = cs_sc_pair_cut(ea, 2, eb, 2, d, dx, dy, dz, s, v, outright);
+    *cut = cv < *cut ? cv : *cut;
+    *dmin = d < *dmin ? d : *dmin;
+    return 1;
+}
+
+/* Appends key to keys (room for cap; past it only counted). */
+SIM_HD static inline void cs_sc_keep(int64_t *keys, int32_t cap, int32_t *n, int64_t key)
+{
+    if (keys && *n < cap) keys[*n] = key;
+    (*n)++;
+}
+
 /* Vertex v's scale after one sweep: the least of its scale s[v] and the cuts of every pair it
  * belongs to (vertex-triangle as the point or a corner, edge-edge through its six spokes) that
  * lies within r at x0 and shares no vertex (outright: cut every such pair, safe or not). d*: the
  * substep's displacements (x1 - x0). Also the least distance at x0 of those pairs into *dall (r
- * where none). */
+ * where none), and with keys (room for cap) the pairs themselves (cs_sc_pair_key, cs_sc_ee_key;
+ * *nkeys says how many there are, past cap too). */
 SIM_HD static inline float cs_sc_limit(const cs_phys *ph, const cs_sc_grid *G, const float *L0, const float *x0,
                                        const float *y0, const float *z0, const float *dx, const float *dy,
                                        const float *dz, const float *s, float r, float reach, int32_t v,
-                                       int outright, float *dall)
+                                       int outright, float *dall, int64_t *keys, int32_t cap, int32_t *nkeys)
 {
     const int32_t nx = ph->nx, ny = ph->ny;
     const cs_vec3 xv = cs_sc_at(x0, y0, z0, v);
@@ -579,38 +620,31 @@ SIM_HD static inline float cs_sc_limit(const cs_phys *ph, const cs_sc_grid *G, c
     const float L = 0.5f * (reach - r); /* the longest edge */
     cs_sc_ring g;
     cs_sc_ring_of(ph, L0, x0, y0, z0, v, &g);
+    *nkeys = 0;
     CS_SC_FOR_NEAR(G, x0, y0, z0, xv, reach, u, {
         if (u != v) {
             const cs_vec3 xu = cs_sc_at(x0, y0, z0, u);
             int32_t t[2][3];
-            const int32_t f = cs_sc_quad_tris(L0, nx, ny, u % nx, u / nx, t);
+            const int32_t ui = u % nx, uj = u / nx, f = cs_sc_quad_tris(L0, nx, ny, ui, uj, t);
             const float D = cs_len(cs_sub(xu, xv));
             const int vf = cs_sc_may(D, r, L);
-            float bw[3];
             /* v against the triangles u owns */
             for (int k = 0; k < 2 && vf; k++) {
                 if (!((f >> k) & 1) || t[k][0] == v || t[k][1] == v || t[k][2] == v) continue;
                 const cs_vec3 c[3] = {cs_sc_at(x0, y0, z0, t[k][0]), cs_sc_at(x0, y0, z0, t[k][1]),
                                       cs_sc_at(x0, y0, z0, t[k][2])};
-                if (!(cs_sc_box_gap(xv, c, 3) < r)) continue;
-                const float d = cs_sc_point_tri(xv, c[0], c[1], c[2], bw);
-                if (!(d < r)) continue;
-                const float cv = cs_sc_pair_cut(&v, 1, t[k], 3, d, dx, dy, dz, s, v, outright);
-                cut = cv < cut ? cv : cut;
-                dmin = d < dmin ? d : dmin;
+                if (cs_sc_box_gap(xv, c, 3) < r &&
+                    cs_sc_vf_cut(x0, y0, z0, dx, dy, dz, s, v, t[k], r, v, outright, &cut, &dmin))
+                    cs_sc_keep(keys, cap, nkeys, cs_sc_pair_key(ph, v, 2 * (uj * (nx - 1) + ui) + k));
             }
             /* u against v's triangles */
             for (int k = 0; k < g.ntri && vf; k++) {
                 if (g.tri[k][0] == u || g.tri[k][1] == u || g.tri[k][2] == u) continue;
-                if (!(cs_sc_box_gap(xu, g.c[k], 3) < r)) continue;
-                const float d = cs_sc_point_tri(xu, g.c[k][0], g.c[k][1], g.c[k][2], bw);
-                if (!(d < r)) continue;
-                const float cv = cs_sc_pair_cut(&u, 1, g.tri[k], 3, d, dx, dy, dz, s, v, outright);
-                cut = cv < cut ? cv : cut;
-                dmin = d < dmin ? d : dmin;
+                if (cs_sc_box_gap(xu, g.c[k], 3) < r &&
+                    cs_sc_vf_cut(x0, y0, z0, dx, dy, dz, s, u, g.tri[k], r, v, outright, &cut, &dmin))
+                    cs_sc_keep(keys, cap, nkeys, cs_sc_pair_key(ph, u, g.slot[k]));
             }
             /* v's spokes against the edges u owns */
-            const int32_t ui = u % nx, uj = u / nx;
             for (int e = 0; e < 3; e++) {
                 if ((e != 1 && ui + 1 >= nx) || (e != 0 && uj + 1 >= ny)) continue;
                 const int32_t z1 = e == 0 ? u + 1 : e == 1 ? u + nx : u + nx + 1;
@@ -619,30 +653,41 @@ SIM_HD static inline float cs_sc_limit(const cs_phys *ph, const cs_sc_grid *G, c
                 const float lb = cs_len(cs_sub(xz, xu));
                 for (int k = 0; k < g.nspoke; k++) {
                     if (!cs_sc_may(D, r, lb + g.slen[k])) continue;
-                    int32_t ends[2];
-                    cs_sc_edge_ends(ph, g.spoke[k], ends);
-                    const int32_t o = ends[0] == v ? ends[1] : ends[0];
+                    int32_t ea[2];
+                    cs_sc_edge_ends(ph, g.spoke[k], ea);
+                    const int32_t o = ea[0] == v ? ea[1] : ea[0], eb[2] = {u, z1};
                     if (o == u || o == z1) continue;
-                    const cs_vec3 xo = cs_sc_at(x0, y0, z0, o);
-                    if (!(cs_sc_seg_gap(xv, xo, xu, xz) < r)) continue;
-                    /* in a canonical order (the edge with the lower first vertex first, each
-                     * from its lower end), so every vertex of the pair computes the same bits */
-                    int32_t ea[2] = {v < o ? v : o, v < o ? o : v}, eb[2] = {u, z1};
-                    if (eb[0] < ea[0]) {
-                        const int32_t t0 = ea[0], t1 = ea[1];
-                        ea[0] = eb[0], ea[1] = eb[1], eb[0] = t0, eb[1] = t1;
-                    }
-                    const float d = cs_sc_seg_seg(cs_sc_at(x0, y0, z0, ea[0]), cs_sc_at(x0, y0, z0, ea[1]),
-                                                  cs_sc_at(x0, y0, z0, eb[0]), cs_sc_at(x0, y0, z0, eb[1]));
-                    if (!(d < r)) continue;
-                    const float cv = cs_sc_pair_cut(ea, 2, eb, 2, d, dx, dy, dz, s, v, outright);
-                    cut = cv < cut ? cv : cut;
-                    dmin = d < dmin ? d : dmin;
+                    if (cs_sc_seg_gap(xv, cs_sc_at(x0, y0, z0, o), xu, xz) < r &&
+                        cs_sc_ee_cut(x0, y0, z0, dx, dy, dz, s, ea, eb, r, v, outright, &cut, &dmin))
+                        cs_sc_keep(keys, cap, nkeys, cs_sc_ee_key(ph, g.spoke[k], 3 * u + e));
                 }
             }
         }
     });
     *dall = dmin;
+    return cut;
+}
+
+/* cs_sc_limit from a list of the pairs it kept (keys[0..n)) when that list holds every pair now
+ * within r: the same cut (a least, in any order). */
+SIM_HD static inline float cs_sc_limit_listed(const cs_phys *ph, const float *x0, const float *y0, const float *z0,
+                                              const float *dx, const float *dy, const float *dz, const float *s,
+                                              float r, int32_t v, int outright, const int64_t *keys, int32_t n)
+{
+    float cut = s[v], dmin = r;
+    const int64_t base = cs_sc_ee_base(ph), edges = 3 * (int64_t)ph->n;
+    for (int32_t k = 0; k < n; k++) {
+        if (keys[k] >= base) {
+            int32_t a[2], b[2];
+            cs_sc_edge_ends(ph, (int32_t)((keys[k] - base) / edges), a);
+            cs_sc_edge_ends(ph, (int32_t)((keys[k] - base) % edges), b);
+            cs_sc_ee_cut(x0, y0, z0, dx, dy, dz, s, a, b, r, v, outright, &cut, &dmin);
+        } else {
+            int32_t p, t[3];
+            cs_sc_key_pair(ph, keys[k], &p, t);
+            cs_sc_vf_cut(x0, y0, z0, dx, dy, dz, s, p, t, r, v, outright, &cut, &dmin);
+        }
+    }
     return cut;
 }
 
