@@ -6,6 +6,8 @@
 // being recorded, or cut by a crash) is read by scanning its records up to the last complete one.
 //
 //   const r = readRecording(bytes);     // throws RecordingError(message, offset)
+//   readRecording(bytes, { salvage: true }) // an exporter's reading: a file corrupt past its hello
+//                                       // keeps the frames before the damage; r.problem says what
 //   r.frames[k] -> {offset, length, simTime, key, textsBefore}; r.frame(k) -> the CLF1 bytes;
 //   r.text(k) -> text record k parsed (0 is the hello); r.seek(t) -> the frame at t s.
 
@@ -38,12 +40,15 @@ export class RecordingError extends Error {
 
 /**
  * @param {ArrayBuffer|ArrayBufferView} data a whole .clr file, or as much of it as there is
- * @returns {{complete: boolean, hello: object, info: object, frames: {offset: number, length: number,
+ * @param {{salvage?: boolean}} [options] salvage: a bad index is ignored (the records are scanned)
+ *   and a bad record after the hello ends the frames before it, instead of throwing; `problem`
+ *   then says what was wrong (null when nothing was)
+ * @returns {{complete: boolean, problem: string|null, hello: object, info: object, frames: {offset: number, length: number,
  *   simTime: number, key: number, textsBefore: number}[], texts: {offset: number, length: number}[],
  *   frame: (k: number) => Uint8Array, text: (k: number) => object, duration: number,
  *   seek: (t: number) => number, bytes: number}}
  */
-export function readRecording(data) {
+export function readRecording(data, options = {}) {
   const b = data instanceof ArrayBuffer ? new Uint8Array(data) : new Uint8Array(data.buffer, data.byteOffset, data.byteLength);
   const dv = new DataView(b.buffer, b.byteOffset, b.byteLength);
   if (b.length < FILE_HEADER) throw new RecordingError(`a recording is at least ${FILE_HEADER} bytes, this is ${b.length}`, 0);
@@ -52,8 +57,16 @@ export function readRecording(data) {
   if (version !== REC_VERSION) throw new RecordingError(`recording version ${version}, this reader knows ${REC_VERSION}`, 4);
   if (dv.getUint32(8, true) !== 0) throw new RecordingError('recording flags this reader does not know', 8);
 
-  const fromIndex = readIndex(b, dv);
-  const { frames, texts } = fromIndex ?? scan(b, dv);
+  const salvage = options.salvage ? { problem: null } : null;
+  let fromIndex;
+  try {
+    fromIndex = readIndex(b, dv);
+  } catch (e) {
+    if (!salvage || !(e instanceof RecordingError)) throw e;
+    salvage.problem = `${e.message}; its records were scanned instead`;
+    fromIndex = null;
+  }
+  const { frames, texts } = fromIndex ?? scan(b, dv, salvage);
   const complete = !!fromIndex;
   if (texts.length === 0 || texts[0].offset !== FILE_HEADER)
     throw new RecordingError('the first record of a recording is its hello (text)', FILE_HEADER);
@@ -72,7 +85,13 @@ export function readRecording(data) {
   const hello = text(0);
   if (hello.type !== 'hello' || !hello.scene || typeof hello.scene !== 'object')
     throw new RecordingError('the first record is not a hello with its scene', FILE_HEADER);
-  checkFrames(b, dv, frames, texts, hello, text);
+  try {
+    checkFrames(b, dv, frames, texts, hello, text);
+  } catch (e) {
+    if (!salvage || !(e instanceof RecordingError) || e.frame === undefined) throw e;
+    frames.length = e.frame; // the frames before the bad one
+    salvage.problem = `${e.message}: the ${e.frame} frames before it are kept`;
+  }
   const frame = (k) => {
     const f = frames[k];
     if (!f) throw new RangeError(`no frame ${k} in a recording of ${frames.length}`);
@@ -90,7 +109,7 @@ export function readRecording(data) {
     return lo;
   };
   return {
-    complete, hello, info: hello.recording ?? {}, frames, texts, frame, text, seek, bytes: b.length,
+    complete, problem: salvage?.problem ?? null, hello, info: hello.recording ?? {}, frames, texts, frame, text, seek, bytes: b.length,
     duration: frames.length ? frames[frames.length - 1].simTime - t0 : 0,
   };
 }
@@ -141,13 +160,17 @@ function readIndex(b, dv) {
 }
 
 // A file without its index: its records in order, up to the last complete one.
-function scan(b, dv) {
+function scan(b, dv, salvage = null) {
   const frames = [], texts = [];
   let keyOrdinal = -1;
   for (let at = FILE_HEADER; at + RECORD_HEAD <= b.length;) {
     if (frames.length + texts.length >= MAX_RECORDS) throw new RecordingError(`more than ${MAX_RECORDS} records`, at);
     const type = dv.getUint32(at, true), length = dv.getUint32(at + 4, true);
-    if (type < REC_TEXT || type > REC_INDEX) throw new RecordingError(`record of unknown type ${type}`, at);
+    if (type < REC_TEXT || type > REC_INDEX) {
+      if (!salvage) throw new RecordingError(`record of unknown type ${type}`, at);
+      salvage.problem = `record of unknown type ${type} at byte ${at}: the records before it are kept`;
+      break;
+    }
     if (at + RECORD_HEAD + length > b.length) break; // cut mid-record: what came before counts
     if (type === REC_TEXT) texts.push({ offset: at, length });
     else if (type === REC_FRAME) {
@@ -174,11 +197,15 @@ function checkFrames(b, dv, frames, texts, hello, text) {
   let textsSeen = 1, keyId = -1;
   frames.forEach((f, k) => {
     const p = f.offset + RECORD_HEAD;
-    const bad = (what) => { throw new RecordingError(`frame ${k}: ${what}`, f.offset); };
+    const bad = (what) => { throw Object.assign(new RecordingError(`frame ${k}: ${what}`, f.offset), { frame: k }); };
     if (f.length < CLF_HEADER || magicAt(b, p) !== CLF_MAGIC || dv.getUint16(p + 4, true) !== CLF_HEADER) bad('not a clothd frame (CLF1)');
     const e = dv.getUint16(p + 6, true) & 3, nv = dv.getUint32(p + 40, true);
     if (enc !== undefined && encodings[e] !== enc) bad(`a ${encodings[e]} frame in a ${enc} recording`);
-    for (; textsSeen < f.textsBefore; textsSeen++) if (relayout.has(text(textsSeen).event)) n = -1; // any size after
+    try {
+      for (; textsSeen < f.textsBefore; textsSeen++) if (relayout.has(text(textsSeen).event)) n = -1; // any size after
+    } catch (e) {
+      throw Object.assign(e, { frame: k });
+    }
 
     if (nv > CLF_MAX_VERTICES || (n >= 0 && nv !== n)) bad(`${nv} vertices, the cloth has ${n}`);
     n = nv;

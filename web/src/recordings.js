@@ -3,12 +3,14 @@
 // client; the list is hidden where the server has no recordings, 404), play it (player.js:
 // play, pause, a timeline to scrub, speed 0.25x .. 4x, its sim time and frame shown), export
 // (export.js: the frame shown, live or recorded, as PLY or glTF; a range of the recording, from
-// .. to on the timeline, as animated glTF), and go back to live.
+// .. to on the timeline, as animated glTF; clients/js recording-export.js: the whole recording as
+// USD), and go back to live.
 //
 // A file that is not a recording, or is corrupt, is said in the bar (the reader's message, with
 // the offset) and the page goes on as it was; a file cut short (no index: a recording still
 // running, or its daemon killed) plays the frames it has, and the bar says so.
-import { NotFound } from 'clothd/client';
+import { NotFound, exportUsd } from 'clothd/client';
+import { triangleIndices } from './topology.js';
 import { Player, SPEEDS } from './player.js';
 import { framePly, frameGlb, animationGlb, animationStride, animationCap, download, MAX_ANIMATION_FRAMES } from './export.js';
 
@@ -74,12 +76,14 @@ export class RecordingBar {
     const toHere = button('⇥', 'the range ends at the frame shown', () => { this.to.value = String(this.player?.k ?? 0); });
     const exportAnim = button('Range as animated glTF', '', () => this.exportRange());
     exportAnim.id = 'export-animation';
+    const usd = button('Recording as USD', 'the whole recording as USD text (.usda): the cloth with its tears and the rocks, every frame (Blender, Houdini)', () => this.exportUsd());
+    usd.id = 'export-usd';
     this.animNote = el('span', { className: 'rec-note', id: 'rec-cap' });
     const live = button('Back to live', 'close the recording and show the live scene again', () => this.backToLive());
     live.id = 'rec-live';
     this.playerRow = el('div', { className: 'rec-row', id: 'rec-player', hidden: true },
       this.playButton, this.scrub, this.speed, this.time, el('br'),
-      'export frames ', this.from, fromHere, ' to ', this.to, toHere, ' ', exportAnim, this.animNote, ' ', live);
+      'export frames ', this.from, fromHere, ' to ', this.to, toHere, ' ', exportAnim, this.animNote, ' ', usd, ' ', live);
 
     this.message = el('div', { id: 'rec-message', role: 'status' });
     container.append(top, this.playerRow, this.message);
@@ -277,6 +281,29 @@ export class RecordingBar {
       this.say(`exported frames ${from} .. ${to}${stride > 1 ? `, every ${stride}th (${run.ordinals.length} frames)` : ` (${run.ordinals.length} frames)`}`);
     } catch (e) {
       this.say(`export failed: ${e.message}`, 'error');
+    }
+  }
+
+  /**
+   * The whole recording as USD text (clients/js recording-export.js), streamed into chunks that
+   * the download's Blob takes; a cut recording exports what it has, and the bar says so.
+   */
+  async exportUsd() {
+    const p = this.player;
+    if (!p || this.busy) return;
+    this.busy = true;
+    p.pause();
+    this.say(`exporting ${p.count} frames as USD…`);
+    try {
+      const chunks = [];
+      const r = await exportUsd(p.r, { write: (s) => { chunks.push(s); } }, { triangles: triangleIndices, codecs: p.codecs });
+      download(new Blob(chunks), `${stem(p.name)}.usda`, 'model/vnd.usda');
+      this.say(`exported ${r.written} frames as USD${r.problem ? ` (${r.problem})` : ''}`, r.cut ? 'warn' : '');
+    } catch (e) {
+      this.say(`USD export failed: ${e.message}`, 'error');
+    } finally {
+      this.busy = false;
+      this.update();
     }
   }
 }

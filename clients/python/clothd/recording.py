@@ -10,11 +10,15 @@ scanning its records up to the last complete one (``complete`` is then False).
     rec.hello["scene"]["nx"], len(rec), rec.duration
     frame = rec.decode(rec.seek(2.5))        # the frame 2.5 s in (its keyframe decoded first)
     for frame in rec: ...                    # every frame in order
+    rec.to_usd("run.usda")                   # USD text for Blender or Houdini (clothd.usd)
 """
 
+import io
 import json
 import math
+import os
 import struct
+import warnings
 
 from .errors import ProtocolError
 from .frames import DELTA_KEY_KINDS, FrameDecoder
@@ -64,10 +68,12 @@ class FrameEntry:
 
 class Recording:
     """A parsed recording (``read_recording``): ``hello``, ``info`` (the hello's ``recording``),
-    ``frames`` (FrameEntry each), ``texts`` ((offset, length) each), ``complete``, ``duration``."""
+    ``frames`` (FrameEntry each), ``texts`` ((offset, length) each), ``complete``, ``duration``,
+    ``problem`` (read with ``salvage``: what was wrong past the hello, None when nothing)."""
 
-    def __init__(self, data, frames, texts, complete, numpy=None):
+    def __init__(self, data, frames, texts, complete, numpy=None, problem=None):
         self._data = data
+        self.problem = problem
         self.frames = frames
         self.texts = texts
         self.complete = complete
@@ -141,10 +147,33 @@ class Recording:
         for k in range(len(self.frames)):
             yield self.decode(k)
 
+    def to_usd(self, path):
+        """Writes the recording as USD text (.usda) to ``path``, one frame at a time (clothd.usd).
+        Answers ``{frames, written, cut, problem, time_codes}``; a cut or corrupt recording exports
+        up to its last whole frame, with a warning (RuntimeWarning) that says where it stopped. A
+        recording without frames is a RecordingError and writes nothing."""
+        from .usd import write_usd
+        if not self.frames:
+            write_usd(self, io.StringIO())  # raises: no frames, and no file is made
+        part = os.fspath(path) + ".part"
+        try:
+            with open(part, "w", encoding="utf-8", newline="\n") as out:
+                result = write_usd(self, out)
+            os.replace(part, path)
+        except BaseException:
+            if os.path.exists(part):
+                os.remove(part)
+            raise
+        if result["cut"]:
+            warnings.warn("clothd recording export: " + result["problem"], RuntimeWarning, stacklevel=2)
+        return result
 
-def read_recording(data, numpy=None):
+
+def read_recording(data, numpy=None, salvage=False):
     """A Recording from a whole .clr file (or as much as there is of one); RecordingError when
-    it is not one or is corrupt. numpy: as clothd.frames (None: numpy when installed)."""
+    it is not one or is corrupt. numpy: as clothd.frames (None: numpy when installed). salvage:
+    for an export, a bad index is ignored (the records are scanned) and a bad record after the
+    hello ends the frames before it; ``problem`` says what was wrong."""
     data = memoryview(bytes(data))
     if len(data) < FILE_HEADER:
         raise RecordingError("a recording is at least %d bytes, this is %d" % (FILE_HEADER, len(data)), 0)
@@ -155,12 +184,26 @@ def read_recording(data, numpy=None):
         raise RecordingError("recording version %d, this reader knows %d" % (version, REC_VERSION), 4)
     if flags:
         raise RecordingError("recording flags this reader does not know", 8)
-    found = _read_index(data)
-    frames, texts = found if found else _scan(data)
+    problem = []
+    try:
+        found = _read_index(data)
+    except RecordingError as e:
+        if not salvage:
+            raise
+        problem.append("%s; its records were scanned instead" % e)
+        found = None
+    frames, texts = found if found else _scan(data, problem if salvage else None)
     if not texts or texts[0][0] != FILE_HEADER:
         raise RecordingError("the first record of a recording is its hello (text)", FILE_HEADER)
     rec = Recording(data, frames, texts, complete=found is not None, numpy=numpy)
-    _check_frames(data, rec)
+    try:
+        _check_frames(data, rec)
+    except RecordingError as e:
+        if not salvage or getattr(e, "frame", None) is None:
+            raise
+        del frames[e.frame:]
+        problem.append("%s: the %d frames before it are kept" % (e, e.frame))
+    rec.problem = "; ".join(problem) or None
     return rec
 
 
@@ -228,7 +271,7 @@ def _read_index(data):
     return frames, texts
 
 
-def _scan(data):
+def _scan(data, problem=None):
     frames, texts = [], []
     key = -1
     at, size = FILE_HEADER, len(data)
@@ -237,7 +280,10 @@ def _scan(data):
             raise RecordingError("more than %d records" % MAX_RECORDS, at)
         kind, length = struct.unpack_from("<II", data, at)
         if kind < TEXT or kind > INDEX:
-            raise RecordingError("record of unknown type %d" % kind, at)
+            if problem is None:
+                raise RecordingError("record of unknown type %d" % kind, at)
+            problem.append("record of unknown type %d at byte %d: the records before it are kept" % (kind, at))
+            break
         if at + RECORD_HEAD + length > size:
             break  # cut mid-record: what came before counts
         if kind == TEXT:
@@ -268,7 +314,9 @@ def _check_frames(data, rec):
         p = f.offset + RECORD_HEAD
 
         def bad(what):
-            raise RecordingError("frame %d: %s" % (k, what), f.offset)
+            e = RecordingError("frame %d: %s" % (k, what), f.offset)
+            e.frame = k
+            raise e
 
         if f.length < _CLF_HEADER or bytes(data[p:p + 4]) != b"CLF1" or struct.unpack_from("<H", data, p + 4)[0] != _CLF_HEADER:
             bad("not a clothd frame (CLF1)")
@@ -277,8 +325,12 @@ def _check_frames(data, rec):
         if encoding is not None and _ENCODINGS[e] != encoding:
             bad("a %s frame in a %s recording" % (_ENCODINGS[e], encoding))
         while seen < f.texts_before:
-            if rec.text(seen).get("event") in _RELAYOUT:
-                n = -1
+            try:
+                if rec.text(seen).get("event") in _RELAYOUT:
+                    n = -1
+            except RecordingError as e:
+                e.frame = k
+                raise
             seen += 1
         if nv > _CLF_MAX_VERTICES or (n >= 0 and nv != n):
             bad("%d vertices, the cloth has %d" % (nv, n))
