@@ -1,13 +1,15 @@
 /* selfcontact_cpu.c - self_collision on the CPU backend: the functions of clothsim/selfcontact.h
  * looped over the grid with OpenMP (kernels/MODEL.md, "Self-collision"). After a substep (a part
  * under implicit_euler) that began at x0 (cs_sc_begin):
- *   1. d = x - x0 and M, the farthest a vertex moves from the centre of all the displacements:
- *      pairs within r = self_thickness + 2 M / CS_SC_GAMMA at x0 are the ones that may meet;
+ *   1. d = x - x0, M the farthest a vertex moves from the centre of all the displacements (what
+ *      the lists need) and Ma the farthest a vertex moves (what the bound needs): pairs within
+ *      r = self_thickness + 2 Ma / CS_SC_GAMMA at x0 are the ones that may meet;
  *   2. repulsion (cs_sc_repel) per vertex into scratch, then added: from each vertex's list of
- *      repelling pairs while the lists provably hold every pair that can touch, else from lists
- *      of the pairs within self_thickness at x1 found now (a hash grid of x1);
+ *      repelling pairs while the lists provably hold every pair that can touch, else from new
+ *      lists at x0 (within self_thickness + 2 M and a margin);
  *   3. the bound (cs_sc_limit) over a hash grid of x0 (cells of the reach plus twice the longest
- *      edge; keys in parallel, the counting sort on one thread), in Jacobi sweeps of the scales
+ *      edge; keys in parallel, the counting sort on one thread), or over each vertex's list of its
+ *      pairs at the reference while that provably holds them all, in Jacobi sweeps of the scales
  *      until none changes (at most CS_SC_SWEEPS, then one sweep that cuts every near pair
  *      outright); x = x0 + s d, v = s v.
  * Every maximum is exact in any order and every vertex writes only its own entries, so the result
@@ -186,9 +188,10 @@ cs_status cs_sc_begin(cs_sc_work **wp, const cs_state *s)
 
 /* d = x - x0. Returns how far a vertex moves from the middle of all their displacements (the centre
  * of their box: two vertices move apart by at most twice it, whatever the cloth's motion as a
- * whole), and into *C (when not NULL) the same of x0 from the reference. Maxima and minima: exact
- * in any order. */
-static float displacements(cs_sc_work *w, const cs_state *s, int threads, float *C)
+ * whole), into *C (when not NULL) the same of x0 from the reference, and into *far_most the
+ * largest displacement itself (the bound's cuts scale displacements, so it is what bounds two
+ * vertices' relative motion once some are cut). Maxima and minima: exact in any order. */
+static float displacements(cs_sc_work *w, const cs_state *s, int threads, float *C, float *far_most)
 {
     (void)threads; /* only the OpenMP pragmas read it */
     const int ref = C != NULL;
@@ -210,11 +213,13 @@ static float displacements(cs_sc_work *w, const cs_state *s, int threads, float 
     }
     const cs_vec3 c = cs_v3(0.5f * (lx + hx), 0.5f * (ly + hy), 0.5f * (lz + hz)),
                   cr = cs_v3(0.5f * (rlx + rhx), 0.5f * (rly + rhy), 0.5f * (rlz + rhz));
-    float most = 0.0f, far = 0.0f;
-#pragma omp parallel for num_threads(threads) schedule(static) reduction(max : most, far)
+    float most = 0.0f, far = 0.0f, abs_most = 0.0f;
+#pragma omp parallel for num_threads(threads) schedule(static) reduction(max : most, far, abs_most)
     for (int32_t v = 0; v < n; v++) {
-        const float l = cs_len(cs_sub(cs_v3(w->dx[v], w->dy[v], w->dz[v]), c));
+        const cs_vec3 d = cs_v3(w->dx[v], w->dy[v], w->dz[v]);
+        const float l = cs_len(cs_sub(d, c)), a = cs_len(d);
         most = l > most ? l : most;
+        abs_most = a > abs_most ? a : abs_most;
         if (ref) {
             const cs_vec3 e = cs_v3(w->x0[v] - w->xr[v], w->y0[v] - w->xr[n + v], w->z0[v] - w->xr[2 * n + v]);
             const float f = cs_len(cs_sub(e, cr));
@@ -222,6 +227,7 @@ static float displacements(cs_sc_work *w, const cs_state *s, int threads, float 
         }
     }
     if (C) *C = far;
+    *far_most = abs_most;
     return n > 0 ? most : 0.0f;
 }
 
@@ -294,19 +300,26 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
     const float *L0 = s->L0;
     const int fresh = w->have_ref && w->ref_thickness == p->self_thickness;
     float C = 0.0f;
-    float M = displacements(w, s, threads, fresh ? &C : NULL);
+    float Ma; /* the largest displacement */
+    float M = displacements(w, s, threads, fresh ? &C : NULL, &Ma);
     if (!(M < 3.0e38f) || !(C < 3.0e38f)) return CS_OK; /* not finite: the caller reports it */
     int32_t lost = 0;
-    /* 3. repulsion: from the lists while they are whole and hold every repelling pair that can
-     * touch at x1 (self_thickness + 2 (C + M) under the radius they were taken with), else from
-     * the pairs within self_thickness at x1 found now: the pairs that touch are the same, and each
-     * vertex sums them in the same order (by key) */
+    /* 3. repulsion, from the lists while they are whole and hold every repelling pair that can
+     * touch at x1 (self_thickness + 2 (C + M) under the radius they were taken with); else new
+     * lists at x0, within Rl (a pair within self_thickness at x1 was within self_thickness + 2 M
+     * at x0), and the bound takes a new reference below. Either way the pairs that touch are the
+     * same, and each vertex sums them in the same order (by key). */
     const int listed = fresh && w->lists_whole && p->self_thickness + 2.0f * (C + M) < 0.95f * w->ref_list;
+    cs_sc_grid G = {0};
+    float L = -1.0f, cell = 0.0f; /* the longest edge at x0 once known, the cells of G once built */
     if (!listed) {
-        const float L1 = longest_edge(p, s->x, s->y, s->z, L0, threads), rad = p->self_thickness;
-        const cs_sc_grid G1 = build_grid(w, n, s->x, s->y, s->z, rad + 2.0f * L1, threads);
-        lost = build_lists(w, p, L0, s->x, s->y, s->z, &G1, rad + 2.0f * L1, rad, threads);
-        w->lists_whole = 0;
+        L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads);
+        const float Rl = p->self_thickness + 2.0f * M + list_margin(p);
+        cell = Rl + 2.0f * L;
+        G = build_grid(w, n, w->x0, w->y0, w->z0, cell, threads);
+        lost = build_lists(w, p, L0, w->x0, w->y0, w->z0, &G, cell, Rl, threads);
+        w->lists_whole = lost == 0;
+        w->ref_list = Rl;
     }
     int32_t touching = 0;
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 32) reduction(+ : touching) if (w->pairs > 0)
@@ -327,39 +340,41 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
             s->x[v] += px[0], s->y[v] += px[1], s->z[v] += px[2];
             s->vx[v] += pv[0], s->vy[v] += pv[1], s->vz[v] += pv[2];
         }
-        M = displacements(w, s, threads, NULL);
+        M = displacements(w, s, threads, NULL, &Ma);
     }
     /* 4. the bound. A pair is safe by the reference when one of its vertices v is (its least
      * distance there, less 2 C, leaves room for this substep's motion; margin 5 % for rounding):
      * only the other vertices look at their pairs, or all of them when the reference is taken
      * again (when the lists were not whole, or more than an eighth of the cloth would look) */
-    const float r = p->self_thickness + 2.0f * M / CS_SC_GAMMA;
+    const float r = p->self_thickness + 2.0f * Ma / CS_SC_GAMMA;
     int32_t cut = 0, looking = n;
     int full = !listed;
     if (!full) {
         looking = 0;
 #pragma omp parallel for num_threads(threads) schedule(static) reduction(+ : looking)
         for (int32_t v = 0; v < n; v++) {
-            w->look[v] = !(2.0f * M / CS_SC_GAMMA < 0.95f * (w->dall[v] - 2.0f * C));
+            w->look[v] = !(2.0f * Ma / CS_SC_GAMMA < 0.95f * (w->dall[v] - 2.0f * C));
             looking += w->look[v];
         }
         full = looking > n / 2;
     }
     if (full || looking > 0) {
         const float R = full ? r + ref_margin(p) : r, Rl = p->self_thickness + 2.0f * M + list_margin(p);
+        const int new_lists = full && listed; /* the lists move to the new reference too */
         /* a partial pass takes each looking vertex's pairs from its list while the lists hold every
          * pair now within r: one beyond ref_bound at the reference is still beyond ref_bound - 2 C
          * (1 % and 1 um for rounding) */
         const int from_lists = !full && w->bound_whole && w->ref_bound - 2.0f * C >= 1.01f * r + 1e-6f;
-        cs_sc_grid G = {0};
-        float reach = 0.0f, L = 0.0f;
+        float reach = 0.0f;
         if (!from_lists) {
-            L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads);
+            if (L < 0.0f) L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads);
             reach = R + 2.0f * L;
-            /* cells as large as the farthest candidate either pass looks for */
-            G = build_grid(w, n, w->x0, w->y0, w->z0, (full && Rl > R ? Rl : R) + 2.0f * L, threads);
+            /* cells as large as the farthest candidate either pass looks for (the grid of the
+             * lists above serves when it is as large) */
+            const float need = (new_lists && Rl > R ? Rl : R) + 2.0f * L;
+            if (!(cell >= need)) G = build_grid(w, n, w->x0, w->y0, w->z0, cell = need, threads);
         }
-        if (full) { /* new lists with the new reference */
+        if (new_lists) {
             const int32_t none = build_lists(w, p, L0, w->x0, w->y0, w->z0, &G, Rl + 2.0f * L, Rl, threads);
             w->lists_whole = none == 0;
             lost += none;
@@ -367,7 +382,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         }
         for (int32_t v = 0; v < n; v++) w->s[v] = w->s2[v] = 1.0f;
         float *a = w->s, *b = w->s2;
-        int changed = M > 0.0f || full;
+        int changed = Ma > 0.0f || full;
         for (int sweep = 0; changed && sweep <= CS_SC_SWEEPS; sweep++) {
             const int outright = sweep == CS_SC_SWEEPS;
             changed = 0;
