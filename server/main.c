@@ -36,6 +36,7 @@
 #include "sim/recordings.h"
 #include "sim/scenes.h"
 #include "sim/simloop.h"
+#include "sdnotify.h"
 #include "stream/stream.h"
 #ifdef CLOTHD_TEST_HOOKS
 #include "testhooks.h"
@@ -316,21 +317,21 @@ static int resume(scenes *table, const clothd_config *cfg, const char *backend)
             log_msg("state file: %s does not exist yet; starting afresh (it is written on SIGTERM/SIGINT)", path);
             return 0;
         }
-        log_msg("cannot resume from the state file %s: %s", path, strerror(errno));
+        log_at(LOG_ERROR, NULL, NULL, "cannot resume from the state file %s: %s", path, strerror(errno));
         return -1;
     }
     char why[300];
     size_t len = 0;
     unsigned char *buf = read_file(path, &len, why, sizeof why);
     if (!buf) {
-        log_msg("cannot resume from the state file: %s", why);
+        log_at(LOG_ERROR, NULL, NULL, "cannot resume from the state file: %s", why);
         return -1;
     }
     statefile layout;
     loop_settings saved = cfg->scene.loop;
     const statefile_error fe = statefile_parse(buf, len, &layout, &saved, why, sizeof why);
     if (fe == STATEFILE_OK && layout.n_scenes > scenes_max(table)) {
-        log_msg("cannot resume from the state file %s: it holds %d scenes, more than max_scenes (%d): raise max_scenes "
+        log_at(LOG_ERROR, NULL, NULL, "cannot resume from the state file %s: it holds %d scenes, more than max_scenes (%d): raise max_scenes "
                 "to resume from it", path, layout.n_scenes, scenes_max(table));
         statefile_free(&layout);
         free(buf);
@@ -353,7 +354,7 @@ static int resume(scenes *table, const clothd_config *cfg, const char *backend)
             scene *sc = made[k];
             const int added = rc == 1 ? scenes_add(table, sc) : 0;
             if (added != 0) {
-                log_msg("cannot resume from the state file %s: %s", path,
+                log_at(LOG_ERROR, NULL, NULL, "cannot resume from the state file %s: %s", path,
                         added == SCENES_NO_ROOM ? "its scenes need more than max_state_mb together (raise it to resume from it)"
                                                 : "it names a scene twice");
                 rc = -1;
@@ -379,7 +380,7 @@ static int resume(scenes *table, const clothd_config *cfg, const char *backend)
     free(made);
     const char *reason = fe != STATEFILE_OK ? why : loaded;
     if (!bad) { /* the file is kept whatever state_file_invalid says */
-        log_msg("cannot resume from the state file %s: %s%s", path, reason,
+        log_at(LOG_ERROR, NULL, NULL, "cannot resume from the state file %s: %s%s", path, reason,
                 st != CS_E_LIMIT                  ? ""
                 : strcmp(param, "max_rocks") == 0 ? " (raise max_rocks to resume from it)"
                                                   : " (raise max_state_mb to resume from it)");
@@ -388,14 +389,14 @@ static int resume(scenes *table, const clothd_config *cfg, const char *backend)
     }
     statefile_free(&layout);
     if (set->state_file_invalid != STATE_INVALID_FRESH) {
-        log_msg("cannot resume from the state file %s: it %s (%s). Refusing to start: fix or remove it, or set "
+        log_at(LOG_ERROR, NULL, NULL, "cannot resume from the state file %s: it %s (%s). Refusing to start: fix or remove it, or set "
                 "--state-file-invalid fresh (CLOTHD_STATE_FILE_INVALID=fresh) to move it aside and start afresh",
                 path, bad, reason);
         return -1;
     }
     char aside[700];
     if (move_aside(path, aside, sizeof aside) != 0) {
-        log_msg("cannot resume from the state file %s: it %s (%s), and it could not be moved aside: %s", path, bad,
+        log_at(LOG_ERROR, NULL, NULL, "cannot resume from the state file %s: it %s (%s), and it could not be moved aside: %s", path, bad,
                 reason, strerror(errno));
         return -1;
     }
@@ -410,7 +411,7 @@ static cs_sim *make_engine_on(const clothd_config *cfg, const char *backend)
     cs_status st;
     void *sink = (void *)&stream_sink_ops; /* what the stream holds is part of a scene's cost */
     cs_sim *sim = scene_engine_new(&cfg->scene, &cfg->set, backend, sink, &st, err, sizeof err);
-    if (!sim) log_msg("cannot start the simulation: %s", err);
+    if (!sim) log_at(LOG_ERROR, NULL, NULL, "cannot start the simulation: %s", err);
     return sim;
 }
 
@@ -495,7 +496,7 @@ static int save_on_exit(scenes *table, const char *path)
     char why[1400];
     int n = 0, paused = 0;
     if (save_state(table, path, &n, &paused, why, sizeof why) != 0) {
-        log_msg("could not save the state to %s: %s; the previous state file, if any, is unchanged", path, why);
+        log_at(LOG_ERROR, NULL, NULL, "could not save the state to %s: %s; the previous state file, if any, is unchanged", path, why);
         return -1;
     }
     scene *only = n == 1 ? scenes_get(table, SCENE_DEFAULT) : NULL;
@@ -511,7 +512,7 @@ static scenes *first_table(cs_sim *sim, const clothd_config *cfg, const char *ba
 {
     scenes *table = scenes_new(cfg->set.max_scenes);
     if (!table) {
-        log_msg("out of memory");
+        log_at(LOG_ERROR, NULL, NULL, "out of memory");
         cs_sim_destroy(sim);
         return NULL;
     }
@@ -524,7 +525,7 @@ static scenes *first_table(cs_sim *sim, const clothd_config *cfg, const char *ba
     }
     scene *sc = scene_new(SCENE_DEFAULT, sim, &cfg->scene.loop, cfg->set.paused, &cfg->set);
     if (!sc || scenes_add(table, sc) != 0) {
-        log_msg("out of memory");
+        log_at(LOG_ERROR, NULL, NULL, "out of memory");
         scene_release(sc);
         scenes_free(table);
         return NULL;
@@ -555,6 +556,7 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     sigaddset(&sigs, SIGTERM);
     sigaddset(&sigs, SIGUSR1);
     pthread_sigmask(SIG_BLOCK, &sigs, NULL); /* every thread inherits it; main waits for them */
+    sdnotify_init();
 
     char err[300];
     cs_sim *sim = make_engine(cfg);
@@ -569,12 +571,14 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     snprintf(backend, sizeof backend, "%s", cs_sim_backend(sim));
     snprintf(device, sizeof device, "%s", cs_sim_device(sim));
     snprintf(note, sizeof note, "%s", cs_sim_backend_note(sim));
-    const http_info about = {backend, device, note, CLOTHD_VERSION, NULL, 0, acc, NULL};
+    const http_info about = {backend, device, note, CLOTHD_VERSION, NULL, 0, acc, NULL, NULL, NULL};
+    static atomic_int life = DAEMON_STARTING; /* GET /readyz */
     scenes *table = first_table(sim, cfg, backend);
     if (!table) return EXIT_START;
     scenes_set_factory(table, &cfg->scene, &cfg->set, backend);
     metrics *m = metrics_new();
     simloop *sl = m ? simloop_new(table, m) : NULL;
+    if (sl && sdnotify_watchdog_every() > 0) simloop_set_beat(sl, sdnotify_watchdog, NULL, sdnotify_watchdog_every());
     recordings *recs = sl ? recordings_new(&cfg->set, err, sizeof err) : NULL;
 #ifdef CLOTHD_TEST_HOOKS
     if (recs && testhooks_recording_slow()) recordings_set_write_hook(recs, testhooks_before_recording_write);
@@ -582,6 +586,8 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     stream *st = recs ? stream_start(&cfg->set, table, acc, err, sizeof err) : NULL;
     http_info info = about;
     info.recordings = recs;
+    info.loop = sl;
+    info.life = &life;
     info.stream = st;
     info.stream_port = st ? stream_port(st) : 0;
     if (st) {
@@ -596,6 +602,7 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     }
     http_server *http = st ? http_start(&cfg->set, table, m, &info, err, sizeof err) : NULL;
     const int started = http && simloop_start(sl) == 0;
+    if (started) atomic_store(&life, DAEMON_SERVING);
     if (!started) {
         log_msg("%s", !m || !sl ? "out of memory" : !recs || !st || !http ? err : "cannot start the sim thread");
         http_stop(http);
@@ -610,19 +617,24 @@ static int serve_with(clothd_config *cfg, const access_policy *acc)
     if (strcmp(cfg->set.listen, "0.0.0.0") == 0) host = "127.0.0.1";
     log_msg("stream on ws://%s:%d/stream (subprotocol clothd.v1)", cfg->set.listen, stream_port(st));
     stream_set_http_port(st, http_port(http));
-    log_msg("listening on http://%s:%d (API at /v1, viewer at /)%s", cfg->set.listen, http_port(http),
+    log_notice("listening on http://%s:%d (API at /v1, viewer at /)%s", cfg->set.listen, http_port(http),
             access_required(acc) ? "; a token is needed (Authorization: Bearer)" : "");
     log_msg("try: curl -s http://%s:%d/v1/sim", host, http_port(http));
     log_msg("viewer: http://%s:%d/", host, http_port(http));
+    char ready[160];
+    snprintf(ready, sizeof ready, "READY=1\nSTATUS=serving on port %d, stream on %d", http_port(http), stream_port(st));
+    sdnotify_send(ready);
 
     int sig = 0;
     while (sigwait(&sigs, &sig) != 0) {
     }
+    atomic_store(&life, DAEMON_STOPPING);
+    sdnotify_send("STOPPING=1");
     int rc;
     if (sig == SIGUSR1) {
         /* The API stays up until the state is saved - /v1/health 503, commands 503, reads as
          * they were - so that a supervisor and an operator see why the daemon goes. */
-        log_msg("backend failed: saving the state and exiting for a restart");
+        log_at(LOG_ERROR, NULL, NULL, "backend failed: saving the state and exiting for a restart");
         simloop_stop(sl);
         rc = save_on_exit(table, cfg->set.state_file) == 0 ? EXIT_BACKEND : EXIT_SAVE;
         http_quiesce(http);
@@ -709,5 +721,6 @@ int main(int argc, char **argv, char **envp)
         fprintf(stderr, "clothd: %s\n", why);
         return EXIT_USAGE;
     }
+    log_setup(cfg.set.log_format, cfg.set.log_level);
     return file ? replay(file, &cfg) : serve(&cfg);
 }

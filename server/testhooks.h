@@ -10,6 +10,8 @@
  *                                     temp file and renaming it (a test kills the daemon there)
  *   CLOTHD_TEST_RECORDING_WRITE_MS=M  the recordings' writer waits M ms before each frame it
  *                                     writes (a slow disk: it falls behind the scene); not one-shot
+ *   CLOTHD_TEST_WEDGE_FRAME=N         after frame N, the sim thread stops for CLOTHD_TEST_WEDGE_MS
+ *                                     ms (a wedged thread: GET /livez goes 503), then goes on
  *
  * Frames count as GET /v1/sim's `frame`. Each hook logs what it does. */
 #ifndef CLOTHD_TESTHOOKS_H

@@ -1,9 +1,12 @@
 /* metrics.c - Prometheus counters, a substep-time histogram and HTTP requests by route. */
+#include <dirent.h>
 #include <pthread.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
+#include <unistd.h>
 
 #include "core/metrics.h"
 
@@ -136,9 +139,87 @@ static void put_label(sbuf *b, const char *v)
     }
 }
 
-char *metrics_render(metrics *m, const metrics_scene *scenes, int n, const char *extra, size_t *len)
+/* The process_* family as Prometheus' client libraries name it: CPU time, resident memory, open
+ * and most file descriptors, start time (since the epoch). A value that cannot be read is left out. */
+static void put_process(sbuf *b)
+{
+    struct rusage ru;
+    if (getrusage(RUSAGE_SELF, &ru) == 0)
+        put(b, "# HELP process_cpu_seconds_total User and system CPU time spent, in seconds.\n"
+               "# TYPE process_cpu_seconds_total counter\nprocess_cpu_seconds_total %.6f\n",
+            (double)ru.ru_utime.tv_sec + 1e-6 * (double)ru.ru_utime.tv_usec + (double)ru.ru_stime.tv_sec +
+                1e-6 * (double)ru.ru_stime.tv_usec);
+    const long page = sysconf(_SC_PAGESIZE);
+    FILE *f = fopen("/proc/self/statm", "r");
+    unsigned long long size = 0, resident = 0;
+    if (f && fscanf(f, "%llu %llu", &size, &resident) == 2 && page > 0) {
+        put(b, "# HELP process_resident_memory_bytes Resident memory size in bytes.\n"
+               "# TYPE process_resident_memory_bytes gauge\nprocess_resident_memory_bytes %llu\n",
+            resident * (unsigned long long)page);
+        put(b, "# HELP process_virtual_memory_bytes Virtual memory size in bytes.\n"
+               "# TYPE process_virtual_memory_bytes gauge\nprocess_virtual_memory_bytes %llu\n",
+            size * (unsigned long long)page);
+    }
+    if (f) fclose(f);
+    DIR *dir = opendir("/proc/self/fd");
+    if (dir) {
+        long n = -1; /* the directory's own descriptor is not the process's */
+        while (readdir(dir)) n++;
+        closedir(dir);
+        put(b, "# HELP process_open_fds Number of open file descriptors.\n# TYPE process_open_fds gauge\n"
+               "process_open_fds %ld\n", n - 2 > 0 ? n - 2 : 0); /* less "." and ".." */
+    }
+    struct rlimit rl;
+    if (getrlimit(RLIMIT_NOFILE, &rl) == 0 && rl.rlim_cur != RLIM_INFINITY)
+        put(b, "# HELP process_max_fds Maximum number of open file descriptors.\n# TYPE process_max_fds gauge\n"
+               "process_max_fds %llu\n", (unsigned long long)rl.rlim_cur);
+    /* Field 22 of /proc/self/stat: the start, in clock ticks after boot (btime in /proc/stat). */
+    char stat[1024];
+    unsigned long long start = 0, btime = 0;
+    f = fopen("/proc/self/stat", "r");
+    const size_t got = f ? fread(stat, 1, sizeof stat - 1, f) : 0;
+    if (f) fclose(f);
+    stat[got] = '\0';
+    const char *p = strrchr(stat, ')'); /* after the command's name, which may hold anything */
+    int field = 2;
+    for (; p && *p && field < 22; p++)
+        if (*p == ' ') field++;
+    if (p && field == 22) start = strtoull(p, NULL, 10);
+    f = fopen("/proc/stat", "r");
+    char line[256];
+    while (f && fgets(line, sizeof line, f))
+        if (sscanf(line, "btime %llu", &btime) == 1) break;
+    if (f) fclose(f);
+    const long tick = sysconf(_SC_CLK_TCK);
+    if (start && btime && tick > 0)
+        put(b, "# HELP process_start_time_seconds Start time of the process since the Unix epoch in seconds.\n"
+               "# TYPE process_start_time_seconds gauge\nprocess_start_time_seconds %.2f\n",
+            (double)btime + (double)start / (double)tick);
+}
+
+static void put_daemon(sbuf *b, const metrics_daemon *d)
+{
+    put(b, "# HELP clothd_build_info The daemon's version and the backend it runs on (always 1).\n"
+           "# TYPE clothd_build_info gauge\nclothd_build_info{version=\"");
+    put_label(b, d->version);
+    put(b, "\",backend=\"");
+    put_label(b, d->backend);
+    put(b, "\"} 1\n");
+    put(b, "# HELP clothd_scenes Scenes the daemon holds.\n# TYPE clothd_scenes gauge\nclothd_scenes %d\n", d->scenes);
+    put(b, "# HELP clothd_scenes_max Most scenes the daemon holds (max_scenes).\n# TYPE clothd_scenes_max gauge\n"
+           "clothd_scenes_max %d\n", d->max_scenes);
+    put(b, "# HELP clothd_state_bytes What the scenes cost together, as max_state_mb counts it, in bytes.\n"
+           "# TYPE clothd_state_bytes gauge\nclothd_state_bytes %llu\n", (unsigned long long)d->state_bytes);
+    put(b, "# HELP clothd_state_max_bytes The cap on clothd_state_bytes (max_state_mb), in bytes.\n"
+           "# TYPE clothd_state_max_bytes gauge\nclothd_state_max_bytes %llu\n", (unsigned long long)d->state_cap);
+}
+
+char *metrics_render(metrics *m, const metrics_daemon *d, const metrics_scene *scenes, int n, const char *extra,
+                     size_t *len)
 {
     sbuf b = {NULL, 0, 0};
+    if (d) put_daemon(&b, d);
+    put_process(&b);
     pthread_mutex_lock(&m->lock);
     put(&b, "# HELP clothd_steps_total Substeps simulated.\n# TYPE clothd_steps_total counter\nclothd_steps_total %llu\n",
         (unsigned long long)m->steps);
@@ -189,6 +270,13 @@ char *metrics_render(metrics *m, const metrics_scene *scenes, int n, const char 
             default: put(&b, "%d\n", g->healthy); break;
             }
         }
+    }
+    put(&b, "# HELP clothd_sim_seconds_total Simulated seconds of the scene (back to 0 when its cloth is rebuilt).\n"
+            "# TYPE clothd_sim_seconds_total counter\n");
+    for (int i = 0; i < n; i++) {
+        put(&b, "clothd_sim_seconds_total{scene=\"");
+        put_label(&b, scenes[i].id);
+        put(&b, "\"} %.9g\n", scenes[i].g.sim_time);
     }
     if (extra) put(&b, "%s", extra);
     *len = b.len;

@@ -10,6 +10,7 @@ typedef struct metrics metrics;
 /* Values the sim thread publishes, shown as gauges. */
 typedef struct metrics_gauges {
     double realtime_factor;
+    double sim_time; /* simulated seconds (clothd_sim_seconds_total: back to 0 when the cloth is rebuilt) */
     int64_t rocks, vertices, torn;
     int paused, healthy;
 } metrics_gauges;
@@ -29,8 +30,17 @@ typedef struct metrics_scene {
     metrics_gauges g;
 } metrics_scene;
 
-/* The exposition text (malloc'd): the counters, and the gauges of n scenes, each series labelled
+/* The daemon's own series: clothd_build_info and the capacity gauges. */
+typedef struct metrics_daemon {
+    const char *version, *backend;
+    int scenes, max_scenes;
+    uint64_t state_bytes, state_cap; /* what the scenes cost together, and max_state_mb (0: none) */
+} metrics_daemon;
+
+/* The exposition text (malloc'd): the daemon's series (d; NULL: none), the process_* family (read
+ * from /proc/self and getrusage), the counters, and the gauges of n scenes, each series labelled
  * scene="ID"; `extra` (may be NULL) is appended as is. */
-char *metrics_render(metrics *m, const metrics_scene *scenes, int n, const char *extra, size_t *len);
+char *metrics_render(metrics *m, const metrics_daemon *d, const metrics_scene *scenes, int n, const char *extra,
+                     size_t *len);
 
 #endif

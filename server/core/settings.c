@@ -14,9 +14,13 @@
 
 static const char *const ch_BACKEND[] = {CLOTHD_CHOICES_BACKEND, NULL};
 static const char *const ch_STATE_FILE_INVALID[] = {CLOTHD_CHOICES_STATE_FILE_INVALID, NULL};
+static const char *const ch_LOG_FORMAT[] = {CLOTHD_CHOICES_LOG_FORMAT, NULL};
+static const char *const ch_LOG_LEVEL[] = {CLOTHD_CHOICES_LOG_LEVEL, NULL};
 #define CH_NONE NULL
 #define CH_BACKEND ch_BACKEND
 #define CH_STATE_FILE_INVALID ch_STATE_FILE_INVALID
+#define CH_LOG_FORMAT ch_LOG_FORMAT
+#define CH_LOG_LEVEL ch_LOG_LEVEL
 
 #define STARTUP_ROW_OF(name, type, unit, def_number, def_text, lo, hi, ch, help)                      \
     {#name, type, unit, {def_number, 0, 0}, def_text, lo, hi, CH_##ch, SET_STARTUP, help, IN_SETTINGS,     \

@@ -26,8 +26,12 @@
 /* Choice lists of the startup settings, in enum order. */
 #define CLOTHD_CHOICES_BACKEND "auto", "cuda", "cpu"
 #define CLOTHD_CHOICES_STATE_FILE_INVALID "refuse", "fresh"
+#define CLOTHD_CHOICES_LOG_FORMAT "text", "json"
+#define CLOTHD_CHOICES_LOG_LEVEL "debug", "info", "warn", "error"
 enum { BACKEND_AUTO, BACKEND_CUDA, BACKEND_CPU };
 enum { STATE_INVALID_REFUSE, STATE_INVALID_FRESH };
+enum { LOG_FORMAT_TEXT, LOG_FORMAT_JSON };
+enum { LOG_DEBUG, LOG_INFO, LOG_WARN, LOG_ERROR };
 
 /* X(name, TYPE, unit, default, min, max, CHOICES, help), as clothsim/params.h: TYPE is STR (a
  * string default), INT, FLOAT, BOOL or ENUM (an index default; CHOICES names a CLOTHD_CHOICES_*
@@ -70,7 +74,10 @@ enum { STATE_INVALID_REFUSE, STATE_INVALID_FRESH };
     X(stream_events_mb, INT, "-", 16, 1, 65536, NONE, "MiB of recent events kept for stream clients to read; one that falls further behind is disconnected") \
     X(queue_max, INT, "-", 1024, 1, 1000000, NONE, "Most commands waiting for the simulation thread (503 busy beyond)") \
     X(max_recordings_mb, INT, "-", 256, 1, 1048576, NONE, "MiB all recordings may take together, in memory or in recordings_dir (a recording whose estimate does not fit is 422; one that reaches it mid-way stops)") \
-    X(recordings_dir, STR, "-", "", 0, 0, NONE, "Directory recordings are written to as <id>.clr, sequentially as frames come (crash-safe), and listed from at start; empty = in memory")
+    X(recordings_dir, STR, "-", "", 0, 0, NONE, "Directory recordings are written to as <id>.clr, sequentially as frames come (crash-safe), and listed from at start; empty = in memory") \
+    X(liveness_timeout, INT, "s", 10, 1, 3600, NONE, "Seconds the sim thread may go without a turn before GET /livez answers 503") \
+    X(log_format, ENUM, "-", LOG_FORMAT_TEXT, 0, 1, LOG_FORMAT, "Log lines on stderr: text, or json (one object per line)") \
+    X(log_level, ENUM, "-", LOG_INFO, 0, 3, LOG_LEVEL, "Least severe log lines written: debug, info, warn or error")
 
 /* The daemon's own live parameters of a scene: how the sim thread paces it, drops rocks into it
  * and keeps its checkpoints. Changed with PATCH /v1/params like the engine's, kept by the daemon

@@ -34,6 +34,7 @@
 #include "http/http.h"
 #include "http/static_files.h"
 #include "sim/commands.h"
+#include "sim/simloop.h"
 #include "stream/stream.h"
 
 #if MHD_VERSION < 0x00097002
@@ -52,6 +53,8 @@ struct http_server {
     char web_root[PATH_MAX]; /* resolved; empty when the directory does not exist */
     int port;
     ratelimit *rate;         /* changing requests per client address */
+    unsigned nonce;          /* made at start: the first part of the request ids made here */
+    atomic_ullong requests;  /* requests given an id here: the second part */
     ratelimit *refused_rate; /* refused requests (401, 403) per client address: a budget of their own */
     conns *conns;            /* every connection, for the deadlines libmicrohttpd does not keep */
     pthread_t sweeper;
@@ -81,6 +84,7 @@ typedef struct req {
     size_t len, cap;
     int too_large;
     char request_id[129];
+    double t0;           /* clock_mono when its head came (the access log's duration) */
     int phase;           /* 0 new, 1 waiting for the sim thread, 2 its answer is in */
     scene *sc;           /* the scene addressed, held until the request is answered */
     scene_cmd cmd;
@@ -112,6 +116,8 @@ static int wants_binary(req *r)
 }
 
 static char *http_metrics(void *ctx);
+
+static double last_turn(void *loop) { return simloop_last_turn(loop); }
 
 /* ---- libmicrohttpd glue ---- */
 
@@ -149,6 +155,7 @@ static MHD_Result send_reply(req *r, reply *rep)
     const MHD_Result ret = MHD_queue_response(r->conn, (unsigned int)a->status, resp);
     MHD_destroy_response(resp);
     metrics_http(r->s->m, r->label, r->method, a->status);
+    log_access(r->method, r->label, a->status, clock_mono() - r->t0, r->request_id, r->sc ? r->sc->id : NULL);
     return ret;
 }
 
@@ -160,15 +167,21 @@ static void resume_cb(scene_cmd *c, void *arg)
     MHD_resume_connection(r->conn);
 }
 
+/* The request's id: the client's X-Request-Id when it is a sound one (1 to 128 characters of
+ * letters, digits and -_.:/+=), else one made here - the server's start-up nonce and a count, so
+ * unique within the server and unlikely across restarts. Echoed as X-Request-Id, logged with the
+ * request and what it causes (access log, stream events). */
 static void copy_request_id(req *r)
 {
     const char *id = header(r, "X-Request-Id");
-    if (!id) return;
-    const size_t n = strlen(id);
-    if (n == 0 || n >= sizeof r->request_id) return;
-    for (size_t k = 0; k < n; k++)
-        if (!isalnum((unsigned char)id[k]) && !strchr("-_.:/+=", id[k])) return; /* not echoed */
-    memcpy(r->request_id, id, n + 1);
+    const size_t n = id ? strlen(id) : 0;
+    int sound = n > 0 && n < sizeof r->request_id;
+    for (size_t k = 0; sound && k < n; k++)
+        if (!isalnum((unsigned char)id[k]) && !strchr("-_.:/+=", id[k])) sound = 0; /* not echoed */
+    if (sound) memcpy(r->request_id, id, n + 1);
+    else
+        snprintf(r->request_id, sizeof r->request_id, "%08x-%llu", r->s->nonce,
+                 (unsigned long long)atomic_fetch_add(&r->s->requests, 1) + 1);
 }
 
 /* The client's address as a rate-limit key (4 or 16 bytes); 0 when unknown. */
@@ -287,6 +300,7 @@ static MHD_Result serve_file(req *r)
     const MHD_Result ret = MHD_queue_response(r->conn, (unsigned int)status, resp);
     MHD_destroy_response(resp);
     metrics_http(s->m, r->label, r->method, status);
+    log_access(r->method, r->label, status, clock_mono() - r->t0, r->request_id, NULL);
     return ret;
 }
 
@@ -490,6 +504,7 @@ static MHD_Result access_cb(void *cls, struct MHD_Connection *conn, const char *
         r->s = s;
         r->conn = conn;
         r->label = "unknown";
+        r->t0 = clock_mono();
         snprintf(r->method, sizeof r->method, "%s", method);
         take_target(r, url);
         copy_request_id(r);
@@ -618,9 +633,11 @@ http_server *http_start(const clothd_settings *set, scenes *table, metrics *m, c
     s->info = *info;
     s->set = *set;
     s->daemon = (api_daemon){info->backend, info->device, info->backend_note, info->version,
-                             info->stream ? info->stream_port : 0, table, info->recordings, m, http_metrics, s};
+                             info->stream ? info->stream_port : 0, table, info->recordings, m, http_metrics, s,
+                             last_turn, info->loop, set->liveness_timeout, info->life};
     pthread_mutex_init(&s->stop_lock, NULL);
     pthread_cond_init(&s->stop_cond, NULL);
+    s->nonce = (unsigned)(clock_wall_ns() ^ (clock_wall_ns() >> 32) ^ ((uint64_t)getpid() << 16));
     s->rate = ratelimit_new(set->rate_limit, set->rate_burst);
     s->refused_rate = ratelimit_new(set->rate_limit, set->rate_burst);
     const conns_limits lim = {set->max_connections, set->header_timeout, set->min_body_rate};

@@ -8,6 +8,7 @@
 #ifndef CLOTHD_HTTP_H
 #define CLOTHD_HTTP_H
 
+#include <stdatomic.h>
 #include <stddef.h>
 
 #include "core/access.h"
@@ -26,6 +27,8 @@ typedef struct http_info {
     int stream_port;
     const access_policy *access; /* tokens, allowed hosts */
     struct recordings *recordings; /* NULL: none */
+    struct simloop *loop;          /* the sim thread's heartbeat (GET /livez) */
+    const atomic_int *life;        /* DAEMON_* (GET /readyz); NULL: serving */
 } http_info;
 
 /* Starts listening (settings: listen, port, http_threads, http_nice, max_body, max_connections,

@@ -5,6 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "core/clock.h"
 #include "core/json_read.h"
 #include "core/json_write.h"
 #include "core/params_json.h"
@@ -85,6 +86,41 @@ static int rq_health(const api_request *rq, api_reply *out, scene_cmd *later)
                                 "stream", stream));
 }
 
+/* Liveness: the sim thread turned within liveness_timeout s (simloop_last_turn). It says nothing
+ * but that: a probe needs no token. */
+static int rq_livez(const api_request *rq, api_reply *out, scene_cmd *later)
+{
+    (void)later;
+    const api_daemon *d = rq->daemon;
+    const double last = d->loop && d->last_turn ? d->last_turn(d->loop) : 0;
+    const double ago = clock_mono() - last;
+    if (last > 0 && ago <= (double)d->liveness_timeout) return reply_json(out, 200, json_pack("{s:s}", "status", "live"));
+    problem pr;
+    if (last > 0)
+        problem_set(&pr, 503, "not-live", NULL, "the simulation thread has not turned for %.1f s (liveness_timeout: %d s)",
+                    ago, d->liveness_timeout);
+    else
+        problem_set(&pr, 503, "not-live", NULL, "the simulation thread has not started");
+    return reply_problem(out, &pr);
+}
+
+/* Readiness: serving (not starting, not stopping), and room for another scene (scenes_room). */
+static int rq_readyz(const api_request *rq, api_reply *out, scene_cmd *later)
+{
+    (void)later;
+    const api_daemon *d = rq->daemon;
+    const int life = d->life ? atomic_load(d->life) : DAEMON_SERVING;
+    problem pr;
+    if (life != DAEMON_SERVING) {
+        problem_set(&pr, 503, "not-ready", NULL, "%s",
+                    life == DAEMON_STARTING ? "the daemon is starting" : "the daemon is stopping");
+        return reply_problem(out, &pr);
+    }
+    if (scenes_room(d->scenes, &pr) != 0) return reply_problem(out, &pr);
+    return reply_json(out, 200, json_pack("{s:s, s:i, s:i}", "status", "ready", "scenes", scenes_count(d->scenes),
+                                          "max_scenes", scenes_max(d->scenes)));
+}
+
 static int rq_sim(const api_request *rq, api_reply *out, scene_cmd *later)
 {
     if (rq->hash) {
@@ -161,8 +197,11 @@ static int rq_metrics(const api_request *rq, api_reply *out, scene_cmd *later)
         scene_gauges(all[k], &each[k].g);
     }
     char *extra = d->more_metrics ? d->more_metrics(d->more_ctx) : NULL;
+    uint64_t cap = 0;
+    const uint64_t used = scenes_bytes(d->scenes, &cap);
+    const metrics_daemon about = {d->version, d->backend, scenes_count(d->scenes), max, used, cap};
     size_t len = 0;
-    char *text = metrics_render(d->m, each, n, extra, &len);
+    char *text = metrics_render(d->m, &about, each, n, extra, &len);
     free(extra);
     for (int k = 0; k < n; k++) scene_release(all[k]);
     free(all);
@@ -400,6 +439,8 @@ static int rq_change(const api_request *rq, api_reply *out, scene_cmd *later)
 static const command table[] = {
     /* op           method    scope path           body         access   flags                             member  interrupts  blob_type  request          change              control */
     {"health",      GET,      D, "/v1/health",     BODY_IGNORED, NONE,   0,                                NULL,   NULL,       NULL,   rq_health,       NULL,               NULL},
+    {"livez",       GET,      D, "/livez",         BODY_IGNORED, NONE,   0,                                NULL,   NULL,       NULL,   rq_livez,        NULL,               NULL},
+    {"readyz",      GET,      D, "/readyz",        BODY_IGNORED, NONE,   0,                                NULL,   NULL,       NULL,   rq_readyz,       NULL,               NULL},
     {"sim",         GET,      S, "/sim",           BODY_IGNORED, VIEW,   0,                                NULL,   NULL,       NULL,   rq_sim,          NULL,               NULL},
     {"pause",       "POST",   S, "/sim/pause",     BODY_NONE,    CONTROL, CMD_ANSWER_SIM | CMD_AFTER_FAILURE, NULL, "pause",   JSON_TYPE, rq_queue,     NULL,               control_pause},
     {"resume",      "POST",   S, "/sim/resume",    BODY_NONE,    CONTROL, CMD_ANSWER_SIM,                  NULL,   "command",  JSON_TYPE, rq_queue,     NULL,               control_resume},

@@ -22,6 +22,7 @@
 #ifndef CLOTHD_COMMANDS_H
 #define CLOTHD_COMMANDS_H
 
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdio.h>
 
@@ -32,6 +33,9 @@
 #include "sim/scene.h"
 
 struct scenes;
+
+/* Where the daemon is in its life (GET /readyz). */
+enum { DAEMON_STARTING, DAEMON_SERVING, DAEMON_STOPPING };
 
 /* The prefix of a scene's routes (SCOPE_SCENE) that address the scene "default", and the one
  * before a scene's id in the routes that name their scene. */
@@ -62,7 +66,7 @@ enum {
 typedef struct command command;
 typedef struct api_request api_request;
 
-/* What the daemon-wide routes read: /v1/health and /metrics. */
+/* What the daemon-wide routes read: /v1/health, /livez, /readyz and /metrics. */
 typedef struct api_daemon {
     const char *backend, *device, *backend_note, *version;
     int stream_port;                  /* 0: no stream */
@@ -71,6 +75,10 @@ typedef struct api_daemon {
     metrics *m;
     char *(*more_metrics)(void *ctx); /* the HTTP server's and the stream's (malloc'd text), or NULL */
     void *more_ctx;
+    double (*last_turn)(void *loop);  /* the sim thread's heartbeat (/livez: simloop_last_turn) */
+    void *loop;                       /* its argument; NULL: no sim thread, never live */
+    int liveness_timeout;             /* s */
+    const atomic_int *life;           /* DAEMON_*; NULL: serving */
 } api_daemon;
 
 /* A request as a row's functions see it, whatever carried it. */

@@ -506,6 +506,7 @@ void scene_publish(scene *sc, int with_hash)
     sc->gauges.vertices = info.n_vertices;
     sc->gauges.torn = info.n_torn;
     sc->gauges.paused = sc->paused;
+    sc->gauges.sim_time = info.time;
     pthread_mutex_unlock(&sc->plock);
     free(old_rocks);
     sc->last_publish = t;

@@ -315,6 +315,25 @@ void scenes_set_wake(scenes *t, void (*wake)(void *ctx), void *ctx)
     pthread_mutex_unlock(&t->lock);
 }
 
+int scenes_room(scenes *t, problem *pr)
+{
+    pthread_mutex_lock(&t->lock);
+    const int n = t->n, max = t->max, closed = t->closed;
+    const uint64_t used = others_bytes(t, NULL), cap = t->cap;
+    const cs_scene fields = t->base.fields;
+    const int32_t rocks = t->has_factory ? t->set.max_rocks : t->rocks;
+    void *cost_ctx = t->cost_ctx;
+    pthread_mutex_unlock(&t->lock);
+    if (closed) return problem_set(pr, 503, "not-ready", NULL, "the daemon is stopping");
+    if (n >= max) return problem_set(pr, 503, "not-ready", "max_scenes", "the daemon holds max_scenes (%d) scenes", max);
+    uint64_t own = 0;
+    if (cap && (used >= cap || scene_cost(&fields, rocks, cost_ctx, &own) != CS_OK || own > cap - used))
+        return problem_set(pr, 503, "not-ready", "max_state_mb",
+                           "another %d x %d scene does not fit in what max_state_mb (%llu MiB) leaves beside %d scene%s",
+                           (int)fields.nx, (int)fields.ny, (unsigned long long)(cap >> 20), n, n == 1 ? "" : "s");
+    return 0;
+}
+
 int scenes_healthy(scenes *t)
 {
     pthread_mutex_lock(&t->lock);

@@ -54,6 +54,9 @@ void scenes_resized(scenes *t, scene *sc);
 /* The sim thread's wake, given to every scene now in the table and added later; a scene added or
  * removed wakes it too. */
 void scenes_set_wake(scenes *t, void (*wake)(void *ctx), void *ctx);
+/* Whether the table can take another scene (GET /readyz): 0 when it is below max_scenes and a scene
+ * of the factory's configuration fits in what max_state_mb leaves; else -1 and pr says why (503). */
+int scenes_room(scenes *t, problem *pr);
 /* 1 while every scene's backend answers (/v1/health). */
 int scenes_healthy(scenes *t);
 

@@ -19,6 +19,7 @@
 #define MAX_LAG 0.25        /* s of wall time a scene may fall behind before it stops catching up */
 #define COST_PRIOR 2e-8     /* s per vertex and substep assumed before the first measurement */
 #define WHOLE_WORK 1e6      /* vertex-substeps run in one call whatever the clock says (a few ms) */
+#define BEAT_EVERY 1.0      /* s the thread waits at most, however idle: each turn is a heartbeat */
 
 struct simloop {
     scenes *table;
@@ -37,7 +38,33 @@ struct simloop {
     int stop;
     atomic_int stopping; /* stop, readable without the lock between slices */
     int held;            /* this turn, a frame waited for a recording's writer (held()) */
+    atomic_llong last_turn_ns; /* clock_mono of the last turn, in ns (0: none yet): the heartbeat */
+    double beat_every;   /* s between two calls of beat (and the longest wait) */
+    double beat_last;
+    void (*beat)(void *ctx);
+    void *beat_ctx;
 };
+
+/* The heartbeat: a turn of the loop (any thread reads it: simloop_last_turn), and the beat hook
+ * at most every beat_every seconds. */
+static void heartbeat(simloop *sl)
+{
+    const double now = clock_mono();
+    atomic_store(&sl->last_turn_ns, (long long)(now * 1e9));
+    if (sl->beat && now - sl->beat_last >= sl->beat_every) {
+        sl->beat_last = now;
+        sl->beat(sl->beat_ctx);
+    }
+}
+
+double simloop_last_turn(simloop *sl) { return 1e-9 * (double)atomic_load(&sl->last_turn_ns); }
+
+void simloop_set_beat(simloop *sl, void (*beat)(void *ctx), void *ctx, double every)
+{
+    sl->beat = beat;
+    sl->beat_ctx = ctx;
+    if (every > 0 && every < sl->beat_every) sl->beat_every = every;
+}
 
 static void wake(void *ctx)
 {
@@ -102,6 +129,7 @@ static int held(simloop *sl, scene *sc)
 static int advance_frame(simloop *sl, scene *sc, double budget)
 {
     cs_info info;
+    heartbeat(sl); /* a long frame in parts turns too */
     if (sc->frame_sub == 0) {
         if (sc->before_frame) sc->before_frame(sc->engine, sc->frame);
         sc->frame_wall = 0;
@@ -354,19 +382,18 @@ static void run_commands(scene *sc)
 /* ---- the thread ---- */
 
 /* Waits for a command while every scene is paused, or until `until` on the monotonic clock (0: no
- * wait), unless a command came meanwhile. Returns 1 when stopping. */
+ * wait), unless a command came meanwhile; BEAT_EVERY (or the beat's period) at most. Returns 1
+ * when stopping. */
 static int wait_for_work(simloop *sl, int wait, double until)
 {
+    const double beat = clock_mono() + sl->beat_every; /* the next heartbeat comes whatever happens */
+    if (until <= 0 || until > beat) until = beat;
     pthread_mutex_lock(&sl->lock);
     if (wait && !sl->kicked && !sl->stop) {
-        if (until <= 0) {
-            pthread_cond_wait(&sl->cond, &sl->lock);
-        } else {
-            struct timespec ts;
-            ts.tv_sec = (time_t)until;
-            ts.tv_nsec = (long)((until - (double)ts.tv_sec) * 1e9);
-            pthread_cond_timedwait(&sl->cond, &sl->lock, &ts);
-        }
+        struct timespec ts;
+        ts.tv_sec = (time_t)until;
+        ts.tv_nsec = (long)((until - (double)ts.tv_sec) * 1e9);
+        pthread_cond_timedwait(&sl->cond, &sl->lock, &ts);
     }
     sl->kicked = 0;
     const int stop = sl->stop;
@@ -392,6 +419,7 @@ static void *run(void *arg)
     pthread_sigmask(SIG_BLOCK, &all, NULL);
     scene **turn = sl->turn;
     for (int stop = 0; !stop;) {
+        heartbeat(sl);
         const int n = scenes_list(sl->table, turn, sl->cap);
         int stepping = 0, running = 0, fast = 0;
         double due = 0;
@@ -450,6 +478,7 @@ simloop *simloop_new(scenes *table, metrics *m)
     if (!sl) return NULL;
     sl->table = table;
     sl->m = m;
+    sl->beat_every = BEAT_EVERY;
     sl->cap = scenes_max(table) > 0 ? scenes_max(table) : 1;
     const size_t c = (size_t)sl->cap;
     sl->turn = calloc(c, sizeof *sl->turn);

@@ -129,13 +129,41 @@ struct feed {
     uint64_t current_seq;
 };
 
-/* What /metrics shows of one connected client: a slot per client (stream_max_clients of them),
- * written by the service thread, read by the metrics' thread. */
+/* A histogram of what each client got a second, observed for each client about once a second:
+ * /metrics shows these, never a series per client (its labels would grow with every connection). */
+#define N_BOUNDS 10
+static const double fps_bounds[N_BOUNDS] = {1, 5, 10, 15, 20, 30, 45, 60, 90, 120};
+static const double bps_bounds[N_BOUNDS] = {1e3, 1e4, 5e4, 1e5, 5e5, 1e6, 5e6, 1e7, 5e7, 1e8};
+typedef struct hist {
+    atomic_ullong bucket[N_BOUNDS + 1]; /* not cumulative; the last is +Inf */
+    atomic_ullong sum_milli;            /* the sum of the observations, x 1000 */
+} hist;
+
+static void hist_observe(hist *h, const double *bounds, double v)
+{
+    int k = 0;
+    while (k < N_BOUNDS && v > bounds[k]) k++;
+    atomic_fetch_add(&h->bucket[k], 1);
+    atomic_fetch_add(&h->sum_milli, (unsigned long long)(v * 1000.0));
+}
+
+static void hist_print(FILE *f, const char *name, const char *help, hist *h, const double *bounds)
+{
+    fprintf(f, "# HELP %s %s\n# TYPE %s histogram\n", name, help, name);
+    unsigned long long cum = 0;
+    for (int k = 0; k <= N_BOUNDS; k++) {
+        cum += atomic_load(&h->bucket[k]);
+        if (k < N_BOUNDS) fprintf(f, "%s_bucket{le=\"%g\"} %llu\n", name, bounds[k], cum);
+        else fprintf(f, "%s_bucket{le=\"+Inf\"} %llu\n", name, cum);
+    }
+    fprintf(f, "%s_sum %.3f\n%s_count %llu\n", name, (double)atomic_load(&h->sum_milli) / 1000.0, name, cum);
+}
+
+/* What the service thread knows of one connected client for /metrics: a slot per client
+ * (stream_max_clients of them), written by the service thread. */
 typedef struct client_slot {
     atomic_ullong id; /* 0: free */
     atomic_ullong frames, bytes;
-    atomic_uint fps_milli; /* frames a second over the last second or so, x 1000 */
-    atomic_int encoding;
 } client_slot;
 
 typedef struct session session;
@@ -169,6 +197,7 @@ struct session {
     int established;      /* counted in clients (a refused connection is closed too, never counted) */
     client_slot *slot;    /* its /metrics slot (NULL when none was free) */
     uint64_t fps_frames;  /* frames sent when fps_at was taken */
+    uint64_t fps_bytes;   /* bytes sent then */
     double fps_at;
 };
 
@@ -215,6 +244,7 @@ struct stream {
     atomic_ullong encode_ns[N_ENC]; /* time spent encoding (delta: each pose's positions section and its messages) */
     atomic_ullong scene_closed;     /* clients closed because their scene was deleted */
     client_slot *slots; /* max_clients */
+    hist client_fps, client_bps; /* each client's frames and bytes a second, about once a second */
 };
 
 /* ---- from the sim thread ---- */
@@ -888,10 +918,12 @@ static void sweep(stream *st)
     for (session *s = st->sessions; s; s = s->next) {
         if (!s->f) continue;
         if (s->slot && t - s->fps_at >= 1.0) { /* the achieved frame rate, about once a second */
-            const uint64_t frames = atomic_load(&s->slot->frames);
-            atomic_store(&s->slot->fps_milli, (unsigned)((double)(frames - s->fps_frames) / (t - s->fps_at) * 1000.0));
-            atomic_store(&s->slot->encoding, s->encoding);
+            const uint64_t frames = atomic_load(&s->slot->frames), bytes = atomic_load(&s->slot->bytes);
+            const double fps = (double)(frames - s->fps_frames) / (t - s->fps_at);
+            hist_observe(&st->client_fps, fps_bounds, fps);
+            hist_observe(&st->client_bps, bps_bounds, (double)(bytes - s->fps_bytes) / (t - s->fps_at));
             s->fps_frames = frames;
+            s->fps_bytes = bytes;
             s->fps_at = t;
         }
         const wire *w = wire_now(s);
@@ -1181,8 +1213,6 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
                 s->slot = &st->slots[k];
                 atomic_store(&s->slot->frames, 0);
                 atomic_store(&s->slot->bytes, 0);
-                atomic_store(&s->slot->fps_milli, 0);
-                atomic_store(&s->slot->encoding, CLF_F32);
                 atomic_store(&s->slot->id, s->id);
             }
         }
@@ -1385,27 +1415,12 @@ char *stream_metrics(stream *st)
     for (int e = 0; e < N_ENC; e++)
         fprintf(f, "clothd_stream_encode_seconds_total{encoding=\"%s\"} %.6f\n", stream_encoding_names[e],
                 (double)atomic_load(&st->encode_ns[e]) * 1e-9);
-    fprintf(f, "# HELP clothd_stream_client_frames_total Frames sent to each connected client (client: its id; at most "
-               "stream_max_clients series).\n# TYPE clothd_stream_client_frames_total counter\n");
-    for (int k = 0; k < st->max_clients; k++) {
-        const unsigned long long id = atomic_load(&st->slots[k].id);
-        if (id) fprintf(f, "clothd_stream_client_frames_total{client=\"%llu\"} %llu\n", id, (unsigned long long)atomic_load(&st->slots[k].frames));
-    }
-    fprintf(f, "# HELP clothd_stream_client_bytes_total Bytes sent to each connected client.\n"
-               "# TYPE clothd_stream_client_bytes_total counter\n");
-    for (int k = 0; k < st->max_clients; k++) {
-        const unsigned long long id = atomic_load(&st->slots[k].id);
-        if (id) fprintf(f, "clothd_stream_client_bytes_total{client=\"%llu\"} %llu\n", id, (unsigned long long)atomic_load(&st->slots[k].bytes));
-    }
-    fprintf(f, "# HELP clothd_stream_client_fps Frames a second each connected client got over about the last second, "
-               "with its encoding.\n# TYPE clothd_stream_client_fps gauge\n");
-    for (int k = 0; k < st->max_clients; k++) {
-        const unsigned long long id = atomic_load(&st->slots[k].id);
-        const int e = atomic_load(&st->slots[k].encoding);
-        if (id)
-            fprintf(f, "clothd_stream_client_fps{client=\"%llu\",encoding=\"%s\"} %.3f\n", id,
-                    stream_encoding_names[e >= 0 && e < N_ENC ? e : 0], atomic_load(&st->slots[k].fps_milli) / 1000.0);
-    }
+    hist_print(f, "clothd_stream_client_fps",
+               "Frames a second a connected client got, observed for each client about once a second.", &st->client_fps,
+               fps_bounds);
+    hist_print(f, "clothd_stream_client_bytes_per_second",
+               "Bytes a second a connected client got, observed for each client about once a second.", &st->client_bps,
+               bps_bounds);
     fprintf(f, "# HELP clothd_stream_scene_clients WebSocket clients streaming each scene (at most max_scenes series).\n"
                "# TYPE clothd_stream_scene_clients gauge\n");
     pthread_mutex_lock(&st->feeds_lock);

@@ -32,6 +32,8 @@ test('every operation of openapi.yaml is a client method, and the answers hold w
   const health = await client.health();
   assert.equal(health.status, 'ok');
   assert.equal(health.stream.protocol, 'clothd.v1');
+  assert.deepEqual(await client.livez(), { status: 'live' });
+  assert.equal((await client.readyz()).status, 'ready');
   assert.equal((await client.sim()).state, 'paused');
   assert.match((await client.sim({ hash: true })).state_hash, /^[0-9a-f]{16}$/);
 

@@ -138,7 +138,7 @@ test('Dockerfile: its build runs the repository scripts that the tests run here'
   }
 });
 
-test('Dockerfile: a non-root user, the daemon ports, a health check on /v1/health, the state volume, clothd-serve', () => {
+test('Dockerfile: a non-root user, the daemon ports, a health check on /livez, the state volume, clothd-serve', () => {
   const rt = dockerfile().stages.at(-1).ins;
   const one = (op) => {
     const xs = rt.filter((x) => x.op === op);
@@ -150,8 +150,8 @@ test('Dockerfile: a non-root user, the daemon ports, a health check on /v1/healt
   const exposed = one('EXPOSE').split(/\s+/).map(Number);
   assert.ok(exposed.includes(code.port) && exposed.includes(code.streamPort), `EXPOSE ${exposed}`);
   const health = one('HEALTHCHECK');
-  routeExists('GET', '/v1/health');
-  assert.match(health, /CMD .*127\.0\.0\.1:\$\{CLOTHD_PORT:-(\d+)\}\/v1\/health/);
+  routeExists('GET', '/livez');
+  assert.match(health, /CMD .*127\.0\.0\.1:\$\{CLOTHD_PORT:-(\d+)\}\/livez/);
   assert.equal(Number(/CLOTHD_PORT:-(\d+)/.exec(health)[1]), code.port);
   assert.equal(one('VOLUME'), dirname(code.serve.vars.CLOTHD_STATE_FILE));
   assert.deepEqual(JSON.parse(one('ENTRYPOINT')), ['/opt/clothd/bin/clothd-serve']);
@@ -163,7 +163,7 @@ test('Dockerfile: a non-root user, the daemon ports, a health check on /v1/healt
 
 // ---- compose ----
 
-test('compose.yaml: one NVIDIA GPU, the ports, the state volume, the token secret, restart when clothd exits non-zero', () => {
+test('compose.yaml: one NVIDIA GPU, the ports, the state volume, the token secret, restart when clothd exits non-zero, a health check on /livez', () => {
   const c = YAML.parse(read(docker('compose.yaml')));
   const [name, svc] = Object.entries(c.services)[0];
   assert.equal(Object.keys(c.services).length, 1, 'one service');
@@ -184,6 +184,9 @@ test('compose.yaml: one NVIDIA GPU, the ports, the state volume, the token secre
   assert.ok(svc.secrets.some((s) => code.serve.tokenPaths.includes(`/run/secrets/${s.source ?? s}`)), `${svc.secrets}`);
   for (const s of svc.secrets) assert.ok(c.secrets[s.source ?? s].file, `secret ${s} from a file`);
   assert.equal(svc.restart, 'on-failure', `${name} restarts on a non-zero exit only`);
+  // Its health check is the image's: GET /livez on the HTTP port.
+  routeExists('GET', '/livez');
+  assert.match(svc.healthcheck.test.join(' '), new RegExp(`127\\.0\\.0\\.1:${code.port}/livez`));
   assert.ok(seconds(svc.stop_grace_period) >= code.minGrace, `stop_grace_period >= ${code.minGrace}s`);
   for (const [k, v] of Object.entries(svc.environment ?? {})) checkSettingVar(k, v);
 });
@@ -232,6 +235,28 @@ test('systemd unit: what the container runs, a state directory, restart on failu
   const id = one('LoadCredential').split(':')[0];
   assert.equal(s.tokenPaths[0], `${creds}/${id}`);
   for (const e of u.Environment ?? []) checkSettingVar(...e.replace(/^"|"$/g, '').split('='));
+  // Type=notify with a watchdog: clothd sends READY=1 and WATCHDOG=1 itself (tests/server/systemd.test.mjs).
+  assert.equal(one('Type'), 'notify');
+  assert.equal(one('NotifyAccess'), 'main');
+  assert.ok(seconds(one('WatchdogSec')) >= 2, 'WatchdogSec: WATCHDOG=1 comes at least every second');
+});
+
+test('systemd template clothd@N: one GPU each (CUDA_VISIBLE_DEVICES=N), its own ports (/etc/clothd/N.env) and state directory, as clothd.service otherwise', async () => {
+  const base = unitFile(docker('systemd/clothd.service')).Service;
+  const u = unitFile(docker('systemd/clothd@.service')).Service;
+  assert.deepEqual(u.Environment, ['CUDA_VISIBLE_DEVICES=%i']);
+  assert.deepEqual(u.EnvironmentFile, ['/etc/clothd/%i.env'], 'required: a missing file stops the start');
+  assert.deepEqual(u.StateDirectory, ['clothd/%i']);
+  // systemd sets STATE_DIRECTORY=/var/lib/clothd/N: each instance's state file is its own.
+  const s = await explain({ STATE_DIRECTORY: '/var/lib/clothd/1', CREDENTIALS_DIRECTORY: '/run/credentials/clothd@1.service' });
+  assert.equal(s.vars.CLOTHD_STATE_FILE, '/var/lib/clothd/1/state.bin');
+  for (const k of new Set([...Object.keys(base), ...Object.keys(u)])) {
+    if (['Environment', 'EnvironmentFile', 'StateDirectory'].includes(k)) continue;
+    assert.deepEqual(u[k], base[k], `${k}= as in clothd.service`);
+  }
+  // The port settings an N.env names are clothd's.
+  checkSettingVar('CLOTHD_PORT', '8090');
+  checkSettingVar('CLOTHD_STREAM_PORT', '8091');
 });
 
 // ---- Kubernetes ----
@@ -249,7 +274,7 @@ function k8sDocs() {
 }
 const byKind = (docs, kind) => docs.filter((d) => d.kind === kind);
 
-test('Kubernetes: a StatefulSet of clothd pods, one GPU and many scenes each, a volume each for the state file, probes on /v1/health, a grace period longer than a save', () => {
+test('Kubernetes: a StatefulSet of clothd pods, one GPU and many scenes each, a volume each for the state file, probes on /livez and /readyz, a grace period longer than a save', () => {
   const docs = k8sDocs();
   const [sts] = byKind(docs, 'StatefulSet');
   assert.ok(sts, 'a StatefulSet');
@@ -264,9 +289,11 @@ test('Kubernetes: a StatefulSet of clothd pods, one GPU and many scenes each, a 
   // Many scenes share the pod's GPU: max_scenes is set, above one and within the setting's range.
   const maxScenes = Number(c.env.find((e) => e.name === 'CLOTHD_MAX_SCENES')?.value);
   assert.ok(maxScenes > 1 && maxScenes <= code.settings.max_scenes.max, `CLOTHD_MAX_SCENES ${maxScenes}`);
-  routeExists('GET', '/v1/health');
-  for (const probe of ['readinessProbe', 'livenessProbe', 'startupProbe']) {
-    assert.equal(c[probe].httpGet.path, '/v1/health', probe);
+  routeExists('GET', '/livez');
+  routeExists('GET', '/readyz');
+  const paths = { readinessProbe: '/readyz', livenessProbe: '/livez', startupProbe: '/livez' };
+  for (const probe of Object.keys(paths)) {
+    assert.equal(c[probe].httpGet.path, paths[probe], probe);
     const port = c[probe].httpGet.port;
     assert.equal(typeof port === 'string' ? ports[port] : port, code.port, `${probe} port`);
   }
@@ -304,6 +331,8 @@ test('Kubernetes: a headless Service gives each pod a stable name the API answer
   const [sts] = byKind(docs, 'StatefulSet');
   const [svc] = byKind(docs, 'Service');
   assert.equal(svc.spec.clusterIP, 'None');
+  // /readyz turns 503 when a pod is full: its name stays, for the scenes it holds.
+  assert.equal(svc.spec.publishNotReadyAddresses, true);
   assert.equal(sts.spec.serviceName, svc.metadata.name);
   const labels = sts.spec.template.metadata.labels;
   for (const [k, v] of Object.entries(svc.spec.selector)) assert.equal(labels[k], v);

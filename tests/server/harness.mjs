@@ -53,7 +53,10 @@ export function start(flags = [], { env = {}, webRoot, bin = CLOTHD, wrap = [] }
   const dir = tempDir();
   const args = ['--port', '0', '--stream-port', '0', '--backend', 'cpu', '--threads', '1', '--web-root', webRoot ?? dir,
     ...flags];
-  const base = Object.fromEntries(Object.entries(process.env).filter(([k]) => !k.startsWith('CLOTHD_')));
+  // (nor a systemd notification socket the test runner may have been given: systemd.test.mjs
+  // passes its own)
+  const base = Object.fromEntries(Object.entries(process.env).filter(([k]) =>
+    !k.startsWith('CLOTHD_') && !['NOTIFY_SOCKET', 'WATCHDOG_USEC', 'WATCHDOG_PID'].includes(k)));
   const command = [...wrap, bin, ...args];
   const proc = spawn(command[0], command.slice(1), {
     stdio: ['ignore', 'pipe', 'pipe'],
@@ -74,8 +77,9 @@ export function start(flags = [], { env = {}, webRoot, bin = CLOTHD, wrap = [] }
     proc.stderr.setEncoding('utf8');
     proc.stderr.on('data', (chunk) => {
       daemon.log += chunk;
+      if (daemon.url) return; // (a busy daemon's access log: the whole log is not searched again)
       const m = /listening on http:\/\/([0-9.]+):(\d+)/.exec(daemon.log);
-      if (m && !daemon.url) {
+      if (m) {
         daemon.url = `http://${m[1]}:${m[2]}`;
         resolve(daemon);
       }

@@ -7,7 +7,8 @@ import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import { spawnSync } from 'node:child_process';
 import net from 'node:net';
-import { start, stop, call } from './harness.mjs';
+import { readdirSync } from 'node:fs';
+import { start, stop, call, until, rssKiB } from './harness.mjs';
 
 function raw(d, text) {
   const { port } = new URL(d.url);
@@ -53,5 +54,47 @@ test('hostile methods and paths neither break nor grow /metrics; promtool checks
   const check = spawnSync(promtool, ['check', 'metrics'], { input: text, encoding: 'utf8' });
   console.log(`promtool check metrics: exit ${check.status}${check.stdout}${check.stderr}`);
   // Exit 0: no errors. Lint remarks (promtool prints them and exits 3) would fail it too.
+  assert.equal(check.status, 0, `${check.stdout}${check.stderr}`);
+});
+
+test('the daemon\'s series: build info, the process_* family, capacity gauges, simulated seconds per scene; promtool', async (t) => {
+  const d = await start(['--nx', '16', '--ny', '16', '--auto-drop-interval', '0', '--max-scenes', '3', '--max-state-mb', '64']);
+  const health = (await call(d, 'GET', '/v1/health')).json;
+  const scrape = async () => (await call(d, 'GET', '/metrics')).text;
+  const value = (text, series) => {
+    const m = new RegExp(`^${series.replace(/[{}]/g, '\\$&')} ([\\d.e+-]+)$`, 'm').exec(text);
+    assert.ok(m, `${series} in\n${text}`);
+    return Number(m[1]);
+  };
+  let text = await scrape();
+  assert.equal(value(text, `clothd_build_info{version="${health.version}",backend="cpu"}`), 1);
+  assert.equal(value(text, 'clothd_scenes'), 1);
+  assert.equal(value(text, 'clothd_scenes_max'), 3);
+  assert.equal(value(text, 'clothd_state_max_bytes'), 64 * 1024 * 1024);
+  const one = value(text, 'clothd_state_bytes');
+  assert.ok(one > 0 && one < 64 * 1024 * 1024, `${one}`);
+  const rss = value(text, 'process_resident_memory_bytes');
+  const kib = rssKiB(d.proc.pid);
+  assert.ok(rss > 0.5 * kib * 1024 && rss < 2 * kib * 1024, `${rss} bytes against VmRSS ${kib} KiB`);
+  const fds = value(text, 'process_open_fds');
+  assert.equal(fds, readdirSync(`/proc/${d.proc.pid}/fd`).length);
+  const startTime = value(text, 'process_start_time_seconds');
+  assert.ok(Math.abs(startTime - Date.now() / 1000) < 60, `${startTime}`);
+  assert.ok(value(text, 'process_cpu_seconds_total') >= 0);
+  // Simulated seconds count up while the scene runs; a second scene gets its own series and the
+  // capacity gauges follow it.
+  const s0 = value(text, 'clothd_sim_seconds_total{scene="default"}');
+  await until('simulated time to pass', async () => value(await scrape(), 'clothd_sim_seconds_total{scene="default"}') > s0);
+  assert.equal((await call(d, 'POST', '/v1/scenes', { id: 'two' })).status, 201);
+  text = await scrape();
+  assert.equal(value(text, 'clothd_scenes'), 2);
+  assert.ok(value(text, 'clothd_state_bytes') > one);
+  assert.ok(value(text, 'clothd_sim_seconds_total{scene="two"}') >= 0);
+  await stop(d);
+  if (!promtool) {
+    t.skip('promtool not found: the scrape was not checked by it');
+    return;
+  }
+  const check = spawnSync(promtool, ['check', 'metrics'], { input: text, encoding: 'utf8' });
   assert.equal(check.status, 0, `${check.stdout}${check.stderr}`);
 });

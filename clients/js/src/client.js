@@ -219,6 +219,12 @@ export class Client extends SceneRoutes {
 
   /** GET /v1/health: `{status, backend, device, version, stream: {port, path, protocol}}` (Unavailable, with the body, when unhealthy). */
   health() { return this.request('GET', '/v1/health'); }
+
+  /** GET /livez: `{status: 'live'}` while the sim thread turns (Unavailable once it has not for liveness_timeout). */
+  livez() { return this.request('GET', '/livez'); }
+
+  /** GET /readyz: `{status: 'ready', scenes, max_scenes}` while the daemon can take another scene (Unavailable, with the reason, when not). */
+  readyz() { return this.request('GET', '/readyz'); }
   /** GET /metrics: the Prometheus text. */
   metrics() { return this.request('GET', '/metrics', undefined, { as: 'text' }); }
 

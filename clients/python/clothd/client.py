@@ -355,6 +355,16 @@ class Client(SceneRoutes):
         (Unavailable, with this body in ``body``, when the backend has failed)."""
         return self.request("GET", "/v1/health")
 
+    def livez(self):
+        """GET /livez: ``{status: "live"}`` while the sim thread turns (Unavailable once it has not
+        for liveness_timeout)."""
+        return self.request("GET", "/livez")
+
+    def readyz(self):
+        """GET /readyz: ``{status: "ready", scenes, max_scenes}`` while the daemon can take another
+        scene (Unavailable, with the reason, when not)."""
+        return self.request("GET", "/readyz")
+
     def metrics(self):
         """GET /metrics: the Prometheus text."""
         return self.request("GET", "/metrics", as_="text")

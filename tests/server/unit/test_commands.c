@@ -94,7 +94,7 @@ static void test_api_paths_and_access(void **unused)
 }
 
 /* What the table holds: every route's token as its method wants (reads view, changes control,
- * /v1/health none), the journaled commands by their ops, `clothd routes`. */
+ * /v1/health and the probes none), the journaled commands by their ops, `clothd routes`. */
 static void test_table(void **unused)
 {
     (void)unused;
@@ -109,13 +109,14 @@ static void test_table(void **unused)
         if (!c->method) continue;
         routes++;
         assert_non_null(c->request);
-        const access_level want = strcmp(c->op, "health") == 0 ? ACCESS_NONE
+        const int open = strcmp(c->op, "health") == 0 || strcmp(c->op, "livez") == 0 || strcmp(c->op, "readyz") == 0;
+        const access_level want = open ? ACCESS_NONE
                                   : strcmp(c->method, "GET") == 0 ? ACCESS_VIEW : ACCESS_CONTROL;
         assert_int_equal(c->access, want);
     }
     assert_int_equal(changes, 10);
     for (int k = 0; k < 10; k++) assert_non_null(command_find(journaled[k])->change);
-    assert_int_equal(routes, 33); /* 29, and the 4 of recordings */
+    assert_int_equal(routes, 35); /* 29, the 4 of recordings and the 2 probes */
     char *out = NULL;
     size_t len = 0;
     FILE *f = open_memstream(&out, &len);
@@ -123,8 +124,11 @@ static void test_table(void **unused)
     fclose(f);
     int lines = 0;
     for (char *p = out; *p; p++) lines += *p == '\n';
-    assert_int_equal(lines, 33 + 25); /* each of the 25 routes of a scene also under /v1/scenes/{scene} */
+    assert_int_equal(lines, 35 + 25); /* each of the 25 routes of a scene also under /v1/scenes/{scene} */
     assert_non_null(strstr(out, "GET /v1/health\n"));
+    assert_non_null(strstr(out, "GET /livez\n"));
+    assert_non_null(strstr(out, "GET /readyz\n"));
+    assert_null(strstr(out, "/v1/scenes/{scene}/livez"));
     assert_non_null(strstr(out, "DELETE /v1/scenes/{scene}\n"));
     assert_non_null(strstr(out, "PATCH /v1/scenes/{scene}/rocks/{id}\n"));
     assert_null(strstr(out, "/v1/scenes/{scene}/metrics"));
