@@ -3,7 +3,7 @@
  * the parallelogram prediction's inverse of all three axes, plus the origin or the keyframe's grid
  * values, times the quantum, into interleaved float32 positions. proto/frame.mjs calls it (and
  * decodes with its own JavaScript where WebAssembly SIMD is missing: both give the same bits);
- * scripts/build-wasm.sh compiles it into proto/delta-wasm.mjs:
+ * scripts/build-wasm.sh compiles it into clients/js/src/delta-wasm.mjs:
  *   clang --target=wasm32 -O2 -msimd128 -nostdlib -Wl,--no-entry -Wl,--import-memory
  * Freestanding: no libc, no allocation. frame.mjs owns the memory and passes byte offsets.
  *

@@ -3,9 +3,10 @@
 #         -P assemble.cmake
 # The page's own files (index.html, style.css, src/*.js) are copied as they are; the npm packages
 # of web/package-lock.json (installed by scripts/setup.sh: npm ci in web/) are copied to vendor/,
-# proto/frame.mjs (with delta-wasm.mjs, the WebAssembly it imports) to proto/, and the JavaScript client (CLIENT, by default clients/js beside
-# web/) to clients/js/src/, where its import of ../../../proto/frame.mjs finds proto/ as it does
-# in the source tree. index.html's import map names these paths. No bundler: the
+# the JavaScript client (CLIENT, by default clients/js beside web/), with the frame and recording
+# decoders it holds (frame.mjs, delta-wasm.mjs, recording.mjs), to clients/js/src/, and proto/'s
+# frame.mjs and recording.mjs (which re-export those) to proto/. index.html's import map names
+# these paths. No bundler: the
 # browser loads ES modules, nothing comes from a CDN. Without web/node_modules the page cannot
 # work, so nothing is assembled and clothd serves its placeholder page.
 set(vendor
@@ -53,7 +54,7 @@ if(missing)
   return()
 endif()
 
-file(REMOVE_RECURSE "${OUT}/src" "${OUT}/clients") # a file removed from web/ or clients/js goes from here too
+file(REMOVE_RECURSE "${OUT}/src" "${OUT}/clients" "${OUT}/proto") # a file removed from web/ or clients/js goes from here too
 file(MAKE_DIRECTORY "${OUT}/vendor" "${OUT}/proto" "${OUT}/src" "${OUT}/clients/js/src")
 file(GLOB page RELATIVE "${SRC}" "${SRC}/*.html" "${SRC}/*.css" "${SRC}/src/*.js")
 foreach(f ${page})
@@ -65,10 +66,10 @@ foreach(i RANGE 0 ${last} 2)
   list(GET vendor ${j} to)
   file(COPY_FILE "${SRC}/node_modules/${from}" "${OUT}/vendor/${to}" ONLY_IF_DIFFERENT)
 endforeach()
-foreach(f frame.mjs delta-wasm.mjs recording.mjs)
+foreach(f frame.mjs recording.mjs)
   file(COPY_FILE "${PROTO}/${f}" "${OUT}/proto/${f}" ONLY_IF_DIFFERENT)
 endforeach()
-file(GLOB client RELATIVE "${CLIENT}/src" "${CLIENT}/src/*.js")
+file(GLOB client RELATIVE "${CLIENT}/src" "${CLIENT}/src/*.js" "${CLIENT}/src/*.mjs")
 foreach(f ${client})
   file(COPY_FILE "${CLIENT}/src/${f}" "${OUT}/clients/js/src/${f}")
 endforeach()

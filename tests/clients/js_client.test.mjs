@@ -33,7 +33,9 @@ test('every operation of openapi.yaml is a client method, and the answers hold w
   assert.equal(health.status, 'ok');
   assert.equal(health.stream.protocol, 'clothd.v1');
   assert.deepEqual(await client.livez(), { status: 'live' });
-  assert.equal((await client.readyz()).status, 'ready');
+  const ready = await client.readyz();
+  assert.equal(ready.status, 'ready');
+  assert.ok(ready.scenes >= 1 && ready.max_scenes >= ready.scenes, JSON.stringify(ready));
   assert.equal((await client.sim()).state, 'paused');
   assert.match((await client.sim({ hash: true })).state_hash, /^[0-9a-f]{16}$/);
 

@@ -71,6 +71,7 @@ export class SceneRoutes {
    * POST /sim/step while paused (Conflict while running): `{frames: N}` or `{substeps: N}`. Answers
    * once they ran, or once something ended the step (`interrupted`). No timeout unless the client
    * has a stepTimeout: a long step answers when it is done.
+   * @param {{frames: number}|{substeps: number}} [count]
    */
   step(count = { frames: 1 }) { return this.call('POST', '/sim/step', count, { timeout: this.client.options.stepTimeout }); }
   /** DELETE /sim/step: ends the step in progress; `{cancelled, step, frame}`. */
@@ -219,11 +220,9 @@ export class Client extends SceneRoutes {
 
   /** GET /v1/health: `{status, backend, device, version, stream: {port, path, protocol}}` (Unavailable, with the body, when unhealthy). */
   health() { return this.request('GET', '/v1/health'); }
-
-  /** GET /livez: `{status: 'live'}` while the sim thread turns (Unavailable once it has not for liveness_timeout). */
+  /** GET /livez: `{status: 'live'}` while the sim thread turns (Unavailable when it has stalled past liveness_timeout). */
   livez() { return this.request('GET', '/livez'); }
-
-  /** GET /readyz: `{status: 'ready', scenes, max_scenes}` while the daemon can take another scene (Unavailable, with the reason, when not). */
+  /** GET /readyz: `{status: 'ready', scenes, max_scenes}` (Unavailable while starting or stopping, or with no room for another scene). */
   readyz() { return this.request('GET', '/readyz'); }
   /** GET /metrics: the Prometheus text. */
   metrics() { return this.request('GET', '/metrics', undefined, { as: 'text' }); }
@@ -250,7 +249,7 @@ export class Client extends SceneRoutes {
    */
   recordings() { return this.request('GET', '/v1/recordings'); }
   /**
-   * GET /v1/recordings/{rid}: the recording's file (CLR1, proto/recording.mjs reads it) as an
+   * GET /v1/recordings/{rid}: the recording's file (CLR1, recording.mjs reads it) as an
    * ArrayBuffer; while it still records, the bytes so far (a file without its index).
    * @param {string} rid @returns {Promise<ArrayBuffer>}
    */

@@ -1,8 +1,8 @@
-// recording-export.js - a clothd recording (CLR1, proto/recording.mjs) into the tools people use
+// recording-export.js - a clothd recording (CLR1, recording.mjs) into the tools people use
 // (DESIGN section 10): USD text (.usda: Blender, Houdini, Omniverse) and MCAP (Foxglove,
 // Lichtblick). Both stream: frames are decoded one at a time and each is written to the sink and
 // dropped, so a long recording exports without the file in memory (the recording itself is held,
-// as proto/recording.mjs reads it).
+// as recording.mjs reads it).
 //
 //   const r = await exportUsd(bytes, sink, { triangles });   // sink: {write(string)} (may return a promise)
 //   const r = await exportMcap(bytes, writable, { triangles }); // writable: @mcap/core's IWritable
@@ -15,8 +15,8 @@
 // says so (`cut`, `problem`); a recording without frames is an Error. The USD layer: UsdWriter
 // below; MCAP: one channel `/clothd/<scene>` of foxglove.SceneUpdate, JSON-encoded with
 // @foxglove/schemas' JSON Schema (exportMcap below). docs/using.md has both for users.
-import { readRecording, RecordingError } from '../../../proto/recording.mjs';
-import { createDecoder } from '../../../proto/frame.mjs';
+import { readRecording, RecordingError } from './recording.mjs';
+import { createDecoder } from './frame.mjs';
 
 export { RecordingError };
 
@@ -341,7 +341,7 @@ ${vis}
 /**
  * A recording as USD text, streamed to `sink`.
  * @param {ArrayBuffer|ArrayBufferView|object} bytes the .clr file (whole, or as much as there is),
- *   or proto/recording.mjs readRecording's result
+ *   or recording.mjs readRecording's result
  * @param {{write(s: string): void|Promise<void>}} sink
  * @param {{triangles: Function, codecs?: {zstd?: object, meshopt?: object}}} options
  * @returns {Promise<{frames: number, written: number, cut: boolean, problem: string|null, timeCodes: number[]}>}

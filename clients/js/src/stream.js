@@ -1,6 +1,6 @@
 // stream.js - clothd's WebSocket stream (PROTOCOL.md, "The stream") in a page or in node 20+
 // (the `ws` package where there is no global WebSocket): finds the port (GET /v1/health), opens
-// the stream with the client's token, subscribes, decodes binary frames with proto/frame.mjs,
+// the stream with the client's token, subscribes, decodes binary frames with frame.mjs,
 // passes text messages on, sends grabs, and reconnects by itself with backoff (0.25 s doubling to
 // 8 s) when the daemon goes away, until stop().
 //
@@ -16,7 +16,7 @@
 // delta frames are decoded with the zstddec package's decoder (imported when the first comes,
 // or given), meshopt frames with the meshoptimizer package's; `{"type": "keyframe"}` is
 // keyframe().
-import { createDecoder, DELTA_HEAD, HEADER_SIZE, isDeltaKeyKind } from '../../../proto/frame.mjs';
+import { createDecoder, DELTA_HEAD, HEADER_SIZE, isDeltaKeyKind } from './frame.mjs';
 
 export const PROTOCOL = 'clothd.v1';
 export const DEFAULT_SCENE = 'default';
@@ -434,7 +434,7 @@ export class Stream {
     return this.codecLoads[code];
   }
 
-  /** @private One frame: proto/frame.mjs's decoder (createDecoder) for every encoding it has. */
+  /** @private One frame: frame.mjs's decoder (createDecoder) for every encoding it has. */
   decode(data, { quiet = false } = {}) {
     const bytes = view(data);
     const code = bytes.length >= 8 ? bytes[6] & 3 : 0;

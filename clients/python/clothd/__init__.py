@@ -8,7 +8,7 @@
     sag = c.cloth_state_binary().positions[:, 2].min()
 
 The HTTP API through the standard library (clothd.client), the stream through websocket-client
-where it is installed (clothd.stream), the binary frames (clothd.frames; numpy arrays where
+where it is installed (clothd.stream; in asyncio through websockets, clothd.aio), the binary frames (clothd.frames; numpy arrays where
 numpy is there, lists otherwise), recordings (clothd.recording), and the exceptions every refusal becomes (clothd.errors).
 See clients/python/README.md.
 """
@@ -22,11 +22,12 @@ from .errors import (BadRequest, Busy, ClientError, ClothdError, Conflict, Conne
 from .frames import Frame, FrameDecoder, Rock, decode_frame, meshopt_available, numpy_available
 from .recording import Recording, RecordingError, read_recording
 from .stream import Stream, websocket_available
+from .aio import AsyncStream, websockets_available
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "Client", "Scene", "SceneRoutes", "Recordings", "ClothState", "Stream", "Frame", "FrameDecoder", "Rock",
+    "Client", "Scene", "SceneRoutes", "Recordings", "ClothState", "Stream", "AsyncStream", "websockets_available", "Frame", "FrameDecoder", "Rock",
     "decode_frame", "read_recording", "Recording", "RecordingError", "numpy_available", "meshopt_available", "websocket_available", "error_class",
     "error_from_answer", "DEFAULT_URL", "DEFAULT_SCENE", "SCENE_ID",
     "ClothdError", "ClientError", "BadRequest", "Unauthorized", "Forbidden", "NotFound", "MethodNotAllowed",

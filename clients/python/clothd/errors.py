@@ -18,7 +18,10 @@ connection, or an answer that breaks the protocol. A server error is never retur
     +- MissingDependency (also an ImportError): an optional package or library is not there
 """
 
+from __future__ import annotations
+
 import json
+from typing import Any, Dict, List, Optional, Type
 
 PROBLEM_PREFIX = "urn:clothd:problem:"
 
@@ -36,26 +39,28 @@ class ClothdError(Exception):
       (405); method and path: the request.
     """
 
-    def __init__(self, message, *, status=None, problem=None, body=None, request_id=None,
-                 retry_after=None, allow=None, method=None, path=None):
+    def __init__(self, message: str, *, status: Optional[int] = None, problem: Optional[Dict[str, Any]] = None,
+                 body: Any = None, request_id: Optional[str] = None, retry_after: Optional[int] = None,
+                 allow: Optional[List[str]] = None, method: Optional[str] = None, path: Optional[str] = None) -> None:
         super().__init__(message)
         self.status = status
         self.problem = problem
         self.body = body
         p = problem if isinstance(problem, dict) else {}
         t = p.get("type")
-        self.type = t if isinstance(t, str) else None
-        self.slug = self.type[len(PROBLEM_PREFIX):] if self.type and self.type.startswith(PROBLEM_PREFIX) else None
-        self.title = p.get("title") if isinstance(p.get("title"), str) else None
-        self.detail = p.get("detail") if isinstance(p.get("detail"), str) else None
-        self.param = p.get("param") if isinstance(p.get("param"), str) else None
+        self.type: Optional[str] = t if isinstance(t, str) else None
+        self.slug: Optional[str] = (self.type[len(PROBLEM_PREFIX):]
+                                    if self.type and self.type.startswith(PROBLEM_PREFIX) else None)
+        self.title: Optional[str] = p.get("title") if isinstance(p.get("title"), str) else None
+        self.detail: Optional[str] = p.get("detail") if isinstance(p.get("detail"), str) else None
+        self.param: Optional[str] = p.get("param") if isinstance(p.get("param"), str) else None
         self.request_id = request_id
         self.retry_after = retry_after
         self.allow = allow
         self.method = method
         self.path = path
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return "%s(status=%r, slug=%r, param=%r, detail=%r)" % (
             type(self).__name__, self.status, self.slug, self.param, str(self))
 
@@ -135,7 +140,7 @@ class FrameError(ProtocolError, ValueError):
 class StreamRefused(ProtocolError):
     """The stream answered a client message with an ``error`` message (kept in ``message``)."""
 
-    def __init__(self, text, message):
+    def __init__(self, text: str, message: Dict[str, Any]) -> None:
         super().__init__(text, status=message.get("status"), body=message)
         self.message = message
         self.about = message.get("about")
@@ -148,22 +153,23 @@ class MissingDependency(ClothdError, ImportError):
 
 
 #: The class of each status; any other falls back to ClientError or ServerError.
-STATUS_ERRORS = {
+STATUS_ERRORS: Dict[int, Type[ClothdError]] = {
     400: BadRequest, 401: Unauthorized, 403: Forbidden, 404: NotFound, 405: MethodNotAllowed,
     409: Conflict, 413: PayloadTooLarge, 414: UriTooLong, 422: Unprocessable, 429: RateLimited,
     503: Unavailable,
 }
 
 
-def error_class(status, slug=None):
+def error_class(status: int, slug: Optional[str] = None) -> Type[ClothdError]:
     """The exception class for an HTTP status and problem type slug (503 ``busy`` is Busy)."""
     if status == 503 and slug == "busy":
         return Busy
     return STATUS_ERRORS.get(status, ServerError if status >= 500 else ClientError)
 
 
-def error_from_answer(status, content_type, data, *, method, path, request_id=None,
-                      retry_after=None, allow=None):
+def error_from_answer(status: int, content_type: Optional[str], data: Any, *, method: str, path: str,
+                      request_id: Optional[str] = None, retry_after: Optional[str] = None,
+                      allow: Optional[str] = None) -> ClothdError:
     """The exception for a refused answer (status >= 400) and its raw body."""
     text = data.decode("utf-8", "replace") if isinstance(data, (bytes, bytearray)) else (data or "")
     try:

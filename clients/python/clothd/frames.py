@@ -40,6 +40,8 @@ The encodings are dispatched in one table, ``POSITION_DECODERS`` (flags bits 0-1
 function).
 """
 
+from __future__ import annotations
+
 import array
 import ctypes
 import ctypes.util
@@ -47,13 +49,24 @@ import os
 import struct
 import sys
 from dataclasses import dataclass, field
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 from .errors import FrameError, MissingDependency
 
+_numpy: Any  # numpy, or None
 try:
-    import numpy as _numpy
+    import numpy as _numpy_module
+    _numpy = _numpy_module
 except ImportError:  # optional: lists instead
     _numpy = None
+
+#: An (n, 3) float32 numpy array, or a list of n [x, y, z] lists (numpy=False, or no numpy).
+Positions = Any
+#: A uint8 numpy array of n, or a list of n ints.
+Scalars = Any
+#: What frames are decoded from.
+Buffer = Union[bytes, bytearray, memoryview]
+Vec3 = Tuple[float, float, float]
 
 MAGIC = b"CLF1"
 HEADER_SIZE = 72
@@ -74,7 +87,7 @@ _ROCK = struct.Struct("<I3ff4f")
 assert _HEADER.size == HEADER_SIZE and _ROCK.size == ROCK_SIZE and _DELTA_HEAD.size == DELTA_HEAD
 
 
-def _align4(n):
+def _align4(n: int) -> int:
     return (n + 3) & ~3
 
 
@@ -82,9 +95,9 @@ def _align4(n):
 class Rock:
     """A rock as a frame carries it."""
     id: int
-    position: tuple
+    position: Vec3
     radius: float
-    orientation: tuple  # quaternion x, y, z, w
+    orientation: Tuple[float, float, float, float]  # quaternion x, y, z, w
 
 
 @dataclass
@@ -97,21 +110,21 @@ class Frame:
     encoding: str
     n_vertices: int
     n_rocks: int
-    bbox_min: tuple
-    bbox_max: tuple
-    positions: object
-    scalar: object
-    rocks: list = field(default_factory=list)
+    bbox_min: Vec3
+    bbox_max: Vec3
+    positions: Positions
+    scalar: Optional[Scalars]
+    rocks: List[Rock] = field(default_factory=list)
     nbytes: int = 0
-    delta: object = None  # a Delta for delta frames
+    delta: Optional[Delta] = None  # a Delta for delta frames
 
 
-def numpy_available():
+def numpy_available() -> bool:
     """Whether numpy is importable (frames and cloth states decode to numpy arrays then)."""
     return _numpy is not None
 
 
-def _use_numpy(numpy):
+def _use_numpy(numpy: Optional[bool]) -> bool:
     """numpy: None (when importable), True (required) or False (lists)."""
     if numpy is None:
         return _numpy is not None
@@ -120,7 +133,7 @@ def _use_numpy(numpy):
     return bool(numpy)
 
 
-def float32_rows(data, offset, n, numpy=None):
+def float32_rows(data: Buffer, offset: int, n: int, numpy: Optional[bool] = None) -> Positions:
     """n x 3 little-endian float32 from data[offset:]: an (n, 3) float32 array, or [x, y, z] lists."""
     if _use_numpy(numpy):
         return _numpy.frombuffer(data, dtype="<f4", count=3 * n, offset=offset).reshape(n, 3).astype(_numpy.float32)
@@ -131,7 +144,7 @@ def float32_rows(data, offset, n, numpy=None):
     return [list(a[3 * v:3 * v + 3]) for v in range(n)]
 
 
-def _dequantize(q, stride, n, bmin, bmax, numpy):
+def _dequantize(q: Any, stride: int, n: int, bmin: Vec3, bmax: Vec3, numpy: bool) -> Positions:
     """q16 values (stride u16 per vertex, the first 3 used) mapped back over the bbox."""
     step = [(bmax[c] - bmin[c]) / 65535.0 if bmax[c] - bmin[c] >= Q16_EXTENT_MIN else 0.0 for c in range(3)]
     if numpy:
@@ -140,7 +153,7 @@ def _dequantize(q, stride, n, bmin, bmax, numpy):
     return [[bmin[c] + q[stride * v + c] * step[c] for c in range(3)] for v in range(n)]
 
 
-def _u16s(data, offset, count, numpy):
+def _u16s(data: Buffer, offset: int, count: int, numpy: bool) -> Any:
     if numpy:
         return _numpy.frombuffer(data, dtype="<u2", count=count, offset=offset)
     a = array.array("H")
@@ -150,17 +163,20 @@ def _u16s(data, offset, count, numpy):
     return a
 
 
-def _positions_f32(data, at, n, bmin, bmax, numpy):
+def _positions_f32(data: Buffer, at: int, n: int, bmin: Vec3, bmax: Vec3, numpy: bool,
+                   state: Optional[FrameDecoder] = None) -> Tuple[Positions, int]:
     _need(data, at, 12 * n, "positions")
     return float32_rows(data, at, n, numpy), at + 12 * n
 
 
-def _positions_q16(data, at, n, bmin, bmax, numpy):
+def _positions_q16(data: Buffer, at: int, n: int, bmin: Vec3, bmax: Vec3, numpy: bool,
+                   state: Optional[FrameDecoder] = None) -> Tuple[Positions, int]:
     _need(data, at, 6 * n, "positions")
     return _dequantize(_u16s(data, at, 3 * n, numpy), 3, n, bmin, bmax, numpy), at + 6 * n
 
 
-def _positions_meshopt(data, at, n, bmin, bmax, numpy):
+def _positions_meshopt(data: Buffer, at: int, n: int, bmin: Vec3, bmax: Vec3, numpy: bool,
+                       state: Optional[FrameDecoder] = None) -> Tuple[Positions, int]:
     _need(data, at, 4, "positions")
     (length,) = struct.unpack_from("<I", data, at)
     _need(data, at + 4, length, "positions")
@@ -175,10 +191,10 @@ class Keyframe:
     frame: int
     n: int
     quantum: float
-    g: object  # 3 n int32 grid values: a numpy int32 array or a list
+    g: Any  # 3 n int32 grid values: a numpy int32 array or a list
 
 
-def _planes_residuals(z, n, numpy):
+def _planes_residuals(z: bytes, n: int, numpy: bool) -> Any:
     """Kinds 0 and 1 (the first layout): the residuals (3 axes of n, mod 2^32) from the byte planes z of
     their zigzags."""
     if numpy:
@@ -194,7 +210,7 @@ def _planes_residuals(z, n, numpy):
     return out
 
 
-def _axis_residuals(raw, n, escapes, numpy):
+def _axis_residuals(raw: bytes, n: int, escapes: int, numpy: bool) -> Any:
     """One axis block's values (kinds 2 and 3): n int8 residuals, -128 taking the next of the
     escapes int32 that follow; mod 2^32."""
     if numpy:
@@ -204,7 +220,8 @@ def _axis_residuals(raw, n, escapes, numpy):
             raise FrameError("delta axis has %d escapes, its head says %d" % (len(at), escapes))
         r[at] = _numpy.frombuffer(raw, dtype="<i4", count=escapes, offset=n)
         return r.view(_numpy.uint32)
-    out, e = [], 0
+    out: List[int] = []
+    e = 0
     for v in range(n):
         x = raw[v] - 256 if raw[v] >= 128 else raw[v]
         if x == -128:
@@ -218,7 +235,7 @@ def _axis_residuals(raw, n, escapes, numpy):
     return out
 
 
-def _undo_prediction(r, n, row, numpy):
+def _undo_prediction(r: Any, n: int, row: int, numpy: bool) -> Any:
     """The grid differences a (3 n interleaved, int32, mod 2^32) from the residuals r (3 axes)."""
     row = max(1, min(row, n))  # a row longer than the cloth is its one row
     if numpy:
@@ -246,9 +263,11 @@ def _undo_prediction(r, n, row, numpy):
     return [x - (1 << 32) if x >= 1 << 31 else x for x in a]
 
 
-def _axis_blocks(data, at, length, n, is_key, numpy):
+def _axis_blocks(data: Buffer, at: int, length: int, n: int, is_key: bool, numpy: bool) -> Tuple[Any, List[int]]:
     """Kinds 2 and 3: the three axis blocks at data[at:at + length]: (residuals, bases)."""
-    end, p, r, bases = at + length, at, [], []
+    end, p = at + length, at
+    r: List[Any] = []
+    bases: List[int] = []
     for c in range(3):
         if p + 12 > end:
             raise FrameError("delta axis %d block at byte %d runs past the positions (%d)" % (c, p, end))
@@ -269,7 +288,8 @@ def _axis_blocks(data, at, length, n, is_key, numpy):
     return (_numpy.stack(r) if numpy else r), bases
 
 
-def _positions_delta(data, at, n, bmin, bmax, numpy, state=None):
+def _positions_delta(data: Buffer, at: int, n: int, bmin: Vec3, bmax: Vec3, numpy: bool,
+                     state: Optional[FrameDecoder] = None) -> Tuple[Positions, int]:
     if state is None:
         raise FrameError("a delta frame (encoding 3) needs a FrameDecoder, which keeps its keyframe")
     _need(data, at, DELTA_HEAD, "positions")
@@ -293,16 +313,17 @@ def _positions_delta(data, at, n, bmin, bmax, numpy, state=None):
         bases = [0 if is_key else 1] * 3
     a = _undo_prediction(r, n, row, numpy)
     origin = (ox, oy, oz)
+    key_g: Any = key.g if key is not None else None  # a delta's keyframe, checked above
     if numpy:
         base = _numpy.tile(_numpy.asarray(origin, dtype=_numpy.int32), n)
         if not is_key:
             pick = _numpy.tile(_numpy.asarray(bases) == 1, n)
-            base = _numpy.where(pick, key.g, base).astype(_numpy.int32)
+            base = _numpy.where(pick, key_g, base).astype(_numpy.int32)
         g = (base.view(_numpy.uint32) + a.view(_numpy.uint32)).view(_numpy.int32)
         with _numpy.errstate(over="ignore"):  # past float32: inf, as float32 arithmetic (and frame.mjs) gives
             positions = (g.astype(_numpy.float64) * quantum).astype(_numpy.float32).reshape(n, 3)
     else:
-        base = [key.g[k] if bases[k % 3] == 1 else origin[k % 3] for k in range(3 * n)]
+        base = [key_g[k] if bases[k % 3] == 1 else origin[k % 3] for k in range(3 * n)]
         g = [((b + d + (1 << 31)) & 0xFFFFFFFF) - (1 << 31) for b, d in zip(base, a)]
         positions = [[float(array.array("f", [g[3 * v + c] * quantum])[0]) for c in range(3)] for v in range(n)]
     state.pending = Keyframe(key_id, key_frame, n, quantum, g) if is_key else None
@@ -320,7 +341,8 @@ class Delta:
 
 
 #: flags bits 0-1 -> (name, decoder of the positions section).
-POSITION_DECODERS = {
+PositionDecoder = Callable[[Buffer, int, int, Vec3, Vec3, bool, Optional["FrameDecoder"]], Tuple[Positions, int]]
+POSITION_DECODERS: Dict[int, Tuple[str, PositionDecoder]] = {
     0: ("f32", _positions_f32),
     1: ("q16", _positions_q16),
     2: ("meshopt", _positions_meshopt),
@@ -329,12 +351,12 @@ POSITION_DECODERS = {
 DELTA = 3
 
 
-def _need(data, at, count, what):
+def _need(data: Buffer, at: int, count: int, what: str) -> None:
     if at + count > len(data):
         raise FrameError("frame of %d bytes is truncated: its %s need %d" % (len(data), what, at + count))
 
 
-def decode_frame(data, numpy=None, _state=None):
+def decode_frame(data: Buffer, numpy: Optional[bool] = None, _state: Optional[FrameDecoder] = None) -> Frame:
     """Decodes one binary stream message (bytes-like) into a Frame; FrameError when it is not one.
 
     numpy: None to use numpy when it is importable, True to require it, False for lists. A delta
@@ -355,10 +377,7 @@ def decode_frame(data, numpy=None, _state=None):
         raise FrameError("frame claims %d vertices, more than %d" % (n, MAX_VERTICES))
     encoding, decode_positions = POSITION_DECODERS[code]
     bmin, bmax = (x0, y0, z0), (x1, y1, z1)
-    if code == DELTA:
-        positions, at = decode_positions(data, header_size, n, bmin, bmax, use_np, _state)
-    else:
-        positions, at = decode_positions(data, header_size, n, bmin, bmax, use_np)
+    positions, at = decode_positions(data, header_size, n, bmin, bmax, use_np, _state)
     at = _align4(at)
     scalar = None
     if flags & FLAG_SCALAR:
@@ -367,7 +386,7 @@ def decode_frame(data, numpy=None, _state=None):
                   else list(bytes(data[at:at + n])))
         at = _align4(at + n)
     _need(data, at, ROCK_SIZE * n_rocks, "rocks")
-    rocks = []
+    rocks: List[Rock] = []
     for _ in range(n_rocks):
         rid, px, py, pz, radius, qx, qy, qz, qw = _ROCK.unpack_from(data, at)
         rocks.append(Rock(rid, (px, py, pz), radius, (qx, qy, qz, qw)))
@@ -376,7 +395,7 @@ def decode_frame(data, numpy=None, _state=None):
         raise FrameError("frame has %d bytes, its sections %d" % (len(data), at))
     out = Frame(frame, step, sim_time, wall_ns, encoding, n, n_rocks, bmin, bmax, positions, scalar,
                 rocks, len(data))
-    if code == DELTA:
+    if code == DELTA and _state is not None:
         out.delta = _state.last_delta
         if _state.pending is not None:  # only a frame that decoded whole replaces the keyframe
             _state.keyframe, _state.pending = _state.pending, None
@@ -392,13 +411,13 @@ class FrameDecoder:
     ``{"type": "keyframe"}`` asks for a new one).
     """
 
-    def __init__(self, numpy=None):
+    def __init__(self, numpy: Optional[bool] = None) -> None:
         self.numpy = numpy
-        self.keyframe = None
-        self.pending = None
-        self.last_delta = None
+        self.keyframe: Optional[Keyframe] = None
+        self.pending: Optional[Keyframe] = None
+        self.last_delta: Optional[Delta] = None
 
-    def decode(self, data):
+    def decode(self, data: Buffer) -> Frame:
         """The Frame of one binary message (FrameError when it does not decode)."""
         self.pending = None
         return decode_frame(data, numpy=self.numpy, _state=self)
@@ -411,11 +430,12 @@ class _CLibrary:
     variable ``env``) that loads and has every function, each set to (restype, argtypes). ``get()``
     gives the functions in that order, or None with the reason in ``why``."""
 
-    def __init__(self, env, names, functions):
+    def __init__(self, env: str, names: Tuple[str, ...], functions: Dict[str, Tuple[Any, List[Any]]]) -> None:
         self.env, self.names, self.functions = env, names, functions
-        self.fns, self.why = None, None
+        self.fns: Optional[List[Any]] = None
+        self.why: Optional[str] = None
 
-    def get(self):
+    def get(self) -> Optional[List[Any]]:
         if self.fns is not None or self.why is not None:
             return self.fns
         given = os.environ.get(self.env)
@@ -446,12 +466,12 @@ _zstd = _CLibrary("CLOTHD_ZSTD_LIB", ("zstd", "libzstd.so.1", "libzstd.dylib", "
                    "ZSTD_findDecompressedSize": (ctypes.c_ulonglong, [ctypes.c_char_p, ctypes.c_size_t])})
 
 
-def meshopt_available():
+def meshopt_available() -> bool:
     """Whether meshopt frames can be decoded here (meshoptimizer's C library is loadable)."""
     return _meshopt.get() is not None
 
 
-def meshopt_decode_vertex_buffer(encoded, count, size):
+def meshopt_decode_vertex_buffer(encoded: bytes, count: int, size: int) -> bytes:
     """meshopt_decodeVertexBuffer: ``count`` vertices of ``size`` bytes from ``encoded`` (bytes)."""
     fns = _meshopt.get()
     if fns is None:
@@ -468,12 +488,12 @@ def meshopt_decode_vertex_buffer(encoded, count, size):
     return out.raw
 
 
-def zstd_available():
+def zstd_available() -> bool:
     """Whether delta frames can be decoded here (zstd's C library is loadable)."""
     return _zstd.get() is not None
 
 
-def zstd_decompress(compressed, size):
+def zstd_decompress(compressed: bytes, size: int) -> bytes:
     """ZSTD_decompress: exactly ``size`` bytes from the zstd frames ``compressed`` (one or more,
     concatenated; FrameError otherwise)."""
     lib = _zstd.get()

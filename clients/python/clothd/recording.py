@@ -13,15 +13,21 @@ scanning its records up to the last complete one (``complete`` is then False).
     rec.to_usd("run.usda")                   # USD text for Blender or Houdini (clothd.usd)
 """
 
+from __future__ import annotations
+
 import io
 import json
 import math
 import os
 import struct
 import warnings
+from typing import Any, Dict, Iterator, List, NoReturn, Optional, Tuple, Union
 
 from .errors import ProtocolError
-from .frames import DELTA_KEY_KINDS, FrameDecoder
+from .frames import DELTA_KEY_KINDS, Buffer, Frame, FrameDecoder
+
+#: A text record's place: (offset, payload length).
+TextEntry = Tuple[int, int]
 
 REC_MAGIC = b"CLR1"
 TAIL_MAGIC = b"CLRX"
@@ -44,12 +50,14 @@ _RELAYOUT = ("scene", "snapshot_restored")
 class RecordingError(ProtocolError, ValueError):
     """A file that is not a recording, or a corrupt one; ``offset`` is where it went wrong."""
 
-    def __init__(self, text, offset=None):
+    def __init__(self, text: str, offset: Optional[int] = None) -> None:
         super().__init__(text if offset is None else "%s (at byte %d)" % (text, offset))
         self.offset = offset
+        #: The frame it was found in (a salvaging read keeps the frames before it), or None.
+        self.frame: Optional[int] = None
 
 
-def _align4(n):
+def _align4(n: int) -> int:
     return (n + 3) & ~3
 
 
@@ -58,10 +66,10 @@ class FrameEntry:
     ordinal of the keyframe it needs; itself unless a delta) and ``texts_before``."""
     __slots__ = ("offset", "length", "sim_time", "key", "texts_before")
 
-    def __init__(self, offset, length, sim_time, key, texts_before):
+    def __init__(self, offset: int, length: int, sim_time: float, key: int, texts_before: int) -> None:
         self.offset, self.length, self.sim_time, self.key, self.texts_before = offset, length, sim_time, key, texts_before
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return "FrameEntry(offset=%d, length=%d, sim_time=%r, key=%d, texts_before=%d)" % (
             self.offset, self.length, self.sim_time, self.key, self.texts_before)
 
@@ -71,7 +79,8 @@ class Recording:
     ``frames`` (FrameEntry each), ``texts`` ((offset, length) each), ``complete``, ``duration``,
     ``problem`` (read with ``salvage``: what was wrong past the hello, None when nothing)."""
 
-    def __init__(self, data, frames, texts, complete, numpy=None, problem=None):
+    def __init__(self, data: memoryview, frames: List[FrameEntry], texts: List[TextEntry], complete: bool,
+                 numpy: Optional[bool] = None, problem: Optional[str] = None) -> None:
         self._data = data
         self.problem = problem
         self.frames = frames
@@ -81,25 +90,25 @@ class Recording:
         self.hello = self.text(0)
         if self.hello.get("type") != "hello" or not isinstance(self.hello.get("scene"), dict):
             raise RecordingError("the first record is not a hello with its scene", FILE_HEADER)
-        self.info = self.hello.get("recording") or {}
+        self.info: Dict[str, Any] = self.hello.get("recording") or {}
         self._t0 = frames[0].sim_time if frames else 0.0
         self.duration = frames[-1].sim_time - self._t0 if frames else 0.0
-        self._decoder = None
-        self._decoded_key = None
+        self._decoder: Optional[FrameDecoder] = None
+        self._decoded_key: Optional[int] = None
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.frames)
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return "Recording(%r, %d frames, %.3f s%s)" % (self.info.get("id"), len(self.frames), self.duration,
                                                         "" if self.complete else ", cut")
 
-    def frame_bytes(self, k):
+    def frame_bytes(self, k: int) -> bytes:
         """The CLF1 message of frame k (bytes)."""
         f = self.frames[k]
         return bytes(self._data[f.offset + RECORD_HEAD:f.offset + RECORD_HEAD + f.length])
 
-    def text(self, k):
+    def text(self, k: int) -> Dict[str, Any]:
         """Text record k, parsed (0 is the hello)."""
         offset, length = self.texts[k]
         raw = bytes(self._data[offset + RECORD_HEAD:offset + RECORD_HEAD + length])
@@ -111,12 +120,12 @@ class Recording:
             raise RecordingError("text record %d is not a JSON object" % k, offset)
         return value
 
-    def events(self, until=None):
+    def events(self, until: Optional[int] = None) -> List[Dict[str, Any]]:
         """The events (text records after the hello) before frame ``until`` (all when None)."""
         end = len(self.texts) if until is None else self.frames[until].texts_before
         return [self.text(k) for k in range(1, end)]
 
-    def seek(self, t):
+    def seek(self, t: float) -> int:
         """The ordinal of the last frame at or before t seconds past the first (-1 when none)."""
         lo, hi = 0, len(self.frames) - 1
         if hi < 0:
@@ -129,7 +138,7 @@ class Recording:
                 hi = mid - 1
         return lo
 
-    def decode(self, k):
+    def decode(self, k: int) -> Frame:
         """Frame k decoded (clothd.frames.Frame); a delta frame's keyframe is decoded first
         when the last one decoded was another."""
         f = self.frames[k]
@@ -143,11 +152,11 @@ class Recording:
             self._decoded_key = k
         return frame
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Frame]:
         for k in range(len(self.frames)):
             yield self.decode(k)
 
-    def to_usd(self, path):
+    def to_usd(self, path: Union[str, os.PathLike[str]]) -> Dict[str, Any]:
         """Writes the recording as USD text (.usda) to ``path``, one frame at a time (clothd.usd).
         Answers ``{frames, written, cut, problem, time_codes}``; a cut or corrupt recording exports
         up to its last whole frame, with a warning (RuntimeWarning) that says where it stopped. A
@@ -169,37 +178,38 @@ class Recording:
         return result
 
 
-def read_recording(data, numpy=None, salvage=False):
+def read_recording(data: Buffer, numpy: Optional[bool] = None, salvage: bool = False) -> Recording:
     """A Recording from a whole .clr file (or as much as there is of one); RecordingError when
     it is not one or is corrupt. numpy: as clothd.frames (None: numpy when installed). salvage:
     for an export, a bad index is ignored (the records are scanned) and a bad record after the
     hello ends the frames before it; ``problem`` says what was wrong."""
-    data = memoryview(bytes(data))
-    if len(data) < FILE_HEADER:
-        raise RecordingError("a recording is at least %d bytes, this is %d" % (FILE_HEADER, len(data)), 0)
-    if bytes(data[0:4]) != REC_MAGIC:
-        raise RecordingError("not a clothd recording (magic %r)" % bytes(data[0:4]), 0)
-    version, flags = struct.unpack_from("<II", data, 4)
+    view = memoryview(bytes(data))
+    if len(view) < FILE_HEADER:
+        raise RecordingError("a recording is at least %d bytes, this is %d" % (FILE_HEADER, len(view)), 0)
+    if bytes(view[0:4]) != REC_MAGIC:
+        raise RecordingError("not a clothd recording (magic %r)" % bytes(view[0:4]), 0)
+    version, flags = struct.unpack_from("<II", view, 4)
     if version != REC_VERSION:
         raise RecordingError("recording version %d, this reader knows %d" % (version, REC_VERSION), 4)
     if flags:
         raise RecordingError("recording flags this reader does not know", 8)
-    problem = []
+    problem: List[str] = []
+    found: Optional[Tuple[List[FrameEntry], List[TextEntry]]]
     try:
-        found = _read_index(data)
+        found = _read_index(view)
     except RecordingError as e:
         if not salvage:
             raise
         problem.append("%s; its records were scanned instead" % e)
         found = None
-    frames, texts = found if found else _scan(data, problem if salvage else None)
+    frames, texts = found if found else _scan(view, problem if salvage else None)
     if not texts or texts[0][0] != FILE_HEADER:
         raise RecordingError("the first record of a recording is its hello (text)", FILE_HEADER)
-    rec = Recording(data, frames, texts, complete=found is not None, numpy=numpy)
+    rec = Recording(view, frames, texts, complete=found is not None, numpy=numpy)
     try:
-        _check_frames(data, rec)
+        _check_frames(view, rec)
     except RecordingError as e:
-        if not salvage or getattr(e, "frame", None) is None:
+        if not salvage or e.frame is None:
             raise
         del frames[e.frame:]
         problem.append("%s: the %d frames before it are kept" % (e, e.frame))
@@ -207,20 +217,21 @@ def read_recording(data, numpy=None, salvage=False):
     return rec
 
 
-def _u32(data, at):
-    return struct.unpack_from("<I", data, at)[0]
+def _u32(data: memoryview, at: int) -> int:
+    value: int = struct.unpack_from("<I", data, at)[0]
+    return value
 
 
-def _read_index(data):
+def _read_index(data: memoryview) -> Optional[Tuple[List[FrameEntry], List[TextEntry]]]:
     size = len(data)
     if size < FILE_HEADER + RECORD_HEAD + 8 + TAIL_SIZE:
         return None
     tail = size - TAIL_SIZE
     if bytes(data[tail:tail + 4]) != TAIL_MAGIC or _u32(data, tail + 4) != 0:
         return None
-    at = struct.unpack_from("<Q", data, tail + 8)[0]
+    at: int = struct.unpack_from("<Q", data, tail + 8)[0]
 
-    def bad(what, where=tail + 8):
+    def bad(what: str, where: int = tail + 8) -> NoReturn:
         raise RecordingError("the recording's index: " + what, where)
 
     if at < FILE_HEADER or at % 4 or at + RECORD_HEAD + 8 > tail:
@@ -236,7 +247,7 @@ def _read_index(data):
     if length != 8 + INDEX_FRAME_SIZE * nf + INDEX_TEXT_SIZE * nt:
         bad("%d frames and %d texts do not take %d bytes" % (nf, nt, length), at + 8)
 
-    def record(offset, kind, k, what):
+    def record(offset: int, kind: int, k: int, what: str) -> int:
         if offset < FILE_HEADER or offset % 4 or offset + RECORD_HEAD > at or _u32(data, offset) != kind:
             bad("%s %d does not point at a %s record" % (what, k, "text" if kind == TEXT else "frame"), offset)
         n = _u32(data, offset + 4)
@@ -244,7 +255,8 @@ def _read_index(data):
             bad("%s %d runs past the index" % (what, k), offset)
         return n
 
-    frames, texts = [], []
+    frames: List[FrameEntry] = []
+    texts: List[TextEntry] = []
     p = at + 16
     for k in range(nf):
         offset, sim_time, key, before = struct.unpack_from("<QdII", data, p)
@@ -271,8 +283,9 @@ def _read_index(data):
     return frames, texts
 
 
-def _scan(data, problem=None):
-    frames, texts = [], []
+def _scan(data: memoryview, problem: Optional[List[str]] = None) -> Tuple[List[FrameEntry], List[TextEntry]]:
+    frames: List[FrameEntry] = []
+    texts: List[TextEntry] = []
     key = -1
     at, size = FILE_HEADER, len(data)
     while at + RECORD_HEAD <= size:
@@ -302,7 +315,7 @@ def _scan(data, problem=None):
     return frames, texts
 
 
-def _check_frames(data, rec):
+def _check_frames(data: memoryview, rec: Recording) -> None:
     """Every frame record holds a CLF1 frame of the recording's encoding, with as many vertices
     as the one before (the hello's nx x ny first; any after a scene or snapshot_restored event),
     its index's sim time, and for a delta the keyframe its entry names, the last before it."""
@@ -313,10 +326,10 @@ def _check_frames(data, rec):
     for k, f in enumerate(rec.frames):
         p = f.offset + RECORD_HEAD
 
-        def bad(what):
-            e = RecordingError("frame %d: %s" % (k, what), f.offset)
-            e.frame = k
-            raise e
+        def bad(what: str) -> NoReturn:
+            err = RecordingError("frame %d: %s" % (k, what), f.offset)
+            err.frame = k
+            raise err
 
         if f.length < _CLF_HEADER or bytes(data[p:p + 4]) != b"CLF1" or struct.unpack_from("<H", data, p + 4)[0] != _CLF_HEADER:
             bad("not a clothd frame (CLF1)")
@@ -328,8 +341,8 @@ def _check_frames(data, rec):
             try:
                 if rec.text(seen).get("event") in _RELAYOUT:
                     n = -1
-            except RecordingError as e:
-                e.frame = k
+            except RecordingError as err:
+                err.frame = k
                 raise
             seen += 1
         if nv > _CLF_MAX_VERTICES or (n >= 0 and nv != n):

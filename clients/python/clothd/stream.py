@@ -14,19 +14,30 @@ message that is not a JSON object of a known type, raises FrameError or Protocol
 ``on_problem`` is given: then it is reported there and the stream goes on.
 """
 
+from __future__ import annotations
+
 import json
 import random
 import time
 import urllib.parse
+from typing import TYPE_CHECKING, Any, Callable, Dict, Iterator, List, Optional, Sequence, Union
 
 from .errors import (ConnectionFailed, MissingDependency, NotFound, ProtocolError, StreamRefused, Timeout, Unavailable,
                      error_class)
-from .frames import FrameDecoder
+from .frames import Buffer, Frame, FrameDecoder
 
+if TYPE_CHECKING:
+    from .client import Client
+
+_websocket: Any  # websocket-client, or None
 try:
-    import websocket as _websocket
+    import websocket as _websocket_module  # type: ignore[import]  # websocket-client ships no types
+    _websocket = _websocket_module
 except ImportError:  # optional: streams need it
     _websocket = None
+
+#: What a stream yields: a text message as a dict (hello, event, subscribed, error), or a Frame.
+Message = Union[Dict[str, Any], Frame]
 
 PROTOCOL = "clothd.v1"
 DEFAULT_SCENE = "default"
@@ -37,9 +48,44 @@ TEXT_TYPES = ("hello", "event", "subscribed", "error")
 SCENE_DELETED = "scene deleted"
 
 
-def websocket_available():
+def websocket_available() -> bool:
     """Whether websocket-client is importable (streams need it)."""
     return _websocket is not None
+
+
+def stream_url(client: Client, scene: str = DEFAULT_SCENE) -> str:
+    """The URL of ``scene``'s stream, from GET /v1/health (503 unhealthy still tells it); NotFound
+    where the server has no such scene."""
+    if scene != DEFAULT_SCENE:
+        client.scene(scene).sim()  # NotFound where the server has no such scene
+    try:
+        stream = client.health()["stream"]
+    except Unavailable as e:
+        stream = (e.body or {}).get("stream") if isinstance(e.body, dict) else None
+        if not stream:
+            raise
+    if not stream:
+        raise ProtocolError("this clothd has no stream (GET /v1/health: stream is null)")
+    parts = urllib.parse.urlsplit(client.url)
+    hostname = parts.hostname or ""
+    host = "[%s]" % hostname if ":" in hostname else hostname
+    scheme = "wss" if parts.scheme == "https" else "ws"
+    query = "" if scene == DEFAULT_SCENE else "?scene=" + urllib.parse.quote(scene, safe="")
+    return "%s://%s:%d%s%s" % (scheme, host, stream["port"], stream.get("path") or "/stream", query)
+
+
+def parse_text(data: Union[str, Buffer]) -> Dict[str, Any]:
+    """A text stream message: a JSON object of a known type (ProtocolError otherwise)."""
+    try:
+        m = json.loads(data)
+    except ValueError as e:
+        shown = data[:80] if isinstance(data, str) else bytes(data[:80])
+        raise ProtocolError("a stream message is not JSON: %r" % (shown,)) from e
+    if not isinstance(m, dict):
+        raise ProtocolError("a stream message is not a JSON object: %r" % (m,))
+    if m.get("type") not in TEXT_TYPES:
+        raise ProtocolError("unknown stream message type %r" % (m.get("type"),))
+    return m
 
 
 class Stream:
@@ -51,47 +97,36 @@ class Stream:
     detail) and on_problem(text): called as they happen (on_status: "open", "closed").
     """
 
-    def __init__(self, client, scene=DEFAULT_SCENE, subscription=None, *, reconnect=False, numpy=None,
-                 timeout=30.0, on_event=None, on_status=None, on_problem=None):
+    def __init__(self, client: Client, scene: str = DEFAULT_SCENE, subscription: Optional[Dict[str, Any]] = None, *,
+                 reconnect: bool = False, numpy: Optional[bool] = None, timeout: Optional[float] = 30.0,
+                 on_event: Optional[Callable[[Dict[str, Any]], None]] = None,
+                 on_status: Optional[Callable[[str, str], None]] = None,
+                 on_problem: Optional[Callable[[str], None]] = None) -> None:
         if _websocket is None:
             raise MissingDependency("the stream needs websocket-client (Debian: apt install python3-websocket)")
         self.client = client
         self.scene = scene
-        self.subscription = dict(subscription or {})
+        self.subscription: Dict[str, Any] = dict(subscription or {})
         self.reconnect = reconnect
         self.timeout = timeout
         self.decoder = FrameDecoder(numpy=numpy)
         self.on_event, self.on_status, self.on_problem = on_event, on_status, on_problem
-        self.hello = None
-        self.subscribed = None
-        self.ws = None
+        self.hello: Optional[Dict[str, Any]] = None
+        self.subscribed: Optional[Dict[str, Any]] = None
+        self.ws: Any = None  # websocket.WebSocket
         self.backoff = BACKOFF_MIN
         #: The waits chosen before each reconnection (s), newest last.
-        self.retry_waits = []
+        self.retry_waits: List[float] = []
         self.closed = False
-        self._waiting = []  # messages read while waiting for another, yielded first
+        self._waiting: List[Message] = []  # messages read while waiting for another, yielded first
         self.connect()
 
     # ---- connection ----
-    def url(self):
+    def url(self) -> str:
         """The stream's URL, from GET /v1/health (503 unhealthy still tells it)."""
-        if self.scene != DEFAULT_SCENE:
-            self.client.scene(self.scene).sim()  # NotFound where the server has no such scene
-        try:
-            stream = self.client.health()["stream"]
-        except Unavailable as e:
-            stream = (e.body or {}).get("stream") if isinstance(e.body, dict) else None
-            if not stream:
-                raise
-        if not stream:
-            raise ProtocolError("this clothd has no stream (GET /v1/health: stream is null)")
-        parts = urllib.parse.urlsplit(self.client.url)
-        host = "[%s]" % parts.hostname if ":" in parts.hostname else parts.hostname
-        scheme = "wss" if parts.scheme == "https" else "ws"
-        query = "" if self.scene == DEFAULT_SCENE else "?scene=" + urllib.parse.quote(self.scene, safe="")
-        return "%s://%s:%d%s%s" % (scheme, host, stream["port"], stream.get("path") or "/stream", query)
+        return stream_url(self.client, self.scene)
 
-    def connect(self):
+    def connect(self) -> Dict[str, Any]:
         """Opens the connection and reads the hello; raises what stops it."""
         url = self.url()
         protocols = [PROTOCOL] + (["bearer." + self.client.token] if self.client.token else [])
@@ -124,7 +159,7 @@ class Stream:
             self.on_status("open", url)
         return hello
 
-    def _close_socket(self):
+    def _close_socket(self) -> None:
         if self.ws is not None:
             try:
                 self.ws.close()
@@ -132,25 +167,25 @@ class Stream:
                 pass
         self.ws = None
 
-    def close(self):
+    def close(self) -> None:
         """Closes the stream; iteration ends."""
         self.closed = True
         self._close_socket()
 
-    def __enter__(self):
+    def __enter__(self) -> Stream:
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def next_wait(self):
+    def next_wait(self) -> float:
         """The wait before the next reconnection (s): the backoff +-25% (so that clients part
         ways); the backoff doubles, up to 8 s."""
         wait = self.backoff * (0.75 + 0.5 * random.random())
         self.backoff = min(self.backoff * 2, BACKOFF_MAX)
         return wait
 
-    def _reconnect(self, why):
+    def _reconnect(self, why: str) -> Optional[Dict[str, Any]]:
         """Opens the connection again with backoff, until it holds; returns the new hello."""
         self._close_socket()
         while not self.closed:
@@ -170,7 +205,7 @@ class Stream:
         return None
 
     # ---- reading ----
-    def _receive(self, timeout=None):
+    def _receive(self, timeout: Optional[float] = None) -> Optional[Message]:
         """One message: a dict (text) or a Frame; None when the connection closed."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
@@ -200,7 +235,7 @@ class Stream:
             if m is not None:
                 return m
 
-    def _message(self, data, binary):
+    def _message(self, data: Buffer, binary: bool) -> Optional[Message]:
         """A Frame or a dict; with on_problem, None for what does not fit the protocol (reported)."""
         try:
             return self.decoder.decode(data) if binary else self._text(data)
@@ -210,27 +245,20 @@ class Stream:
             self.on_problem(str(e))  # reported; the stream goes on
             return None
 
-    def inject(self, data):
+    def inject(self, data: Union[str, bytes]) -> Optional[Message]:
         """Handles one message as if the server had sent it (str: text, bytes: a frame): the
         Frame or dict, or None when on_problem took it. A test's way to send what no server does."""
         return self._message(data.encode("utf-8") if isinstance(data, str) else data, not isinstance(data, str))
 
-    def _text(self, data):
-        try:
-            m = json.loads(data)
-        except ValueError as e:
-            raise ProtocolError("a stream message is not JSON: %r" % bytes(data[:80])) from e
-        if not isinstance(m, dict):
-            raise ProtocolError("a stream message is not a JSON object: %r" % (m,))
-        if m.get("type") not in TEXT_TYPES:
-            raise ProtocolError("unknown stream message type %r" % (m.get("type"),))
+    def _text(self, data: Buffer) -> Dict[str, Any]:
+        m = parse_text(data)
         if m["type"] == "subscribed":
             self.subscribed = m
         elif m["type"] == "event" and self.on_event:
             self.on_event(m)
         return m
 
-    def receive(self, timeout=None):
+    def receive(self, timeout: Optional[float] = None) -> Message:
         """The next message (a dict or a Frame), waiting at most ``timeout`` s (Timeout past it).
         With reconnect, a lost connection is opened again and the new hello is returned."""
         if self._waiting:
@@ -246,7 +274,7 @@ class Stream:
                 return m
         raise ConnectionFailed("the stream is closed")
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Message]:
         """Every message as it comes, until close()."""
         while not self.closed:
             try:
@@ -256,24 +284,23 @@ class Stream:
                     return
                 raise
 
-    def frames(self):
+    def frames(self) -> Iterator[Frame]:
         """The frames as they come (the other messages are kept in hello, subscribed, on_event)."""
-        from .frames import Frame
         for m in self:
             if isinstance(m, Frame):
                 yield m
 
-    def events(self):
+    def events(self) -> Iterator[Dict[str, Any]]:
         """The events as they come."""
         for m in self:
             if isinstance(m, dict) and m.get("type") == "event":
                 yield m
 
-    def wait_for(self, match, timeout=15.0):
+    def wait_for(self, match: Callable[[Message], bool], timeout: float = 15.0) -> Message:
         """The next message for which match(message) is true, waiting at most ``timeout`` s in
         all (Timeout past it); the messages read meanwhile are yielded afterwards, in order."""
         deadline = time.monotonic() + timeout
-        skipped = []
+        skipped: List[Message] = []
         try:
             while True:
                 left = deadline - time.monotonic()
@@ -286,13 +313,14 @@ class Stream:
         finally:
             self._waiting[:0] = skipped
 
-    def next_frame(self, timeout=15.0):
+    def next_frame(self, timeout: float = 15.0) -> Frame:
         """The next frame (Timeout after ``timeout`` s)."""
-        from .frames import Frame
-        return self.wait_for(lambda m: isinstance(m, Frame), timeout)
+        m = self.wait_for(lambda m: isinstance(m, Frame), timeout)
+        assert isinstance(m, Frame)
+        return m
 
     # ---- sending ----
-    def send(self, message):
+    def send(self, message: Dict[str, Any]) -> None:
         """Sends a client message (a dict, as JSON)."""
         if self.ws is None:
             raise ConnectionFailed("the stream is not connected")
@@ -301,11 +329,13 @@ class Stream:
         except (OSError, _websocket.WebSocketException) as e:
             raise ConnectionFailed("the stream closed: %s" % e) from e
 
-    def subscribe(self, encoding=None, max_fps=None, scalar=None, quantum=None, max_kbps=None, wait=True, timeout=15.0):
+    def subscribe(self, encoding: Optional[str] = None, max_fps: Optional[float] = None, scalar: Optional[str] = None,
+                  quantum: Optional[float] = None, max_kbps: Optional[float] = None, wait: bool = True,
+                  timeout: float = 15.0) -> Optional[Dict[str, Any]]:
         """Changes the subscription (kept across reconnections): encoding (f32, q16, meshopt,
         delta), max_fps, scalar, quantum (delta's grid, m), max_kbps (a byte budget; 0 lifts it).
         wait: return the server's ``subscribed`` answer, or raise StreamRefused with its ``error``."""
-        change = {k: v for k, v in (("encoding", encoding), ("max_fps", max_fps), ("scalar", scalar),
+        change: Dict[str, Any] = {k: v for k, v in (("encoding", encoding), ("max_fps", max_fps), ("scalar", scalar),
                                     ("quantum", quantum), ("max_kbps", max_kbps)) if v is not None}
         if change.get("max_kbps") == 0:
             change["max_kbps"] = None  # null: no budget
@@ -315,11 +345,12 @@ class Stream:
             return None
         m = self.wait_for(lambda m: isinstance(m, dict) and (
             m.get("type") == "subscribed" or (m.get("type") == "error" and m.get("about") == "subscribe")), timeout)
+        assert isinstance(m, dict)
         if m["type"] == "error":
             raise StreamRefused("the stream refused the subscription: %s" % m.get("detail"), m)
         return m
 
-    def switch_scene(self, scene_id, timeout=15.0):
+    def switch_scene(self, scene_id: str, timeout: float = 15.0) -> Dict[str, Any]:
         """Streams another scene on this connection (``{"type": "subscribe", "scene": id}``),
         keeping the subscription; reconnections open that scene. Returns the server's
         ``subscribed`` answer; the new scene's hello is then ``stream.hello``, and what the scene
@@ -329,14 +360,19 @@ class Stream:
         _check_scene_id(scene_id)
         self.send({"type": "subscribe", "scene": scene_id})
         deadline = time.monotonic() + timeout
-        before, after, hello = [], [], None
+        before: List[Message] = []
+        after: List[Message] = []
+        hello: Optional[Dict[str, Any]] = None
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
                 self._waiting[:0] = before + after
                 raise Timeout("no answer to the switch to scene %r within %s s" % (scene_id, timeout))
             m = self.receive(left)
-            kind = m.get("type") if isinstance(m, dict) else None
+            if not isinstance(m, dict):
+                (before if hello is None else after).append(m)
+                continue
+            kind = m.get("type")
             if kind == "error" and m.get("about") == "subscribe" and hello is None:
                 self._waiting[:0] = before
                 raise StreamRefused("the stream refused scene %r: %s" % (scene_id, m.get("detail")), m)
@@ -351,14 +387,14 @@ class Stream:
             else:
                 after.append(m)
 
-    def keyframe(self):
+    def keyframe(self) -> None:
         """Asks for a delta keyframe (the server sends at most four a second)."""
         self.send({"type": "keyframe"})
 
-    def grab(self, vertex, target):
+    def grab(self, vertex: int, target: Sequence[float]) -> None:
         """Pulls ``vertex`` toward ``target`` [x, y, z], as PUT /v1/grab without a round trip."""
         self.send({"type": "grab", "vertex": vertex, "target": list(target)})
 
-    def release(self):
+    def release(self) -> None:
         """Releases the grabbed vertex, as DELETE /v1/grab."""
         self.send({"type": "release"})

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import re
 import struct
-from typing import TYPE_CHECKING, AbstractSet, Any, Dict, List, TextIO
+from typing import TYPE_CHECKING, AbstractSet, Any, Dict, List, Optional, Set, TextIO, Tuple
 
 if TYPE_CHECKING:
     from .recording import Recording
@@ -57,7 +57,8 @@ def _f32_all(values: Any) -> List[str]:
         todo = todo[~same]
         if not len(todo):
             break
-    return out.tolist()
+    strings: List[str] = out.tolist()
+    return strings
 
 
 def _time(tc: float) -> str:
@@ -67,11 +68,15 @@ def _time(tc: float) -> str:
 _ESCAPES = {"\\": "\\\\", '"': '\\"', "\n": "\\n", "\t": "\\t", "\r": "\\r"}
 
 
+def _escape(m: re.Match[str]) -> str:
+    return _ESCAPES.get(m.group(0), "\ufffd")
+
+
 def _string(s: object) -> str:
     """A USD string literal: double-quoted, UTF-8, with \\ \" \\n \\t \\r escaped; other control
     characters (and a lone surrogate) become U+FFFD, as the JavaScript exporter writes them."""
-    s = str(s).encode("utf-16", "surrogatepass").decode("utf-16", "replace")
-    return '"%s"' % re.sub(r'[\\"\x00-\x1f\x7f]', lambda m: _ESCAPES.get(m.group(0), "\ufffd"), s)
+    text = str(s).encode("utf-16", "surrogatepass").decode("utf-16", "replace")
+    return '"%s"' % re.sub(r'[\\"\x00-\x1f\x7f]', _escape, text)
 
 
 def triangles(nx: int, ny: int, torn: AbstractSet[int]) -> List[int]:
@@ -79,7 +84,7 @@ def triangles(nx: int, ny: int, torn: AbstractSet[int]) -> List[int]:
     grid quad split on its +x+y diagonal, a triangle drawn while its three springs are intact);
     the rule web/src/topology.js triangleIndices draws."""
     n = nx * ny
-    out = []
+    out: List[int] = []
     for j in range(ny - 1):
         for i in range(nx - 1):
             v00 = j * nx + i
@@ -122,7 +127,8 @@ class _Topology:
 
 def _flat(positions: Any) -> List[float]:
     if hasattr(positions, "reshape"):
-        return positions.reshape(-1).tolist()
+        flat: List[float] = positions.reshape(-1).tolist()
+        return flat
     return [c for p in positions for c in p]
 
 
@@ -149,7 +155,7 @@ def write_usd(rec: Recording, out: TextIO) -> Dict[str, Any]:
         total += d if d >= 0 else 1
         tcs.append(round(total * 1e6) / 1e6)
 
-    def tc(k):
+    def tc(k: int) -> float:
         return tcs[k]
 
     scene = str(info.get("scene") or rec.hello.get("scene_id") or "")
@@ -161,9 +167,16 @@ def write_usd(rec: Recording, out: TextIO) -> Dict[str, Any]:
               '        uniform token subdivisionScheme = "none"\n        point3f[] points.timeSamples = {\n'
               % (_string(info.get("encoding") or ""), _string(info.get("id") or ""), _string(scene)))
     topo = _Topology(rec.hello)
-    changes, last = [], None   # (tc, nx, ny, full torn list or None, added)
-    extents, rocks, present = [], {}, set()
-    texts, written, first, last_tc, problem, decoded = 1, 0, None, None, None, 0
+    # (tc, nx, ny, full torn list or None, added)
+    changes: List[Tuple[float, int, int, Optional[List[int]], List[int]]] = []
+    last: Optional[Tuple[int, Tuple[int, int], Set[int]]] = None
+    extents: List[Tuple[float, Any, Any]] = []
+    rocks: Dict[int, Dict[str, Any]] = {}
+    present: Set[int] = set()
+    texts, written, decoded = 1, 0, 0
+    first: Optional[float] = None
+    last_tc: Optional[float] = None
+    problem: Optional[str] = None
     for k in range(len(frames)):
         try:
             while texts < frames[k].texts_before:
@@ -198,7 +211,7 @@ def write_usd(rec: Recording, out: TextIO) -> Dict[str, Any]:
             elif topo.torn != last[2]:
                 changes.append((t, topo.nx, topo.ny, None, sorted(topo.torn - last[2])))
             last = (topo.version, (topo.nx, topo.ny), set(topo.torn))
-        now = set()
+        now: Set[int] = set()
         for r in frame.rocks:
             now.add(r.id)
             rock = rocks.get(r.id)
@@ -218,19 +231,19 @@ def write_usd(rec: Recording, out: TextIO) -> Dict[str, Any]:
     out.write("        }\n")
     for which in ("faceVertexCounts", "faceVertexIndices"):
         out.write("        int[] %s.timeSamples = {\n" % which)
-        torn = set()
+        torn: Set[int] = set()
         for t, nx, ny, full, added in changes:
             if full is not None:
                 torn = set(full)
             torn.update(added)
             tri = triangles(nx, ny, torn)
-            values = ["3"] * (len(tri) // 3) if which == "faceVertexCounts" else map(str, tri)
+            values = ["3"] * (len(tri) // 3) if which == "faceVertexCounts" else [str(v) for v in tri]
             out.write("            %s: [%s],\n" % (_time(t), ", ".join(values)))
         out.write("        }\n")
     out.write("    }\n")
     for rid in sorted(rocks):
         rock = rocks[rid]
-        r = f32(rock["radius"])
+        rad = f32(rock["radius"])
         out.write('\n    def Xform "rock_%d"\n    {\n        float3 xformOp:translate.timeSamples = {\n' % (rid & 0xFFFFFFFF))
         for t, p, _ in rock["poses"]:
             out.write("            %s: (%s),\n" % (_time(t), ", ".join(map(f32, p))))
@@ -242,7 +255,7 @@ def write_usd(rec: Recording, out: TextIO) -> Dict[str, Any]:
             out.write("        token visibility.timeSamples = {\n%s        }\n" % "".join(
                 '            %s: "%s",\n' % (_time(t), "inherited" if v else "invisible") for t, v in rock["vis"]))
         out.write('\n        def Sphere "sphere"\n        {\n            float3[] extent = [(-%s, -%s, -%s), (%s, %s, %s)]\n'
-                  '            double radius = %s\n        }\n    }\n' % (r, r, r, r, r, r, r))
+                  '            double radius = %s\n        }\n    }\n' % ((rad,) * 7))
     out.write("}\n")
     problems = [p for p in (rec.problem, None if rec.complete or rec.problem else
                             "the recording is cut (no index): exported the %d whole frames it has" % len(frames), problem) if p]

@@ -63,7 +63,8 @@ def test_every_operation_is_a_method_and_the_answers_hold_what_the_protocol_says
     c = client
     assert c.health()["stream"]["protocol"] == "clothd.v1"
     assert c.livez() == {"status": "live"}
-    assert c.readyz()["status"] == "ready"
+    ready = c.readyz()
+    assert ready["status"] == "ready" and 1 <= ready["scenes"] <= ready["max_scenes"]
     assert re.fullmatch(r"[0-9a-f]{16}", c.sim(hash=True)["state_hash"])
     s0 = c.pause()
     stepped = c.step(frames=2)

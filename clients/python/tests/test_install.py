@@ -37,6 +37,22 @@ def test_pip_installs_it_offline_into_a_venv(tmp_path, daemon):
     where, version, status = out.stdout.split()
     assert where.startswith(str(env_dir)) and "site-packages" in where
     assert (version, status) == ("0.1.0", "ok")
+    # PEP 561: py.typed is installed, so a type checker reads the installed package's hints (without
+    # it mypy calls clothd an untyped module); a consumer's wrong use is caught through them.
+    assert os.path.exists(os.path.join(os.path.dirname(where), "py.typed"))
+    if subprocess.run([python, "-c", "import mypy"], capture_output=True).returncode != 0:
+        return  # the ctest clients.python_types says so where mypy is missing
+    (tmp_path / "consumer.py").write_text(
+        "import clothd\n"
+        "c = clothd.Client('http://127.0.0.1:8080')\n"
+        "frames: int = c.sim()['frame']\n"
+        "sag: str = c.cloth_state_binary()\n")
+    check = subprocess.run([python, "-m", "mypy", "--strict", "--no-incremental", "--cache-dir", os.devnull, "consumer.py"],
+                           capture_output=True, text=True, cwd=str(tmp_path), timeout=120,
+                           env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"})
+    assert check.returncode == 1, check.stdout + check.stderr
+    assert check.stdout.count("error:") == 1, check.stdout
+    assert '(expression has type "ClothState", variable has type "str")' in check.stdout, check.stdout
 
 
 def test_it_runs_from_the_source_tree_with_pythonpath(tmp_path, daemon):
