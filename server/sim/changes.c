@@ -1,5 +1,6 @@
 /* changes.c - the journaled commands: what each does to the engine and the daemon-loop settings,
  * and the complete form the journal keeps (see changes.h). */
+#include <stdio.h>
 #include <string.h>
 
 #include "core/json_read.h"
@@ -41,24 +42,55 @@ int change_params(cs_sim *sim, loop_settings *loop, const json_t *cmd, json_t **
     return 0;
 }
 
+/* PUT /v1/scene's "preset": a name of cs_preset_find's table; its index, -1 for none, -2 refused. */
+static int scene_preset(const json_t *patch, problem *pr)
+{
+    const json_t *name = patch ? json_object_get(patch, "preset") : NULL;
+    if (!name) return -1;
+    if (!json_is_string(name)) return problem_set(pr, 400, "wrong-type", "preset", "preset must be a string"), -2;
+    const int k = cs_preset_find(json_string_value(name));
+    if (k < 0) {
+        char names[256] = "";
+        for (int i = 0; i < cs_preset_count(); i++)
+            snprintf(names + strlen(names), sizeof names - strlen(names), "%s%s", i ? ", " : "", cs_preset_name(i));
+        return problem_set(pr, 422, "out-of-range", "preset", "preset must be one of %s", names), -2;
+    }
+    return k;
+}
+
 int change_scene(cs_sim *sim, loop_settings *loop, const json_t *cmd, json_t **journal, json_t **result, problem *pr)
 {
-    (void)loop;
     static const char *const fields[] = {"op", "scene", NULL};
     if (only_fields(cmd, fields, pr) != 0) return -1;
     scene_config sc;
     memset(&sc, 0, sizeof sc);
     cs_sim_scene(sim, &sc.fields);
     cs_sim_params(sim, &sc.params);
-    /* No scene member (a journal written by hand): a patch of nothing. */
+    /* No scene member (a journal written by hand): a patch of nothing. A preset sets its scene
+     * fields and live parameters first, the patch's own fields then override them. */
     const json_t *patch = json_object_get(cmd, "scene");
-    json_t *none = patch ? NULL : json_object();
-    const int bad = params_from_json(patch ? patch : none, SET_SCENE, &sc, pr);
-    json_decref(none);
+    const int preset = scene_preset(json_is_object(patch) ? patch : NULL, pr);
+    if (preset == -2) return -1;
+    json_t *rest = patch ? json_deep_copy(patch) : json_object();
+    if (!rest) return problem_set(pr, 500, "internal", NULL, "out of memory");
+    if (json_is_object(rest)) json_object_del(rest, "preset");
+    cs_params before;
+    cs_sim_params(sim, &before);
+    if (preset >= 0) cs_preset_scene(preset, &sc.fields, &sc.params);
+    const int bad = params_from_json(rest, SET_SCENE, &sc, pr);
+    json_decref(rest);
     if (bad) return -1;
-    const cs_status st = cs_sim_set_scene(sim, &sc.fields);
-    if (st != CS_OK) return refused(sim, st, pr);
+    cs_status st = preset >= 0 ? cs_sim_set_params(sim, &sc.params) : CS_OK;
+    if (st == CS_OK) st = cs_sim_set_scene(sim, &sc.fields);
+    if (st != CS_OK) {
+        const int r = refused(sim, st, pr);
+        cs_sim_set_params(sim, &before); /* nothing changed */
+        return r;
+    }
+    if (preset >= 0 && (st = cs_preset_populate(sim, preset)) != CS_OK) return refused(sim, st, pr);
+    if (preset >= 0) loop->auto_drop_interval = 0.0f; /* the preset's own rocks only */
     json_t *full = params_to_json(SET_SCENE, &sc);
+    if (preset >= 0) json_object_set_new(full, "preset", json_string(cs_preset_name(preset)));
     *journal = json_pack("{s:s, s:O}", "op", "scene", "scene", full);
     *result = full;
     return 0;

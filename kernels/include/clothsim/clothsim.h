@@ -188,6 +188,16 @@ int32_t cs_rock_count(const cs_sim *sim);
 /* The rock at index 0..count-1 (in order of addition). */
 cs_status cs_rock_at(cs_sim *sim, int32_t index, cs_rock *out);
 
+/* ---- scene presets: named scenes that show self_collision (presets.c) ---- */
+int cs_preset_count(void);
+const char *cs_preset_name(int k);        /* NULL past the count */
+const char *cs_preset_description(int k); /* NULL past the count */
+int cs_preset_find(const char *name);     /* its index, or -1 */
+/* Sets preset k's scene fields and live parameters over those given. */
+void cs_preset_scene(int k, cs_scene *scene, cs_params *params);
+/* Once the scene is built: preset k's pins and rocks. */
+cs_status cs_preset_populate(cs_sim *sim, int k);
+
 /* ---- pins and grab ---- */
 /* Replaces every pin with a preset. */
 cs_status cs_pins_preset(cs_sim *sim, cs_pins preset);
