@@ -11,7 +11,9 @@
 // through the same drawing path as the live stream (`draw` below: hello, events, frames), with
 // the live stream closed meanwhile; "Back to live" opens it again, and its hello brings the scene
 // as it is now. Exports (export.js): the frame shown as PLY or glTF, a recording's range as
-// animated glTF.
+// animated glTF. Capture and inspection: a PNG screenshot and a WebM of the live view (the
+// canvas), camera presets with the camera kept in the URL, and a vertex probe (the vertex under
+// the cursor from GET /v1/cloth/state).
 import { Client, SCENE_ID, DEFAULT_SCENE } from 'clothd/client';
 import { ScenePicker } from './scenes.js';
 import { View, MODES } from './view.js';
@@ -70,6 +72,19 @@ function sceneOfUrl() {
   const id = new URLSearchParams(location.hash.slice(1)).get('scene');
   return id && SCENE_ID.test(id) ? id : DEFAULT_SCENE;
 }
+// The orbit camera rides in the URL beside the scene (#scene=ID&cam=eye x,y,z,target x,y,z), so a
+// reload or a shared link shows what was seen.
+function cameraOfUrl() {
+  const cam = new URLSearchParams(location.hash.slice(1)).get('cam');
+  const v = cam?.split(',').map(Number);
+  return v?.length === 6 && v.every(Number.isFinite) ? v : null;
+}
+function keepCameraInUrl() {
+  const h = new URLSearchParams(location.hash.slice(1));
+  h.set('scene', sceneOfUrl());
+  h.set('cam', view.cameraState().map((x) => +x.toFixed(4)).join(','));
+  history.replaceState(history.state, '', `${location.pathname}${location.search}#${h.toString().replaceAll('%2C', ',')}`);
+}
 let cur = api.scene(sceneOfUrl());
 
 // ---- state mirrored from the server ----
@@ -82,7 +97,7 @@ const view = new View($('view'));
 // "The stream").
 const LOOPBACK = /^(localhost|127(\.\d{1,3}){3}|\[::1\])$/.test(location.hostname);
 const ENCODING = LOOPBACK ? 'q16' : 'delta';
-const viewValues = { mode: 'surface', camera: 'orbit', encoding: ENCODING, dropRadius: 0.1, dropDensity: 2500, chart: true };
+const viewValues = { mode: 'surface', camera: 'orbit', encoding: ENCODING, dropRadius: 0.1, dropDensity: 2500, chart: true, preset: 'fit', probe: true, shadows: false };
 let chart = null, panel = null;
 /** The recording playing (a Player of player.js), or null: live. */
 let playback = null;
@@ -111,6 +126,8 @@ function applyScene(scene, torn, rocks, live = true) {
       setViewValue('camera', '2d');
       setViewValue('mode', 'springs');
     }
+    // A camera in the URL (a reload, a link) wins over the first framing.
+    if (!state.framed && cameraOfUrl() && view.setCameraState(cameraOfUrl())) setViewValue('camera', 'orbit');
     state.framed = true;
   }
   if (!live) return;
@@ -149,6 +166,8 @@ function setViewValue(name, value) {
     view.setMode(value);
     stream.subscribe({ scalar: MODES[value] });
   } else if (name === 'camera') view.setCamera2d(value === '2d');
+  else if (name === 'shadows') view.setShadows(value);
+  else if (name === 'preset') { view.preset(value); viewValues.camera = 'orbit'; keepCameraInUrl(); }
   else if (name === 'encoding') stream.subscribe({ encoding: value });
   else if (name === 'chart') $('chart').hidden = !value;
   panel?.gui.controllersRecursive().forEach((c) => c.object === viewValues && c.updateDisplay());
@@ -227,6 +246,15 @@ const stream = cur.stream({
   },
 }, { pull: true, subscription: { encoding: ENCODING, max_fps: 60, scalar: 'none' } });
 
+let webm = null; // the MediaRecorder while a WebM records
+function saveBlob(blob, name) {
+  const a = document.createElement('a');
+  a.href = URL.createObjectURL(blob);
+  a.download = name;
+  a.click();
+  setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+}
+
 // ---- actions of the panel and the mouse ----
 const actions = {
   async playPause() {
@@ -251,6 +279,29 @@ const actions = {
     a.download = `clothd-step-${state.sim?.step ?? 0}.snapshot`;
     a.click();
     setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+  },
+  async screenshot() {
+    const blob = await view.screenshot().catch((e) => problem(`screenshot: ${e.message}`));
+    if (blob) saveBlob(blob, `clothd-${cur.id}-step-${view.lastStep ?? 0}.png`);
+  },
+  // A WebM of the live view: MediaRecorder on the canvas's stream, from the click to the next.
+  webm() {
+    if (webm) { webm.stop(); return; }
+    const type = typeof MediaRecorder === 'undefined' ? null
+      : ['video/webm;codecs=vp9', 'video/webm;codecs=vp8', 'video/webm'].find((t) => MediaRecorder.isTypeSupported(t));
+    if (!type) return problem('this browser cannot record WebM (no MediaRecorder for video/webm)');
+    const rec = new MediaRecorder(view.renderer.domElement.captureStream(30), { mimeType: type });
+    const chunks = [], name = `clothd-${cur.id}-step-${view.lastStep ?? 0}.webm`;
+    rec.ondataavailable = (e) => { if (e.data.size) chunks.push(e.data); };
+    rec.onstop = () => {
+      webm = null;
+      panel?.setWebm(false);
+      saveBlob(new Blob(chunks, { type: 'video/webm' }), name);
+    };
+    rec.onerror = (e) => problem(`WebM recording: ${e.error?.message ?? 'failed'}`);
+    rec.start(500);
+    webm = rec;
+    panel?.setWebm(true);
   },
   upload() {
     const input = $('snapshot-file');
@@ -308,6 +359,55 @@ const mouse = {
   groundZ: () => (state.params.ground ? state.params.ground_z : null),
 };
 const interaction = new Interaction(view, $('view'), mouse);
+view.orbit.addEventListener('end', keepCameraInUrl);
+
+// ---- the vertex probe: the cloth vertex under the cursor, its position, speed and strain from
+// GET /v1/cloth/state (binary; one request at a time, the newest cursor wins) ----
+const probe = { busy: false, again: false, shown: null, x: 0, y: 0 };
+async function runProbe() {
+  if (probe.busy) { probe.again = true; return; }
+  probe.busy = true;
+  const el = $('probe');
+  try {
+    do {
+      probe.again = false;
+      const v = playback || !viewValues.probe ? -1 : view.vertexAt(probe.x, probe.y);
+      if (v < 0) { el.hidden = true; probe.shown = null; continue; }
+      const s = await cur.clothStateBinary();
+      const sc = state.scene, p = s.positions, u = s.velocities;
+      if (!sc || p.length !== 3 * sc.nx * sc.ny) continue;
+      // strain as PROTOCOL.md's scalar: the largest (|d| - L0) / L0 of the vertex's structural
+      // springs (L0 the grid spacing), 0 when none is stretched.
+      const i = v % sc.nx, j = Math.floor(v / sc.nx);
+      const hx = sc.size_x / (sc.nx - 1), hy = sc.size_y / (sc.ny - 1);
+      let strain = 0;
+      for (const [di, dj, l0] of [[1, 0, hx], [-1, 0, hx], [0, 1, hy], [0, -1, hy]]) {
+        const a = i + di, b = j + dj;
+        if (a < 0 || b < 0 || a >= sc.nx || b >= sc.ny) continue;
+        const w = b * sc.nx + a;
+        const d = Math.hypot(p[3 * w] - p[3 * v], p[3 * w + 1] - p[3 * v + 1], p[3 * w + 2] - p[3 * v + 2]);
+        strain = Math.max(strain, (d - l0) / l0);
+      }
+      const q = probe.shown = { vertex: v, position: Array.from(p.slice(3 * v, 3 * v + 3)),
+        speed: Math.hypot(u[3 * v], u[3 * v + 1], u[3 * v + 2]), strain };
+      el.textContent = `vertex   ${v} (i ${i}, j ${j})\nposition ${q.position.map((x) => x.toFixed(4)).join(' ')} m\nspeed    ${q.speed.toFixed(4)} m/s\nstrain   ${(100 * q.strain).toFixed(2)} %`;
+      el.style.left = `${probe.x + 16}px`;
+      el.style.top = `${probe.y + 16}px`;
+      el.hidden = false;
+    } while (probe.again);
+  } catch {
+    el.hidden = true;
+    probe.shown = null;
+  } finally {
+    probe.busy = false;
+  }
+}
+$('view').addEventListener('pointermove', (e) => {
+  if (e.buttons) return;
+  probe.x = e.clientX; probe.y = e.clientY;
+  runProbe();
+});
+$('view').addEventListener('pointerleave', () => { $('probe').hidden = true; probe.shown = null; });
 
 // ---- recordings: playback and exports (recordings.js) ----
 const bar = new RecordingBar($('rec'), api, {
@@ -448,6 +548,7 @@ window.__clothd = {
   playback: () => playback, bar,
   rockMoving: () => rockMove !== null,
   setView: setViewValue,
+  probe: () => probe.shown,
 };
 
 stream.start();

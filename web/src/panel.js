@@ -10,7 +10,7 @@ export class Panel {
    * @param {HTMLElement} container
    * @param {{patchParams, putScene, actions: object, view: object}} hooks
    *   patchParams(obj) and putScene(obj) answer the server's body or throw a ClothdError (clients/js);
-   *   actions: {playPause, step, reset, clearRocks, download, upload}; view: the View folder's
+   *   actions: {playPause, step, reset, clearRocks, download, upload, screenshot, webm}; view: the View folder's
    *   object (mode, camera, encoding, drop radius and density), with onChange(name, value).
    */
   constructor(container, schema, hooks) {
@@ -25,13 +25,16 @@ export class Panel {
     const sim = this.gui.addFolder('Simulation');
     const a = hooks.actions;
     this.simState = { play: () => a.playPause(), step: () => a.step(), reset: () => a.reset(),
-      clear: () => a.clearRocks(), download: () => a.download(), upload: () => a.upload() };
+      clear: () => a.clearRocks(), download: () => a.download(), upload: () => a.upload(),
+      screenshot: () => a.screenshot(), webm: () => a.webm() };
     this.playButton = sim.add(this.simState, 'play').name('Pause');
     sim.add(this.simState, 'step').name('Step one frame');
     sim.add(this.simState, 'reset').name('Reset');
     sim.add(this.simState, 'clear').name('Remove all rocks');
     sim.add(this.simState, 'download').name('Download snapshot');
     sim.add(this.simState, 'upload').name('Upload snapshot…');
+    this.screenshotButton = sim.add(this.simState, 'screenshot').name('Screenshot (PNG)');
+    this.webmButton = sim.add(this.simState, 'webm').name('Record WebM');
 
     const v = hooks.view;
     const viewFolder = this.gui.addFolder('View');
@@ -39,10 +42,14 @@ export class Panel {
       .name('cloth').onChange((x) => v.onChange('mode', x));
     viewFolder.add(v.values, 'camera', { 'orbit (3D)': 'orbit', '2D orthographic': '2d' }).name('camera')
       .onChange((x) => v.onChange('camera', x));
+    viewFolder.add(v.values, 'preset', ['fit', 'top', 'front', 'side']).name('camera preset')
+      .onChange((x) => v.onChange('preset', x));
     viewFolder.add(v.values, 'encoding', ['delta', 'q16', 'meshopt', 'f32']).name('frame encoding')
       .onChange((x) => v.onChange('encoding', x));
     viewFolder.add(v.values, 'dropRadius', 0.01, 1, 0.01).name('drop radius (m)');
     viewFolder.add(v.values, 'dropDensity', 10, 10000, 10).name('drop density (kg/m^3)');
+    viewFolder.add(v.values, 'shadows').name('shadows of the rocks').onChange((x) => v.onChange('shadows', x));
+    viewFolder.add(v.values, 'probe').name('vertex probe (hover)');
     viewFolder.add(v.values, 'chart').name('energy chart').onChange((x) => v.onChange('chart', x));
 
     const scene = this.gui.addFolder('Scene (rebuilds the cloth)');
@@ -157,6 +164,10 @@ export class Panel {
       this.sceneEdit[c.name] = scene[c.name];
       for (const ctrl of this.byName.get(c.name).ctrls) ctrl.updateDisplay();
     }
+  }
+
+  setWebm(recording) {
+    this.webmButton.name(recording ? 'Stop WebM (download)' : 'Record WebM');
   }
 
   setRunning(running) {

@@ -9,7 +9,7 @@
 // A file that is not a recording, or is corrupt, is said in the bar (the reader's message, with
 // the offset) and the page goes on as it was; a file cut short (no index: a recording still
 // running, or its daemon killed) plays the frames it has, and the bar says so.
-import { NotFound, exportUsd } from 'clothd/client';
+import { NotFound, exportUsd, exportMcap } from 'clothd/client';
 import { triangleIndices } from './topology.js';
 import { Player, SPEEDS } from './player.js';
 import { framePly, frameGlb, animationGlb, animationStride, animationCap, download, MAX_ANIMATION_FRAMES } from './export.js';
@@ -78,12 +78,14 @@ export class RecordingBar {
     exportAnim.id = 'export-animation';
     const usd = button('Recording as USD', 'the whole recording as USD text (.usda): the cloth with its tears and the rocks, every frame (Blender, Houdini)', () => this.exportUsd());
     usd.id = 'export-usd';
+    const mcap = button('Recording as MCAP', 'the whole recording as MCAP (foxglove.SceneUpdate messages): the cloth and the rocks, every frame (Foxglove, Lichtblick)', () => this.exportMcap());
+    mcap.id = 'export-mcap';
     this.animNote = el('span', { className: 'rec-note', id: 'rec-cap' });
     const live = button('Back to live', 'close the recording and show the live scene again', () => this.backToLive());
     live.id = 'rec-live';
     this.playerRow = el('div', { className: 'rec-row', id: 'rec-player', hidden: true },
       this.playButton, this.scrub, this.speed, this.time, el('br'),
-      'export frames ', this.from, fromHere, ' to ', this.to, toHere, ' ', exportAnim, this.animNote, ' ', usd, ' ', live);
+      'export frames ', this.from, fromHere, ' to ', this.to, toHere, ' ', exportAnim, this.animNote, ' ', usd, ' ', mcap, ' ', live);
 
     this.message = el('div', { id: 'rec-message', role: 'status' });
     container.append(top, this.playerRow, this.message);
@@ -306,6 +308,40 @@ export class RecordingBar {
       this.update();
     }
   }
+
+  /**
+   * The whole recording as MCAP (clients/js recording-export.js: one foxglove.SceneUpdate message
+   * a frame, @mcap/core's writer; chunks uncompressed in the browser).
+   */
+  async exportMcap() {
+    const p = this.player;
+    if (!p || this.busy) return;
+    this.busy = true;
+    p.pause();
+    this.say(`exporting ${p.count} frames as MCAP…`);
+    try {
+      const out = new MemoryWritable();
+      const r = await exportMcap(p.r, out, { triangles: triangleIndices, codecs: p.codecs });
+      download(new Blob(out.chunks), `${stem(p.name)}.mcap`, 'application/octet-stream');
+      this.say(`exported ${r.written} frames as MCAP${r.problem ? ` (${r.problem})` : ''}`, r.cut ? 'warn' : '');
+    } catch (e) {
+      this.say(`MCAP export failed: ${e.message}`, 'error');
+    } finally {
+      this.busy = false;
+      this.update();
+    }
+  }
+}
+
+/** @mcap/core's IWritable into memory: the chunks it writes, for the download's Blob. */
+class MemoryWritable {
+  chunks = [];
+  size = 0n;
+  async write(buffer) {
+    this.chunks.push(buffer.slice());
+    this.size += BigInt(buffer.byteLength);
+  }
+  position() { return this.size; }
 }
 
 const stem = (name) => String(name).replace(/\.clr$/i, '').replace(/[^A-Za-z0-9._-]+/g, '_') || 'recording';

@@ -86,14 +86,29 @@ export class View {
     // Multisampling doubles a software renderer's cost (SwiftShader, a browser without a GPU).
     this.renderer = new THREE.WebGLRenderer({ antialias: !this.software, powerPreference: 'high-performance' });
     this.renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
-    this.renderer.setClearColor(0x1b1f27);
+    // The background follows the page's theme (prefers-color-scheme, as style.css).
+    this.lightTheme = matchMedia('(prefers-color-scheme: light)');
+    const background = () => {
+      this.background = this.lightTheme.matches ? 0xe9ecf1 : 0x1b1f27;
+      this.renderer.setClearColor(this.background);
+      this.dirty = true;
+    };
+    background();
+    this.lightTheme.addEventListener('change', background);
     container.appendChild(this.renderer.domElement);
 
     this.scene = new THREE.Scene();
     this.scene.add(new THREE.HemisphereLight(0xdfe8ff, 0x302820, 1.4));
-    const sun = new THREE.DirectionalLight(0xffffff, 2.0);
-    sun.position.set(4, -2, 3);
-    this.scene.add(sun);
+    // The sun, from (4, -2, 3) as the cloth shader's; with shadows on it casts the rocks' shadows
+    // on the cloth (three.js shadow map; frameScene fits its camera to the cloth).
+    this.sun = new THREE.DirectionalLight(0xffffff, 2.0);
+    this.sun.position.set(4, -2, 3);
+    this.sun.shadow.mapSize.set(1024, 1024);
+    this.sun.shadow.bias = -0.0005;
+    this.sun.shadow.normalBias = 0.01;
+    this.scene.add(this.sun, this.sun.target);
+    this.renderer.shadowMap.type = THREE.PCFShadowMap;
+    this.shadows = false;
 
     THREE.Object3D.DEFAULT_UP.set(0, 0, 1); // z up, as the simulation
     this.perspective = new THREE.PerspectiveCamera(45, 1, 0.01, 500);
@@ -118,6 +133,11 @@ export class View {
     // Cloth: one position and one colour attribute shared by the surface, the lines and the points.
     this.surfaceMaterial = clothMaterial(false);
     this.strainMaterial = clothMaterial(true);
+    // With shadows on, three.js's own Lambert materials (per-fragment, shadow-receiving) instead,
+    // their colour raised 1.7 times to the brightness of the per-vertex shader under the same
+    // lights (three.js's Lambert takes 1/pi of the sun's light).
+    this.shadowSurfaceMaterial = new THREE.MeshLambertMaterial({ color: new THREE.Color(0xc8553d).multiplyScalar(1.7), side: THREE.DoubleSide });
+    this.shadowStrainMaterial = new THREE.MeshLambertMaterial({ color: new THREE.Color(1.7, 1.7, 1.7), vertexColors: true, side: THREE.DoubleSide });
     this.cloth = null;
     this.mode = 'surface';
 
@@ -171,6 +191,11 @@ export class View {
     else this.ortho.position.set(c.x, c.y - 1e-3, c.z + 10);
     this.orthoSpan = 0.65 * s;
     this.ground.scale.setScalar(5 * s);
+    // The sun's shadow camera: a box around the cloth and what falls on it.
+    this.sun.target.position.copy(c);
+    this.sun.position.copy(c).addScaledVector(new THREE.Vector3(4, -2, 3).normalize(), 3 * s);
+    Object.assign(this.sun.shadow.camera, { left: -s, right: s, top: s, bottom: -s, near: 0.01, far: 6 * s });
+    this.sun.shadow.camera.updateProjectionMatrix();
     this.ortho.zoom = 1;
     this.pan2d.update();
     this.fitOrtho();
@@ -234,7 +259,10 @@ export class View {
     const c = this.cloth;
     if (!c) return;
     c.mesh.visible = mode !== 'springs';
-    c.mesh.material = mode === 'strain' ? this.strainMaterial : this.surfaceMaterial;
+    c.mesh.material = this.shadows
+      ? (mode === 'strain' ? this.shadowStrainMaterial : this.shadowSurfaceMaterial)
+      : (mode === 'strain' ? this.strainMaterial : this.surfaceMaterial);
+    c.mesh.receiveShadow = this.shadows;
     c.springs.visible = c.points.visible = mode === 'springs';
     this.dirty = true;
   }
@@ -293,6 +321,7 @@ export class View {
       const kinematic = !!this.rockInfo.get(r.id)?.kinematic;
       if (!entry) {
         const mesh = new THREE.Mesh(this.rockGeometry, this.rockMaterial);
+        mesh.castShadow = true;
         mesh.userData.rockId = r.id;
         entry = { mesh, outline: null };
         this.rocks.set(r.id, entry);
@@ -331,10 +360,84 @@ export class View {
     this.dirty = true;
   }
 
+  /** Shadows of the rocks on the cloth (the sun's shadow map), on or off. */
+  setShadows(on) {
+    this.shadows = !!on;
+    this.renderer.shadowMap.enabled = this.shadows;
+    this.sun.castShadow = this.shadows;
+    for (const m of [this.rockMaterial, this.kinematicMaterial, this.shadowSurfaceMaterial, this.shadowStrainMaterial]) m.needsUpdate = true;
+    this.setMode(this.mode);
+    this.dirty = true;
+  }
+
   setGround(on, z) {
     this.ground.visible = !!on;
     this.ground.position.z = z ?? 0;
     this.dirty = true;
+  }
+
+  /**
+   * Camera presets: `fit` (as frameScene places it), `top` (straight down), `front` (along +y),
+   * `side` (along -x), each at the fit's distance from the cloth's centre. Switches to the orbit
+   * camera.
+   */
+  preset(name) {
+    if (!this.sceneInfo) return;
+    this.frameScene(this.sceneInfo);
+    if (name !== 'fit') {
+      const t = this.orbit.target, d = this.perspective.position.distanceTo(t);
+      const dir = { top: [0, -1e-3, 1], front: [0, -1, 0], side: [1, 0, 0] }[name];
+      if (!dir) return;
+      this.perspective.position.set(t.x + d * dir[0], t.y + d * dir[1], t.z + d * dir[2]);
+      this.orbit.update();
+    }
+    this.setCamera2d(false);
+  }
+
+  /** The orbit camera as [x, y, z of the eye, x, y, z of the target]. */
+  cameraState() {
+    return [...this.perspective.position.toArray(), ...this.orbit.target.toArray()];
+  }
+
+  setCameraState(s) {
+    if (!Array.isArray(s) || s.length !== 6 || !s.every(Number.isFinite)) return false;
+    this.perspective.position.fromArray(s, 0);
+    this.orbit.target.fromArray(s, 3);
+    this.orbit.update();
+    this.dirty = true;
+    return true;
+  }
+
+  /**
+   * A PNG of the view: drawn and read in the same task, so the drawing buffer is still there
+   * without preserveDrawingBuffer (which costs a software renderer a copy every frame).
+   */
+  screenshot() {
+    this.renderer.render(this.scene, this.camera);
+    return new Promise((resolve, reject) => this.renderer.domElement.toBlob((b) => (b ? resolve(b) : reject(new Error('the canvas gave no PNG'))), 'image/png'));
+  }
+
+  /**
+   * The cloth vertex nearest to a page point (clientX, clientY) on screen, within `radius` pixels,
+   * or -1.
+   */
+  vertexAt(x, y, radius = 24) {
+    const c = this.cloth;
+    if (!c?.hasFrame) return -1;
+    const r = this.renderer.domElement.getBoundingClientRect();
+    const m = new THREE.Matrix4().multiplyMatrices(this.camera.projectionMatrix, this.camera.matrixWorldInverse);
+    const e = m.elements, a = c.position.array;
+    let best = -1, bestD = radius * radius;
+    for (let v = 0; v < c.n; v++) {
+      const px = a[3 * v], py = a[3 * v + 1], pz = a[3 * v + 2];
+      const w = e[3] * px + e[7] * py + e[11] * pz + e[15];
+      if (w <= 0) continue;
+      const sx = r.left + ((e[0] * px + e[4] * py + e[8] * pz + e[12]) / w + 1) / 2 * r.width;
+      const sy = r.top + (1 - (e[1] * px + e[5] * py + e[9] * pz + e[13]) / w) / 2 * r.height;
+      const d = (sx - x) ** 2 + (sy - y) ** 2;
+      if (d < bestD) { bestD = d; best = v; }
+    }
+    return best;
   }
 
   /** Draws if anything changed; answers whether it drew. */
