@@ -101,3 +101,16 @@ test('the vertex probe shows the hovered vertex as GET /v1/cloth/state has it', 
   assert.equal(await page.isVisible('#probe'), true);
   assert.deepEqual(page.errors, []);
 });
+
+test('a scene preset from the panel: its scene, rocks and self_collision, shown in the panel', opts, async () => {
+  await page.locator('.lil-title', { hasText: 'Scene (rebuilds the cloth)' }).click();
+  const preset = page.locator('.lil-controller').filter({ has: page.locator('.lil-name', { hasText: /^preset$/ }) });
+  await preset.locator('select').selectOption('cloth-over-stone');
+  await button('Load preset').click();
+  await until('the preset to be loaded', async () => (await ok(daemon, 'GET', '/v1/scene')).height === 0.9);
+  const rocks = (await ok(daemon, 'GET', '/v1/rocks')).rocks;
+  assert.equal(rocks.length, 1);
+  assert.equal(rocks[0].radius, 0.25);
+  assert.equal((await ok(daemon, 'GET', '/v1/params')).self_collision, true);
+  await until('the panel to show self_collision on', () => page.evaluate(() => window.__clothd.panel.params.self_collision === true));
+});

@@ -517,6 +517,7 @@ async function start() {
   panel = new Panel($('panel'), schema, {
     patchParams: (p) => cur.setParams(p),
     putScene: (s) => cur.setScene(s),
+    refreshParams: async () => applyParams(await cur.params()),
     actions,
     view: { values: viewValues, onChange: setViewValue },
   });

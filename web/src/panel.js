@@ -8,8 +8,9 @@ import { controlsFromSchema, valueForControl } from './schema.js';
 export class Panel {
   /**
    * @param {HTMLElement} container
-   * @param {{patchParams, putScene, actions: object, view: object}} hooks
+   * @param {{patchParams, putScene, refreshParams, actions: object, view: object}} hooks
    *   patchParams(obj) and putScene(obj) answer the server's body or throw a ClothdError (clients/js);
+   *   refreshParams() reads the live parameters again (a preset sets some);
    *   actions: {playPause, step, reset, clearRocks, download, upload, screenshot, webm}; view: the View folder's
    *   object (mode, camera, encoding, drop radius and density), with onChange(name, value).
    */
@@ -55,6 +56,10 @@ export class Panel {
     const scene = this.gui.addFolder('Scene (rebuilds the cloth)');
     for (const c of this.controls.scene) this.addControl(scene, this.sceneEdit, c, null);
     this.sceneButton = scene.add({ apply: () => this.applyScene() }, 'apply').name('Apply scene');
+    // the daemon's named scenes that show self_collision (PUT /v1/scene {"preset"}, MODEL.md)
+    this.presetState = { preset: 'towel-on-line', load: () => this.loadPreset() };
+    scene.add(this.presetState, 'preset', ['towel-on-line', 'cloth-over-stone', 'sheet-crumple']).name('preset');
+    this.presetButton = scene.add(this.presetState, 'load').name('Load preset');
     scene.close();
 
     const live = this.gui.addFolder('Parameters');
@@ -120,6 +125,18 @@ export class Panel {
     } catch (e) {
       this.showMessage(e.param && this.byName.has(e.param) ? e.param : c.name, `refused: ${e.message}`);
       this.setParams(this.serverParams ?? {}); // snap back
+    }
+  }
+
+  /** Loads the chosen preset: its scene, and the live parameters it set. */
+  async loadPreset() {
+    try {
+      const res = await this.hooks.putScene({ preset: this.presetState.preset });
+      this.setScene(res);
+      await this.hooks.refreshParams?.();
+      this.presetButton.name('Load preset');
+    } catch (e) {
+      this.presetButton.name(`Load preset - refused: ${e.message}`);
     }
   }
 
