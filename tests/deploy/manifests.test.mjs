@@ -161,6 +161,29 @@ test('Dockerfile: a non-root user, the daemon ports, a health check on /livez, t
   assert.ok(code.serve.tokenPaths.includes('/run/secrets/clothd_token'));
 });
 
+test('Dockerfile: OCI labels on the image - title, description, source, licenses, and the version clothd reports', async () => {
+  const rt = dockerfile().stages.at(-1).ins;
+  const args = Object.fromEntries(rt.filter((x) => x.op === 'ARG').map((x) => {
+    const m = /^(\w+)(?:=(.*))?$/.exec(x.arg);
+    return [m[1], (m[2] ?? '').replace(/^"(.*)"$/, '$1')];
+  }));
+  const labels = {};
+  for (const x of rt.filter((i) => i.op === 'LABEL')) {
+    for (const m of x.arg.matchAll(/([\w.-]+)="([^"]*)"/g)) labels[m[1]] = m[2];
+  }
+  const oci = (k) => labels[`org.opencontainers.image.${k}`];
+  for (const k of ['title', 'description', 'source', 'licenses', 'version', 'revision']) assert.notEqual(oci(k), undefined, `label ${k}`);
+  assert.equal(oci('title'), 'clothd');
+  assert.ok(oci('description').length > 10);
+  // ${ARG}s of the stage, each declared there; the version's default is what clothd --version says.
+  for (const k of ['version', 'source', 'revision', 'licenses']) {
+    const m = /^\$\{(\w+)\}$/.exec(oci(k));
+    assert.ok(m && m[1] in args, `${k} from an ARG of the runtime stage`);
+  }
+  const version = /^clothd (\S+)/.exec((await run(CLOTHD, ['--version'])).stdout)[1];
+  assert.equal(args[/\w+/.exec(oci('version').slice(2))[0]], version);
+});
+
 // ---- compose ----
 
 test('compose.yaml: one NVIDIA GPU, the ports, the state volume, the token secret, restart when clothd exits non-zero, a health check on /livez', () => {
@@ -329,8 +352,8 @@ test('Kubernetes: a StatefulSet of clothd pods, one GPU and many scenes each, a 
 test('Kubernetes: a headless Service gives each pod a stable name the API answers to; metrics are scraped with the view token', () => {
   const docs = k8sDocs();
   const [sts] = byKind(docs, 'StatefulSet');
-  const [svc] = byKind(docs, 'Service');
-  assert.equal(svc.spec.clusterIP, 'None');
+  const svc = byKind(docs, 'Service').find((s) => s.spec.clusterIP === 'None');
+  assert.ok(svc, 'a headless Service');
   // /readyz turns 503 when a pod is full: its name stays, for the scenes it holds.
   assert.equal(svc.spec.publishNotReadyAddresses, true);
   assert.equal(sts.spec.serviceName, svc.metadata.name);
@@ -359,6 +382,68 @@ test('Kubernetes: a headless Service gives each pod a stable name the API answer
   assert.ok(code.serve.viewTokenPaths.at(-1).endsWith(`/${viewFile}`), 'Prometheus uses the view token');
 });
 
+test('Kubernetes: a Service per pod and an HTTPRoute give scene S on pod P a stable URL, /pods/P/..., prefix cut off', () => {
+  const docs = k8sDocs();
+  const [sts] = byKind(docs, 'StatefulSet');
+  const c = sts.spec.template.spec.containers[0];
+  const containerPorts = Object.fromEntries(c.ports.map((p) => [p.name, p.containerPort]));
+  const pods = Array.from({ length: sts.spec.replicas }, (_, i) => `${sts.metadata.name}-${i}`);
+  // One Service per pod, selecting that pod alone by the label the StatefulSet controller sets,
+  // its ports the container's, the names of full pods published.
+  const perPod = byKind(docs, 'Service').filter((s) => s.spec.selector?.['statefulset.kubernetes.io/pod-name']);
+  assert.deepEqual(perPod.map((s) => s.metadata.name).sort(), pods, 'a Service per replica, named as its pod');
+  const services = {};
+  for (const s of perPod) {
+    assert.equal(s.file, 'pod-services.yaml');
+    assert.deepEqual(Object.keys(s.spec.selector), ['statefulset.kubernetes.io/pod-name']);
+    assert.equal(s.spec.selector['statefulset.kubernetes.io/pod-name'], s.metadata.name);
+    assert.equal(s.spec.publishNotReadyAddresses, true, s.metadata.name);
+    assert.notEqual(s.spec.clusterIP, 'None');
+    for (const p of s.spec.ports) assert.equal(p.port, containerPorts[p.targetPort], `${s.metadata.name} ${p.name}`);
+    services[s.metadata.name] = Object.fromEntries(s.spec.ports.map((p) => [p.port, containerPorts[p.targetPort]]));
+  }
+  const kust = YAML.parse(read(docker('k8s/kustomization.yaml')));
+  assert.ok(kust.resources.includes('pod-services.yaml'));
+  // The ServiceMonitor scrapes each pod once, through the headless Service alone.
+  const [mon] = byKind(docs, 'ServiceMonitor');
+  const matches = (s) => Object.entries(mon.spec.selector.matchLabels).every(([k, v]) => s.metadata.labels?.[k] === v);
+  assert.deepEqual(byKind(docs, 'Service').filter(matches).map((s) => s.spec.clusterIP), ['None']);
+  // The HTTPRoute: /pods/P to P's http port with the prefix replaced by /, /pods/P/stream to its
+  // stream port as /stream (the stream's path, GET /v1/health); every rule names a per-pod Service.
+  const [route] = byKind(docs, 'HTTPRoute');
+  assert.ok(route, 'an HTTPRoute');
+  assert.equal(route.apiVersion, 'gateway.networking.k8s.io/v1');
+  const seen = new Set();
+  for (const rule of route.spec.rules) {
+    assert.equal(rule.matches.length, 1);
+    const { path } = rule.matches[0];
+    assert.equal(path.type, 'PathPrefix');
+    const m = /^\/pods\/([a-z0-9-]+)(\/stream)?$/.exec(path.value);
+    assert.ok(m, path.value);
+    const [, pod, stream] = m;
+    assert.ok(pods.includes(pod), `${path.value}: ${pod} is no pod`);
+    assert.equal(rule.backendRefs.length, 1);
+    const ref = rule.backendRefs[0];
+    assert.equal(ref.name, pod, `${path.value} goes to ${pod}'s Service`);
+    assert.ok(services[pod][ref.port], `${pod} has port ${ref.port}`);
+    const rewrite = rule.filters.find((f) => f.type === 'URLRewrite').urlRewrite.path;
+    assert.equal(rewrite.type, 'ReplacePrefixMatch');
+    if (stream) {
+      assert.equal(services[pod][ref.port], code.streamPort);
+      assert.equal(rewrite.replacePrefixMatch, code.health.stream.path);
+    } else {
+      assert.equal(services[pod][ref.port], code.port);
+      assert.equal(rewrite.replacePrefixMatch, '/');
+    }
+    seen.add(`${pod}${stream ?? ''}`);
+  }
+  for (const pod of pods) for (const k of [pod, `${pod}/stream`]) assert.ok(seen.has(k), `a rule for /pods/${k}`);
+  routeExists('GET', '/v1/scenes/{scene}/sim');
+  // The gateway passes the client's Host on: clothd must answer to it.
+  const hosts = c.env.find((e) => e.name === 'CLOTHD_ALLOWED_HOSTS').value.split(',');
+  for (const h of route.spec.hostnames) assert.ok(hosts.includes(h), `${h} is in CLOTHD_ALLOWED_HOSTS`);
+});
+
 test('Kubernetes: kubectl kustomize builds the manifests (where kubectl is installed)', async (t) => {
   const kubectl = await run('sh', ['-c', 'command -v kubectl']).then((r) => r.stdout.trim(), () => '');
   if (!kubectl) {
@@ -372,7 +457,9 @@ test('Kubernetes: kubectl kustomize builds the manifests (where kubectl is insta
   writeFileSync(join(dir, 'view_token'), 'view-t0ken-0123456789abcdef\n');
   const { stdout } = await run(kubectl, ['kustomize', dir]);
   const kinds = YAML.parseAllDocuments(stdout).map((d) => d.toJS().kind).sort();
-  assert.deepEqual(kinds, ['Secret', 'Service', 'StatefulSet']);
+  const [stsIn] = byKind(k8sDocs(), 'StatefulSet');
+  // the Secret, the headless Service, a Service per pod, the StatefulSet
+  assert.deepEqual(kinds, ['Secret', ...Array(1 + stsIn.spec.replicas).fill('Service'), 'StatefulSet']);
   const sts = YAML.parseAllDocuments(stdout).map((d) => d.toJS()).find((d) => d.kind === 'StatefulSet');
   assert.match(sts.spec.template.spec.containers[0].image, /clothd:/);
 });
