@@ -97,7 +97,11 @@ int cs_param_check(const cs_param_info *p, const double *v, char *why, size_t wh
             snprintf(why, why_len, "%s must be a whole number", p->name);
             return -1;
         }
-        if (x < p->min || x > p->max) {
+        /* a float field is checked against its limits as a float holds them (0.01 is held as
+         * 0.0099999998: a value at the limit, stored and checked again, stays in range) */
+        const int flt = p->type == CS_T_FLOAT || p->type == CS_T_VEC3;
+        const double lo = flt ? (double)(float)p->min : p->min, hi = flt ? (double)(float)p->max : p->max;
+        if (x < lo || x > hi) {
             snprintf(why, why_len, "%s must be between %g and %g (got %g)", p->name, p->min, p->max, x);
             return -1;
         }
