@@ -49,16 +49,23 @@ static void stone_scene(cs_scene *sc, cs_params *p)
     sc->height = 0.9f;
 }
 
+/* A stone of radius r at (x, 0, z). */
+static cs_status add_stone(cs_sim *sim, float r, float x, float z, bool kinematic)
+{
+    cs_rock_def d;
+    cs_rock_def_default(&d);
+    d.radius = r;
+    d.position[0] = x;
+    d.position[2] = z;
+    d.kinematic = kinematic;
+    uint32_t id;
+    return cs_rock_add(sim, &d, &id);
+}
+
 static cs_status stone_rock(cs_sim *sim, const cs_scene *sc)
 {
     (void)sc;
-    cs_rock_def d;
-    cs_rock_def_default(&d);
-    d.radius = 0.25f;
-    d.position[2] = 0.25f;
-    d.kinematic = true;
-    uint32_t id;
-    return cs_rock_add(sim, &d, &id);
+    return add_stone(sim, 0.25f, 0.0f, 0.25f, true);
 }
 
 /* A sheet crumpling on the ground: free, 0.3 m up, a 0.15 m stone dropped onto it from 1.5 m. */
@@ -72,13 +79,7 @@ static void crumple_scene(cs_scene *sc, cs_params *p)
 static cs_status crumple_rock(cs_sim *sim, const cs_scene *sc)
 {
     (void)sc;
-    cs_rock_def d;
-    cs_rock_def_default(&d);
-    d.radius = 0.15f;
-    d.position[0] = 0.1f;
-    d.position[2] = 1.5f;
-    uint32_t id;
-    return cs_rock_add(sim, &d, &id);
+    return add_stone(sim, 0.15f, 0.1f, 1.5f, false);
 }
 
 static const preset presets[] = {

@@ -63,19 +63,25 @@ static long crossings(const float *xyz, int nx, int ny)
     return n;
 }
 
+/* The tests' cloth: free, 1 m square, SIDE x SIDE, at height, under the given integrator. */
+static void free_cloth(cs_scene *sc, cs_params *p, float height, int integrator, int self)
+{
+    cs_scene_default(sc);
+    cs_params_default(p);
+    sc->nx = sc->ny = SIDE;
+    sc->size_x = sc->size_y = 1.0f;
+    sc->pins = CS_PINS_NONE;
+    sc->height = height;
+    p->integrator = integrator;
+    p->self_collision = self;
+}
+
 static cs_sim *fold_scene(int integrator, int self)
 {
     cs_scene sc;
     cs_params p;
-    cs_scene_default(&sc);
-    cs_params_default(&p);
-    sc.nx = sc.ny = SIDE;
-    sc.size_x = sc.size_y = 1.0f;
+    free_cloth(&sc, &p, 0.6f, integrator, self);
     sc.orientation = CS_VERTICAL;
-    sc.pins = CS_PINS_NONE;
-    sc.height = 0.6f;
-    p.integrator = integrator;
-    p.self_collision = self;
     p.wind[1] = 2.0f;
     return tk_sim_serial(&sc, &p); /* one thread: ctest runs two tests at once on two cores */
 }
@@ -169,15 +175,8 @@ static long head_on(int integrator, int self, float *lowest)
 {
     cs_scene sc;
     cs_params p;
-    cs_scene_default(&sc);
-    cs_params_default(&p);
-    sc.nx = sc.ny = SIDE;
-    sc.size_x = sc.size_y = 1.0f;
-    sc.pins = CS_PINS_NONE;
-    sc.height = 0.5f;
+    free_cloth(&sc, &p, 0.5f, integrator, self);
     p.gravity[0] = p.gravity[1] = p.gravity[2] = 0.0f;
-    p.integrator = integrator;
-    p.self_collision = self;
     cs_sim *sim = tk_sim_serial(&sc, &p);
     const float up[3] = {0.2f, 0.2f, 0.8f}, down[3] = {0.2f, 0.2f, 0.1f};
     float xyz[3 * SIDE * SIDE];

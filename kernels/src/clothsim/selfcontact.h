@@ -423,6 +423,21 @@ SIM_HD static inline void cs_sc_key_pair(const cs_phys *ph, int64_t key, int32_t
     t[2] = f ? v00 + ph->nx : v00 + ph->nx + 1;
 }
 
+/* A list's key back to its pair: an edge-edge pair's edges into a, b (returns 1), a vertex-triangle
+ * pair's point and triangle into p, t (returns 0). */
+SIM_HD static inline int cs_sc_key_decode(const cs_phys *ph, int64_t key, int32_t *p, int32_t t[3], int32_t a[2],
+                                          int32_t b[2])
+{
+    const int64_t base = cs_sc_ee_base(ph), edges = 3 * (int64_t)ph->n;
+    if (key < base) {
+        cs_sc_key_pair(ph, key, p, t);
+        return 0;
+    }
+    cs_sc_edge_ends(ph, (int32_t)((key - base) / edges), a);
+    cs_sc_edge_ends(ph, (int32_t)((key - base) % edges), b);
+    return 1;
+}
+
 /* Adds key to the sorted list keys[0..*n), which has room for cap: past it the key is only
  * counted (*n says how many the list needs; its keys are then not all there). */
 SIM_HD static inline void cs_sc_list_add(int64_t *keys, int32_t cap, int32_t *n, int64_t key)
@@ -512,18 +527,12 @@ SIM_HD static inline int32_t cs_sc_repel(const cs_phys *ph, const float *x, cons
 {
     cs_vec3 sx = cs_v3(0.0f, 0.0f, 0.0f), sv = sx;
     int32_t touching = 0;
-    const int64_t base = cs_sc_ee_base(ph), edges = 3 * (int64_t)ph->n;
     for (int32_t k = 0; k < n; k++) {
-        if (keys[k] >= base) {
-            int32_t a[2], b[2];
-            cs_sc_edge_ends(ph, (int32_t)((keys[k] - base) / edges), a);
-            cs_sc_edge_ends(ph, (int32_t)((keys[k] - base) % edges), b);
+        int32_t p, t[3], a[2], b[2];
+        if (cs_sc_key_decode(ph, keys[k], &p, t, a, b))
             touching += cs_sc_edge_push(ph, x, y, z, vx, vy, vz, w, a, b, v, &sx, &sv);
-            continue;
-        }
-        int32_t p, t[3];
-        cs_sc_key_pair(ph, keys[k], &p, t);
-        touching += cs_sc_pair_push(ph, x, y, z, vx, vy, vz, w, p, t, v, &sx, &sv);
+        else
+            touching += cs_sc_pair_push(ph, x, y, z, vx, vy, vz, w, p, t, v, &sx, &sv);
     }
     if (touching > 0) {
         const float inv = 1.0f / (float)touching;
@@ -676,18 +685,12 @@ SIM_HD static inline float cs_sc_limit_listed(const cs_phys *ph, const float *x0
                                               float r, int32_t v, int outright, const int64_t *keys, int32_t n)
 {
     float cut = s[v], dmin = r;
-    const int64_t base = cs_sc_ee_base(ph), edges = 3 * (int64_t)ph->n;
     for (int32_t k = 0; k < n; k++) {
-        if (keys[k] >= base) {
-            int32_t a[2], b[2];
-            cs_sc_edge_ends(ph, (int32_t)((keys[k] - base) / edges), a);
-            cs_sc_edge_ends(ph, (int32_t)((keys[k] - base) % edges), b);
+        int32_t p, t[3], a[2], b[2];
+        if (cs_sc_key_decode(ph, keys[k], &p, t, a, b))
             cs_sc_ee_cut(x0, y0, z0, dx, dy, dz, s, a, b, r, v, outright, &cut, &dmin);
-        } else {
-            int32_t p, t[3];
-            cs_sc_key_pair(ph, keys[k], &p, t);
+        else
             cs_sc_vf_cut(x0, y0, z0, dx, dy, dz, s, p, t, r, v, outright, &cut, &dmin);
-        }
     }
     return cut;
 }
