@@ -1,10 +1,11 @@
 // browser.mjs - headless Chromium for the viewer's end-to-end tests: Debian's /usr/bin/chromium
 // (or $CLOTHD_CHROMIUM) driven by playwright-core, with a fresh profile per launch, and clothd
 // started with the assembled viewer as its web root ($CLOTHD_WEB_ROOT, which ctest sets).
-import { existsSync, mkdirSync, mkdtempSync, rmSync } from 'node:fs';
+import { existsSync, mkdirSync, mkdtempSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { chromium } from 'playwright-core';
+import { start, ok, call, until } from '../server/harness.mjs';
 
 export const CHROMIUM = process.env.CLOTHD_CHROMIUM || '/usr/bin/chromium';
 export const WEB_ROOT = process.env.CLOTHD_WEB_ROOT;
@@ -55,6 +56,37 @@ export async function openViewer(context, url) {
 export function artifact(name) {
   mkdirSync(ARTIFACTS, { recursive: true });
   return join(ARTIFACTS, name);
+}
+
+/**
+ * A short recording the real clothd makes for the export buttons' tests (a 10 x 8 cloth, a rock
+ * falling, 15 frames), saved as the artifact id.clr: the daemon (paused), the file's bytes and its
+ * path.
+ */
+export async function exportableRecording(id) {
+  const daemon = await start(['--nx', '10', '--ny', '8', '--auto-drop-interval', '0', '--paused'], { webRoot: WEB_ROOT });
+  await call(daemon, 'POST', '/v1/rocks', { position: [0, 0, 1.5], radius: 0.12 });
+  await ok(daemon, 'POST', '/v1/recordings', { seconds: 0.25, id });
+  await ok(daemon, 'POST', '/v1/sim/step', { frames: 15 });
+  await until('the recording done', async () => (await ok(daemon, 'GET', '/v1/recordings')).recordings.some((r) => r.id === id && r.state === 'done'));
+  const bytes = new Uint8Array(await (await fetch(`${daemon.url}/v1/recordings/${id}`)).arrayBuffer());
+  const path = artifact(`${id}.clr`);
+  writeFileSync(path, bytes);
+  return { daemon, bytes, path };
+}
+
+/**
+ * Opens the recording at path in the page's player, clicks an export button and saves its
+ * download as the artifact out: the name the page suggested. Resolves once the bar says the
+ * recording was exported as what (USD, MCAP).
+ */
+export async function exportFromPlayer(page, path, button, out, what) {
+  await page.setInputFiles('#rec-file', path);
+  await until('the recording open', () => page.evaluate(() => !document.getElementById('rec-player').hidden));
+  const [dl] = await Promise.all([page.waitForEvent('download'), page.click(button)]);
+  await dl.saveAs(artifact(out));
+  await until('the bar says so', () => page.evaluate((w) => new RegExp(`exported \\d+ frames as ${w}`).test(document.getElementById('rec-message').textContent), what));
+  return dl.suggestedFilename();
 }
 
 /**

@@ -6,11 +6,11 @@
 // file's frames as proto/frame.mjs decodes them.
 import { after, before, test } from 'node:test';
 import assert from 'node:assert/strict';
-import { readFileSync, writeFileSync } from 'node:fs';
+import { readFileSync } from 'node:fs';
 import { McapStreamReader } from '@mcap/core';
 import { ZSTDDecoder } from 'zstddec';
-import { start, stop, ok, call, until } from '../server/harness.mjs';
-import { WEB_ROOT, missing, launch, openViewer, artifact } from './browser.mjs';
+import { stop } from '../server/harness.mjs';
+import { missing, launch, openViewer, artifact, exportableRecording, exportFromPlayer } from './browser.mjs';
 import { readRecording } from '../../proto/recording.mjs';
 import { createDecoder } from '../../proto/frame.mjs';
 
@@ -20,14 +20,7 @@ let daemon, browser, page, bytes, path;
 
 before(async () => {
   if (why) return;
-  daemon = await start(['--nx', '10', '--ny', '8', '--auto-drop-interval', '0', '--paused'], { webRoot: WEB_ROOT });
-  await call(daemon, 'POST', '/v1/rocks', { position: [0, 0, 1.5], radius: 0.12 });
-  await ok(daemon, 'POST', '/v1/recordings', { seconds: 0.25, id: 'web-mcap' });
-  await ok(daemon, 'POST', '/v1/sim/step', { frames: 15 });
-  await until('the recording done', async () => (await ok(daemon, 'GET', '/v1/recordings')).recordings.some((r) => r.id === 'web-mcap' && r.state === 'done'));
-  bytes = new Uint8Array(await (await fetch(`${daemon.url}/v1/recordings/web-mcap`)).arrayBuffer());
-  path = artifact('web-mcap.clr');
-  writeFileSync(path, bytes);
+  ({ daemon, bytes, path } = await exportableRecording('web-mcap'));
   browser = await launch();
   page = await openViewer(browser.context, daemon.url + '/');
 });
@@ -38,13 +31,8 @@ after(async () => {
 });
 
 test('the button downloads the recording as MCAP that @mcap/core reads back, a message a frame', opts, async () => {
-  await page.setInputFiles('#rec-file', path);
-  await until('the recording open', () => page.evaluate(() => !document.getElementById('rec-player').hidden));
-  const [dl] = await Promise.all([page.waitForEvent('download'), page.click('#export-mcap')]);
-  assert.equal(dl.suggestedFilename(), 'web-mcap.mcap');
   const out = artifact('web-mcap.mcap');
-  await dl.saveAs(out);
-  await until('the bar says so', () => page.evaluate(() => /exported \d+ frames as MCAP/.test(document.getElementById('rec-message').textContent)));
+  assert.equal(await exportFromPlayer(page, path, '#export-mcap', 'web-mcap.mcap', 'MCAP'), 'web-mcap.mcap');
   const mcap = new Uint8Array(readFileSync(out));
   assert.deepEqual([...mcap.subarray(0, 8)], [0x89, 0x4d, 0x43, 0x41, 0x50, 0x30, 0x0d, 0x0a], 'MCAP magic');
 

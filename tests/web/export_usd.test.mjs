@@ -5,10 +5,10 @@
 // as proto/frame.mjs decodes them here.
 import { after, before, test } from 'node:test';
 import assert from 'node:assert/strict';
-import { readFileSync, writeFileSync } from 'node:fs';
+import { readFileSync } from 'node:fs';
 import { ZSTDDecoder } from 'zstddec';
-import { start, stop, ok, call, until } from '../server/harness.mjs';
-import { WEB_ROOT, missing, launch, openViewer, artifact } from './browser.mjs';
+import { stop } from '../server/harness.mjs';
+import { missing, launch, openViewer, artifact, exportableRecording, exportFromPlayer } from './browser.mjs';
 import { tinyusdz, parseUsd, samples } from '../clients/usd.mjs';
 import { readRecording } from '../../proto/recording.mjs';
 import { createDecoder } from '../../proto/frame.mjs';
@@ -19,15 +19,7 @@ let daemon, browser, page, bytes, path;
 
 before(async () => {
   if (why) return;
-  daemon = await start(['--nx', '10', '--ny', '8', '--auto-drop-interval', '0', '--paused'], { webRoot: WEB_ROOT });
-  await call(daemon, 'POST', '/v1/rocks', { position: [0, 0, 1.5], radius: 0.12 });
-  await ok(daemon, 'POST', '/v1/recordings', { seconds: 0.25, id: 'web-usd' });
-  await ok(daemon, 'POST', '/v1/sim/step', { frames: 15 });
-  await until('the recording done', async () => (await ok(daemon, 'GET', '/v1/recordings')).recordings.some((r) => r.id === 'web-usd' && r.state === 'done'));
-  const res = await fetch(`${daemon.url}/v1/recordings/web-usd`);
-  bytes = new Uint8Array(await res.arrayBuffer());
-  path = artifact('web-usd.clr');
-  writeFileSync(path, bytes);
+  ({ daemon, bytes, path } = await exportableRecording('web-usd'));
   browser = await launch();
   page = await openViewer(browser.context, daemon.url + '/');
 });
@@ -38,13 +30,8 @@ after(async () => {
 });
 
 test('the button downloads the recording as USD that TinyUSDZ reads, its points the frames', opts, async () => {
-  await page.setInputFiles('#rec-file', path);
-  await until('the recording open', () => page.evaluate(() => !document.getElementById('rec-player').hidden));
-  const [dl] = await Promise.all([page.waitForEvent('download'), page.click('#export-usd')]);
-  assert.equal(dl.suggestedFilename(), 'web-usd.usda');
   const out = artifact('web-usd.usda');
-  await dl.saveAs(out);
-  await until('the bar says so', () => page.evaluate(() => /exported \d+ frames as USD/.test(document.getElementById('rec-message').textContent)));
+  assert.equal(await exportFromPlayer(page, path, '#export-usd', 'web-usd.usda', 'USD'), 'web-usd.usda');
 
   const r = readRecording(bytes);
   const zstd = new ZSTDDecoder();
