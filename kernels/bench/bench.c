@@ -553,6 +553,7 @@ int main(int argc, char **argv)
             t0 = now();
             double t = t0;
             cs_self_stats self_sum = {0};
+            int64_t solved = 0, newton = 0, cg = 0;
             while (t - t0 < seconds && st == CS_OK) {
                 st = cs_sim_step(sim, batch);
                 done += batch;
@@ -561,6 +562,7 @@ int main(int argc, char **argv)
                 self_sum.passes += info.self.passes, self_sum.broad += info.self.broad;
                 self_sum.pairs += info.self.pairs, self_sum.contacts += info.self.contacts;
                 self_sum.cut += info.self.cut, self_sum.lost += info.self.lost;
+                solved += info.solver.substeps, newton += info.solver.newton, cg += info.solver.cg;
             }
             if (st != CS_OK) {
                 fprintf(stderr, "clothd-bench: %dx%d: %s\n", size, size, cs_sim_error(sim));
@@ -587,6 +589,10 @@ int main(int argc, char **argv)
                            traffic / bs.peak_bandwidth);
                 print_model(self->name, &m, (double)size * size, 1, bs.peak_bandwidth);
                 if (self_collision) print_self(&self_sum, 1);
+                if (solved > 0)
+                    printf(",\"solver_parts_per_substep\":%.2f,\"newton_per_part\":%.2f,\"cg_per_newton\":%.2f",
+                           (double)solved / (double)done, (double)newton / (double)solved,
+                           newton > 0 ? (double)cg / (double)newton : 0.0);
                 printf("}\n");
             } else {
                 /* the real-time factor, and the wall time a simulated second costs per vertex (us) */
@@ -594,6 +600,10 @@ int main(int argc, char **argv)
                 printf("%-7s %4dx%-4d %5d %-8s %14.0f %22.0f %10.3f %12.1f\n", cs_sim_backend(sim), size, size,
                        info.n_rocks, cm->choices[models[mi]], sps, vsps, rtf, 1e6 / (rtf * size * size));
                 if (self_collision) print_self(&self_sum, 0);
+                if (solved > 0)
+                    printf("        solver: %.2f parts a substep, %.2f Newton iterations a part, %.2f CG a Newton\n",
+                           (double)solved / (double)done, (double)newton / (double)solved,
+                           newton > 0 ? (double)cg / (double)newton : 0.0);
             }
             fflush(stdout);
             cs_sim_destroy(sim);

@@ -1535,9 +1535,9 @@ __device__ static inline void im_put3(float *a, int32_t v, cs_vec3 x)
 {
     a[3 * (size_t)v] = x.x, a[3 * (size_t)v + 1] = x.y, a[3 * (size_t)v + 2] = x.z;
 }
-__device__ static inline void im_put9(float *a, int32_t v, const cs_mat3 *m)
+__device__ static inline void im_put_sym(float *a, int32_t v, const cs_mat3 *m)
 {
-    for (int k = 0; k < 9; k++) a[9 * (size_t)v + k] = m->m[k];
+    cs_im_sym_put(a + CS_IM_SYM * (size_t)v, m);
 }
 __device__ static inline int32_t im_vertex(void) { return (int32_t)(blockIdx.x * blockDim.x + threadIdx.x); }
 
@@ -1707,7 +1707,7 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_assemble(const cuda_scene *__re
             for (int t = 0; t < CS_NTYPES; t++) {
                 cs_mat3 b = owned[t];
                 for (int k = 0; k < 9; k++) b.m[k] = -b.m[k];
-                im_put9(to[t], v, &b);
+                im_put_sym(to[t], v, &b);
             }
         }
         /* the contacts: the rock mass carried, then the ground (whose friction reads the
@@ -1732,7 +1732,7 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_assemble(const cuda_scene *__re
             R = cs_v3(0.0f, 0.0f, 0.0f);
             D = cs_m3_diag(1.0f);
         }
-        if (blocks) im_put9(a.D, v, &D);
+        if (blocks) im_put_sym(a.D, v, &D);
         im_put3(a.R, v, R);
         mine = cs_dot(R, R);
     }
@@ -1801,16 +1801,16 @@ __global__ void k_im_galerkin(cs_im_level F, im_level_bufs c)
     const int32_t v = im_vertex();
     if (v >= c.n) return;
     float *Fc[4];
-    for (int t = 0; t < 4; t++) Fc[t] = c.F[t] + 9 * (size_t)v;
-    cs_im_galerkin(&F, v % c.nx, v / c.nx, c.D + 9 * (size_t)v, Fc, c.mask + v);
+    for (int t = 0; t < 4; t++) Fc[t] = c.F[t] + CS_IM_SYM * (size_t)v;
+    cs_im_galerkin(&F, v % c.nx, v / c.nx, c.D + CS_IM_SYM * (size_t)v, Fc, c.mask + v);
 }
 
 __global__ void k_im_inverse(const float *D, float *Dinv, int32_t n)
 {
     const int32_t v = im_vertex();
     if (v >= n) return;
-    const cs_mat3 inv = cs_m3_inverse(D + 9 * (size_t)v);
-    im_put9(Dinv, v, &inv);
+    const cs_mat3 Dv = cs_im_sym_get(D + CS_IM_SYM * (size_t)v), inv = cs_m3_inverse(Dv.m);
+    im_put_sym(Dinv, v, &inv);
 }
 
 /* dx += alpha p; r -= alpha q. */
@@ -1890,7 +1890,7 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     im_work *w = (im_work *)calloc(1, sizeof *w);
     if (!w) return CS_E_NOMEM;
     w->nx = p->nx, w->ny = p->ny, w->n = p->n, w->nchunks = p->nchunks;
-    size_t floats = (size_t)w->n * (6 + 3 + 18 + 18 + 5) + (size_t)w->nchunks + 1;
+    size_t floats = (size_t)w->n * (6 + 3 + 18 + 2 * CS_IM_SYM + 5) + (size_t)w->nchunks + 1;
     int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
     const int L = w->levels = cs_im_levels(p->nx, p->ny, lx, ly);
     for (int l = 0; l < L; l++) {
@@ -1915,7 +1915,7 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     w->base = TAKE(6 * n), w->xo = TAKE(3 * n);
     w->R = TAKE(3 * n), w->q = TAKE(3 * n), w->dx = TAKE(3 * n);
     w->r = TAKE(3 * n), w->z = TAKE(3 * n), w->p = TAKE(3 * n);
-    w->B[0] = TAKE(9 * n), w->B[1] = TAKE(9 * n);
+    w->B[0] = TAKE(CS_IM_SYM * n), w->B[1] = TAKE(CS_IM_SYM * n);
     w->part = TAKE((size_t)w->nchunks);
     w->sh = TAKE(n), w->sn = TAKE(3 * n), w->sg = TAKE(n);
     w->fast = TAKE(1);
@@ -1923,8 +1923,8 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     for (int l = 0; l < L; l++) {
         im_level_bufs *v = &w->lv[l];
         const size_t k = (size_t)v->n;
-        v->D = TAKE(9 * k), v->Dinv = TAKE(9 * k);
-        for (int t = 0; t < 4; t++) v->F[t] = TAKE(9 * k);
+        v->D = TAKE(CS_IM_SYM * k), v->Dinv = TAKE(CS_IM_SYM * k);
+        for (int t = 0; t < 4; t++) v->F[t] = TAKE(CS_IM_SYM * k);
         v->mask = TAKE(k);
         v->b = TAKE(3 * k), v->x = TAKE(3 * k), v->t = TAKE(3 * k);
     }
@@ -2740,9 +2740,10 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     const cs_phys *p = &m->phys;
     const double F = m->substeps, N = IM_NEWTON, C = IM_CG, levels = 4.0 / 3.0;
     const bool strain = p->strain_on != 0;
-    /* A level's matrix per vertex: D and the four forward blocks (180 bytes); level 0's bending
-     * blocks (72). Rows: bytes a vertex per run, runs a substep, launches a run. */
-    const double blocks = 5 * 36.0, bend = 2 * 36.0;
+    /* A block as stored (its upper triangle: 24 bytes); a level's matrix per vertex: D and the four
+     * forward blocks (120 bytes); level 0's bending blocks (48). Rows: bytes a vertex per run, runs
+     * a substep, launches a run. */
+    const double blk = 4.0 * CS_IM_SYM, blocks = 5 * blk, bend = 2 * blk;
     /* a V-cycle's launches: per level above the coarsest a sweep each way, three products A x, the
      * residual, restriction and prolongation; the coarsest's 16 sweeps (the default 4 levels) */
     const double vcycle_launches = 3.0 * 7.0 + 2.0 * CS_IM_COARSE_SWEEPS - 1.0;
@@ -2754,8 +2755,8 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     IM_ROW("k_im_assemble (residual and level 0's matrix)", 64.0, 12.0 + 12.0 + blocks + bend, 1.0 + N, 1.0);
     /* each coarse level's Galerkin product reads the finer level's blocks and writes its own;
      * every level's Dinv */
-    IM_ROW("k_im_galerkin, k_im_inverse (the hierarchy)", levels * 36.0 + 0.25 * levels * (blocks + 4.0),
-           levels * 36.0 + 0.25 * levels * (blocks + 4.0), N, 7.0);
+    IM_ROW("k_im_galerkin, k_im_inverse (the hierarchy)", levels * blk + 0.25 * levels * (blocks + 4.0),
+           levels * blk + 0.25 * levels * (blocks + 4.0), N, 7.0);
     /* per CG iteration: A p with bending (the blocks, p, the mask; A p written), three dot
      * products, the two vector updates, a V-cycle (smoothing sweeps, products, residual,
      * restriction, prolongation; the coarse levels a third more than level 0) */
@@ -2763,7 +2764,7 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     IM_ROW("k_im_dot (chunk partials)", 24.0, 0.0, N * (3.0 * C + 1.0), 1.0);
     IM_ROW("k_im_cg_step, k_im_cg_dir", 48.0 + 24.0, 24.0 + 12.0, N * C, 2.0);
     IM_ROW("V-cycle (k_im_jacobi, k_im_apply, k_im_sub, k_im_restrict, k_im_prolong)",
-           levels * (2 * (36.0 + 40.0) + 3 * (blocks + 16.0) + 24.0 + 12.0 + 24.0),
+           levels * (2 * (blk + 40.0) + 3 * (blocks + 16.0) + 24.0 + 12.0 + 24.0),
            levels * (2 * 12.0 + 3 * 12.0 + 12.0 + 3.0 + 12.0), N * (C + 1.0), vcycle_launches);
     IM_ROW("k_im_keep, k_im_move (the line search)", 12.0 + 12.0 + 12.0 + 12.0 + 4.0, 12.0 + 24.0, N, 2.0);
     if (n_rocks > 0) {

@@ -73,7 +73,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     cs_im_work *w = calloc(1, sizeof *w);
     if (!w) return NULL;
     w->nx = nx, w->ny = ny, w->n = nx * ny, w->nchunks = nchunks;
-    size_t floats = (size_t)w->n * (9 + 3 + 18 + 15 + 18 + 5) + (size_t)nchunks;
+    size_t floats = (size_t)w->n * (9 + 3 + 2 * CS_IM_SYM + 15 + 18 + 5) + (size_t)nchunks;
     int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
     const int L = w->levels = cs_im_levels(nx, ny, lx, ly);
     for (int l = 0; l < L; l++) {
@@ -100,7 +100,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     w->xo = TAKE(n), w->yo = TAKE(n), w->zo = TAKE(n);
     const size_t nv = 3 * n;
     w->R = TAKE(nv);
-    w->B[0] = TAKE(9 * n), w->B[1] = TAKE(9 * n);
+    w->B[0] = TAKE(CS_IM_SYM * n), w->B[1] = TAKE(CS_IM_SYM * n);
     w->fo = TAKE(18 * n);
     w->dx = TAKE(nv), w->r = TAKE(nv), w->z = TAKE(nv), w->p = TAKE(nv), w->q = TAKE(nv);
     w->part = TAKE((size_t)nchunks);
@@ -108,8 +108,8 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     for (int l = 0; l < L; l++) {
         im_level *v = &w->lv[l];
         const size_t k = (size_t)v->n;
-        v->D = TAKE(9 * k), v->Dinv = TAKE(9 * k);
-        for (int t = 0; t < 4; t++) v->F[t] = TAKE(9 * k);
+        v->D = TAKE(CS_IM_SYM * k), v->Dinv = TAKE(CS_IM_SYM * k);
+        for (int t = 0; t < 4; t++) v->F[t] = TAKE(CS_IM_SYM * k);
         v->mask = TAKE(k);
         v->b = TAKE(3 * k), v->x = TAKE(3 * k), v->t = TAKE(3 * k);
     }
@@ -146,7 +146,7 @@ static void put3(float *a, int32_t v, cs_vec3 x)
 {
     a[3 * (size_t)v] = x.x, a[3 * (size_t)v + 1] = x.y, a[3 * (size_t)v + 2] = x.z;
 }
-static void put9(float *a, int32_t v, const cs_mat3 *m) { memcpy(a + 9 * (size_t)v, m->m, sizeof m->m); }
+static void put_sym(float *a, int32_t v, const cs_mat3 *m) { cs_im_sym_put(a + CS_IM_SYM * (size_t)v, m); }
 
 /* ---- assembly ---- */
 
@@ -184,7 +184,7 @@ static void chunk_owned(const cs_phys *p, float h, const cs_state *s, cs_im_work
             put3(w->fo + (size_t)t * 3 * n, v, F);
             if (!blocks) continue;
             for (int k = 0; k < 9; k++) b.m[k] = -b.m[k];
-            put9(t < 4 ? l0->F[t] : w->B[t - 4], v, &b);
+            put_sym(t < 4 ? l0->F[t] : w->B[t - 4], v, &b);
         }
     }
 }
@@ -211,8 +211,9 @@ static void chunk_springs(const cs_phys *p, float h, const cs_state *s, cs_im_wo
             const cs_vec3 F = cs_v3_from(w->fo + (size_t)(t) * 3 * n + 3 * (size_t)o);             \
             f = cs_add(f, (fwd) ? F : cs_neg(F));                                                  \
             if (blocks) {                                                                          \
-                const float *B = ((t) < 4 ? l0->F[(t) & 3] : w->B[((t) - 4) & 1]) + 9 * (size_t)o; \
-                for (int k = 0; k < 9; k++) d.m[k] += -B[k];                                       \
+                const cs_mat3 B = cs_im_sym_get(((t) < 4 ? l0->F[(t) & 3] : w->B[((t) - 4) & 1]) + \
+                                                CS_IM_SYM * (size_t)o);                            \
+                for (int k = 0; k < 9; k++) d.m[k] += -B.m[k];                                     \
             }                                                                                      \
         }                                                                                          \
     }
@@ -223,7 +224,7 @@ static void chunk_springs(const cs_phys *p, float h, const cs_state *s, cs_im_wo
         put3(w->q, v, f);
         if (blocks) {
             const cs_mat3 D = cs_im_inertia(p, h, d);
-            put9(l0->D, v, &D);
+            put_sym(l0->D, v, &D);
         }
     }
 }
@@ -232,9 +233,12 @@ static void add3(float *a, int32_t v, cs_vec3 x)
 {
     a[3 * (size_t)v] += x.x, a[3 * (size_t)v + 1] += x.y, a[3 * (size_t)v + 2] += x.z;
 }
-static void add9(float *a, int32_t v, const cs_mat3 *m)
+/* Adds block m to the stored block a of vertex v. */
+static void add_sym(float *a, int32_t v, const cs_mat3 *m)
 {
-    for (int k = 0; k < 9; k++) a[9 * (size_t)v + k] += m->m[k];
+    cs_mat3 s = cs_im_sym_get(a + CS_IM_SYM * (size_t)v);
+    cs_m3_addto(&s, m);
+    put_sym(a, v, &s);
 }
 
 /* Contacts of chunk (row j, columns i0 .. i1): the rock mass each vertex carries (rocks_share:
@@ -250,7 +254,7 @@ static void chunk_contacts(const cs_phys *p, float h, const cs_state *s, cs_im_w
         cs_mat3 b;
         if (!cs_im_carried_at(rv, v, LOADX(v), cs_v3(w->xb[v], w->yb[v], w->zb[v]), h, &F, &b)) continue;
         add3(w->R, v, F);
-        if (blocks) add9(D, v, &b);
+        if (blocks) add_sym(D, v, &b);
     }
     if (!p->ground) return;
     for (int32_t i = i0; i < i1; i++) {
@@ -262,7 +266,7 @@ static void chunk_contacts(const cs_phys *p, float h, const cs_state *s, cs_im_w
         add3(w->R, v, Fc);
         if (blocks) {
             const cs_mat3 b = cs_im_ground_block(xi, vi, p, h);
-            add9(D, v, &b);
+            add_sym(D, v, &b);
         }
     }
 }
@@ -282,7 +286,7 @@ static void chunk_residual(const cs_phys *p, float h, const cs_state *s, cs_im_w
             R = cs_v3(0.0f, 0.0f, 0.0f);
             if (blocks) {
                 const cs_mat3 I = cs_m3_diag(1.0f);
-                put9(w->lv[0].D, v, &I);
+                put_sym(w->lv[0].D, v, &I);
             }
         }
         put3(w->R, v, R);
@@ -421,14 +425,14 @@ static void hierarchy(cs_im_work *w, const cs_state *s, int threads)
                 for (int32_t I = 0; I < lv->nx; I++) {
                     const int32_t v = J * lv->nx + I;
                     float *Fc[4];
-                    for (int t = 0; t < 4; t++) Fc[t] = lv->F[t] + 9 * (size_t)v;
-                    cs_im_galerkin(&F, I, J, lv->D + 9 * (size_t)v, Fc, lv->mask + v);
+                    for (int t = 0; t < 4; t++) Fc[t] = lv->F[t] + CS_IM_SYM * (size_t)v;
+                    cs_im_galerkin(&F, I, J, lv->D + CS_IM_SYM * (size_t)v, Fc, lv->mask + v);
                 }
         }
 #pragma omp parallel for num_threads(threads) schedule(static)
         for (int32_t v = 0; v < lv->n; v++) {
-            const cs_mat3 inv = cs_m3_inverse(lv->D + 9 * (size_t)v);
-            put9(lv->Dinv, v, &inv);
+            const cs_mat3 D = cs_im_sym_get(lv->D + CS_IM_SYM * (size_t)v), inv = cs_m3_inverse(D.m);
+            put_sym(lv->Dinv, v, &inv);
         }
     }
 }

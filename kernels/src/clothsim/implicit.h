@@ -14,8 +14,8 @@
  * springs' and contacts' stiffness blocks (projected to be positive: a spring in compression keeps
  * only its axial block), is solved by conjugate gradients preconditioned by one multigrid V-cycle.
  *
- * Storage of a level's matrix (all levels alike): per vertex the diagonal block D (9 floats, row
- * major) and four forward off-diagonal blocks F_t, t = 0..3, coupling vertex (i, j) to (i, j) +
+ * Storage of a level's matrix (all levels alike): per vertex the diagonal block D (CS_IM_SYM
+ * floats: its upper triangle) and four forward off-diagonal blocks F_t, t = 0..3, coupling vertex (i, j) to (i, j) +
  * CS_IM_FWD(t) = (1, 0), (0, 1), (1, 1), (-1, 1); the block to (i, j) - CS_IM_FWD(t) is the
  * neighbour's F_t transposed (the matrix is symmetric). On the finest level these are the negated
  * stiffness blocks of the structural and shear springs (whose directions they are); the bending
@@ -107,6 +107,34 @@ SIM_HD static inline cs_mat3 cs_m3_inverse(const float *a)
     const float inv = 1.0f / det;
     for (int k = 0; k < 9; k++) r.m[k] *= inv;
     return r;
+}
+
+/* ---- blocks as the solver stores them ----
+ * Every block the solver keeps is symmetric bit for bit: a spring's, a contact's and a carried
+ * mass's are cs_m3_axial (u_r u_c == u_c u_r in floating point), the diagonal and the Galerkin
+ * products are sums of them (and of their transposes, the same bits), and cs_m3_inverse of a
+ * symmetric block is symmetric (its cofactors pair up as commuted products). So a block is stored
+ * as its upper triangle, xx xy xz yy yz zz: two thirds of the bytes the operator reads, with the
+ * same bits as the full block (cs_im_sym_mul is cs_m3_mul and cs_m3_mul_t of it). */
+#define CS_IM_SYM 6
+
+SIM_HD static inline void cs_im_sym_put(float *a, const cs_mat3 *m)
+{
+    a[0] = m->m[0], a[1] = m->m[1], a[2] = m->m[2], a[3] = m->m[4], a[4] = m->m[5], a[5] = m->m[8];
+}
+SIM_HD static inline cs_mat3 cs_im_sym_get(const float *a)
+{
+    cs_mat3 m;
+    m.m[0] = a[0], m.m[1] = a[1], m.m[2] = a[2];
+    m.m[3] = a[1], m.m[4] = a[3], m.m[5] = a[4];
+    m.m[6] = a[2], m.m[7] = a[4], m.m[8] = a[5];
+    return m;
+}
+/* The block a (stored) times x: the sums of cs_m3_mul, term for term. */
+SIM_HD static inline cs_vec3 cs_im_sym_mul(const float *a, cs_vec3 x)
+{
+    return cs_v3(a[0] * x.x + a[1] * x.y + a[2] * x.z, a[1] * x.x + a[3] * x.y + a[4] * x.z,
+                 a[2] * x.x + a[4] * x.y + a[5] * x.z);
 }
 
 /* ---- the linearised force law ---- */
@@ -699,8 +727,8 @@ SIM_HD static inline cs_vec3 cs_im_residual(const cs_phys *p, cs_vec3 F, cs_vec3
 
 /* What a backend hands the functions below of one level: its grid, its vertices' mask (1 in the
  * solve, 0 out), D, the four forward blocks and on the finest level the two bending blocks
- * (B_0 to (i + 2, j), B_1 to (i, j + 2); NULL on coarse levels). Blocks are 9 floats each, vertex
- * major: D[9 v + k], F[t][9 v + k]. */
+ * (B_0 to (i + 2, j), B_1 to (i, j + 2); NULL on coarse levels). Blocks are CS_IM_SYM floats each,
+ * vertex major: D[6 v + k], F[t][6 v + k]. */
 typedef struct cs_im_level {
     int32_t nx, ny;
     const float *mask;
@@ -716,30 +744,30 @@ SIM_HD static inline cs_vec3 cs_im_apply(const cs_im_level *L, const float *x, i
 {
     const int32_t nx = L->nx, ny = L->ny, v = j * nx + i;
     if (L->mask[v] == 0.0f) return cs_v3(0.0f, 0.0f, 0.0f);
-    cs_vec3 y = cs_m3_mul(L->D + 9 * (size_t)v, cs_v3_from(x + 3 * (size_t)v));
+    cs_vec3 y = cs_im_sym_mul(L->D + CS_IM_SYM * (size_t)v, cs_v3_from(x + 3 * (size_t)v));
     for (int t = 0; t < 4; t++) {
         const int32_t ii = i + cs_im_fwd_di(t), jj = j + cs_im_fwd_dj(t);
         if (ii < 0 || ii >= nx || jj >= ny) continue;
         const int32_t q = jj * nx + ii;
-        y = cs_add(y, cs_m3_mul(L->F[t] + 9 * (size_t)v, cs_v3_from(x + 3 * (size_t)q)));
+        y = cs_add(y, cs_im_sym_mul(L->F[t] + CS_IM_SYM * (size_t)v, cs_v3_from(x + 3 * (size_t)q)));
     }
     for (int t = 0; t < 4; t++) {
         const int32_t ii = i - cs_im_fwd_di(t), jj = j - cs_im_fwd_dj(t);
         if (ii < 0 || ii >= nx || jj < 0) continue;
         const int32_t q = jj * nx + ii;
-        y = cs_add(y, cs_m3_mul_t(L->F[t] + 9 * (size_t)q, cs_v3_from(x + 3 * (size_t)q)));
+        y = cs_add(y, cs_im_sym_mul(L->F[t] + CS_IM_SYM * (size_t)q, cs_v3_from(x + 3 * (size_t)q)));
     }
     if (bend) {
         for (int b = 0; b < 2; b++) {
             const int32_t ii = i + 2 * (1 - b), jj = j + 2 * b;
             if (ii < nx && jj < ny) {
                 const int32_t q = jj * nx + ii;
-                y = cs_add(y, cs_m3_mul(L->B[b] + 9 * (size_t)v, cs_v3_from(x + 3 * (size_t)q)));
+                y = cs_add(y, cs_im_sym_mul(L->B[b] + CS_IM_SYM * (size_t)v, cs_v3_from(x + 3 * (size_t)q)));
             }
             const int32_t ib = i - 2 * (1 - b), jb = j - 2 * b;
             if (ib >= 0 && jb >= 0) {
                 const int32_t q = jb * nx + ib;
-                y = cs_add(y, cs_m3_mul_t(L->B[b] + 9 * (size_t)q, cs_v3_from(x + 3 * (size_t)q)));
+                y = cs_add(y, cs_im_sym_mul(L->B[b] + CS_IM_SYM * (size_t)q, cs_v3_from(x + 3 * (size_t)q)));
             }
         }
     }
@@ -752,20 +780,20 @@ SIM_HD static inline cs_vec3 cs_im_apply_inner(const cs_im_level *L, const float
 {
     if (L->mask[v] == 0.0f) return cs_v3(0.0f, 0.0f, 0.0f);
     const int32_t nx = L->nx;
-    cs_vec3 y = cs_m3_mul(L->D + 9 * (size_t)v, cs_v3_from(x + 3 * (size_t)v));
+    cs_vec3 y = cs_im_sym_mul(L->D + CS_IM_SYM * (size_t)v, cs_v3_from(x + 3 * (size_t)v));
     for (int t = 0; t < 4; t++) {
         const int32_t q = v + cs_im_fwd_di(t) + cs_im_fwd_dj(t) * nx;
-        y = cs_add(y, cs_m3_mul(L->F[t] + 9 * (size_t)v, cs_v3_from(x + 3 * (size_t)q)));
+        y = cs_add(y, cs_im_sym_mul(L->F[t] + CS_IM_SYM * (size_t)v, cs_v3_from(x + 3 * (size_t)q)));
     }
     for (int t = 0; t < 4; t++) {
         const int32_t q = v - cs_im_fwd_di(t) - cs_im_fwd_dj(t) * nx;
-        y = cs_add(y, cs_m3_mul_t(L->F[t] + 9 * (size_t)q, cs_v3_from(x + 3 * (size_t)q)));
+        y = cs_add(y, cs_im_sym_mul(L->F[t] + CS_IM_SYM * (size_t)q, cs_v3_from(x + 3 * (size_t)q)));
     }
     if (bend) {
         for (int b = 0; b < 2; b++) {
             const int32_t o = b ? 2 * nx : 2;
-            y = cs_add(y, cs_m3_mul(L->B[b] + 9 * (size_t)v, cs_v3_from(x + 3 * (size_t)(v + o))));
-            y = cs_add(y, cs_m3_mul_t(L->B[b] + 9 * (size_t)(v - o), cs_v3_from(x + 3 * (size_t)(v - o))));
+            y = cs_add(y, cs_im_sym_mul(L->B[b] + CS_IM_SYM * (size_t)v, cs_v3_from(x + 3 * (size_t)(v + o))));
+            y = cs_add(y, cs_im_sym_mul(L->B[b] + CS_IM_SYM * (size_t)(v - o), cs_v3_from(x + 3 * (size_t)(v - o))));
         }
     }
     return y;
@@ -775,7 +803,7 @@ SIM_HD static inline cs_vec3 cs_im_apply_inner(const cs_im_level *L, const float
 SIM_HD static inline cs_vec3 cs_im_jacobi(const cs_im_level *L, int32_t v, cs_vec3 x, cs_vec3 b, cs_vec3 Ax)
 {
     if (L->mask[v] == 0.0f) return cs_v3(0.0f, 0.0f, 0.0f);
-    return cs_add(x, cs_scale(cs_m3_mul(L->Dinv + 9 * (size_t)v, cs_sub(b, Ax)), CS_IM_OMEGA));
+    return cs_add(x, cs_scale(cs_im_sym_mul(L->Dinv + CS_IM_SYM * (size_t)v, cs_sub(b, Ax)), CS_IM_OMEGA));
 }
 
 /* The coarse level's size along an axis of n fine vertices. */
@@ -783,7 +811,7 @@ SIM_HD static inline int32_t cs_im_coarse(int32_t n) { return (n + 1) / 2; }
 
 /* Floats a level's arrays take per vertex: D, Dinv and the four forward blocks (9 each), the mask,
  * and the V-cycle's three vectors (right side, solution, scratch: 3 each). */
-#define CS_IM_LEVEL_FLOATS (9 * 6 + 1 + 9)
+#define CS_IM_LEVEL_FLOATS (CS_IM_SYM * 6 + 1 + 9)
 
 /* The hierarchy of an nx x ny grid: each level's size into lx[], ly[] (CS_IM_MAX_LEVELS slots),
  * halving while either side is above CS_IM_COARSEST; returns the number of levels. */
@@ -802,8 +830,8 @@ SIM_HD static inline int cs_im_levels(int32_t nx, int32_t ny, int32_t *lx, int32
  * aggregation): D_C = the sum of the aggregate's diagonal blocks and of the blocks coupling two of
  * its vertices (both ways), F_C,t = the sum of the blocks coupling the aggregate to aggregate
  * (I, J) + fwd(t) - the fine forward blocks from this aggregate, then the fine backward ones into
- * it (transposed) - each in a fixed order of fine vertex, then direction. Writes D (9 floats),
- * F[t] (9 floats each) and the coarse mask; an empty aggregate gets the identity and mask 0. */
+ * it (transposed) - each in a fixed order of fine vertex, then direction. Writes D and F[t]
+ * (CS_IM_SYM floats each) and the coarse mask; an empty aggregate gets the identity and mask 0. */
 SIM_HD static inline void cs_im_galerkin(const cs_im_level *L, int32_t I, int32_t J, float *D, float *F[4],
                                          float *mask)
 {
@@ -817,12 +845,12 @@ SIM_HD static inline void cs_im_galerkin(const cs_im_level *L, int32_t I, int32_
         const int32_t v = j * nx + i;
         if (L->mask[v] == 0.0f) continue;
         any = 1.0f;
-        const cs_mat3 *Dv = (const cs_mat3 *)(L->D + 9 * (size_t)v);
-        cs_m3_addto(&d, Dv);
+        const cs_mat3 Dv = cs_im_sym_get(L->D + CS_IM_SYM * (size_t)v);
+        cs_m3_addto(&d, &Dv);
         for (int s = 0; s < 4; s++) {
             const int32_t ii = i + cs_im_fwd_di(s), jj = j + cs_im_fwd_dj(s);
             if (ii < 0 || ii >= nx || jj >= ny || L->mask[jj * nx + ii] == 0.0f) continue;
-            const cs_mat3 *B = (const cs_mat3 *)(L->F[s] + 9 * (size_t)v);
+            const cs_mat3 Bv = cs_im_sym_get(L->F[s] + CS_IM_SYM * (size_t)v), *B = &Bv;
             const int32_t dI = ii / 2 - I, dJ = jj / 2 - J;
             if (dI == 0 && dJ == 0) { /* within the aggregate: both ways */
                 cs_m3_addto(&d, B);
@@ -846,14 +874,18 @@ SIM_HD static inline void cs_im_galerkin(const cs_im_level *L, int32_t I, int32_
             const int32_t dI = ii / 2 - I, dJ = jj / 2 - J;
             if (dI == 0 && dJ == 0) continue; /* counted above from q's side */
             for (int t = 0; t < 4; t++)
-                if (dI == cs_im_fwd_di(t) && dJ == cs_im_fwd_dj(t))
-                    cs_m3_addto_t(&f[t], (const cs_mat3 *)(L->F[s] + 9 * (size_t)q));
+                if (dI == cs_im_fwd_di(t) && dJ == cs_im_fwd_dj(t)) {
+                    const cs_mat3 Bq = cs_im_sym_get(L->F[s] + CS_IM_SYM * (size_t)q);
+                    cs_m3_addto_t(&f[t], &Bq);
+                }
         }
     }
     if (any == 0.0f) d = cs_m3_diag(1.0f);
-    for (int k = 0; k < 9; k++) D[k] = d.m[k];
-    for (int t = 0; t < 4; t++)
-        for (int k = 0; k < 9; k++) F[t][k] = any != 0.0f ? f[t].m[k] : 0.0f;
+    cs_im_sym_put(D, &d);
+    for (int t = 0; t < 4; t++) {
+        if (any == 0.0f) f[t] = cs_m3_zero();
+        cs_im_sym_put(F[t], &f[t]);
+    }
     *mask = any;
 }
 
