@@ -109,54 +109,110 @@ static int read_scenes(const json_t *t, statefile *out, const loop_settings *def
     return 0;
 }
 
-statefile_error statefile_parse(const unsigned char *buf, size_t len, statefile *out, loop_settings *loop, char *why,
-                                size_t why_len)
+/* The snapshots at the file's start, one after another, up to the trailer (or the file's end):
+ * each a scene "default" with *loop's settings, and *off where they end. */
+static statefile_error read_snapshots(const unsigned char *buf, size_t len, statefile *out, const loop_settings *loop,
+                                      size_t *off, char *why, size_t why_len)
 {
-    memset(out, 0, sizeof *out);
-    /* The snapshots, one after another, up to the trailer (or the file's end). */
-    size_t off = 0;
     int cap = 0;
-    statefile_error e = STATEFILE_OK;
-    while (off < len && buf[off] != '{') {
+    while (*off < len && buf[*off] != '{') {
         cs_snapshot_info head;
-        if (cs_snapshot_peek(buf + off, len - off, &head) != CS_OK) {
-            snprintf(why, why_len, off ? "has bytes after its snapshot %d that are neither a snapshot nor a trailer"
-                                       : "does not start with a clothsim snapshot", out->n_scenes);
-            e = off ? STATEFILE_DAMAGED : STATEFILE_FOREIGN;
-            break;
+        if (cs_snapshot_peek(buf + *off, len - *off, &head) != CS_OK) {
+            snprintf(why, why_len, *off ? "has bytes after its snapshot %d that are neither a snapshot nor a trailer"
+                                        : "does not start with a clothsim snapshot", out->n_scenes);
+            return *off ? STATEFILE_DAMAGED : STATEFILE_FOREIGN;
         }
         if (head.length == 0) {
             snprintf(why, why_len, "snapshot length does not match its header (truncated?)");
-            e = STATEFILE_DAMAGED;
-            break;
+            return STATEFILE_DAMAGED;
         }
         if (out->n_scenes == STATEFILE_MAX_SCENES) {
             snprintf(why, why_len, "holds more than %d snapshots", STATEFILE_MAX_SCENES);
-            e = STATEFILE_DAMAGED;
-            break;
+            return STATEFILE_DAMAGED;
         }
         if (out->n_scenes == cap) {
             cap = cap ? 2 * cap : 4;
             statefile_scene *g = realloc(out->scenes, sizeof *g * (size_t)cap);
             if (!g) {
                 snprintf(why, why_len, "could not be read: out of memory");
-                e = STATEFILE_DAMAGED;
-                break;
+                return STATEFILE_DAMAGED;
             }
             out->scenes = g;
         }
         statefile_scene *sc = &out->scenes[out->n_scenes++];
         memset(sc, 0, sizeof *sc);
         snprintf(sc->id, sizeof sc->id, "%s", SCENE_DEFAULT);
-        sc->offset = off;
+        sc->offset = *off;
         sc->snapshot_len = head.length;
         sc->loop = *loop;
-        off += head.length;
+        *off += head.length;
     }
-    if (e == STATEFILE_OK && len == 0) {
+    if (len == 0) {
         snprintf(why, why_len, "does not start with a clothsim snapshot");
-        e = STATEFILE_FOREIGN;
+        return STATEFILE_FOREIGN;
     }
+    return STATEFILE_OK;
+}
+
+/* Whether t, the JSON after the snapshots (len bytes of it, which err says why it could not be
+ * read), is a trailer of a format this build reads for out's snapshots: STATEFILE_OK with the
+ * format in *f, or the error. */
+static statefile_error trailer_format(const json_t *t, size_t len, const json_error_t *err, const statefile *out,
+                                      long long *f, char *why, size_t why_len)
+{
+    const json_t *format = json_object_get(t, "clothd_state");
+    *f = json_is_integer(format) ? (long long)json_integer_value(format) : 0;
+    if (!json_is_object(t)) {
+        snprintf(why, why_len, "has %zu bytes after its snapshot that are not a state file's trailer (%s)", len,
+                 len ? err->text : "none");
+        return out->n_scenes ? STATEFILE_DAMAGED : STATEFILE_FOREIGN;
+    }
+    if (!format) {
+        snprintf(why, why_len, "is not a state file: its snapshot is followed by other JSON (a journal bundle?)");
+        return STATEFILE_FOREIGN;
+    }
+    if (!json_is_integer(format) || *f < 2) {
+        snprintf(why, why_len, "has a trailer with a bad clothd_state");
+        return STATEFILE_DAMAGED;
+    }
+    if (*f > STATEFILE_FORMAT) {
+        snprintf(why, why_len, "state file format %lld; this build reads formats 1 to %d", *f, STATEFILE_FORMAT);
+        return STATEFILE_NEWER;
+    }
+    if (*f < 4 && out->n_scenes != 1) {
+        snprintf(why, why_len, "holds %d snapshots, but a state file of format %lld holds one", out->n_scenes, *f);
+        return STATEFILE_DAMAGED;
+    }
+    return STATEFILE_OK;
+}
+
+/* What the trailer t of format f says of out's scenes: formats 2 and 3 of the one snapshot (off
+ * bytes of buf: format 2's daemon-loop settings are in it), format 4 of each (over *loop's). */
+static statefile_error read_trailer_of(const json_t *t, long long f, const unsigned char *buf, size_t off, statefile *out,
+                                       const loop_settings *loop, char *why, size_t why_len)
+{
+    if (f < 4) {
+        statefile_scene *sc = &out->scenes[0];
+        if (read_trailer(t, f, out, &sc->loop, why, why_len) != 0) return STATEFILE_DAMAGED;
+        if (f == 2) out->loop_given = loop_from_snapshot(&sc->loop, buf, off);
+        sc->paused = out->paused;
+        sc->loop_given = out->loop_given;
+        return STATEFILE_OK;
+    }
+    if (read_scenes(t, out, loop, why, why_len) != 0) return STATEFILE_DAMAGED;
+    if (out->n_scenes) {
+        out->paused = out->scenes[0].paused;
+        out->loop_given = out->scenes[0].loop_given;
+    }
+    return STATEFILE_OK;
+}
+
+statefile_error statefile_parse(const unsigned char *buf, size_t len, statefile *out, loop_settings *loop, char *why,
+                                size_t why_len)
+{
+    memset(out, 0, sizeof *out);
+    size_t off = 0;
+    statefile_error e = read_snapshots(buf, len, out, loop, &off, why, why_len);
     if (e != STATEFILE_OK) {
         statefile_free(out);
         return e;
@@ -170,39 +226,9 @@ statefile_error statefile_parse(const unsigned char *buf, size_t len, statefile 
     }
     json_error_t err;
     json_t *t = off < len ? json_loadb((const char *)buf + off, len - off, JSON_REJECT_DUPLICATES, &err) : NULL;
-    const json_t *format = json_object_get(t, "clothd_state");
-    const long long f = json_is_integer(format) ? (long long)json_integer_value(format) : 0;
-    if (!json_is_object(t)) {
-        snprintf(why, why_len, "has %zu bytes after its snapshot that are not a state file's trailer (%s)", len - off,
-                 off < len ? err.text : "none");
-        e = out->n_scenes ? STATEFILE_DAMAGED : STATEFILE_FOREIGN;
-    } else if (!format) {
-        snprintf(why, why_len, "is not a state file: its snapshot is followed by other JSON (a journal bundle?)");
-        e = STATEFILE_FOREIGN;
-    } else if (!json_is_integer(format) || f < 2) {
-        snprintf(why, why_len, "has a trailer with a bad clothd_state");
-        e = STATEFILE_DAMAGED;
-    } else if (f > STATEFILE_FORMAT) {
-        snprintf(why, why_len, "state file format %lld; this build reads formats 1 to %d", f, STATEFILE_FORMAT);
-        e = STATEFILE_NEWER;
-    } else if (f < 4 && out->n_scenes != 1) {
-        snprintf(why, why_len, "holds %d snapshots, but a state file of format %lld holds one", out->n_scenes, f);
-        e = STATEFILE_DAMAGED;
-    } else if (f < 4) {
-        statefile_scene *sc = &out->scenes[0];
-        if (read_trailer(t, f, out, &sc->loop, why, why_len) != 0) {
-            e = STATEFILE_DAMAGED;
-        } else {
-            if (f == 2) out->loop_given = loop_from_snapshot(&sc->loop, buf, off);
-            sc->paused = out->paused;
-            sc->loop_given = out->loop_given;
-        }
-    } else if (read_scenes(t, out, loop, why, why_len) != 0) {
-        e = STATEFILE_DAMAGED;
-    } else if (out->n_scenes) {
-        out->paused = out->scenes[0].paused;
-        out->loop_given = out->scenes[0].loop_given;
-    }
+    long long f = 0;
+    e = trailer_format(t, len - off, &err, out, &f, why, why_len);
+    if (e == STATEFILE_OK) e = read_trailer_of(t, f, buf, off, out, loop, why, why_len);
     json_decref(t);
     if (e != STATEFILE_OK) {
         statefile_free(out);

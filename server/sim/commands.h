@@ -16,7 +16,8 @@
  *
  * and the checks that do not depend on a command - the route, the method, the token, a rock id,
  * the body, a pause, a failed backend, a step in progress - are made here, once, from those
- * columns, before any row's function runs. Adding a command is one row and one function. `clothd
+ * columns, before any row's function runs. Adding a command is one row (commands.c) and one
+ * function (a request function in the cmd_*.c file of its resource: commands_internal.h). `clothd
  * routes`, the HTTP server (http.c) and the stream (grabs) read this table; command_apply finds a
  * journaled command by its op (the sim thread, clothd replay). */
 #ifndef CLOTHD_COMMANDS_H

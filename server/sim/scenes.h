@@ -60,7 +60,7 @@ int scenes_room(scenes *t, problem *pr);
 /* 1 while every scene's backend answers (/v1/health). */
 int scenes_healthy(scenes *t);
 
-/* What the daemon does as a scene joins or leaves the table (main.c wires the stream here):
+/* What the daemon does as a scene joins or leaves the table (serve.c wires the stream here):
  * `added` runs after scenes_add put it in (give it its sink), on the adding thread; `removed`
  * once the sim thread has let a deleted scene go (close what streams it): the scene hands its
  * sink nothing from then on. Called outside the table's lock; either may be NULL. */

@@ -77,7 +77,7 @@ static void wake(void *ctx)
 
 /* ---- stepping one scene ---- */
 
-/* Substeps run, and a backend failure told to the daemon: it saves and exits (main.c). */
+/* Substeps run, and a backend failure told to the daemon: it saves and exits (serve.c, persist.c). */
 static cs_status run_substeps(scene *sc, int64_t n)
 {
     const cs_status st = scene_run_substeps(sc, n);
