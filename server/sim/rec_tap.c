@@ -1,6 +1,7 @@
-/* rec_tap.c - the sim thread's side of the recordings (rectap.h; see recordings.c): poses
- * and events copied onto a scene's running recordings' queues without waiting on the writer, and
- * where a recording ends (its length, its scene changed or deleted). */
+/* rec_tap.c - the sim thread's side of the recordings (see recordings.c): the recordings' sink
+ * (sim/sink.h), which copies a scene's poses and events onto its running recordings' queues without
+ * waiting on the writer, what rectap.h tells the sim thread, and where a recording ends (its
+ * length, its scene changed or deleted). */
 #include <pthread.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -122,8 +123,16 @@ static pose *take_buffer(recording *k)
     return buf;
 }
 
-void recordings_frame(scene *sc, const pose *p, const cs_rock *rocks, int n_rocks, int changed)
+/* ---- the recordings' sink: its ctx is the scene ---- */
+
+static int tap_want(void *ctx, int changed) { return recordings_want(ctx, changed); }
+
+/* The pose to the scene's running recordings (copied): to all when the scene changed since the
+ * last, else only to those that have none yet; with the scene's hello first for one that starts
+ * (the scene's published reads, and these rocks). */
+static void tap_take(void *ctx, const pose *p, const cs_rock *rocks, int n_rocks, int changed)
 {
+    scene *sc = ctx;
     if (atomic_load(&sc->n_recs) == 0) return;
     pthread_mutex_lock(&sc->rlock);
     for (recording *k = sc->recs, *next; k; k = next) {
@@ -174,8 +183,10 @@ void recordings_frame(scene *sc, const pose *p, const cs_rock *rocks, int n_rock
     pthread_mutex_unlock(&sc->rlock);
 }
 
-void recordings_event(scene *sc, const char *text)
+/* An event's text to the scene's running recordings that have their hello (copied). */
+static void tap_event(void *ctx, const char *text)
 {
+    scene *sc = ctx;
     if (atomic_load(&sc->n_recs) == 0) return;
     pthread_mutex_lock(&sc->rlock);
     for (recording *k = sc->recs; k; k = k->scene_next) {
@@ -193,10 +204,16 @@ void recordings_event(scene *sc, const char *text)
     pthread_mutex_unlock(&sc->rlock);
 }
 
-void recordings_scene_gone(scene *sc)
+/* The scene left the daemon: its recordings stop ("scene deleted"); none starts on it again. */
+static void tap_gone(void *ctx)
 {
+    scene *sc = ctx;
     pthread_mutex_lock(&sc->rlock);
     sc->recs_closed = 1;
     while (sc->recs) recording_end_on_scene(sc, sc->recs, "scene deleted");
     pthread_mutex_unlock(&sc->rlock);
 }
+
+static const frame_sink_ops tap_ops = {.event = tap_event, .want = tap_want, .take = tap_take, .gone = tap_gone};
+
+int recordings_attach(scene *sc) { return scene_add_sink(sc, (frame_sink){&tap_ops, sc}); }

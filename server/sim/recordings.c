@@ -291,6 +291,9 @@ static int start_on_scene(scene *sc, recording *k, problem *pr)
     if (sc->recs_closed || scene_is_deleted(sc)) {
         problem_set(pr, 404, "not-found", "scene", "no scene '%s'", sc->id);
         failed = 1;
+    } else if (recordings_attach(sc) != 0) {
+        problem_set(pr, 503, "unavailable", "scene", "the scene '%s' takes no more sinks", sc->id);
+        failed = 1;
     } else {
         k->sc = scene_hold(sc);
         k->scene_next = sc->recs;

@@ -4,9 +4,10 @@
  *
  * Threads. HTTP threads start, list, read and delete recordings (under the table's lock). The sim
  * thread hands each running recording of a scene every pose the scene publishes and every event
- * it emits (recordings_frame, recordings_event): a copy of the pose into one of the recording's
- * REC_QUEUE_FRAMES buffers and an item in its bounded queue, never waiting - with no free buffer
- * the frame is dropped and counted (frames_dropped). The recordings' own writer thread encodes
+ * it emits, through the recordings' sink (sim/sink.h), which a recording's start adds to its
+ * scene: a copy of the pose into one of the recording's REC_QUEUE_FRAMES buffers and an item in
+ * its bounded queue, never waiting - with no free buffer the frame is dropped and counted
+ * (frames_dropped). The recordings' own writer thread encodes
  * each frame (core/wire.c, core/delta.c) and appends it to the file, strictly sequentially, and
  * writes the index and tail when the recording ends. The sim thread decides when one ends: the
  * first frame `seconds` of sim time past its first, the scene deleted, the daemon stopping.
@@ -67,6 +68,7 @@ int recordings_delete(recordings *r, const char *rid, problem *pr);
 /* Whether rid is a recording id (a scene id's shape). */
 int recording_id_valid(const char *rid);
 
-/* The sim thread's side (scene.c calls it): sim/rectap.h. */
+/* The sim thread's side: the recordings' sink on each scene recorded (sim/sink.h), and what
+ * simloop.c asks between frames (sim/rectap.h). */
 
 #endif

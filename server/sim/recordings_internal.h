@@ -5,8 +5,9 @@
  *   recordings.c   the table and its API (POST, GET, DELETE, the list), a recording's bytes (in
  *                  memory or its file), start and stop
  *   rec_writer.c   the writer thread: each queued item encoded and appended, the index and tail
- *   rec_tap.c      the sim thread's side (rectap.h): poses and events queued to a scene's
- *                  running recordings, where a recording ends
+ *   rec_tap.c      the sim thread's side: the recordings' sink (sim/sink.h), which queues a
+ *                  scene's poses and events to its running recordings, rectap.h, and where a
+ *                  recording ends
  *   rec_adopt.c    the .clr files recordings_dir holds at start, listed as recordings
  *
  * It declares `recordings` itself rather than include recordings.h (which the files include beside
@@ -114,6 +115,9 @@ void recording_stop_locked(recording *k, const char *reason);
 /* rec_tap.c */
 /* Detaches k from its scene (sc->rlock held) and ends it with reason (NULL: done). */
 void recording_end_on_scene(scene *sc, recording *k, const char *reason);
+/* Adds the recordings' sink to the scene (scene_add_sink; once, whatever the recordings on it): 0,
+ * or -1 when the scene takes no more sinks. */
+int recordings_attach(scene *sc);
 
 /* rec_adopt.c */
 /* Lists the .clr files of recordings_dir as recordings: 0, or -1 and the reason in err when the

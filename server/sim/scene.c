@@ -11,7 +11,6 @@
 #include "core/params_json.h"
 #include "core/rock_json.h"
 #include "core/stream_msg.h"
-#include "sim/rectap.h"
 #include "sim/scene.h"
 
 #define ENERGY_EVERY 0.1 /* s of wall time between energy evaluations while running */
@@ -50,7 +49,31 @@ scene *scene_new(const char *id, cs_sim *engine, const loop_settings *loop, int 
     return sc;
 }
 
-void scene_set_sink(scene *sc, frame_sink sink) { sc->sink = sink; }
+int scene_add_sink(scene *sc, frame_sink sink)
+{
+    if (!sink.ops) return 0;
+    int r = 0;
+    pthread_mutex_lock(&sc->qlock);
+    const int n = atomic_load(&sc->n_sinks);
+    int there = 0, lender = 0;
+    for (int s = 0; s < n; s++) {
+        there |= sc->sinks[s].ops == sink.ops && sc->sinks[s].ctx == sink.ctx;
+        lender |= sc->sinks[s].ops->begin != NULL;
+    }
+    if (sc->sinks_closed || (!there && (n == SCENE_SINKS || (lender && sink.ops->begin)))) {
+        r = -1;
+    } else if (!there) {
+        sc->sinks[n] = sink;
+        atomic_store(&sc->n_sinks, n + 1); /* the sim thread sees the sink once it sees the count */
+    }
+    pthread_mutex_unlock(&sc->qlock);
+    return r;
+}
+
+void scene_set_sink(scene *sc, frame_sink sink)
+{
+    if (scene_add_sink(sc, sink) != 0) log_msg("scene %s: no room for one more sink", sc->id);
+}
 
 void scene_set_frame_hook(scene *sc, void (*hook)(cs_sim *engine, uint64_t frame)) { sc->before_frame = hook; }
 
@@ -72,7 +95,7 @@ void scene_release(scene *sc)
     free(sc->torn);
     free(sc->scratch);
     free(sc->rocks);
-    pose_free(&sc->rec_pose);
+    pose_free(&sc->own_pose);
     pthread_mutex_destroy(&sc->qlock);
     pthread_mutex_destroy(&sc->plock);
     pthread_mutex_destroy(&sc->rlock);
@@ -181,8 +204,15 @@ int scene_is_deleted(scene *sc)
 
 void scene_drop_deleted(scene *sc)
 {
-    sc->sink = (frame_sink){NULL, NULL}; /* its streams are closed */
-    recordings_scene_gone(sc);
+    pthread_mutex_lock(&sc->qlock);
+    frame_sink sinks[SCENE_SINKS];
+    const int n = atomic_load(&sc->n_sinks);
+    memcpy(sinks, sc->sinks, sizeof *sinks * (size_t)n);
+    sc->sinks_closed = 1;
+    atomic_store(&sc->n_sinks, 0);
+    pthread_mutex_unlock(&sc->qlock);
+    for (int s = 0; s < n; s++)
+        if (sinks[s].ops->gone) sinks[s].ops->gone(sinks[s].ctx);
     scene_end_step(sc, "deleted");
     for (scene_cmd *c = scene_take_queue(sc), *next; c; c = next) {
         next = c->next;
@@ -246,7 +276,8 @@ static void set_doc(scene *sc, scene_doc doc, char *text)
 
 void scene_emit(scene *sc, json_t *ev, const char *request_id)
 {
-    if (!sc->sink.ops && atomic_load(&sc->n_recs) == 0) {
+    const int n = atomic_load(&sc->n_sinks);
+    if (n == 0) {
         json_decref(ev);
         return;
     }
@@ -255,8 +286,8 @@ void scene_emit(scene *sc, json_t *ev, const char *request_id)
     json_object_set_new(ev, "scene_id", json_string(sc->id));
     char *text = json_dumps(ev, JSON_DUMP_FLAGS);
     json_decref(ev);
-    if (text && sc->sink.ops) sc->sink.ops->event(sc->sink.ctx, text);
-    if (text) recordings_event(sc, text);
+    for (int s = 0; text && s < n; s++)
+        if (sc->sinks[s].ops->event) sc->sinks[s].ops->event(sc->sinks[s].ctx, text);
     free(text);
 }
 
@@ -405,23 +436,35 @@ static void fill_scalars(scene *sc, pose *f, unsigned want)
     }
 }
 
-/* Hands the current positions, rocks and scalars to the sink (when someone listens and there is
- * something new for it) and the positions and rocks to the recordings (when one runs and the scene
- * changed since the last pose they were handed, or one has none yet). */
+/* Hands the current positions, rocks and scalars to the sink that lends a buffer (when someone
+ * listens and there is something new for it) and the positions and rocks to the copiers that want
+ * them (the recordings: when one runs and the scene changed since the last pose they were handed,
+ * or one has none yet); in the order of sink.h. */
 static void publish_pose(scene *sc, const cs_info *info, const cs_rock *rocks, int n_rocks)
 {
+    const int n = atomic_load(&sc->n_sinks);
+    const frame_sink *lender = NULL;
+    int lent_at = 0;
     unsigned want = 0;
-    pose *f = sc->sink.ops ? sc->sink.ops->begin(sc->sink.ctx, &want) : NULL;
-    if (f && !sc->pose_asked && sc->changes == sc->framed_changes && (want & ~sc->framed_scalars) == 0) {
-        sc->sink.ops->discard(sc->sink.ctx, f);
+    pose *f = NULL;
+    for (int s = 0; s < n && !lender; s++)
+        if (sc->sinks[s].ops->begin) lender = &sc->sinks[s], lent_at = s;
+    if (lender) f = lender->ops->begin(lender->ctx, &want);
+    if (f && !sc->pose_asked && sc->changes == sc->framed_changes[lent_at] && (want & ~sc->framed_scalars) == 0) {
+        lender->ops->discard(lender->ctx, f);
         f = NULL;
     }
-    const int changed = sc->changes != sc->rec_framed_changes, rec = recordings_want(sc, changed);
-    if (!f && !rec) return;
-    pose *p = f ? f : &sc->rec_pose;
+    int takes[SCENE_SINKS] = {0}, any = 0;
+    for (int s = 0; s < n; s++) {
+        const frame_sink *k = &sc->sinks[s];
+        takes[s] = k->ops->take && k->ops->want(k->ctx, sc->changes != sc->framed_changes[s]);
+        any |= takes[s];
+    }
+    if (!f && !any) return;
+    pose *p = f ? f : &sc->own_pose;
     if (pose_reserve(p, info->n_vertices, n_rocks) != 0 ||
         cs_read_positions(sc->engine, p->xyz, 3 * (size_t)info->n_vertices) != CS_OK) {
-        if (f) sc->sink.ops->discard(sc->sink.ctx, f); /* listeners keep the pose they have */
+        if (f) lender->ops->discard(lender->ctx, f); /* listeners keep the pose they have */
         return;
     }
     p->wall_ns = clock_wall_ns();
@@ -441,16 +484,18 @@ static void publish_pose(scene *sc, const cs_info *info, const cs_rock *rocks, i
         memcpy(k->orientation, rocks[r].def.orientation, sizeof k->orientation);
     }
     pose_bbox(p);
-    if (rec) {
-        recordings_frame(sc, p, rocks, n_rocks, changed);
-        sc->rec_framed_changes = sc->changes;
+    for (int s = 0; s < n; s++) {
+        if (!takes[s]) continue;
+        const frame_sink *k = &sc->sinks[s];
+        k->ops->take(k->ctx, p, rocks, n_rocks, sc->changes != sc->framed_changes[s]);
+        sc->framed_changes[s] = sc->changes;
     }
     if (!f) return;
     fill_scalars(sc, f, want);
-    sc->framed_changes = sc->changes;
+    sc->framed_changes[lent_at] = sc->changes;
     sc->framed_scalars = want;
     sc->pose_asked = 0;
-    sc->sink.ops->publish(sc->sink.ctx, f);
+    lender->ops->publish(lender->ctx, f);
 }
 
 void scene_publish(scene *sc, int with_hash)

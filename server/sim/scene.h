@@ -1,6 +1,6 @@
 /* scene.h - a scene: one cloth and its rocks on the engine, and everything the daemon keeps beside
  * it - its daemon-loop settings, command queue, journal, checkpoints, automatic drops, run state,
- * the reads it publishes and the sink its poses and events go to.
+ * the reads it publishes and the sinks its poses and events go to.
  *
  * A scene is a passive struct: nothing here has a thread. Its owner - the sim thread, which steps
  * every scene of the daemon's table (simloop.h) - alone touches the engine and the fields under
@@ -32,6 +32,8 @@
 
 /* Longest scene id, its NUL included. */
 #define SCENE_ID_MAX 64
+/* The most sinks a scene has (the stream's and the recordings'). */
+#define SCENE_SINKS 4
 
 struct command;
 typedef struct scene scene;
@@ -101,8 +103,14 @@ struct scene {
 
     journal *journal;      /* the sim thread appends, readers copy (it has its own lock) */
 
-    /* its running recordings (sim/recordings.h), under rlock: the sim thread hands them poses and
-     * events, HTTP threads add and remove them */
+    /* its sinks (sink.h), in the order they were added: added from any thread under qlock, each
+     * written before the count that shows it; the sim thread reads them without a lock */
+    frame_sink sinks[SCENE_SINKS];
+    atomic_int n_sinks;
+    int sinks_closed;      /* it left the daemon (under qlock): no sink is added */
+
+    /* the recordings' own (sim/rec_tap.c: the recordings' sink), under rlock; scene.c makes and
+     * frees the lock only */
     pthread_mutex_t rlock;
     struct recording *recs;
     int recs_closed;       /* it left the daemon: no recording starts on it */
@@ -111,7 +119,6 @@ struct scene {
     /* the sim thread's */
     cs_sim *engine;
     loop_settings loop;    /* the daemon-loop settings (PATCH /v1/params sets them) */
-    frame_sink sink;
     void (*before_frame)(cs_sim *engine, uint64_t frame); /* the test daemon's hook, or NULL */
     int paused, paused_before_failure;
     int was_running;       /* running at the sim thread's last look (it starts its frame clock when it starts) */
@@ -133,14 +140,14 @@ struct scene {
     uint32_t autos[CS_MAX_ROCKS];
     int n_autos;
     json_t *last_event;
-    /* Every step and every state-changing command counts a change; the sink is handed a pose only
-     * when there is one since the last it was handed, or a scalar it lacks is wanted: commands
-     * that change nothing (reads, pauses, a client joining) publish no duplicate pose. */
-    uint64_t changes, framed_changes;
-    unsigned framed_scalars;
+    /* Every step and every state-changing command counts a change; a sink is handed a pose only
+     * when there is one since the last it was handed (framed_changes, by sink), or the lender
+     * wants a scalar it lacks: commands that change nothing (reads, pauses, a client joining)
+     * publish no duplicate pose. */
+    uint64_t changes, framed_changes[SCENE_SINKS];
+    unsigned framed_scalars; /* the scalars of the last pose the lender was handed */
     int pose_asked; /* the stream asked for a pose, changed or not (control_pose) */
-    uint64_t rec_framed_changes; /* ... and the recordings: the change of the last pose they were handed */
-    pose rec_pose;         /* the pose the recordings are handed when no stream client takes one */
+    pose own_pose;         /* the pose the copiers are handed when no sink lends one */
     uint32_t *torn;        /* ids of the torn springs, ascending */
     int64_t n_torn;
     float *scratch;        /* velocities or strains for the scalars */
@@ -154,6 +161,12 @@ struct scene {
  * Its state is published and journaled from the engine's current step. One reference, the
  * caller's; NULL when out of memory (the engine is destroyed then too). */
 scene *scene_new(const char *id, cs_sim *engine, const loop_settings *loop, int paused, const clothd_settings *set);
+/* Adds a sink (any thread): from the next publication on it is handed the scene's poses and
+ * events, after those added before it. 0, also when it is there already (the same ops and ctx);
+ * -1 when the scene has SCENE_SINKS, or a sink that lends already and this one lends too, or it
+ * left the daemon. A sink with no ops is not added (0). */
+int scene_add_sink(scene *sc, frame_sink sink);
+/* scene_add_sink, for a sink given at the scene's start (the stream's). */
 void scene_set_sink(scene *sc, frame_sink sink);
 /* Calls hook before each frame is stepped, with the frames done so far (testhooks.h). */
 void scene_set_frame_hook(scene *sc, void (*hook)(cs_sim *engine, uint64_t frame));
@@ -206,16 +219,16 @@ void scene_refuse_queued(scene *sc);
 void scene_mark_deleted(scene *sc);
 /* Whether it left the table (any thread). */
 int scene_is_deleted(scene *sc);
-/* The sim thread's last look at a deleted scene: a step in progress ends ("deleted"), what is
- * queued is refused (404), and it hands nothing more to its sink. */
+/* The sim thread's last look at a deleted scene: its sinks are told it is gone (each in turn) and
+ * handed nothing more, a step in progress ends ("deleted"), what is queued is refused (404). */
 void scene_drop_deleted(scene *sc);
 
 /* The scene's fields, the engine's parameters and the daemon-loop settings as they are now. */
 void scene_config_of(const scene *sc, scene_config *out);
-/* Publishes the reads, the pose (when the sink wants one) and torn springs' events; with_hash
+/* Publishes the reads, the pose (when a sink wants one) and torn springs' events; with_hash
  * adds the state hash to GET /v1/sim's JSON. */
 void scene_publish(scene *sc, int with_hash);
-/* Sends an event to the sink's listeners: ev gets "type": "event" and the request id (stolen). */
+/* Sends an event to the sinks: ev gets "type": "event" and the request id (stolen). */
 void scene_emit(scene *sc, json_t *ev, const char *request_id);
 /* Replaces last_event (stolen). */
 void scene_set_event(scene *sc, json_t *ev);

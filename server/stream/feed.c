@@ -276,7 +276,8 @@ static uint64_t sink_bytes(int32_t n, int32_t rocks)
     return 4 * (sizeof f + raw) + wires + DELTA_CHANNELS * chan;
 }
 
-const frame_sink_ops stream_sink_ops = {sink_begin, sink_publish, sink_discard, sink_event, sink_bytes};
+const frame_sink_ops stream_sink_ops = {
+    .begin = sink_begin, .publish = sink_publish, .discard = sink_discard, .event = sink_event, .bytes = sink_bytes};
 
 frame_sink stream_scene_sink(stream *st, scene *sc)
 {

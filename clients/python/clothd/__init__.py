@@ -13,8 +13,8 @@ numpy is there, lists otherwise), recordings (clothd.recording), and the excepti
 See clients/python/README.md.
 """
 
-from .client import (DEFAULT_SCENE, DEFAULT_URL, SCENE_ID, Client, ClothState, Recordings, Scene,
-                     SceneRoutes)
+from .client import DEFAULT_URL, Client, ClothState, Recordings, Scene, SceneRoutes
+from .common import DEFAULT_SCENE, SCENE_ID
 from .errors import (BadRequest, Busy, ClientError, ClothdError, Conflict, ConnectionFailed, Forbidden,
                      FrameError, MethodNotAllowed, MissingDependency, NotFound, PayloadTooLarge, ProtocolError,
                      RateLimited, ServerError, StreamRefused, Timeout, Unauthorized, Unavailable, Unprocessable,

@@ -16,14 +16,12 @@ from __future__ import annotations
 import asyncio
 import importlib
 import json
-from typing import TYPE_CHECKING, Any, AsyncIterator, Callable, Dict, List, Optional, Sequence
+from typing import Any, AsyncIterator, Callable, Dict, List, Optional, Sequence
 
+from .common import DEFAULT_SCENE, StreamClient
 from .errors import ConnectionFailed, MissingDependency, NotFound, ProtocolError, StreamRefused, Timeout, error_class
 from .frames import Frame, FrameDecoder
-from .stream import DEFAULT_SCENE, PROTOCOL, SCENE_DELETED, Message, parse_text, stream_url
-
-if TYPE_CHECKING:
-    from .client import Client
+from .stream import PROTOCOL, SCENE_DELETED, Message, parse_text, stream_url
 
 _ws: Any  # websockets.client, or None (imported by name: mypy checks this module with or without it)
 _ws_exceptions: Any
@@ -48,7 +46,7 @@ class AsyncStream:
     on_event(event): called with each event as it is read.
     """
 
-    def __init__(self, client: Client, scene: str = DEFAULT_SCENE, subscription: Optional[Dict[str, Any]] = None, *,
+    def __init__(self, client: StreamClient, scene: str = DEFAULT_SCENE, subscription: Optional[Dict[str, Any]] = None, *,
                  numpy: Optional[bool] = None, timeout: Optional[float] = 30.0,
                  on_event: Optional[Callable[[Dict[str, Any]], None]] = None) -> None:
         self.client = client

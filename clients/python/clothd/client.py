@@ -26,31 +26,23 @@ import urllib.parse
 from typing import TYPE_CHECKING, Any, Dict, Iterable, Mapping, Optional, Sequence, Union, cast
 
 from . import frames as _frames
+from .aio import AsyncStream
+from .common import DEFAULT_SCENE as DEFAULT_SCENE, SCENE_ID as SCENE_ID, check_scene_id as _check_scene_id
 from .errors import ConnectionFailed, ProtocolError, Timeout, error_from_answer
+from .stream import Stream
 
 if TYPE_CHECKING:
-    from .aio import AsyncStream
     from .recording import Recording
-    from .stream import Stream
 
 #: A JSON object the server answers, as json.loads gives it (PROTOCOL.md describes each).
 JsonObject = Dict[str, Any]
 
 DEFAULT_URL = "http://127.0.0.1:8080"
-DEFAULT_SCENE = "default"
 DEFAULT_TIMEOUT = 30.0
-#: Scene ids the server takes (checked here, before any request).
-SCENE_ID = re.compile(r"[a-z0-9][a-z0-9_-]{0,62}\Z")
 #: X-Request-Id values the server echoes.
 REQUEST_ID = re.compile(r"[A-Za-z0-9._:/+=-]{1,128}\Z")
 
 _UNSET = object()
-
-
-def _check_scene_id(scene_id: object, what: str = "scene id") -> None:
-    """Scene and recording ids are the same slug."""
-    if not isinstance(scene_id, str) or not SCENE_ID.match(scene_id):
-        raise ValueError("%s %r is not one clothd takes ([a-z0-9][a-z0-9_-]{0,62})" % (what, scene_id))
 
 
 def _check_request_id(request_id: object) -> None:
@@ -252,7 +244,6 @@ class SceneRoutes:
         """The stream of this scene, connected (clothd.stream.Stream; a context manager).
         encoding, max_fps, scalar: the subscription; options: Stream's (reconnect, numpy,
         timeout, on_event, on_status, on_problem)."""
-        from .stream import Stream
         sub = {k: v for k, v in (("encoding", encoding), ("max_fps", max_fps), ("scalar", scalar)) if v is not None}
         return Stream(self._client, scene=self.id, subscription=sub, **options)
 
@@ -260,7 +251,6 @@ class SceneRoutes:
                 **options: Any) -> AsyncStream:
         """The stream of this scene in asyncio (clothd.aio.AsyncStream), not yet connected: ``async
         with client.astream(...) as s`` connects it. options: AsyncStream's (numpy, timeout, on_event)."""
-        from .aio import AsyncStream
         sub = {k: v for k, v in (("encoding", encoding), ("max_fps", max_fps), ("scalar", scalar)) if v is not None}
         return AsyncStream(self._client, scene=self.id, subscription=sub, **options)
 

@@ -20,14 +20,12 @@ import json
 import random
 import time
 import urllib.parse
-from typing import TYPE_CHECKING, Any, Callable, Dict, Iterator, List, Optional, Sequence, Union
+from typing import Any, Callable, Dict, Iterator, List, Optional, Sequence, Union
 
+from .common import DEFAULT_SCENE as DEFAULT_SCENE, StreamClient, check_scene_id
 from .errors import (ConnectionFailed, MissingDependency, NotFound, ProtocolError, StreamRefused, Timeout, Unavailable,
                      error_class)
 from .frames import Buffer, Frame, FrameDecoder
-
-if TYPE_CHECKING:
-    from .client import Client
 
 _websocket: Any  # websocket-client, or None
 try:
@@ -40,7 +38,6 @@ except ImportError:  # optional: streams need it
 Message = Union[Dict[str, Any], Frame]
 
 PROTOCOL = "clothd.v1"
-DEFAULT_SCENE = "default"
 BACKOFF_MIN = 0.25
 BACKOFF_MAX = 8.0
 TEXT_TYPES = ("hello", "event", "subscribed", "error")
@@ -53,7 +50,7 @@ def websocket_available() -> bool:
     return _websocket is not None
 
 
-def stream_url(client: Client, scene: str = DEFAULT_SCENE) -> str:
+def stream_url(client: StreamClient, scene: str = DEFAULT_SCENE) -> str:
     """The URL of ``scene``'s stream, from GET /v1/health (503 unhealthy still tells it); NotFound
     where the server has no such scene."""
     if scene != DEFAULT_SCENE:
@@ -97,7 +94,7 @@ class Stream:
     detail) and on_problem(text): called as they happen (on_status: "open", "closed").
     """
 
-    def __init__(self, client: Client, scene: str = DEFAULT_SCENE, subscription: Optional[Dict[str, Any]] = None, *,
+    def __init__(self, client: StreamClient, scene: str = DEFAULT_SCENE, subscription: Optional[Dict[str, Any]] = None, *,
                  reconnect: bool = False, numpy: Optional[bool] = None, timeout: Optional[float] = 30.0,
                  on_event: Optional[Callable[[Dict[str, Any]], None]] = None,
                  on_status: Optional[Callable[[str, str], None]] = None,
@@ -356,8 +353,7 @@ class Stream:
         ``subscribed`` answer; the new scene's hello is then ``stream.hello``, and what the scene
         before sent until then is dropped. A scene the server lacks (or an id it refuses) raises
         StreamRefused with the server's ``error``, and the stream stays on its scene."""
-        from .client import _check_scene_id  # here: client.py imports this module
-        _check_scene_id(scene_id)
+        check_scene_id(scene_id)
         self.send({"type": "subscribe", "scene": scene_id})
         deadline = time.monotonic() + timeout
         before: List[Message] = []

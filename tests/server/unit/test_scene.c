@@ -25,7 +25,8 @@ static void rec_publish(void *ctx, pose *p)
 static void rec_discard(void *ctx, pose *p) { (void)ctx, (void)p; }
 static void rec_event(void *ctx, const char *json) { json_array_append_new(((recorder *)ctx)->events, json_loads(json, 0, NULL)); }
 static uint64_t rec_bytes(int32_t n, int32_t rocks) { return 1000 * (uint64_t)n + (uint64_t)rocks; }
-static const frame_sink_ops rec_ops = {rec_begin, rec_publish, rec_discard, rec_event, rec_bytes};
+static const frame_sink_ops rec_ops = {
+    .begin = rec_begin, .publish = rec_publish, .discard = rec_discard, .event = rec_event, .bytes = rec_bytes};
 
 static recorder rec;
 static int answered;
