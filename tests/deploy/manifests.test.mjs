@@ -249,6 +249,12 @@ test('systemd unit: what the container runs, a state directory, restart on failu
   assert.match(one('ProtectSystem'), /^(strict|full)$/);
   assert.ok(u.DynamicUser?.[0] === 'yes' || (u.User && !['root', '0'].includes(u.User[0])), 'a user of its own');
   assert.equal(u.PrivateDevices, undefined, 'PrivateDevices would hide the GPU');
+  assert.equal(one('DevicePolicy'), 'closed');
+  assert.deepEqual(u.DeviceAllow, ['char-nvidia* rw'], 'the NVIDIA driver\'s devices, and no others');
+  // A filtered system call fails with EPERM rather than killing the daemon, and setpriority (the
+  // HTTP threads' http_nice) stays allowed after ~@resources.
+  assert.equal(one('SystemCallErrorNumber'), 'EPERM');
+  assert.deepEqual(u.SystemCallFilter, ['@system-service', '~@privileged @resources', 'setpriority']);
   // systemd sets STATE_DIRECTORY and CREDENTIALS_DIRECTORY; clothd-serve keeps the state and reads
   // the token where the unit says.
   const stateDir = `/var/lib/${one('StateDirectory')}`;
