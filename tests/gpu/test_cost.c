@@ -1,4 +1,4 @@
-/* test_cost.c - the CUDA backend's cost model (cuda_cost in backend_cuda.cu, what clothd-bench
+/* test_cost.c - the CUDA backend's cost model (cuda_cost in cost_cuda.cuh, what clothd-bench
  * prints and its roofline predictions rest on) against the bytes the kernels actually touch, as
  * the CPU imitation of CUDA counts them: for each kernel, the distinct bytes of device memory it
  * reads and writes per vertex per launch, and its launches per frame, for both integrators with and

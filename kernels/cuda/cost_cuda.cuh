@@ -1,0 +1,160 @@
+/* cost_cuda.cuh - the CUDA backend's cost model (backend.h's cost and stats): the bytes each
+ * kernel reads and writes, its launches and graphs, and the device's peak bandwidth. Part of the
+ * one translation unit backend_cuda.cu. */
+#ifndef CLOTHSIM_CUDA_COST_CUDA_CUH
+#define CLOTHSIM_CUDA_COST_CUDA_CUH
+
+#include <math.h>
+
+#include "clothsim/implicit.h"
+#include "graphs_cuda.cuh"
+
+/* The device's memory bandwidth by its clock and bus (0 where it does not say). */
+static double peak_bandwidth(int dev)
+{
+    int khz = 0, bits = 0;
+    if (cudaDeviceGetAttribute(&khz, cudaDevAttrMemoryClockRate, dev) != cudaSuccess ||
+        cudaDeviceGetAttribute(&bits, cudaDevAttrGlobalMemoryBusWidth, dev) != cudaSuccess) {
+        (void)cudaGetLastError();
+        return 0;
+    }
+    return 2.0 * (double)khz * 1e3 * (double)bits / 8.0; /* double data rate */
+}
+
+/* The cost model (backend.h): the distinct bytes each kernel reads and writes per vertex, from the
+ * kernels' loads and stores (the *_impl.cuh files, implicit_cuda.cuh); tests/gpu/test_datapath.c
+ * holds it to what the CPU imitation of CUDA sees the kernels touch. Per vertex of the cloth
+ * kernel: the state read (6 floats), the mask (1 byte), the six owned rest lengths, the state
+ * written; with strain the change byte (read and, where it flips, written) and the rest lengths of
+ * vertices whose springs are changing (none at rest); the acceleration where a graph ends. (A
+ * vertex at a border owns fewer springs.) Rock kernels scale with rocks, not vertices. */
+/* implicit_euler's rows: its launches scale with the solver's iterations, which depend on the
+ * state, so the model takes nominal counts - IM_NEWTON Newton iterations a substep, each with one
+ * line-search assembly and IM_CG conjugate-gradient iterations (about what the default cloth takes:
+ * MODEL.md's table) - and the bytes per vertex each kernel's loads and stores name (a vertex's
+ * own; neighbours' reads come from cache). A V-cycle's coarse levels add about a third of level 0's
+ * traffic (2 x 2 aggregation), counted in its rows. Rough by design: what bench measures is the
+ * truth; the copies of the partials back to the host (4 bytes a chunk) and the waits for them, one
+ * per sum, are not bytes a vertex but they bound a small cloth's speed. */
+#define IM_NEWTON 3.0
+#define IM_CG 5.0
+static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
+{
+    const cs_phys *p = &m->phys;
+    const double F = m->substeps, N = IM_NEWTON, C = IM_CG, levels = 4.0 / 3.0;
+    const bool strain = p->strain_on != 0;
+    /* A block as stored (its upper triangle: 24 bytes); a level's matrix per vertex: D and the four
+     * forward blocks (120 bytes); level 0's bending blocks (48). Rows: bytes a vertex per run, runs
+     * a substep, launches a run. */
+    const double blk = 4.0 * CS_IM_SYM, blocks = 5 * blk, bend = 2 * blk;
+    /* a V-cycle's launches: per level above the coarsest a sweep each way, three products A x, the
+     * residual, restriction and prolongation; the coarsest's 16 sweeps (the default 4 levels) */
+    const double vcycle_launches = 3.0 * 7.0 + 2.0 * CS_IM_COARSE_SWEEPS - 1.0;
+#define IM_ROW(name, rd, wr, runs, launches) cs_cost_add(out, name, rd, wr, 0, runs, (runs) * F * (launches))
+    IM_ROW("k_im_reach (the part's largest coordinate)", 12.0, 0.0, 1.0, 1.0);
+    IM_ROW("k_im_begin (x_n, v_n kept; the first guess)", 24.0 + 1.0, 24.0 + 4.0 + 24.0, 1.0, 1.0);
+    /* the state (24), x_n's velocity (12), rest lengths (24), mask (4); R, the springs' force,
+     * level 0's D, forward and bending blocks */
+    IM_ROW("k_im_assemble (residual and level 0's matrix)", 64.0, 12.0 + 12.0 + blocks + bend, 1.0 + N, 1.0);
+    /* each coarse level's Galerkin product reads the finer level's blocks and writes its own;
+     * every level's Dinv */
+    IM_ROW("k_im_galerkin, k_im_inverse (the hierarchy)", levels * blk + 0.25 * levels * (blocks + 4.0),
+           levels * blk + 0.25 * levels * (blocks + 4.0), N, 7.0);
+    /* per CG iteration: A p with bending (the blocks, p, the mask; A p written), three dot
+     * products, the two vector updates, a V-cycle (smoothing sweeps, products, residual,
+     * restriction, prolongation; the coarse levels a third more than level 0) */
+    IM_ROW("k_im_apply (A p, bending included)", blocks + bend + 12.0 + 4.0, 12.0, N * C, 1.0);
+    IM_ROW("k_im_dot (chunk partials)", 24.0, 0.0, N * (3.0 * C + 1.0), 1.0);
+    IM_ROW("k_im_cg_step, k_im_cg_dir", 48.0 + 24.0, 24.0 + 12.0, N * C, 2.0);
+    IM_ROW("V-cycle (k_im_jacobi, k_im_apply, k_im_sub, k_im_restrict, k_im_prolong)",
+           levels * (2 * (blk + 40.0) + 3 * (blocks + 16.0) + 24.0 + 12.0 + 24.0),
+           levels * (2 * 12.0 + 3 * 12.0 + 12.0 + 3.0 + 12.0), N * (C + 1.0), vcycle_launches);
+    IM_ROW("k_im_keep, k_im_move (the line search)", 12.0 + 12.0 + 12.0 + 12.0 + 4.0, 12.0 + 24.0, N, 2.0);
+    if (n_rocks > 0) {
+        /* With rocks (nominally one part a substep; contact cuts substeps into more): the
+         * substep's closing rate (positions and velocities; the rocks), and a part's rock steps -
+         * the one-thread kernels scan the cloth twice for each rock for its candidates (positions
+         * and, surface model, rest lengths: about 28 bytes a vertex) and twice for its friction
+         * (positions, start, velocities, the carried rock, mass and normal, what the push moved:
+         * about 60 bytes a vertex, the push's mark cleared: 4), read the rock carried (4) and
+         * write it with the mass and normal (20) */
+        const double rock = (double)sizeof(cs_rock_state) * n_rocks;
+        cs_cost_add(out, "k_im_fastest_chunks, k_im_fastest (a substep's parts)", 24.0, 0.0, rock, 1.0, 2.0 * F);
+        cs_cost_add(out, "k_im_rocks_begin, k_im_rocks_push (one thread)",
+                    n_rocks * (2.0 * 28.0 + 2.0 * 60.0) + 4.0 + 24.0 + 4.0, 20.0 + 4.0 * n_rocks, 3.0 * rock, 1.0,
+                    2.0 * F);
+    }
+    IM_ROW("k_im_accel", 24.0 + 4.0, 12.0, 1.0, 1.0);
+    if (strain) IM_ROW("k_strain", 12.0 + 24.0 + 1.0, 0.0, 1.0, 1.0);
+    IM_ROW("k_im_finite (a step call's end)", 24.0, 0.0, 1.0 / F, 1.0);
+#undef IM_ROW
+    cs_cost_add(out, "frame copy (positions, on the device)", 12.0, 12.0, 0, 1.0 / F, 0);
+    out->graphs_per_frame = 0.0; /* plain launches */
+    /* every launch waits for the one before */
+    out->nodes_per_substep = out->launches_per_frame / F;
+    /* stepped alone in a batch (cuda_step_batch): every launch and copy is its own call */
+    out->batch_calls_per_scene = out->launches_per_frame;
+    out->batch_calls_per_read_scene = out->launches_per_frame + 3.0;
+}
+
+static void cuda_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
+{
+    const cs_phys *p = &m->phys;
+    if (p->integrator == CS_IMPLICIT_EULER) {
+        memset(out, 0, sizeof *out);
+        im_cost(m, n_rocks, out);
+        return;
+    }
+    const double G = graph_len(m), F = m->substeps, graphs = ceil(F / G);
+    const bool verlet = p->integrator == CS_VELOCITY_VERLET, strain = p->strain_on != 0;
+    const double rock = (double)sizeof(cs_rock_state);
+    memset(out, 0, sizeof *out);
+    /* A vertex reads the rest lengths of the springs it owns that the grid has. */
+    const double nx = p->nx, ny = p->ny;
+    const double springs = (nx - 1) * ny + nx * (ny - 1) + 2 * (nx - 1) * (ny - 1) + (nx - 2) * ny + nx * (ny - 2);
+    const double cloth_read = 24.0 + 1.0 + 4.0 * springs / (nx * ny) + (verlet && strain ? 1.0 : 0.0);
+    const double last = (G - 1.0) / G, once = 1.0 / G;
+    const char *name = verlet ? "k_cloth (velocity Verlet)" : "k_cloth (symplectic Euler)";
+    const char *name_last = verlet ? "k_cloth (the last substep of a graph)" : "k_cloth (the last substep of a graph, Euler)";
+    /* Culling reads each rock's centre and radius, the group sums its word of each chunk group
+     * (and 24 bytes for each chunk that touched it: contact-dependent, not modelled). */
+    const double ng = ceil((double)p->nchunks / CS_CHUNK_GROUP);
+    const double cull = (16.0 + 8.0 * ng) * n_rocks;
+    cs_cost_add(out, name, cloth_read, 24.0, cull, last, F - graphs);
+    cs_cost_add(out, name_last, cloth_read, 24.0 + 12.0, cull, once, graphs);
+    if (verlet) cs_cost_add(out, "k_drift_first (the first substep of a graph)", 36.0, 24.0, 2 * rock * n_rocks, once, graphs);
+    if (!verlet && strain) cs_cost_add(out, "k_strain", 12.0 + 24.0 + 1.0, 0.0, 0.0, 1.0, F);
+    if (n_rocks > 0) {
+        /* Each rock: its state read (by every warp: the same bytes), its hit words read, its state
+         * written; plus 24 bytes for each chunk group that touched it (contact-dependent, not
+         * modelled). */
+        const double nr = n_rocks;
+        if (n_rocks <= ROCKS_FUSED)
+            cs_cost_add(out, "k_rocks (forces and moves, one block)", 0, 0, nr * (rock + 8.0 * ng + rock), 1.0, F);
+        else {
+            cs_cost_add(out, "k_rock_force (a warp per rock)", 0, 0, nr * (rock + 8.0 * ng + 24.0), 1.0, F);
+            cs_cost_add(out, "k_rock_move", 0, 0, nr * 2 * rock, 1.0, F);
+        }
+    }
+    /* The frame the host reads, copied on the device once per step call. */
+    cs_cost_add(out, "frame copy (positions, on the device)", 12.0, 12.0, 0, 1.0 / F, 0);
+    out->graphs_per_frame = graphs;
+    /* batch_run: nothing for a scene whose stream is idle; batch_frames, its positions read: a
+     * wait for the slot's last copy, the copy to pinned memory, an event (the device copies are
+     * one launch for the batch). */
+    out->batch_calls_per_scene = 0.0;
+    out->batch_calls_per_read_scene = 3.0;
+    out->nodes_per_substep = 1.0 + (n_rocks > 0 ? (n_rocks <= ROCKS_FUSED ? 1.0 : 2.0) : 0.0) +
+                             (!verlet && strain ? 1.0 : 0.0) + (verlet ? 1.0 / G : 0.0);
+}
+
+static void cuda_stats(void *ctx, const cs_model *m, cs_backend_stats *out)
+{
+    cuda_ctx *c = (cuda_ctx *)ctx;
+    cs_cost_model cm;
+    cuda_cost(m, c->host_sc.nr, &cm);
+    out->bytes_per_vertex_substep = cm.bytes_per_vertex_substep;
+    out->peak_bandwidth = peak_bandwidth(c->dev);
+}
+
+#endif /* CLOTHSIM_CUDA_COST_CUDA_CUH */
