@@ -157,6 +157,105 @@ static void spend(session *s, size_t len, double t)
     s->next_send = (s->next_send > t ? s->next_send : t) + (double)len * 8.0 / ((double)s->max_kbps * 1000.0);
 }
 
+/* Sends a text message to a client (and frees it), then asks to be called again for what is next. */
+static int send_text(stream *st, session *s, char *text)
+{
+    const int rc = stream_send_text(s->wsi, text, st);
+    free(text);
+    lws_callback_on_writable(s->wsi);
+    return rc;
+}
+
+/* The client's next event from its feed's ring (a copy, or NULL when it has them all) in *event; -1
+ * when it fell further behind than the ring keeps (logged and counted: the client is closed). */
+static int next_event(stream *st, session *s, char **event)
+{
+    feed *fd = s->f;
+    pthread_mutex_lock(&fd->elock);
+    if (fd->ring && s->next_event < fd->event_seq) {
+        if (s->next_event < fd->event_first) {
+            const unsigned long long behind = (unsigned long long)(fd->event_seq - s->next_event);
+            pthread_mutex_unlock(&fd->elock);
+            log_msg("stream: client %llu fell %llu events behind, past what the event ring keeps: disconnected",
+                    (unsigned long long)s->id, behind);
+            atomic_fetch_add(&st->stalled, 1);
+            return -1;
+        }
+        *event = strdup(fd->ring[s->next_event % EVENT_RING].text);
+        s->next_event++;
+    }
+    pthread_mutex_unlock(&fd->elock);
+    return 0;
+}
+
+/* Whether a client must wait before its next frame at t (its max_fps, its byte budget): then a
+ * timer calls it back when it may. */
+static int must_wait(session *s, double t)
+{
+    double wait = 1.0 / s->max_fps - (t - s->last_send);
+    if (s->max_kbps && s->next_send - t > wait) wait = s->next_send - t; /* its byte budget */
+    if (wait > 0.0005) {
+        lws_set_timer_usecs(s->wsi, (lws_usec_t)(wait * 1e6));
+        return 1;
+    }
+    return 0;
+}
+
+/* The keyframe a delta client lacks and frame w refers to, when the client must get it first
+ * (unless w is it), or NULL. */
+static const wire *missing_keyframe(const session *s, const wire *w)
+{
+    if (s->chan < 0 || s->encoding != CLF_DELTA || w->key_id == s->key_have) return NULL;
+    const wire *key = &s->f->chans[s->chan].key;
+    return key->len && key->key_id == w->key_id && key->seq != w->seq ? key : NULL;
+}
+
+/* Writes the keyframe a client lacks (at t), then asks to be called again for the frame. */
+static int send_keyframe(stream *st, session *s, const wire *key, double t)
+{
+    const int n = lws_write(s->wsi, key->buf + LWS_PRE, key->len, LWS_WRITE_BINARY);
+    if (n < (int)key->len) return -1;
+    atomic_fetch_add(&st->bytes_sent, key->len);
+    if (s->slot) atomic_fetch_add(&s->slot->bytes, key->len);
+    spend(s, key->len, t);
+    s->key_have = key->key_id;
+    lws_callback_on_writable(s->wsi);
+    return 0;
+}
+
+/* Writes frame w to a client (at t) and counts it: the frames it skipped, what it was sent. */
+static int send_frame(stream *st, session *s, const wire *w, double t)
+{
+    const int n = lws_write(s->wsi, w->buf + LWS_PRE, w->len, LWS_WRITE_BINARY);
+    if (n < (int)w->len) return -1;
+    if (s->last_frame && w->seq > s->last_frame + 1) atomic_fetch_add(&st->skipped[s->encoding], w->seq - s->last_frame - 1);
+    atomic_fetch_add(&st->sent[s->encoding], 1);
+    if (s->slot) {
+        atomic_fetch_add(&s->slot->frames, 1);
+        atomic_fetch_add(&s->slot->bytes, w->len);
+    }
+    atomic_fetch_add(&st->bytes_sent, w->len);
+    s->last_frame = w->seq;
+    spend(s, w->len, t);
+    s->key_have = w->key_id;
+    s->last_send = t;
+    s->behind_since = 0;
+    return 0;
+}
+
+/* The newest frame to a client that has not had it, when its rate allows: the keyframe it refers
+ * to first when the client lacks it. */
+static int send_newest(stream *st, session *s)
+{
+    const wire *w = wire_of(st, s);
+    if (w->seq <= s->last_frame || !w->len) return 0;
+    const double t = clock_mono();
+    if (must_wait(s, t)) return 0;
+    const wire *key = missing_keyframe(s, w);
+    if (key) return send_keyframe(st, s, key, t);
+    return send_frame(st, s, w, t);
+}
+
 /* One message to a client that can take it: hello, errors and acks, events, then the newest
  * frame (when its rate allows). A client whose scene was deleted is closed instead. */
 int stream_writeable(stream *st, session *s)
@@ -172,78 +271,17 @@ int stream_writeable(stream *st, session *s)
         return 0;
     }
     if (s->hello) {
-        const int rc = stream_send_text(s->wsi, s->hello, st);
-        free(s->hello);
+        char *hello = s->hello;
         s->hello = NULL;
-        lws_callback_on_writable(s->wsi);
-        return rc;
+        return send_text(st, s, hello);
     }
     if (s->n_texts) {
-        const int rc = stream_send_text(s->wsi, s->texts[0], st);
-        free(s->texts[0]);
+        char *text = s->texts[0];
         memmove(s->texts, s->texts + 1, sizeof s->texts[0] * (size_t)(--s->n_texts));
-        lws_callback_on_writable(s->wsi);
-        return rc;
+        return send_text(st, s, text);
     }
-    feed *fd = s->f;
-    pthread_mutex_lock(&fd->elock);
     char *event = NULL;
-    if (fd->ring && s->next_event < fd->event_seq) {
-        if (s->next_event < fd->event_first) {
-            const unsigned long long behind = (unsigned long long)(fd->event_seq - s->next_event);
-            pthread_mutex_unlock(&fd->elock);
-            log_msg("stream: client %llu fell %llu events behind, past what the event ring keeps: disconnected",
-                    (unsigned long long)s->id, behind);
-            atomic_fetch_add(&st->stalled, 1);
-            return -1;
-        }
-        event = strdup(fd->ring[s->next_event % EVENT_RING].text);
-        s->next_event++;
-    }
-    pthread_mutex_unlock(&fd->elock);
-    if (event) {
-        const int rc = stream_send_text(s->wsi, event, st);
-        free(event);
-        lws_callback_on_writable(s->wsi);
-        return rc;
-    }
-    const wire *w = wire_of(st, s);
-    if (w->seq > s->last_frame && w->len) {
-        const double t = clock_mono();
-        double wait = 1.0 / s->max_fps - (t - s->last_send);
-        if (s->max_kbps && s->next_send - t > wait) wait = s->next_send - t; /* its byte budget */
-        if (wait > 0.0005) {
-            lws_set_timer_usecs(s->wsi, (lws_usec_t)(wait * 1e6));
-            return 0;
-        }
-        if (s->chan >= 0 && s->encoding == CLF_DELTA && w->key_id != s->key_have) {
-            /* It lacks the keyframe this frame refers to: that first (unless this is it). */
-            const wire *key = &fd->chans[s->chan].key;
-            if (key->len && key->key_id == w->key_id && key->seq != w->seq) {
-                const int n = lws_write(s->wsi, key->buf + LWS_PRE, key->len, LWS_WRITE_BINARY);
-                if (n < (int)key->len) return -1;
-                atomic_fetch_add(&st->bytes_sent, key->len);
-                if (s->slot) atomic_fetch_add(&s->slot->bytes, key->len);
-                spend(s, key->len, t);
-                s->key_have = key->key_id;
-                lws_callback_on_writable(s->wsi);
-                return 0;
-            }
-        }
-        const int n = lws_write(s->wsi, w->buf + LWS_PRE, w->len, LWS_WRITE_BINARY);
-        if (n < (int)w->len) return -1;
-        if (s->last_frame && w->seq > s->last_frame + 1) atomic_fetch_add(&st->skipped[s->encoding], w->seq - s->last_frame - 1);
-        atomic_fetch_add(&st->sent[s->encoding], 1);
-        if (s->slot) {
-            atomic_fetch_add(&s->slot->frames, 1);
-            atomic_fetch_add(&s->slot->bytes, w->len);
-        }
-        atomic_fetch_add(&st->bytes_sent, w->len);
-        s->last_frame = w->seq;
-        spend(s, w->len, t);
-        s->key_have = w->key_id;
-        s->last_send = t;
-        s->behind_since = 0;
-    }
-    return 0;
+    if (next_event(st, s, &event) != 0) return -1;
+    if (event) return send_text(st, s, event);
+    return send_newest(st, s);
 }

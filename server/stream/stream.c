@@ -51,96 +51,123 @@
 
 /* ---- libwebsockets ---- */
 
+/* A new client's /metrics slot: the first free one (none when all are taken). */
+static void claim_slot(stream *st, session *s)
+{
+    for (int k = 0; k < st->max_clients && !s->slot; k++) {
+        if (atomic_load(&st->slots[k].id) == 0) {
+            s->slot = &st->slots[k];
+            atomic_store(&s->slot->frames, 0);
+            atomic_store(&s->slot->bytes, 0);
+            atomic_store(&s->slot->id, s->id);
+        }
+    }
+}
+
+/* LWS_CALLBACK_ESTABLISHED: an admitted client becomes a session with the default subscription,
+ * counted, and joins its scene's feed; -1 when the scene was deleted since stream_admit(). */
+static int session_open(stream *st, struct lws *wsi, session *s)
+{
+    const access_level granted = s->access; /* set by stream_admit() in this same allocation */
+    char want[SCENE_ID_MAX];
+    memcpy(want, s->want, sizeof want);
+    memset(s, 0, sizeof *s);
+    s->access = granted;
+    scene *sc = scenes_get(st->table, want);
+    feed *fd = sc ? stream_feed_of(st, sc) : NULL;
+    if (!fd) { /* deleted since stream_admit() */
+        scene_release(sc);
+        return -1;
+    }
+    s->established = 1;
+    s->wsi = wsi;
+    s->id = ++st->next_id;
+    s->max_fps = 60;
+    s->encoding = CLF_F32;
+    s->scalar = SCALAR_NONE;
+    s->quantum = st->default_quantum;
+    s->chan = -1;
+    s->fps_at = clock_mono();
+    claim_slot(st, s);
+    s->next = st->sessions;
+    st->sessions = s;
+    atomic_fetch_add(&st->clients, 1);
+    stream_join_feed(st, s, fd, sc);
+    return 0;
+}
+
+/* LWS_CALLBACK_CLOSED: a session leaves the list, its feed and its slot, uncounted, and lets go
+ * of what it holds (its scene's handle last). */
+static void session_close(stream *st, session *s)
+{
+    for (session **p = &st->sessions; *p; p = &(*p)->next) {
+        if (*p == s) {
+            *p = s->next;
+            break;
+        }
+    }
+    stream_leave_feed(st, s);
+    if (s->slot) atomic_store(&s->slot->id, 0);
+    s->slot = NULL;
+    atomic_fetch_sub(&st->clients, 1);
+    free(s->hello);
+    for (int k = 0; k < s->n_texts; k++) free(s->texts[k]);
+    free(s->rx);
+    json_decref(s->grab_pending);
+    scene_release(s->sc);
+    s->rx = NULL;
+    s->sc = NULL;
+}
+
+/* LWS_CALLBACK_RECEIVE: a fragment of a client's message, gathered in s->rx up to max_message (a
+ * larger or binary message is marked bad, not kept); a whole message is handled. -1: out of memory. */
+static int session_receive(stream *st, struct lws *wsi, session *s, const void *in, size_t len)
+{
+    if (lws_is_first_fragment(wsi) && s->rx_len == 0) s->rx_bad = lws_frame_is_binary(wsi) ? 2 : 0;
+    if (!s->rx_bad && s->rx_len + len > (size_t)st->max_message) {
+        s->rx_bad = 1;
+    } else if (!s->rx_bad) {
+        char *b = realloc(s->rx, s->rx_len + len + 1);
+        if (!b) return -1;
+        s->rx = b;
+        memcpy(s->rx + s->rx_len, in, len);
+        s->rx_len += len;
+    }
+    if (lws_is_final_fragment(wsi) && lws_remaining_packet_payload(wsi) == 0) {
+        stream_handle_message(st, s);
+        s->rx_len = 0;
+        s->rx_bad = 0;
+    }
+    return 0;
+}
+
+/* LWS_CALLBACK_EVENT_WAIT_CANCELLED (lws_cancel_service: another thread has something for the
+ * service thread): grabs' answers, closed feeds, the newest poses, stalled clients, then every
+ * client is asked whether it can be written to. */
+static void service_wake(stream *st, struct lws *wsi)
+{
+    stream_take_answers(st);
+    stream_reap_feeds(st);
+    stream_take_newest(st);
+    stream_sweep(st);
+    lws_callback_on_writable_all_protocol(lws_get_context(wsi), st->protocol);
+}
+
 static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in, size_t len)
 {
     stream *st = lws_context_user(lws_get_context(wsi));
     session *s = user;
     switch (reason) {
-    case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION:
-        return stream_admit(st, wsi, s) ? 0 : -1;
-    case LWS_CALLBACK_ESTABLISHED: {
-        const access_level granted = s->access; /* set by stream_admit() in this same allocation */
-        char want[SCENE_ID_MAX];
-        memcpy(want, s->want, sizeof want);
-        memset(s, 0, sizeof *s);
-        s->access = granted;
-        scene *sc = scenes_get(st->table, want);
-        feed *fd = sc ? stream_feed_of(st, sc) : NULL;
-        if (!fd) { /* deleted since stream_admit() */
-            scene_release(sc);
-            return -1;
-        }
-        s->established = 1;
-        s->wsi = wsi;
-        s->id = ++st->next_id;
-        s->max_fps = 60;
-        s->encoding = CLF_F32;
-        s->scalar = SCALAR_NONE;
-        s->quantum = st->default_quantum;
-        s->chan = -1;
-        s->fps_at = clock_mono();
-        for (int k = 0; k < st->max_clients && !s->slot; k++) {
-            if (atomic_load(&st->slots[k].id) == 0) {
-                s->slot = &st->slots[k];
-                atomic_store(&s->slot->frames, 0);
-                atomic_store(&s->slot->bytes, 0);
-                atomic_store(&s->slot->id, s->id);
-            }
-        }
-        s->next = st->sessions;
-        st->sessions = s;
-        atomic_fetch_add(&st->clients, 1);
-        stream_join_feed(st, s, fd, sc);
-        return 0;
-    }
+    case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION: return stream_admit(st, wsi, s) ? 0 : -1;
+    case LWS_CALLBACK_ESTABLISHED: return session_open(st, wsi, s);
     case LWS_CALLBACK_CLOSED:
         /* libwebsockets closes the connections stream_admit() refused here too: they were never counted. */
-        if (!s || !s->established) return 0;
-        for (session **p = &st->sessions; *p; p = &(*p)->next) {
-            if (*p == s) {
-                *p = s->next;
-                break;
-            }
-        }
-        stream_leave_feed(st, s);
-        if (s->slot) atomic_store(&s->slot->id, 0);
-        s->slot = NULL;
-        atomic_fetch_sub(&st->clients, 1);
-        free(s->hello);
-        for (int k = 0; k < s->n_texts; k++) free(s->texts[k]);
-        free(s->rx);
-        json_decref(s->grab_pending);
-        scene_release(s->sc);
-        s->rx = NULL;
-        s->sc = NULL;
+        if (s && s->established) session_close(st, s);
         return 0;
-    case LWS_CALLBACK_RECEIVE: {
-        if (lws_is_first_fragment(wsi) && s->rx_len == 0) s->rx_bad = lws_frame_is_binary(wsi) ? 2 : 0;
-        if (!s->rx_bad && s->rx_len + len > (size_t)st->max_message) {
-            s->rx_bad = 1;
-        } else if (!s->rx_bad) {
-            char *b = realloc(s->rx, s->rx_len + len + 1);
-            if (!b) return -1;
-            s->rx = b;
-            memcpy(s->rx + s->rx_len, in, len);
-            s->rx_len += len;
-        }
-        if (lws_is_final_fragment(wsi) && lws_remaining_packet_payload(wsi) == 0) {
-            stream_handle_message(st, s);
-            s->rx_len = 0;
-            s->rx_bad = 0;
-        }
-        return 0;
-    }
+    case LWS_CALLBACK_RECEIVE: return session_receive(st, wsi, s, in, len);
     case LWS_CALLBACK_SERVER_WRITEABLE: return stream_writeable(st, s);
     case LWS_CALLBACK_TIMER: lws_callback_on_writable(wsi); return 0;
-    case LWS_CALLBACK_EVENT_WAIT_CANCELLED:
-        stream_take_answers(st);
-        stream_reap_feeds(st);
-        stream_take_newest(st);
-        stream_sweep(st);
-        lws_callback_on_writable_all_protocol(lws_get_context(wsi), st->protocol);
-        return 0;
+    case LWS_CALLBACK_EVENT_WAIT_CANCELLED: service_wake(st, wsi); return 0;
     default: return lws_callback_http_dummy(wsi, reason, user, in, len);
     }
 }
