@@ -7,9 +7,10 @@
 # decoders it holds (frame.mjs, delta-wasm.mjs, recording.mjs), to clients/js/src/, and proto/'s
 # frame.mjs and recording.mjs (which re-export those) to proto/. index.html's import map names
 # these paths; @mcap/core (its ES modules, with @foxglove/crc and heap-js) and @foxglove/schemas'
-# JSON Schemas (CommonJS, wrapped below as an ES module) serve the MCAP export. No bundler: the
-# browser loads ES modules, nothing comes from a CDN. Without web/node_modules the page cannot
-# work, so nothing is assembled and clothd serves its placeholder page.
+# JSON Schemas (CommonJS, wrapped below as an ES module) serve the MCAP export, webm-muxer the
+# WebM video of a recording's range. No bundler: the browser loads ES modules, nothing comes from
+# a CDN. Without web/node_modules the page cannot work, so nothing is assembled and clothd serves
+# its placeholder page.
 set(vendor
   "three/build/three.module.js" "three.module.js"
   "three/build/three.core.js" "three.core.js"
@@ -21,6 +22,7 @@ set(vendor
   "uplot/dist/uPlot.min.css" "uPlot.min.css"
   "meshoptimizer/meshopt_decoder.mjs" "meshopt_decoder.mjs"
   "zstddec/dist/zstddec.mjs" "zstddec.mjs"
+  "webm-muxer/build/webm-muxer.mjs" "webm-muxer.mjs"
   "heap-js/dist/heap-js.es5.js" "heap-js.js"
   "@foxglove/crc/dist/esm/src/index.js" "foxglove-crc.js"
   "@mcap/core/dist/esm/index.js" "mcap-core/index.js"
@@ -30,6 +32,7 @@ set(vendor
   "uplot/LICENSE" "LICENSE.uplot"
   "meshoptimizer/LICENSE.md" "LICENSE.meshoptimizer"
   "zstddec/LICENSE" "LICENSE.zstddec"
+  "webm-muxer/LICENSE" "LICENSE.webm-muxer"
   "heap-js/LICENSE" "LICENSE.heap-js"
   "@foxglove/crc/LICENSE.md" "LICENSE.foxglove-crc"
   "@mcap/core/LICENSE" "LICENSE.mcap-core")

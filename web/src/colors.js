@@ -30,3 +30,25 @@ export function applyLut(table, scalar, rgb, n) {
     rgb[3 * v] = table[s]; rgb[3 * v + 1] = table[s + 1]; rgb[3 * v + 2] = table[s + 2];
   }
 }
+
+/**
+ * Stretch, diverging: t = -1 blue (compressed by the panel's range or more), 0 white (at rest),
+ * 1 red (stretched by the range or more).
+ */
+const BLUE = [40, 90, 220], WHITE = [240, 240, 240], RED = [215, 35, 30];
+export function stretchRgb(t) {
+  const x = Math.min(Math.max(t, -1), 1), to = x < 0 ? BLUE : RED, f = Math.abs(x);
+  return [0, 1, 2].map((c) => Math.round(lerp(WHITE[c], to[c], f)));
+}
+
+/**
+ * Fills rgb (3 bytes per vertex) from signed strains through a lut of stretchRgb over 256 steps
+ * of -range .. range.
+ */
+export function applyStretch(table, strain, range, rgb, n) {
+  const k = 127.5 / range;
+  for (let v = 0; v < n; v++) {
+    const s = 3 * Math.min(255, Math.max(0, Math.round(127.5 + k * strain[v])));
+    rgb[3 * v] = table[s]; rgb[3 * v + 1] = table[s + 1]; rgb[3 * v + 2] = table[s + 2];
+  }
+}

@@ -11,9 +11,10 @@
 // through the same drawing path as the live stream (`draw` below: hello, events, frames), with
 // the live stream closed meanwhile; "Back to live" opens it again, and its hello brings the scene
 // as it is now. Exports (export.js): the frame shown as PLY or glTF, a recording's range as
-// animated glTF. Capture and inspection: a PNG screenshot and a WebM of the live view (the
-// canvas), camera presets with the camera kept in the URL, and a vertex probe (the vertex under
-// the cursor from GET /v1/cloth/state).
+// animated glTF or as a frame-exact WebM video (video.js). Capture and inspection: a PNG
+// screenshot and a WebM of the live view (the canvas), camera presets with the camera kept in the
+// URL, a vertex probe (the vertex under the cursor from GET /v1/cloth/state) and the stretch
+// colouring (view.js).
 import { Client, SCENE_ID, DEFAULT_SCENE } from 'clothd/client';
 import { ScenePicker } from './scenes.js';
 import { View, MODES } from './view.js';
@@ -21,6 +22,7 @@ import { Interaction } from './interact.js';
 import { Panel } from './panel.js';
 import { EnergyChart } from './chart.js';
 import { RecordingBar } from './recordings.js';
+import { structuralStrain } from './topology.js';
 
 const $ = (id) => document.getElementById(id);
 
@@ -97,7 +99,7 @@ const view = new View($('view'));
 // "The stream").
 const LOOPBACK = /^(localhost|127(\.\d{1,3}){3}|\[::1\])$/.test(location.hostname);
 const ENCODING = LOOPBACK ? 'q16' : 'delta';
-const viewValues = { mode: 'surface', camera: 'orbit', encoding: ENCODING, dropRadius: 0.1, dropDensity: 2500, chart: true, preset: 'fit', probe: true, shadows: false };
+const viewValues = { mode: 'surface', camera: 'orbit', encoding: ENCODING, dropRadius: 0.1, dropDensity: 2500, chart: true, preset: 'fit', probe: true, shadows: false, stretchRange: 5 };
 let chart = null, panel = null;
 /** The recording playing (a Player of player.js), or null: live. */
 let playback = null;
@@ -167,6 +169,7 @@ function setViewValue(name, value) {
     stream.subscribe({ scalar: MODES[value] });
   } else if (name === 'camera') view.setCamera2d(value === '2d');
   else if (name === 'shadows') view.setShadows(value);
+  else if (name === 'stretchRange') view.setStretchRange(value / 100);
   else if (name === 'preset') { view.preset(value); viewValues.camera = 'orbit'; keepCameraInUrl(); }
   else if (name === 'encoding') stream.subscribe({ encoding: value });
   else if (name === 'chart') $('chart').hidden = !value;
@@ -376,18 +379,10 @@ async function runProbe() {
       const s = await cur.clothStateBinary();
       const sc = state.scene, p = s.positions, u = s.velocities;
       if (!sc || p.length !== 3 * sc.nx * sc.ny) continue;
-      // strain as PROTOCOL.md's scalar: the largest (|d| - L0) / L0 of the vertex's structural
-      // springs (L0 the grid spacing), 0 when none is stretched.
+      // strain as PROTOCOL.md's scalar: the largest (|d| - L0) / L0 of the vertex's intact
+      // structural springs (L0 the grid spacing), 0 when none is stretched (topology.js).
       const i = v % sc.nx, j = Math.floor(v / sc.nx);
-      const hx = sc.size_x / (sc.nx - 1), hy = sc.size_y / (sc.ny - 1);
-      let strain = 0;
-      for (const [di, dj, l0] of [[1, 0, hx], [-1, 0, hx], [0, 1, hy], [0, -1, hy]]) {
-        const a = i + di, b = j + dj;
-        if (a < 0 || b < 0 || a >= sc.nx || b >= sc.ny) continue;
-        const w = b * sc.nx + a;
-        const d = Math.hypot(p[3 * w] - p[3 * v], p[3 * w + 1] - p[3 * v + 1], p[3 * w + 2] - p[3 * v + 2]);
-        strain = Math.max(strain, (d - l0) / l0);
-      }
+      const strain = structuralStrain(p, sc.nx, sc.ny, sc.size_x / (sc.nx - 1), sc.size_y / (sc.ny - 1), v, false, state.torn);
       const q = probe.shown = { vertex: v, position: Array.from(p.slice(3 * v, 3 * v + 3)),
         speed: Math.hypot(u[3 * v], u[3 * v + 1], u[3 * v + 2]), strain };
       el.textContent = `vertex   ${v} (i ${i}, j ${j})\nposition ${q.position.map((x) => x.toFixed(4)).join(' ')} m\nspeed    ${q.speed.toFixed(4)} m/s\nstrain   ${(100 * q.strain).toFixed(2)} %`;
@@ -433,6 +428,7 @@ const bar = new RecordingBar($('rec'), api, {
     ? { positions: view.cloth.position.array, index: view.cloth.index, rocks: shownFrame.rocks, step: shownFrame.step, simTime: shownFrame.simTime }
     : null),
   scene: () => cur.id,
+  render: () => view.render(),
 });
 
 // ---- the scene shown: the URL's, switched on the same stream ----

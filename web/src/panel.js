@@ -39,7 +39,7 @@ export class Panel {
 
     const v = hooks.view;
     const viewFolder = this.gui.addFolder('View');
-    viewFolder.add(v.values, 'mode', { 'lit surface': 'surface', 'springs and points (speed)': 'springs', 'strain heat map': 'strain' })
+    viewFolder.add(v.values, 'mode', { 'lit surface': 'surface', 'springs and points (speed)': 'springs', 'strain heat map': 'strain', 'stretch (blue - white - red)': 'stretch' })
       .name('cloth').onChange((x) => v.onChange('mode', x));
     viewFolder.add(v.values, 'camera', { 'orbit (3D)': 'orbit', '2D orthographic': '2d' }).name('camera')
       .onChange((x) => v.onChange('camera', x));
@@ -49,6 +49,8 @@ export class Panel {
       .onChange((x) => v.onChange('encoding', x));
     viewFolder.add(v.values, 'dropRadius', 0.01, 1, 0.01).name('drop radius (m)');
     viewFolder.add(v.values, 'dropDensity', 10, 10000, 10).name('drop density (kg/m^3)');
+    viewFolder.add(v.values, 'stretchRange', 0.5, 50, 0.5).name('stretch range (%)')
+      .onChange((x) => v.onChange('stretchRange', x));
     viewFolder.add(v.values, 'shadows').name('shadows of the rocks').onChange((x) => v.onChange('shadows', x));
     viewFolder.add(v.values, 'probe').name('vertex probe (hover)');
     viewFolder.add(v.values, 'chart').name('energy chart').onChange((x) => v.onChange('chart', x));

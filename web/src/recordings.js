@@ -3,8 +3,8 @@
 // client; the list is hidden where the server has no recordings, 404), play it (player.js:
 // play, pause, a timeline to scrub, speed 0.25x .. 4x, its sim time and frame shown), export
 // (export.js: the frame shown, live or recorded, as PLY or glTF; a range of the recording, from
-// .. to on the timeline, as animated glTF; clients/js recording-export.js: the whole recording as
-// USD), and go back to live.
+// .. to on the timeline, as animated glTF or as a WebM video, frame-exact (video.js); clients/js
+// recording-export.js: the whole recording as USD or MCAP), and go back to live.
 //
 // A file that is not a recording, or is corrupt, is said in the bar (the reader's message, with
 // the offset) and the page goes on as it was; a file cut short (no index: a recording still
@@ -13,6 +13,7 @@ import { NotFound, exportUsd, exportMcap } from 'clothd/client';
 import { triangleIndices } from './topology.js';
 import { Player, SPEEDS } from './player.js';
 import { framePly, frameGlb, animationGlb, animationStride, animationCap, download, MAX_ANIMATION_FRAMES } from './export.js';
+import { encodeWebm } from './video.js';
 
 const el = (tag, props = {}, ...children) => {
   const e = Object.assign(document.createElement(tag), props);
@@ -25,9 +26,11 @@ export class RecordingBar {
   /**
    * @param {HTMLElement} container
    * @param {import('clothd/client').Client} api
-   * @param {{draw: object, enter(player), leave(), shown(): object|null, scene(): string}} hooks
+   * @param {{draw: object, enter(player), leave(), shown(): object|null, scene(): string,
+   *   render(): HTMLCanvasElement}} hooks
    *   draw: the page's drawing path for recorded records; enter and leave: a recording starts,
-   *   the page goes back to live; shown: the frame on the screen; scene: the live scene's id
+   *   the page goes back to live; shown: the frame on the screen; scene: the live scene's id;
+   *   render: draws the view now and answers its canvas (the video export)
    */
   constructor(container, api, hooks) {
     this.api = api;
@@ -76,6 +79,8 @@ export class RecordingBar {
     const toHere = button('⇥', 'the range ends at the frame shown', () => { this.to.value = String(this.player?.k ?? 0); });
     const exportAnim = button('Range as animated glTF', '', () => this.exportRange());
     exportAnim.id = 'export-animation';
+    const video = button('Range as WebM video', "the range's frames one by one as drawn, at the recording's frame rate (WebCodecs VP9 or VP8)", () => this.exportVideo());
+    video.id = 'export-webm';
     const usd = button('Recording as USD', 'the whole recording as USD text (.usda): the cloth with its tears and the rocks, every frame (Blender, Houdini)', () => this.exportUsd());
     usd.id = 'export-usd';
     const mcap = button('Recording as MCAP', 'the whole recording as MCAP (foxglove.SceneUpdate messages): the cloth and the rocks, every frame (Foxglove, Lichtblick)', () => this.exportMcap());
@@ -85,7 +90,7 @@ export class RecordingBar {
     live.id = 'rec-live';
     this.playerRow = el('div', { className: 'rec-row', id: 'rec-player', hidden: true },
       this.playButton, this.scrub, this.speed, this.time, el('br'),
-      'export frames ', this.from, fromHere, ' to ', this.to, toHere, ' ', exportAnim, this.animNote, ' ', usd, ' ', mcap, ' ', live);
+      'export frames ', this.from, fromHere, ' to ', this.to, toHere, ' ', exportAnim, this.animNote, ' ', video, ' ', usd, ' ', mcap, ' ', live);
 
     this.message = el('div', { id: 'rec-message', role: 'status' });
     container.append(top, this.playerRow, this.message);
@@ -269,9 +274,9 @@ export class RecordingBar {
   async exportRange() {
     const p = this.player;
     if (!p) return;
-    const from = Math.max(0, Math.min(p.count - 1, Math.floor(Number(this.from.value))));
-    const to = Math.max(0, Math.min(p.count - 1, Math.floor(Number(this.to.value))));
-    if (!(to >= from)) return this.say(`the range ${this.from.value} .. ${this.to.value} is empty`, 'error');
+    const range = this.range();
+    if (!range) return;
+    const [from, to] = range;
     try {
       p.pause();
       this.seek(to);
@@ -283,6 +288,53 @@ export class RecordingBar {
       this.say(`exported frames ${from} .. ${to}${stride > 1 ? `, every ${stride}th (${run.ordinals.length} frames)` : ` (${run.ordinals.length} frames)`}`);
     } catch (e) {
       this.say(`export failed: ${e.message}`, 'error');
+    }
+  }
+
+  /** The range of the from .. to boxes within the recording, or null (and the bar says why). */
+  range() {
+    const p = this.player;
+    const from = Math.max(0, Math.min(p.count - 1, Math.floor(Number(this.from.value))));
+    const to = Math.max(0, Math.min(p.count - 1, Math.floor(Number(this.to.value))));
+    if (!(to >= from)) {
+      this.say(`the range ${this.from.value} .. ${this.to.value} is empty`, 'error');
+      return null;
+    }
+    return [from, to];
+  }
+
+  /**
+   * Frames from..to of the recording as a WebM video, frame-exact: the player shows each frame in
+   * turn, the view draws it as the page shows it (colouring, camera, shadows) and the encoder takes
+   * it with the timestamp (k - from) / frame_rate, the recording's frame rate (video.js). The frame
+   * shown before comes back after.
+   */
+  async exportVideo() {
+    const p = this.player;
+    if (!p || this.busy) return;
+    const range = this.range();
+    if (!range) return;
+    const [from, to] = range;
+    const fps = p.info.frame_rate > 0 ? p.info.frame_rate
+      : p.count > 1 && p.duration > 0 ? (p.count - 1) / p.duration : 60;
+    this.busy = true;
+    p.pause();
+    const back = p.k;
+    this.say(`encoding frames ${from} .. ${to} as WebM…`);
+    try {
+      const out = await encodeWebm({
+        count: to - from + 1, fps,
+        draw: (j) => { p.show(from + j); return this.hooks.render(); },
+        progress: (j) => { if (j % 10 === 0) this.say(`encoding frame ${from + j} of ${from} .. ${to} as WebM…`); },
+      });
+      download(out.bytes, `${stem(p.name)}-frames-${from}-${to}.webm`, 'video/webm');
+      this.say(`exported frames ${from} .. ${to} as WebM (${out.frames} frames, ${out.codec.startsWith('vp09') ? 'VP9' : 'VP8'}, ${out.width} x ${out.height}, ${+fps.toFixed(3)} frames/s)`);
+    } catch (e) {
+      this.say(`WebM export failed: ${e.message}`, 'error');
+    } finally {
+      this.busy = false;
+      try { p.seek(back); } catch { /* the bar says what failed */ }
+      this.update();
     }
   }
 

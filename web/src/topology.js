@@ -91,3 +91,36 @@ export function vertexNormals(p, index, out) {
     if (len > 0) { out[k] /= len; out[k + 1] /= len; out[k + 2] /= len; } else out[k + 2] = 1;
   }
 }
+
+/**
+ * Vertex v's structural springs' relative extensions (|d| - L0) / L0, L0 the grid spacing (hx
+ * along i, hy along j), those in `torn` (spring ids) left out: with `mean` false the largest of
+ * them and 0 (PROTOCOL.md's `strain` scalar; the vertex probe), with `mean` true their mean,
+ * signed (below 0 compressed; the stretch colouring). 0 for a vertex with none.
+ * @param {Float32Array|number[]} p positions, 3 per vertex
+ */
+export function structuralStrain(p, nx, ny, hx, hy, v, mean = false, torn = null) {
+  const n = nx * ny, i = v % nx, j = (v - i) / nx;
+  let sum = 0, count = 0, max = 0;
+  for (let s = 0; s < 4; s++) {
+    // +x, -x, +y, -y: the neighbour, and the spring's id (its lower-index end's)
+    const w = s === 0 ? (i + 1 < nx ? v + 1 : -1) : s === 1 ? (i > 0 ? v - 1 : -1)
+      : s === 2 ? (j + 1 < ny ? v + nx : -1) : (j > 0 ? v - nx : -1);
+    if (w < 0) continue;
+    if (torn?.size && torn.has((s < 2 ? STRUCT_X : STRUCT_Y) * n + Math.min(v, w))) continue;
+    const l0 = s < 2 ? hx : hy;
+    const e = (Math.hypot(p[3 * w] - p[3 * v], p[3 * w + 1] - p[3 * v + 1], p[3 * w + 2] - p[3 * v + 2]) - l0) / l0;
+    sum += e; count++;
+    if (e > max) max = e;
+  }
+  return mean ? (count ? sum / count : 0) : max;
+}
+
+/**
+ * structuralStrain's mean for every vertex into out (one float each).
+ * @param {Float32Array} p @param {Float32Array} out @param {Set<number>} [torn]
+ */
+export function stretchField(p, nx, ny, hx, hy, out, torn = null) {
+  for (let v = 0; v < nx * ny; v++) out[v] = structuralStrain(p, nx, ny, hx, hy, v, true, torn);
+  return out;
+}

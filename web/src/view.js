@@ -1,15 +1,18 @@
-// view.js - the three.js scene: the cloth (lit surface, springs and points coloured by speed, or a
-// strain heat map), the rocks (marked spheres; kinematic ones in wireframe), the ground, an orbit
-// camera and a 2D orthographic one. It draws only when something changed (a frame, the camera),
+// view.js - the three.js scene: the cloth (lit surface, springs and points coloured by speed, a
+// strain heat map from the stream's scalar, or its stretch computed here from the positions), the
+// rocks (marked spheres; kinematic ones in wireframe), the ground, an orbit camera and a 2D
+// orthographic one. It draws only when something changed (a frame, the camera),
 // and a frame is written into the GPU buffers in place: the stream decodes straight into the
 // position attribute's array.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
-import { triangleIndices, springIndices, vertexNormals } from './topology.js';
-import { lut, applyLut, speedRgb, heatRgb } from './colors.js';
+import { triangleIndices, springIndices, vertexNormals, stretchField } from './topology.js';
+import { lut, applyLut, speedRgb, heatRgb, stretchRgb, applyStretch } from './colors.js';
 
-export const MODES = { surface: 'none', springs: 'speed', strain: 'strain' }; // mode -> scalar it needs
-const SPEED_LUT = lut(speedRgb), HEAT_LUT = lut(heatRgb);
+export const MODES = { surface: 'none', springs: 'speed', strain: 'strain', stretch: 'none' }; // mode -> scalar it needs
+const SPEED_LUT = lut(speedRgb), HEAT_LUT = lut(heatRgb), STRETCH_LUT = lut((t) => stretchRgb(2 * t - 1));
+/** The modes that colour the surface per vertex. */
+const COLOURED = new Set(['strain', 'stretch']);
 
 /** The rock sphere, with a beach-ball marking (alternate octants) so its spin shows. */
 function rockGeometry() {
@@ -140,6 +143,7 @@ export class View {
     this.shadowStrainMaterial = new THREE.MeshLambertMaterial({ color: new THREE.Color(1.7, 1.7, 1.7), vertexColors: true, side: THREE.DoubleSide });
     this.cloth = null;
     this.mode = 'surface';
+    this.stretchRange = 0.05; // the stretch colouring's full blue / red, as a relative extension
 
     this.rockGeometry = rockGeometry();
     this.rockMaterial = new THREE.MeshLambertMaterial({ vertexColors: true });
@@ -230,7 +234,8 @@ export class View {
     const points = new THREE.Points(lines, new THREE.PointsMaterial({ vertexColors: true, size: 4, sizeAttenuation: false }));
     for (const o of [mesh, springs, points]) o.frustumCulled = false;
     this.scene.add(mesh, springs, points);
-    this.cloth = { nx, ny, n, geometry, lines, mesh, springs, points, position, normal, color, scalar: new Uint8Array(n), hasFrame: false };
+    this.cloth = { nx, ny, n, geometry, lines, mesh, springs, points, position, normal, color, scalar: new Uint8Array(n),
+      stretch: new Float32Array(n), torn: new Set(), hasFrame: false };
     this.setTorn(torn);
     this.setMode(this.mode);
   }
@@ -248,6 +253,7 @@ export class View {
   setTorn(torn) {
     const c = this.cloth;
     if (!c) return;
+    c.torn = torn;
     c.index = triangleIndices(c.nx, c.ny, torn).slice();
     c.geometry.setIndex(new THREE.BufferAttribute(c.index, 1));
     c.lines.setIndex(new THREE.BufferAttribute(springIndices(c.nx, c.ny, torn), 1));
@@ -260,11 +266,33 @@ export class View {
     if (!c) return;
     c.mesh.visible = mode !== 'springs';
     c.mesh.material = this.shadows
-      ? (mode === 'strain' ? this.shadowStrainMaterial : this.shadowSurfaceMaterial)
-      : (mode === 'strain' ? this.strainMaterial : this.surfaceMaterial);
+      ? (COLOURED.has(mode) ? this.shadowStrainMaterial : this.shadowSurfaceMaterial)
+      : (COLOURED.has(mode) ? this.strainMaterial : this.surfaceMaterial);
     c.mesh.receiveShadow = this.shadows;
     c.springs.visible = c.points.visible = mode === 'springs';
+    if (mode === 'stretch' && c.hasFrame) this.colourStretch();
     this.dirty = true;
+  }
+
+  /** The stretch colouring's range: a relative extension of +range is full red, -range full blue. */
+  setStretchRange(range) {
+    if (!(range > 0)) return;
+    this.stretchRange = range;
+    if (this.mode === 'stretch' && this.cloth?.hasFrame) this.colourStretch();
+    this.dirty = true;
+  }
+
+  /**
+   * Colours the cloth by its stretch: each vertex's mean relative extension of its intact
+   * structural springs against the grid spacing (topology.js structuralStrain, the probe's
+   * function), from the positions shown.
+   */
+  colourStretch() {
+    const c = this.cloth, sc = this.sceneInfo;
+    if (!c || !sc || sc.nx !== c.nx || sc.ny !== c.ny) return;
+    stretchField(c.position.array, c.nx, c.ny, sc.size_x / (c.nx - 1), sc.size_y / (c.ny - 1), c.stretch, c.torn);
+    applyStretch(STRETCH_LUT, c.stretch, this.stretchRange, c.color.array, c.n);
+    c.color.needsUpdate = true;
   }
 
   /** The arrays the next frame may decode into (PROTOCOL.md frames, proto/frame.mjs). */
@@ -278,7 +306,8 @@ export class View {
     if (!c || f.nVertices !== c.n) return false;
     if (f.positions.buffer !== c.position.array.buffer) c.position.array.set(f.positions);
     c.position.needsUpdate = true;
-    if (f.scalar && this.mode !== 'surface') {
+    if (this.mode === 'stretch') this.colourStretch();
+    else if (f.scalar && this.mode !== 'surface') {
       applyLut(this.mode === 'strain' ? HEAT_LUT : SPEED_LUT, f.scalar, c.color.array, c.n);
       c.color.needsUpdate = true;
     }
@@ -413,8 +442,8 @@ export class View {
    * without preserveDrawingBuffer (which costs a software renderer a copy every frame).
    */
   screenshot() {
-    this.renderer.render(this.scene, this.camera);
-    return new Promise((resolve, reject) => this.renderer.domElement.toBlob((b) => (b ? resolve(b) : reject(new Error('the canvas gave no PNG'))), 'image/png'));
+    const canvas = this.render();
+    return new Promise((resolve, reject) => canvas.toBlob((b) => (b ? resolve(b) : reject(new Error('the canvas gave no PNG'))), 'image/png'));
   }
 
   /**
@@ -438,6 +467,12 @@ export class View {
       if (d < bestD) { bestD = d; best = v; }
     }
     return best;
+  }
+
+  /** Draws now; answers the canvas, whose drawing lasts until this task ends. */
+  render() {
+    this.renderer.render(this.scene, this.camera);
+    return this.renderer.domElement;
   }
 
   /** Draws if anything changed; answers whether it drew. */
