@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs every test: installs what is missing, builds, then ctest (unit, physics, server and viewer
 # tests); then the same suite again on a build with AddressSanitizer and UndefinedBehaviorSanitizer
-# (build-asan), where any report fails the test that saw it; then each fuzz target for 20 s
+# (build-asan), where any report fails the test that saw it; then each fuzz target for 10 s
 # (scripts/fuzz.sh; CLOTHD_FUZZ_SECONDS to change it). CLOTHD_TEST_QUICK=1 stops after the first
 # ctest, for quick runs while working: CI runs everything.
 set -euo pipefail
@@ -29,10 +29,11 @@ export UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1"
 # Left out there, to keep the whole command under 20 minutes: emu.datapath and emu.cost count the
 # bytes and launches of the same emulated kernels emu.parity and emu.batch run under the
 # sanitizers; deploy.* checks install scripts and manifests; web.look, web.shadow and web.capture
-# check what the page draws (the daemon's side of them is the server tests').
-asan_skip='^(emu\.(datapath|cost)|deploy\..*|web\.(look|shadow|capture))$'
+# check what the page draws, web.export_usd, web.export_mcap and clients.js_export what the
+# JavaScript exporters write (the daemon's side of them is the server tests').
+asan_skip='^(emu\.(datapath|cost)|deploy\..*|web\.(look|shadow|capture|export_usd|export_mcap)|clients\.js_export)$'
 (cd "$root/build-asan" && ctest --output-on-failure -j "$jobs" -E "$asan_skip")
 unset ASAN_OPTIONS UBSAN_OPTIONS
 
-echo "test: fuzz targets, ${CLOTHD_FUZZ_SECONDS:-20} s each (build-fuzz)" >&2
-"$root/scripts/fuzz.sh" "${CLOTHD_FUZZ_SECONDS:-20}"
+echo "test: fuzz targets, ${CLOTHD_FUZZ_SECONDS:-10} s each (build-fuzz)" >&2
+"$root/scripts/fuzz.sh" "${CLOTHD_FUZZ_SECONDS:-10}"
