@@ -9,7 +9,8 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 jobs=$(nproc)
 "$root/scripts/setup.sh"
 "$root/scripts/build.sh"
-(cd "$root/build" && ctest --output-on-failure -j "$jobs")
+# Benchmarks (label bench: they print figures, speed is not pass/fail) are left out; ctest -L bench.
+(cd "$root/build" && ctest --output-on-failure -j "$jobs" -LE bench)
 if [ "${CLOTHD_TEST_QUICK:-0}" = 1 ]; then
   echo "test: CLOTHD_TEST_QUICK=1: the sanitized suite and the fuzz targets were not run" >&2
   exit 0
@@ -30,9 +31,10 @@ export UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1"
 # bytes and launches of the same emulated kernels emu.parity and emu.batch run under the
 # sanitizers; deploy.* checks install scripts and manifests; web.look, web.shadow and web.capture
 # check what the page draws, web.export_usd, web.export_mcap and clients.js_export what the
-# JavaScript exporters write (the daemon's side of them is the server tests').
-asan_skip='^(emu\.(datapath|cost)|deploy\..*|web\.(look|shadow|capture|export_usd|export_mcap)|clients\.js_export)$'
-(cd "$root/build-asan" && ctest --output-on-failure -j "$jobs" -E "$asan_skip")
+# JavaScript exporters write (the daemon's side of them is the server tests'); emu.batch batches
+# the same emulated kernels emu.parity runs (the batch's host code is the normal build's).
+asan_skip='^(emu\.(datapath|cost|batch)|deploy\..*|web\.(look|shadow|capture|export_usd|export_mcap)|clients\.js_export)$'
+(cd "$root/build-asan" && ctest --output-on-failure -j "$jobs" -E "$asan_skip" -LE bench)
 unset ASAN_OPTIONS UBSAN_OPTIONS
 
 echo "test: fuzz targets, ${CLOTHD_FUZZ_SECONDS:-10} s each (build-fuzz)" >&2
