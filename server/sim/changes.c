@@ -147,7 +147,7 @@ int change_rock_remove(cs_sim *sim, loop_settings *loop, const json_t *cmd, json
     if (get_id(cmd, &id, pr) != 0) return -1;
     const cs_status st = cs_rock_remove(sim, id);
     if (st != CS_OK) return refused(sim, st, pr);
-    *journal = json_deep_copy(cmd);
+    *journal = json_incref((json_t *)cmd); /* read only from here on: the journal keeps its text */
     *result = json_pack("{s:I}", "id", (json_int_t)id);
     return 0;
 }
@@ -190,7 +190,7 @@ int change_pins(cs_sim *sim, loop_settings *loop, const json_t *cmd, json_t **jo
     cs_sim_info(sim, &info);
     int count = 0;
     for (int32_t v = 0; v < info.n_vertices; v++) count += cs_is_pinned(sim, v);
-    *journal = json_deep_copy(cmd);
+    *journal = json_incref((json_t *)cmd); /* read only from here on: the journal keeps its text */
     *result = json_pack("{s:i}", "pinned", count);
     return 0;
 }
