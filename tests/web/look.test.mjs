@@ -41,6 +41,8 @@ test('the WebM button records the live view: a WebM that Chromium plays at the c
   await button('Record WebM').click();
   await page.waitForFunction(() => [...document.querySelectorAll('.lil-controller.lil-function button')].some((b) => /Stop WebM/.test(b.textContent)));
   await drawnMore(10); // the cloth moves: frames reach the recorder
+  // The recorder delivers every 500 ms; a slow machine's encoder may not have given anything yet.
+  await page.waitForFunction(() => window.__clothd.webmBytes() > 2000, null, { timeout: 30000 });
   const [dl] = await Promise.all([page.waitForEvent('download'), button('Stop WebM').click()]);
   assert.match(dl.suggestedFilename(), /^clothd-default-step-\d+\.webm$/);
   const out = artifact('viewer-live.webm');

@@ -250,6 +250,7 @@ const stream = cur.stream({
 }, { pull: true, subscription: { encoding: ENCODING, max_fps: 60, scalar: 'none' } });
 
 let webm = null; // the MediaRecorder while a WebM records
+let webmBytes = 0; // what the recorder has delivered so far (a test waits on it)
 function saveBlob(blob, name) {
   const a = document.createElement('a');
   a.href = URL.createObjectURL(blob);
@@ -295,10 +296,14 @@ const actions = {
     if (!type) return problem('this browser cannot record WebM (no MediaRecorder for video/webm)');
     const rec = new MediaRecorder(view.renderer.domElement.captureStream(30), { mimeType: type });
     const chunks = [], name = `clothd-${cur.id}-step-${view.lastStep ?? 0}.webm`;
-    rec.ondataavailable = (e) => { if (e.data.size) chunks.push(e.data); };
+    webmBytes = 0;
+    rec.ondataavailable = (e) => { if (e.data.size) { chunks.push(e.data); webmBytes += e.data.size; } };
     rec.onstop = () => {
       webm = null;
       panel?.setWebm(false);
+      // Stopped before the encoder gave anything (a click straight after the first, a slow
+      // machine): say so rather than download an empty file.
+      if (!chunks.length) return problem('the WebM caught no frames: record for longer');
       saveBlob(new Blob(chunks, { type: 'video/webm' }), name);
     };
     rec.onerror = (e) => problem(`WebM recording: ${e.error?.message ?? 'failed'}`);
@@ -546,6 +551,7 @@ window.__clothd = {
   rockMoving: () => rockMove !== null,
   setView: setViewValue,
   probe: () => probe.shown,
+  webmBytes: () => webmBytes,
 };
 
 stream.start();
