@@ -16,7 +16,7 @@ CLOTHD_APT_TEST=(
   lld                         # wasm-ld: clients/js/src/delta-wasm.mjs checked against its source (scripts/build-wasm.sh)
   chromium chromium-driver    # the viewer's end-to-end tests (headless, driven by playwright-core)
   strace                      # the crash-safe save test sees the system calls of a save
-  wrk                         # the soak test's API load (tests/server/soak.mjs) and scripts/bench-http.sh
+  wrk                         # the soak test's API load (tests/server/soak.mjs) and bench/http.sh
   prometheus                  # promtool checks a /metrics scrape (tests/server/metrics.test.mjs)
   python3-pytest python3-websocket python3-numpy   # the Python client's tests (clients/python): its
   python3-setuptools python3-pip                   # stream, numpy frames, and pip installing it offline

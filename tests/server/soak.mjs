@@ -1,5 +1,5 @@
 // soak.mjs - load, slow clients and hostile input at once against one real clothd (loopback only,
-// bounded in time and count; everything stops by itself). Used by scripts/soak.mjs (the long run,
+// bounded in time and count; everything stops by itself). Used by bench/soak.mjs (the long run,
 // figures in docs/performance.md) and tests/server/soak.test.mjs (the short run in ctest).
 //
 // Two phases over one daemon (CPU backend, a control token set):

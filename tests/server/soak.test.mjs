@@ -2,7 +2,7 @@
 // clients (some slow, some never reading) and hostile requests while the sim runs, then 8 s
 // paused. It fails if the daemon dies, any answer is malformed or unexpected, a valid change is
 // refused, the state hash moves on refused requests, or memory grows past its bound. The long run
-// is scripts/soak.mjs; its figures are in docs/performance.md.
+// is bench/soak.mjs; its figures are in docs/performance.md.
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import { soak, summary } from './soak.mjs';

@@ -2,7 +2,7 @@
 // The long soak (tests/server/soak.mjs): for a set time, wrk reads the API, 64 stream clients
 // (some slow, some never reading) watch, valid changes and hostile requests arrive, while the sim
 // runs; then a paused phase checks that the state hash holds. Loopback only; it stops by itself.
-//   scripts/soak.mjs [seconds, default 300] [--saturate] [--clients N] [-- clothd flags]
+//   bench/soak.mjs [seconds, default 300] [--saturate] [--clients N] [-- clothd flags]
 // Prints requests per second, errors, frames delivered and skipped, peak RSS and the real-time
 // factor; exits 1 if a problem was found. Needs a build (scripts/build.sh) and wrk.
 import { dirname, join, resolve } from 'node:path';

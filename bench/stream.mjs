@@ -1,15 +1,15 @@
-// bench-stream.mjs - the stream under load: frames per second delivered to 1, 8 and 32 clients
+// stream.mjs - the stream under load: frames per second delivered to 1, 8 and 32 clients
 // per encoding while clothd runs a 128 x 128 cloth on the CPU backend, with the sim's real-time
 // factor; bytes per frame per encoding (and on the default 64 x 64 scene); the latency from
 // POST /v1/rocks to the first frame that holds the rock. A benchmark, not a test.
-//   node scripts/bench-stream.mjs [seconds per case, default 5]
-//   BENCH_CASES=delta:128,q16:64 node scripts/bench-stream.mjs   only these fan-out cases
+//   node bench/stream.mjs [seconds per case, default 5]
+//   BENCH_CASES=delta:128,q16:64 node bench/stream.mjs   only these fan-out cases
 // (encoding:clients) at 128 x 128; BENCH_PARAMS='{"time_scale":0.25,...}' patches /v1/params
 // first (the sim in slow motion, to see what the stream delivers when the sim is not the limit);
 // a frame counts once per client (a delta keyframe sent again
 // before a delta, to a client that skipped it, is not a frame of its own).
 import WebSocket from 'ws';
-import { daemon } from './bench-daemon.mjs';
+import { daemon } from './daemon.mjs';
 import { MeshoptDecoder } from 'meshoptimizer';
 import { decodeFrame } from '../proto/frame.mjs';
 

@@ -1,12 +1,12 @@
-// bench-encodings.mjs - what each stream encoding costs on a moving cloth: bytes per vertex of
+// encodings.mjs - what each stream encoding costs on a moving cloth: bytes per vertex of
 // the positions (and of the whole frame), the server's encode time per frame (from
 // clothd_stream_encode_seconds_total), and the decode time per frame in node with proto/frame.mjs
 // (V8, as in a browser), for f32, q16, meshopt and delta, on the default scene (64 x 64, rocks
 // dropping every 3 s) and at 128 x 128, all four encodings subscribed at once; then the decode
 // time of 256 x 256 delta frames, beside the sim and then alone. A benchmark, not a test: it prints figures.
-//   node scripts/bench-encodings.mjs [seconds per size, default 8]
+//   node bench/encodings.mjs [seconds per size, default 8]
 import WebSocket from 'ws';
-import { daemon } from './bench-daemon.mjs';
+import { daemon } from './daemon.mjs';
 import { MeshoptDecoder } from 'meshoptimizer';
 import { ZSTDDecoder } from 'zstddec';
 import { createDecoder, isDeltaKeyKind } from '../proto/frame.mjs';

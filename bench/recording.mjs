@@ -1,4 +1,4 @@
-// bench-recording.mjs - what a recording costs and how fast one seeks. A benchmark, not a test:
+// recording.mjs - what a recording costs and how fast one seeks. A benchmark, not a test:
 // it prints figures (docs/performance.md "Recordings").
 //   1. Bytes per second of simulated time of the default scene (64 x 64, rocks dropping), one
 //      recording per encoding of the same seconds, recorded at once.
@@ -6,11 +6,11 @@
 //      (its frames renumbered in time, keyframes where they were), then in node (V8, as a
 //      browser): the time to open it (readRecording: the index read and every frame's header
 //      checked), and per seek to a random time, the frame found and decoded with its keyframe.
-//   node scripts/bench-recording.mjs [seconds, default 10]
+//   node bench/recording.mjs [seconds, default 10]
 import { performance } from 'node:perf_hooks';
 import { ZSTDDecoder } from 'zstddec';
 import { MeshoptDecoder } from 'meshoptimizer';
-import { daemon } from './bench-daemon.mjs';
+import { daemon } from './daemon.mjs';
 import { readRecording, buildRecording } from '../proto/recording.mjs';
 import { createDecoder } from '../proto/frame.mjs';
 

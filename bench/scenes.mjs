@@ -1,5 +1,5 @@
 #!/usr/bin/env node
-// bench-scenes.mjs - many scenes in one daemon against the same scenes in as many clothd
+// scenes.mjs - many scenes in one daemon against the same scenes in as many clothd
 // processes, in the same run (figures, not a test):
 //
 //   1. aggregate vertex-substeps per second for 1, 4, 16 and 64 scenes of 32 x 32 and of 64 x 64,
@@ -9,7 +9,7 @@
 //   2. how many default scenes of 32 x 32 (the default material and parameters, real time) one
 //      daemon runs with every scene's real-time factor at 0.95 or more.
 //
-// usage: node scripts/bench-scenes.mjs [--bin build/server/clothd] [--seconds 3] [--counts 1,4,16,64]
+// usage: node bench/scenes.mjs [--bin build/server/clothd] [--seconds 3] [--counts 1,4,16,64]
 //        [--sizes 32,64] [--threads 0] [--realtime false]
 // Figures taken on a machine others share are provisional.
 import { spawn } from 'node:child_process';

@@ -1,4 +1,4 @@
-// bench-daemon.mjs - starts build/server/clothd (or $CLOTHD_BIN) for the benchmark scripts on free
+// daemon.mjs - starts build/server/clothd (or $CLOTHD_BIN) for the benchmark scripts on free
 // ports with the CPU backend, and finds its stream: { proc, url, ws }.
 import { spawn } from 'node:child_process';
 import { dirname, join } from 'node:path';

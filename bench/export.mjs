@@ -1,10 +1,10 @@
-// clothd-export-bench.mjs - how fast a recording exports, and how large the files are. A benchmark,
+// export.mjs - how fast a recording exports, and how large the files are. A benchmark,
 // not a test: it prints figures. The default scene (64 x 64, rocks dropping) is recorded for
 // `seconds` of sim time in real time (delta), then exported to temporary files one after another:
 // USD by the JavaScript client (clients/js/src/recording-export.js, the node script's path), USD by
 // the Python client (Recording.to_usd, where python3 imports clothd), and MCAP. For each: frames a
 // second of wall time and MB per minute of recording.
-//   node scripts/clothd-export-bench.mjs [seconds, default 10]   (clothd: build/server/clothd or $CLOTHD_BIN)
+//   node bench/export.mjs [seconds, default 10]   (clothd: build/server/clothd or $CLOTHD_BIN)
 import { performance } from 'node:perf_hooks';
 import { createWriteStream, mkdtempSync, rmSync, statSync, writeFileSync } from 'node:fs';
 import { open } from 'node:fs/promises';
@@ -12,7 +12,7 @@ import { once } from 'node:events';
 import { execFileSync } from 'node:child_process';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
-import { daemon } from './bench-daemon.mjs';
+import { daemon } from './daemon.mjs';
 import { exportUsd, exportMcap } from '../clients/js/src/recording-export.js';
 import { readRecording } from '../proto/recording.mjs';
 import { triangleIndices } from '../web/src/topology.js';
