@@ -16,11 +16,11 @@ See clients/python/README.md.
 from .client import DEFAULT_URL, Client, ClothState, Recordings, Scene, SceneRoutes
 from .common import DEFAULT_SCENE, SCENE_ID
 from .errors import (BadRequest, Busy, ClientError, ClothdError, Conflict, ConnectionFailed, Forbidden,
-                     FrameError, MethodNotAllowed, MissingDependency, NotFound, PayloadTooLarge, ProtocolError,
+                     FrameError, MethodNotAllowed, MissingDependency, NotFound, PayloadTooLarge, ProtocolError, RecordingError,
                      RateLimited, ServerError, StreamRefused, Timeout, Unauthorized, Unavailable, Unprocessable,
                      UriTooLong, error_class, error_from_answer)
 from .frames import Frame, FrameDecoder, Rock, decode_frame, meshopt_available, numpy_available
-from .recording import Recording, RecordingError, read_recording
+from .recording import Recording, read_recording
 from .stream import Stream, websocket_available
 from .aio import AsyncStream, websockets_available
 

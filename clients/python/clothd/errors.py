@@ -14,6 +14,7 @@ connection, or an answer that breaks the protocol. A server error is never retur
     +- Timeout (also a TimeoutError), ConnectionFailed (also a ConnectionError)
     +- ProtocolError: an answer or a stream message that breaks the protocol
     |    +- FrameError (also a ValueError): a binary frame that does not decode
+    |    +- RecordingError (also a ValueError): a file that is not a recording, or a corrupt one
     |    +- StreamRefused: the stream answered a client message with an ``error`` message
     +- MissingDependency (also an ImportError): an optional package or library is not there
 """
@@ -135,6 +136,16 @@ class ProtocolError(ClothdError):
 
 class FrameError(ProtocolError, ValueError):
     """A binary frame that does not decode."""
+
+
+class RecordingError(ProtocolError, ValueError):
+    """A file that is not a recording, or a corrupt one; ``offset`` is where it went wrong."""
+
+    def __init__(self, text: str, offset: Optional[int] = None) -> None:
+        super().__init__(text if offset is None else "%s (at byte %d)" % (text, offset))
+        self.offset = offset
+        #: The frame it was found in (a salvaging read keeps the frames before it), or None.
+        self.frame: Optional[int] = None
 
 
 class StreamRefused(ProtocolError):

@@ -23,8 +23,9 @@ import struct
 import warnings
 from typing import Any, Dict, Iterator, List, NoReturn, Optional, Tuple, Union
 
-from .errors import ProtocolError
+from .errors import RecordingError as RecordingError  # raised here; clothd.recording.RecordingError stays
 from .frames import DELTA_KEY_KINDS, Buffer, Frame, FrameDecoder
+from .usd import write_usd
 
 #: A text record's place: (offset, payload length).
 TextEntry = Tuple[int, int]
@@ -45,16 +46,6 @@ _CLF_DELTA = 3
 _CLF_MAX_VERTICES = 4096 * 4096
 _ENCODINGS = ("f32", "q16", "meshopt", "delta")
 _RELAYOUT = ("scene", "snapshot_restored")
-
-
-class RecordingError(ProtocolError, ValueError):
-    """A file that is not a recording, or a corrupt one; ``offset`` is where it went wrong."""
-
-    def __init__(self, text: str, offset: Optional[int] = None) -> None:
-        super().__init__(text if offset is None else "%s (at byte %d)" % (text, offset))
-        self.offset = offset
-        #: The frame it was found in (a salvaging read keeps the frames before it), or None.
-        self.frame: Optional[int] = None
 
 
 def _align4(n: int) -> int:
@@ -161,7 +152,6 @@ class Recording:
         Answers ``{frames, written, cut, problem, time_codes}``; a cut or corrupt recording exports
         up to its last whole frame, with a warning (RuntimeWarning) that says where it stopped. A
         recording without frames is a RecordingError and writes nothing."""
-        from .usd import write_usd
         if not self.frames:
             write_usd(self, io.StringIO())  # raises: no frames, and no file is made
         part = os.fspath(path) + ".part"

@@ -17,10 +17,42 @@ from __future__ import annotations
 import math
 import re
 import struct
-from typing import TYPE_CHECKING, AbstractSet, Any, Dict, List, Optional, Set, TextIO, Tuple
+from typing import AbstractSet, Any, Dict, List, Optional, Protocol, Sequence, Set, TextIO, Tuple
 
-if TYPE_CHECKING:
-    from .recording import Recording
+from .errors import RecordingError
+from .frames import Frame
+
+
+class _FrameEntry(Protocol):
+    """What the writer reads of an index entry (clothd.recording.FrameEntry)."""
+    @property
+    def sim_time(self) -> float: ...
+
+    @property
+    def texts_before(self) -> int: ...
+
+
+class RecordingSource(Protocol):
+    """What the writer reads of a recording (clothd.recording.Recording has it): this module does
+    not import recording.py, which calls it."""
+    @property
+    def frames(self) -> Sequence[_FrameEntry]: ...
+
+    @property
+    def problem(self) -> Optional[str]: ...
+
+    @property
+    def complete(self) -> bool: ...
+
+    @property
+    def hello(self) -> Dict[str, Any]: ...
+
+    @property
+    def info(self) -> Dict[str, Any]: ...
+
+    def text(self, k: int) -> Dict[str, Any]: ...
+
+    def decode(self, k: int) -> Frame: ...
 
 _F32 = struct.Struct("<f")
 
@@ -132,11 +164,10 @@ def _flat(positions: Any) -> List[float]:
     return [c for p in positions for c in p]
 
 
-def write_usd(rec: Recording, out: TextIO) -> Dict[str, Any]:
+def write_usd(rec: RecordingSource, out: TextIO) -> Dict[str, Any]:
     """Writes recording ``rec`` (clothd.recording.Recording) as USD text to the text stream ``out``;
     answers ``{frames, written, cut, problem, time_codes}`` (frames decoded, time samples written,
     whether it stopped early and why). A recording without frames is a RecordingError."""
-    from .recording import RecordingError
     frames = rec.frames
     if not frames:
         raise RecordingError("the recording has no frames%s: nothing to export"
