@@ -95,15 +95,15 @@ function dockerfile() {
   return { ins, stages };
 }
 
-test('Dockerfile: built on the CUDA devel image, run on the matching runtime image, of the CUDA release this project builds with', async () => {
+test('Dockerfile: built on the CUDA devel image, run on the matching base image, of the CUDA release this project builds with', async () => {
   const { stages } = dockerfile();
   assert.ok(stages.length >= 2);
-  const image = (s) => /^nvidia\/cuda:(\d+\.\d+\.\d+)-(devel|runtime)-(ubuntu[\d.]+)(?:\s+AS\s+(\w+))?$/i.exec(s.from);
+  const image = (s) => /^nvidia\/cuda:(\d+\.\d+\.\d+)-(devel|base|runtime)-(ubuntu[\d.]+)(?:\s+AS\s+(\w+))?$/i.exec(s.from);
   const build = image(stages[0]);
   const runtime = image(stages.at(-1));
   assert.ok(build && runtime, `FROM lines: ${stages.map((s) => s.from).join(' | ')}`);
   assert.equal(build[2], 'devel');
-  assert.equal(runtime[2], 'runtime');
+  assert.equal(runtime[2], 'base', 'the smallest CUDA image: clothd needs no CUDA library of its own');
   assert.equal(runtime[1], build[1], 'the same CUDA version');
   assert.equal(runtime[3], build[3], 'the same Ubuntu');
   // The image compiles with the CUDA release the code is compiled and tested with here.
@@ -113,6 +113,10 @@ test('Dockerfile: built on the CUDA devel image, run on the matching runtime ima
     const release = /release (\d+\.\d+)/.exec(out.stdout)[1];
     assert.equal(build[1].split('.').slice(0, 2).join('.'), release, 'the image CUDA release = nvcc here');
   }
+  // What lets it run on the base image (no libcudart, no cuBLAS): the binary built here loads no
+  // CUDA library but the driver's libcuda, which cudart_static opens at run time.
+  const ldd = await run('ldd', [CLOTHD]).catch(() => null);
+  if (ldd) assert.doesNotMatch(ldd.stdout, /libcu(?!da\.so)|libnv/, `clothd links a CUDA library dynamically:\n${ldd.stdout}`);
   // The runtime stage takes the installed tree from the build stage.
   const copy = stages.at(-1).ins.find((x) => x.op === 'COPY');
   assert.match(copy.arg, new RegExp(`--from=${build[4]}\\s+/opt/clothd\\s+/opt/clothd`));
