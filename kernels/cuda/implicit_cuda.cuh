@@ -502,11 +502,7 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     w->cand = w->ints, w->sr = w->ints + 2 * n;
     for (int l = 0; l < L; l++) {
         im_level_bufs *v = &w->lv[l];
-        const size_t k = (size_t)v->n;
-        v->D = TAKE(CS_IM_SYM * k), v->Dinv = TAKE(CS_IM_SYM * k);
-        for (int t = 0; t < 4; t++) v->F[t] = TAKE(CS_IM_SYM * k);
-        v->mask = TAKE(k);
-        v->b = TAKE(3 * k), v->x = TAKE(3 * k), v->t = TAKE(3 * k);
+        m = cs_im_carve_level(m, (size_t)v->n, &v->D, &v->Dinv, v->F, &v->mask, &v->b, &v->x, &v->t);
     }
 #undef TAKE
     im_free(c->im);

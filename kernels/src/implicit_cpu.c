@@ -107,11 +107,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     w->sh = TAKE(n), w->sn = TAKE(3 * n), w->sg = TAKE(n);
     for (int l = 0; l < L; l++) {
         im_level *v = &w->lv[l];
-        const size_t k = (size_t)v->n;
-        v->D = TAKE(CS_IM_SYM * k), v->Dinv = TAKE(CS_IM_SYM * k);
-        for (int t = 0; t < 4; t++) v->F[t] = TAKE(CS_IM_SYM * k);
-        v->mask = TAKE(k);
-        v->b = TAKE(3 * k), v->x = TAKE(3 * k), v->t = TAKE(3 * k);
+        m = cs_im_carve_level(m, (size_t)v->n, &v->D, &v->Dinv, v->F, &v->mask, &v->b, &v->x, &v->t);
     }
 #undef TAKE
     memset(w->mem, 0, sizeof(float) * floats);

@@ -813,6 +813,22 @@ SIM_HD static inline int32_t cs_im_coarse(int32_t n) { return (n + 1) / 2; }
  * and the V-cycle's three vectors (right side, solution, scratch: 3 each). */
 #define CS_IM_LEVEL_FLOATS (CS_IM_SYM * 6 + 1 + 9)
 
+/* Carves a level of k vertices out of a workspace block at m, in the order both backends use
+ * (CS_IM_LEVEL_FLOATS k floats: D, Dinv, the four forward blocks, the mask, b, x, t); returns the
+ * block past it. Host code: the backends lay out their workspaces with it. */
+static inline float *cs_im_carve_level(float *m, size_t k, float **D, float **Dinv, float *F[4], float **mask,
+                                       float **b, float **x, float **t)
+{
+    *D = m, m += CS_IM_SYM * k;
+    *Dinv = m, m += CS_IM_SYM * k;
+    for (int q = 0; q < 4; q++) F[q] = m, m += CS_IM_SYM * k;
+    *mask = m, m += k;
+    *b = m, m += 3 * k;
+    *x = m, m += 3 * k;
+    *t = m, m += 3 * k;
+    return m;
+}
+
 /* The hierarchy of an nx x ny grid: each level's size into lx[], ly[] (CS_IM_MAX_LEVELS slots),
  * halving while either side is above CS_IM_COARSEST; returns the number of levels. */
 SIM_HD static inline int cs_im_levels(int32_t nx, int32_t ny, int32_t *lx, int32_t *ly)
