@@ -237,6 +237,53 @@ test("the Python client's Recording.to_usd: TinyUSDZ reads it, the same stage an
   assert.deepEqual(Float32Array.from(py.stage.getMesh(0).points), decoded[0].positions);
 });
 
+/** An MCAP file's channels, schemas and messages as @mcap/core's indexed reader gives them. */
+async function readMcap(file) {
+  const zstd = new ZSTDDecoder();
+  await zstd.init();
+  const reader = await McapIndexedReader.Initialize({ readable: {
+    size: async () => BigInt(file.length),
+    read: async (offset, length) => file.subarray(Number(offset), Number(offset + length)),
+  }, decompressHandlers: { zstd: (data, size) => zstd.decode(data, Number(size)) } });
+  const messages = [];
+  for await (const m of reader.readMessages()) messages.push(m);
+  return { reader, messages };
+}
+
+test("the Python client's Recording.to_mcap: @mcap/core reads it, the JavaScript exporter's messages byte for byte", async (t) => {
+  const python = ['/usr/bin/python3', 'python3'].find((p) => { try { return !!statSync(p); } catch { return p === 'python3'; } });
+  writeFileSync(join(dir, 'py-mcap.clr'), bytes);
+  const code = `import sys; sys.path.insert(0, ${JSON.stringify(join(SOURCE, 'clients', 'python'))})
+import clothd
+if not clothd.frames.zstd_available(): sys.exit(77)
+r = clothd.read_recording(open(sys.argv[1], 'rb').read()).to_mcap(sys.argv[2])
+print(r['written'], r['compression'], r['cut'])`;
+  const out = await run(python, ['-c', code, join(dir, 'py-mcap.clr'), join(dir, 'py.mcap')]).catch((e) => e);
+  if (out.code === 77) return t.skip('the Python client finds no libzstd for delta frames');
+  assert.equal(out.stderr, '', String(out));
+  const js = await exportMcap(bytes, (() => {
+    const chunks = []; let at = 0n;
+    return { chunks, position: () => at, write: async (b) => { chunks.push(Uint8Array.from(b)); at += BigInt(b.length); } };
+  })(), { triangles: triangleIndices, compression: 'none' });
+  const jsFile = join(dir, 'js-none.mcap');
+  await script(join(dir, 'py-mcap.clr'), jsFile);
+  const py = await readMcap(readFileSync(join(dir, 'py.mcap')));
+  const ref = await readMcap(readFileSync(jsFile));
+  assert.equal(out.stdout.trim(), `${js.written} zstd False`);
+  assert.ok(py.reader.chunkIndexes.length > 0 && py.reader.chunkIndexes.every((c) => c.compression === 'zstd'));
+  assert.equal(py.reader.statistics.messageCount, BigInt(js.written));
+  const chans = (r) => [...r.reader.channelsById.values()].map((c) => [c.topic, c.messageEncoding, [...c.metadata]]);
+  assert.deepEqual(chans(py), chans(ref));
+  const schema = (r) => { const s = r.reader.schemasById.get([...r.reader.channelsById.values()][0].schemaId); return [s.name, s.encoding, Buffer.from(s.data).toString()]; };
+  assert.deepEqual(schema(py), schema(ref));
+  assert.equal(py.messages.length, ref.messages.length);
+  py.messages.forEach((m, i) => {
+    const o = ref.messages[i];
+    assert.deepEqual([m.sequence, m.logTime, m.publishTime], [o.sequence, o.logTime, o.publishTime], `message ${i}`);
+    assert.equal(Buffer.from(m.data).toString(), Buffer.from(o.data).toString(), `message ${i}'s JSON`);
+  });
+});
+
 test('a reset in the middle of a recording: the time codes go on, the tears before it are mended', async () => {
   const scene = client.scene('exp-reset');
   await client.createScene({ id: 'exp-reset', scene: { nx: 6, ny: 5 } });

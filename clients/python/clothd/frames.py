@@ -463,7 +463,10 @@ _meshopt = _CLibrary("CLOTHD_MESHOPTIMIZER_LIB", ("meshoptimizer", "libmeshoptim
 _zstd = _CLibrary("CLOTHD_ZSTD_LIB", ("zstd", "libzstd.so.1", "libzstd.dylib", "zstd.dll"),
                   {"ZSTD_decompress": (ctypes.c_size_t, [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_char_p, ctypes.c_size_t]),
                    "ZSTD_isError": (ctypes.c_uint, [ctypes.c_size_t]),
-                   "ZSTD_findDecompressedSize": (ctypes.c_ulonglong, [ctypes.c_char_p, ctypes.c_size_t])})
+                   "ZSTD_findDecompressedSize": (ctypes.c_ulonglong, [ctypes.c_char_p, ctypes.c_size_t]),
+                   "ZSTD_compress": (ctypes.c_size_t, [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_char_p, ctypes.c_size_t,
+                                                       ctypes.c_int]),
+                   "ZSTD_compressBound": (ctypes.c_size_t, [ctypes.c_size_t])})
 
 
 def meshopt_available() -> bool:
@@ -502,7 +505,7 @@ def zstd_decompress(compressed: bytes, size: int) -> bytes:
             "delta frames need zstd's C library (libzstd; Debian: apt install libzstd1, or set "
             "CLOTHD_ZSTD_LIB to its path), which could not be loaded: %s; subscribe to q16 or f32 "
             "instead" % _zstd.why)
-    fn, is_error, content_size = lib
+    fn, is_error, content_size = lib[:3]
     if content_size(compressed, len(compressed)) != size:  # before allocating what the frames claim
         raise FrameError("the delta payload of %d bytes does not hold %d bytes" % (len(compressed), size))
     out = ctypes.create_string_buffer(size + 1)
@@ -510,3 +513,17 @@ def zstd_decompress(compressed: bytes, size: int) -> bytes:
     if is_error(got) or got != size:
         raise FrameError("the delta payload of %d bytes does not decompress to %d bytes" % (len(compressed), size))
     return out.raw[:size]
+
+
+def zstd_compress(data: bytes, level: int = 3) -> bytes:
+    """ZSTD_compress: one zstd frame of ``data`` at ``level`` (the MCAP exporter's chunks)."""
+    lib = _zstd.get()
+    if lib is None:
+        raise MissingDependency("zstd compression needs zstd's C library (libzstd; Debian: apt install libzstd1, or "
+                                "set CLOTHD_ZSTD_LIB to its path), which could not be loaded: %s" % _zstd.why)
+    is_error, compress, bound = lib[1], lib[3], lib[4]
+    out = ctypes.create_string_buffer(bound(len(data)))
+    got = compress(out, len(out), data, len(data), level)
+    if is_error(got):
+        raise RuntimeError("ZSTD_compress failed on %d bytes" % len(data))
+    return out.raw[:got]

@@ -15,16 +15,17 @@ scanning its records up to the last complete one (``complete`` is then False).
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import os
 import struct
 import warnings
-from typing import Any, Dict, Iterator, List, NoReturn, Optional, Tuple, Union
+from typing import Any, Callable, Dict, Iterator, List, NoReturn, Optional, Tuple, Union
 
 from .errors import RecordingError as RecordingError  # raised here; clothd.recording.RecordingError stays
 from .frames import DELTA_KEY_KINDS, Buffer, Frame, FrameDecoder
+from .mcap import write_mcap
+from .timeline import require_frames
 from .usd import write_usd
 
 #: A text record's place: (offset, payload length).
@@ -152,19 +153,31 @@ class Recording:
         Answers ``{frames, written, cut, problem, time_codes}``; a cut or corrupt recording exports
         up to its last whole frame, with a warning (RuntimeWarning) that says where it stopped. A
         recording without frames is a RecordingError and writes nothing."""
-        if not self.frames:
-            write_usd(self, io.StringIO())  # raises: no frames, and no file is made
+        require_frames(self)  # no frames: no file is made
+        return self._export(path, lambda out: write_usd(self, out), text=True)
+
+    def to_mcap(self, path: Union[str, os.PathLike[str]], compression: Optional[str] = None) -> Dict[str, Any]:
+        """Writes the recording as MCAP (Foxglove, Lichtblick) to ``path``, one frame at a time
+        (clothd.mcap): one channel of foxglove.SceneUpdate, chunks compressed with zstd where its C
+        library loads (``compression``: ``zstd``, ``none``, or None for that choice). Answers
+        ``{frames, written, cut, problem, time_codes, compression}``; cut, corrupt and empty
+        recordings as ``to_usd``."""
+        require_frames(self)
+        return self._export(path, lambda out: write_mcap(self, out, compression), text=False)
+
+    def _export(self, path: Union[str, os.PathLike[str]], write: Callable[[Any], Dict[str, Any]], text: bool) -> Dict[str, Any]:
+        """write(stream) into path + ".part", renamed to path once whole (removed on an error)."""
         part = os.fspath(path) + ".part"
         try:
-            with open(part, "w", encoding="utf-8", newline="\n") as out:
-                result = write_usd(self, out)
+            with (open(part, "w", encoding="utf-8", newline="\n") if text else open(part, "wb")) as out:
+                result = write(out)
             os.replace(part, path)
         except BaseException:
             if os.path.exists(part):
                 os.remove(part)
             raise
         if result["cut"]:
-            warnings.warn("clothd recording export: " + result["problem"], RuntimeWarning, stacklevel=2)
+            warnings.warn("clothd recording export: " + result["problem"], RuntimeWarning, stacklevel=3)
         return result
 
 

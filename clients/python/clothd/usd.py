@@ -17,42 +17,11 @@ from __future__ import annotations
 import math
 import re
 import struct
-from typing import AbstractSet, Any, Dict, List, Optional, Protocol, Sequence, Set, TextIO, Tuple
+from typing import Any, Dict, List, Optional, Set, TextIO, Tuple
 
-from .errors import RecordingError
-from .frames import Frame
+from .timeline import RecordingSource, Topology, Walk, frames_of, outcome, require_frames, time_codes
+from .timeline import triangles as triangles  # the rule of the drawn triangles, for the exporters' callers
 
-
-class _FrameEntry(Protocol):
-    """What the writer reads of an index entry (clothd.recording.FrameEntry)."""
-    @property
-    def sim_time(self) -> float: ...
-
-    @property
-    def texts_before(self) -> int: ...
-
-
-class RecordingSource(Protocol):
-    """What the writer reads of a recording (clothd.recording.Recording has it): this module does
-    not import recording.py, which calls it."""
-    @property
-    def frames(self) -> Sequence[_FrameEntry]: ...
-
-    @property
-    def problem(self) -> Optional[str]: ...
-
-    @property
-    def complete(self) -> bool: ...
-
-    @property
-    def hello(self) -> Dict[str, Any]: ...
-
-    @property
-    def info(self) -> Dict[str, Any]: ...
-
-    def text(self, k: int) -> Dict[str, Any]: ...
-
-    def decode(self, k: int) -> Frame: ...
 
 _F32 = struct.Struct("<f")
 
@@ -111,52 +80,6 @@ def _string(s: object) -> str:
     return '"%s"' % re.sub(r'[\\"\x00-\x1f\x7f]', _escape, text)
 
 
-def triangles(nx: int, ny: int, torn: AbstractSet[int]) -> List[int]:
-    """The drawn triangles of an nx x ny cloth less the torn springs (PROTOCOL.md "hello": each
-    grid quad split on its +x+y diagonal, a triangle drawn while its three springs are intact);
-    the rule web/src/topology.js triangleIndices draws."""
-    n = nx * ny
-    out: List[int] = []
-    for j in range(ny - 1):
-        for i in range(nx - 1):
-            v00 = j * nx + i
-            v10, v01 = v00 + 1, v00 + nx
-            v11 = v01 + 1
-            diagonal = (2 * n + v00) not in torn
-            if diagonal and v00 not in torn and (n + v10) not in torn:
-                out += (v00, v10, v11)
-            if diagonal and v01 not in torn and (n + v00) not in torn:
-                out += (v00, v11, v01)
-    return out
-
-
-class _Topology:
-    """The cloth's grid and torn springs, from the hello and the events after it."""
-
-    def __init__(self, hello: Dict[str, Any]) -> None:
-        scene = hello.get("scene") or {}
-        self.nx, self.ny = int(scene.get("nx") or 0), int(scene.get("ny") or 0)
-        self.torn = set(hello.get("torn") or [])
-        self.version = 0
-
-    def apply(self, ev: Dict[str, Any]) -> None:
-        if ev.get("type") != "event":
-            return
-        kind = ev.get("event")
-        if kind in ("scene", "reset", "snapshot_restored"):
-            scene = ev.get("result") if kind == "scene" else ev.get("scene") if kind == "snapshot_restored" else None
-            if isinstance(scene, dict):
-                self.nx = int(scene.get("nx") or self.nx)
-                self.ny = int(scene.get("ny") or self.ny)
-            self.torn = set(ev.get("torn") or []) if kind == "snapshot_restored" else set()
-            self.version += 1
-        elif kind == "torn":
-            before = len(self.torn)
-            self.torn.update(ev.get("springs") or [])
-            if len(self.torn) != before:
-                self.version += 1
-
-
 def _flat(positions: Any) -> List[float]:
     if hasattr(positions, "reshape"):
         flat: List[float] = positions.reshape(-1).tolist()
@@ -168,23 +91,10 @@ def write_usd(rec: RecordingSource, out: TextIO) -> Dict[str, Any]:
     """Writes recording ``rec`` (clothd.recording.Recording) as USD text to the text stream ``out``;
     answers ``{frames, written, cut, problem, time_codes}`` (frames decoded, time samples written,
     whether it stopped early and why). A recording without frames is a RecordingError."""
+    require_frames(rec)
     frames = rec.frames
-    if not frames:
-        raise RecordingError("the recording has no frames%s: nothing to export"
-                             % (" (%s)" % rec.problem if rec.problem else "" if rec.complete else " (it is cut after its hello)"),
-                             16)
     info = rec.info
-    rate = info.get("frame_rate") or (rec.hello.get("params") or {}).get("frame_rate") or 60
-    rate = float(rate) if float(rate) > 0 else 60.0
-    if rate == int(rate):
-        rate = int(rate)
-    # A frame's time code: its sim time past the first, in frames; going on by one frame where
-    # the sim time goes back (a reset, a scene or a snapshot restored), so that it never decreases.
-    tcs, total = [0.0], 0.0
-    for a, b in zip(frames, frames[1:]):
-        d = (b.sim_time - a.sim_time) * rate
-        total += d if d >= 0 else 1
-        tcs.append(round(total * 1e6) / 1e6)
+    rate, tcs = time_codes(rec)
 
     def tc(k: int) -> float:
         return tcs[k]
@@ -197,30 +107,18 @@ def write_usd(rec: RecordingSource, out: TextIO) -> Dict[str, Any]:
               '        string scene = %s\n    }\n)\n{\n    def Mesh "cloth"\n    {\n        uniform bool doubleSided = 1\n'
               '        uniform token subdivisionScheme = "none"\n        point3f[] points.timeSamples = {\n'
               % (_string(info.get("encoding") or ""), _string(info.get("id") or ""), _string(scene)))
-    topo = _Topology(rec.hello)
+    topo = Topology(rec.hello)
     # (tc, nx, ny, full torn list or None, added)
     changes: List[Tuple[float, int, int, Optional[List[int]], List[int]]] = []
     last: Optional[Tuple[int, Tuple[int, int], Set[int]]] = None
     extents: List[Tuple[float, Any, Any]] = []
     rocks: Dict[int, Dict[str, Any]] = {}
     present: Set[int] = set()
-    texts, written, decoded = 1, 0, 0
+    written = 0
     first: Optional[float] = None
     last_tc: Optional[float] = None
-    problem: Optional[str] = None
-    for k in range(len(frames)):
-        try:
-            while texts < frames[k].texts_before:
-                topo.apply(rec.text(texts))
-                texts += 1
-            frame = rec.decode(k)
-        except Exception as e:  # a bad record: the frames before it are the export
-            problem = "frame %d does not decode (%s): exported the %d frames before it" % (k, e, k)
-            break
-        decoded = k + 1
-        t = tc(k)
-        if k + 1 < len(frames) and tc(k + 1) == t:
-            continue
+    walk = Walk()
+    for frame, t in frames_of(rec, tcs, walk, topo):
         if first is None:
             first = t
         last_tc = t
@@ -288,7 +186,4 @@ def write_usd(rec: RecordingSource, out: TextIO) -> Dict[str, Any]:
         out.write('\n        def Sphere "sphere"\n        {\n            float3[] extent = [(-%s, -%s, -%s), (%s, %s, %s)]\n'
                   '            double radius = %s\n        }\n    }\n' % ((rad,) * 7))
     out.write("}\n")
-    problems = [p for p in (rec.problem, None if rec.complete or rec.problem else
-                            "the recording is cut (no index): exported the %d whole frames it has" % len(frames), problem) if p]
-    return {"frames": decoded, "written": written, "cut": bool(problems), "problem": "; ".join(problems) or None,
-            "time_codes": (first, last_tc)}
+    return outcome(rec, walk, written, first, last_tc)
