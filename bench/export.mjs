@@ -2,7 +2,7 @@
 // not a test: it prints figures. The default scene (64 x 64, rocks dropping) is recorded for
 // `seconds` of sim time in real time (delta), then exported to temporary files one after another:
 // USD by the JavaScript client (clients/js/src/recording-export.js, the node script's path), USD by
-// the Python client (Recording.to_usd, where python3 imports clothd), and MCAP. For each: frames a
+// the Python client (Recording.to_usd and to_mcap, where python3 imports clothd), and MCAP. For each: frames a
 // second of wall time and MB per minute of recording.
 //   node bench/export.mjs [seconds, default 10]   (clothd: build/server/clothd or $CLOTHD_BIN)
 import { performance } from 'node:perf_hooks';
@@ -69,11 +69,14 @@ await measure('USD (JavaScript)', async () => {
 const PY = ['/usr/bin/python3'].find((p) => { try { return statSync(p).isFile(); } catch { return false; } }) ?? 'python3'; // Debian's, with numpy, as the tests use
 let python = true;
 try { execFileSync(PY, ['-c', `import sys; sys.path.insert(0, 'clients/python'); import clothd`], { cwd: new URL('..', import.meta.url).pathname }); } catch { python = false; }
+/** The Python client's Recording.<method>(path) of the recording: the frames it wrote. */
+const pythonExport = (method, path) => Number(execFileSync(PY, ['-c',
+  `import sys; sys.path.insert(0, 'clients/python'); import clothd\nprint(clothd.read_recording(open(sys.argv[1], 'rb').read()).${method}(sys.argv[2])['written'])`,
+  clr, path], { cwd: new URL('..', import.meta.url).pathname }).toString());
 if (python) {
-  await measure('USD (Python)', async () => Number(execFileSync(PY, ['-c',
-    `import sys; sys.path.insert(0, 'clients/python'); import clothd\nprint(clothd.read_recording(open(sys.argv[1], 'rb').read()).to_usd(sys.argv[2])['written'])`,
-    clr, join(dir, 'py.usda')], { cwd: new URL('..', import.meta.url).pathname }).toString()), join(dir, 'py.usda'));
-} else console.log('USD (Python)           skipped: python3 does not import clients/python clothd');
+  await measure('USD (Python)', async () => pythonExport('to_usd', join(dir, 'py.usda')), join(dir, 'py.usda'));
+  await measure('MCAP (Python)', async () => pythonExport('to_mcap', join(dir, 'py.mcap')), join(dir, 'py.mcap'));
+} else console.log('USD, MCAP (Python)     skipped: python3 does not import clients/python clothd');
 
 await measure('MCAP (JSON)', async () => {
   const file = await open(join(dir, 'bench.mcap'), 'w');

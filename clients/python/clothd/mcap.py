@@ -51,6 +51,9 @@ def js_number(x: float) -> str:
     null)."""
     if isinstance(x, int) and not isinstance(x, bool):
         x = float(x)
+    r = repr(x)
+    if "e" not in r and r[-2:] != ".0" and r[0] != "n" and r[-1] != "f":  # as Python writes it
+        return r
     if not math.isfinite(x):
         return "null"
     if x == 0:
@@ -73,8 +76,14 @@ def js_number(x: float) -> str:
 _ESCAPE = re.compile(r'[\x00-\x1f"\\\u2028\u2029]')
 
 
+class _Raw(str):
+    """JSON text already written (a long array of numbers)."""
+
+
 def _js_json(v: Any) -> str:
-    """JSON.stringify of v (dicts keep their order; no spaces)."""
+    """JSON.stringify of v (dicts keep their order; no spaces; _Raw as it is)."""
+    if isinstance(v, _Raw):
+        return v
     if isinstance(v, dict):
         return "{" + ",".join(json.dumps(str(k), ensure_ascii=False) + ":" + _js_json(x) for k, x in v.items()) + "}"
     if isinstance(v, (list, tuple)):
@@ -194,7 +203,7 @@ def write_mcap(rec: RecordingSource, out: BinaryIO, compression: Optional[str] =
         started = 0.0
     base = int(started) if math.isfinite(started) and started > 0 else 0
     walk, topo = Walk(), Topology(rec.hello)
-    tri: List[int] = []
+    tri = _Raw("[]")
     shape: Optional[Tuple[int, int, int]] = None
     present: List[int] = []
     written, seq = 0, 0
@@ -205,14 +214,16 @@ def write_mcap(rec: RecordingSource, out: BinaryIO, compression: Optional[str] =
         ns = base + math.floor(tc / rate * 1e9 + 0.5)  # Math.round
         stamp = {"sec": ns // 1000000000, "nsec": ns % 1000000000}
         if shape != (topo.version, topo.nx, topo.ny):
-            tri = triangles(topo.nx, topo.ny, topo.torn)
+            tri = _Raw("[" + ",".join(map(str, triangles(topo.nx, topo.ny, topo.torn))) + "]")
             shape = (topo.version, topo.nx, topo.ny)
         if hasattr(frame.positions, "reshape"):  # numpy: float32 already
             flat = frame.positions.reshape(-1).tolist()
         else:  # as float32, what the frame holds and JavaScript's Float32Array gives
             flat = [c for p in frame.positions for c in p]
             flat = list(struct.unpack("<%df" % len(flat), struct.pack("<%df" % len(flat), *flat)))
-        points = [{"x": flat[3 * v], "y": flat[3 * v + 1], "z": flat[3 * v + 2]} for v in range(len(flat) // 3)]
+        nums = [js_number(c) for c in flat]
+        points = _Raw("[" + ",".join('{"x":%s,"y":%s,"z":%s}' % (nums[3 * v], nums[3 * v + 1], nums[3 * v + 2])
+                                     for v in range(len(nums) // 3)) + "]")
 
         def entity(eid: str, **extra: Any) -> Dict[str, Any]:
             e: Dict[str, Any] = {"timestamp": stamp, "frame_id": "clothd", "id": eid, "lifetime": {"sec": 0, "nsec": 0},
