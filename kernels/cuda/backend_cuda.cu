@@ -21,6 +21,7 @@
  *   batch_kernel_impl.cuh    a batch's kernels and its frames' device copy (device)
  *   memory_cuda.cuh          a scene's context and buffers, the device's errors (host)
  *   graphs_cuda.cuh          the explicit substeps' launches and the CUDA graphs of a frame (host)
+ *   selfcontact_cuda.cuh     self_collision: its kernels and the host's sequence of a pass
  *   implicit_cuda.cuh        integrator implicit_euler: its kernels and their host sequence
  *   batch_cuda.cuh           a batch's tables, its run and its frames' copies (host)
  *   cost_cuda.cuh            the cost model
@@ -46,6 +47,7 @@
 #include "batch_kernel_impl.cuh"
 #include "memory_cuda.cuh"
 #include "graphs_cuda.cuh"
+#include "selfcontact_cuda.cuh"
 #include "implicit_cuda.cuh"
 #include "batch_cuda.cuh"
 #include "cost_cuda.cuh"
@@ -166,15 +168,21 @@ static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t su
         if (is != CS_OK) return is;
         c->calls++;
     }
+    /* self_collision: one substep at a time, each followed by its pass (as the CPU backend) */
+    const int self = !implicit && m->phys.self_on;
     for (int32_t left = implicit ? 0 : substeps; left > 0;) {
+        if (self) {
+            const cs_status ss = sc_begin(c, m->phys.n);
+            if (ss != CS_OK) return ss;
+        }
         graph_key k;
         memset(&k, 0, sizeof k);
-        k.len = left < graph_len(m) ? left : graph_len(m);
+        k.len = self ? 1 : left < graph_len(m) ? left : graph_len(m);
         k.integrator = m->phys.integrator;
         k.strain = strain;
         k.rocks = rock_path(c->host_sc.nr);
         /* The buffers this graph starts from: each substep before it swapped them. */
-        const int32_t done = substeps - left;
+        const int32_t done = self ? 0 : substeps - left;
         k.pos = c->cur ^ (done & 1);
         k.rest = c->rest_cur ^ (strain ? done & 1 : 0);
         cudaGraphExec_t exec = NULL;
@@ -182,8 +190,15 @@ static cs_status cuda_step(void *ctx, const cs_model *m, cs_state *s, int32_t su
         if (st != CS_OK) return st;
         CUDA_CHECK(cudaGraphLaunch(exec, c->stream));
         left -= k.len;
+        if (self) { /* the substep's buffers swapped: the pass works on the new state */
+            c->cur ^= 1;
+            if (strain) c->rest_cur ^= 1;
+            const cs_status ss = sc_end(c, &m->phys, &rep->self);
+            if (ss != CS_OK) return ss;
+        }
     }
-    if (!implicit) advance(c, substeps, strain);
+    if (self) c->calls++;
+    else if (!implicit) advance(c, substeps, strain);
     const cs_status fs = copy_frame(c);
     if (fs != CS_OK) return fs;
     CUDA_CHECK(cudaMemcpyAsync(c->host_flags, c->flags, FLAG_COUNT * sizeof(int), cudaMemcpyDeviceToHost, c->stream));
@@ -206,10 +221,10 @@ static cs_status cuda_step_batch(cs_batch_item *items, int n)
                 items[j].status = cuda_step(items[j].ctx, items[j].m, items[j].s, items[j].substeps, &items[j].rep);
             return CS_OK;
         }
-    /* implicit_euler runs its own sequence of launches: those scenes step alone, as the CPU
-     * backend's cpu_step_batch does; batch_run leaves them out. */
+    /* implicit_euler and self_collision run their own sequences of launches: those scenes step
+     * alone, as the CPU backend's cpu_step_batch does; batch_run leaves them out. */
     for (int k = 0; k < n; k++)
-        if (items[k].m->phys.integrator == CS_IMPLICIT_EULER) {
+        if (items[k].m->phys.integrator == CS_IMPLICIT_EULER || items[k].m->phys.self_on) {
             memset(&items[k].rep, 0, sizeof items[k].rep);
             items[k].status = cuda_step(items[k].ctx, items[k].m, items[k].s, items[k].substeps, &items[k].rep);
         }
@@ -272,7 +287,8 @@ static const char *cuda_error(void *ctx) { return ((cuda_ctx *)ctx)->err; }
 
 static const cs_backend cuda_backend = {
     "cuda", cuda_available, cuda_create, cuda_destroy, cuda_upload, cuda_download, cuda_refresh, cuda_step,
-    cuda_device, cuda_error, cuda_stats, cuda_cost, CS_CAP_SURFACE_CONTACT | CS_CAP_IMPLICIT | CS_CAP_IMPLICIT_ROCKS,
+    cuda_device, cuda_error, cuda_stats, cuda_cost,
+    CS_CAP_SURFACE_CONTACT | CS_CAP_IMPLICIT | CS_CAP_IMPLICIT_ROCKS | CS_CAP_SELF_COLLISION,
     cuda_step_batch,
 };
 

@@ -97,12 +97,39 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     out->batch_calls_per_read_scene = out->launches_per_frame + 3.0;
 }
 
+/* self_collision's pass (selfcontact_cuda.cuh) after each substep (a part: nominally one a
+ * substep). The candidate scans dominate: a vertex reads each vertex within reach (its position,
+ * cell and id: 28 bytes), about pi (reach / h)^2 of them on a flat cloth (more where it is folded:
+ * contact-dependent, not modelled), with reach the lists' radius plus two edges; counted, filled
+ * and once each sweep of the bound (nominally two). Each pass also waits for the device about
+ * seven times (scalars read back): not bytes, so not modelled here. */
+#define SC_SWEEPS 2.0
+static void sc_cost(const cs_model *m, cs_cost_model *out)
+{
+    const cs_phys *p = &m->phys;
+    if (!p->self_on) return;
+    const double F = m->substeps, h = p->self_hx < p->self_hy ? p->self_hx : p->self_hy;
+    const double reach = 7.0 * p->self_thickness + 2.0 * h, near = 3.14159265 * (reach / h) * (reach / h);
+    const double cand = 28.0 * (near < p->n ? near : p->n);
+    cs_cost_add(out, "k_sc_begin (x0, the mask as floats)", 12.0 + 1.0, 12.0 + 4.0, 0, 1.0, F);
+    cs_cost_add(out, "k_sc_disp, k_sc_far (the displacements)", 24.0 + 12.0, 12.0, 0, 1.0, 2.0 * F);
+    cs_cost_add(out, "k_sc_edge (the longest edge)", 12.0 + 36.0 + 12.0, 0, 0, 1.0, F);
+    cs_cost_add(out, "k_sc_keys, k_sc_sort (the grid; the sort on one thread)", 12.0 + 4.0 + 8.0, 4.0 + 12.0 + 8.0, 0,
+                1.0, 2.0 * F);
+    cs_cost_add(out, "k_sc_pairs (counted, then filled)", 2.0 * (24.0 + cand), 4.0 + 8.0, 0, 1.0, 2.0 * F);
+    cs_cost_add(out, "k_sc_repel, k_sc_push", 24.0 + 8.0 + 4.0 + 24.0, 24.0 + 4.0, 0, 1.0, 2.0 * F);
+    cs_cost_add(out, "k_sc_limit (the bound's sweeps)", SC_SWEEPS * (48.0 + cand), SC_SWEEPS * 4.0, 0, 1.0,
+                SC_SWEEPS * F);
+    cs_cost_add(out, "k_sc_cut", 12.0 + 12.0 + 4.0, 0, 0, 1.0, F);
+}
+
 static void cuda_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
 {
     const cs_phys *p = &m->phys;
     if (p->integrator == CS_IMPLICIT_EULER) {
         memset(out, 0, sizeof *out);
         im_cost(m, n_rocks, out);
+        sc_cost(m, out);
         return;
     }
     const double G = graph_len(m), F = m->substeps, graphs = ceil(F / G);
@@ -139,6 +166,10 @@ static void cuda_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     /* The frame the host reads, copied on the device once per step call. */
     cs_cost_add(out, "frame copy (positions, on the device)", 12.0, 12.0, 0, 1.0 / F, 0);
     out->graphs_per_frame = graphs;
+    if (p->self_on) { /* a pass after every substep: graphs of one substep, and the pass's launches */
+        out->graphs_per_frame = F;
+        sc_cost(m, out);
+    }
     /* batch_run: nothing for a scene whose stream is idle; batch_frames, its positions read: a
      * wait for the slot's last copy, the copy to pinned memory, an event (the device copies are
      * one launch for the batch). */

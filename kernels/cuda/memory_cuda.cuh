@@ -63,6 +63,7 @@ struct cuda_ctx {
     graph_entry graphs[GRAPHS];
     int n_graphs;
     struct im_work *im;        /* implicit_euler's workspace (implicit_cuda.cuh), once used */
+    struct sc_work *scw;       /* self_collision's (selfcontact_cuda.cuh), once used */
     uint64_t epoch, uses;
     char device[320];
     char err[256];
@@ -200,6 +201,7 @@ static cudaError_t alloc_rock_bufs(rock_bufs *r, int32_t cap, int32_t nchunks)
 }
 
 static void im_free(struct im_work *w);
+static void sc_free(struct sc_work *w);
 
 static void cuda_destroy(void *ctx)
 {
@@ -207,6 +209,7 @@ static void cuda_destroy(void *ctx)
     if (!c) return;
     drop_graphs(c);
     im_free(c->im);
+    sc_free(c->scw);
     free_vertex_bufs(&c->vb);
     free_rock_bufs(&c->rb);
     cudaFree(c->flags);

@@ -322,12 +322,17 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         w->ref_list = Rl;
     }
     int32_t touching = 0;
+    /* look[v] (the bound's, free until then): whether a pair of v's touched, so that only those
+     * vertices change (an x of -0 stays -0 elsewhere, whatever list a backend took the pairs from) */
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 32) reduction(+ : touching) if (w->pairs > 0)
     for (int32_t v = 0; v < n; v++) {
+        w->look[v] = 0;
         if (!w->rl.count[v]) continue;
         cs_vec3 dx = cs_v3(0.0f, 0.0f, 0.0f), dv = dx;
-        touching += cs_sc_repel(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->w, list_of(&w->rl, v),
-                                w->rl.count[v], v, &dx, &dv);
+        const int32_t t = cs_sc_repel(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->w, list_of(&w->rl, v),
+                                      w->rl.count[v], v, &dx, &dv);
+        touching += t;
+        w->look[v] = t > 0;
         float *px = w->px + 3 * (size_t)v, *pv = w->pv + 3 * (size_t)v;
         px[0] = dx.x, px[1] = dx.y, px[2] = dx.z;
         pv[0] = dv.x, pv[1] = dv.y, pv[2] = dv.z;
@@ -335,7 +340,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
     if (touching > 0) {
 #pragma omp parallel for num_threads(threads) schedule(static)
         for (int32_t v = 0; v < n; v++) {
-            if (!w->rl.count[v]) continue; /* nothing asked of it (its scratch not written) */
+            if (!w->look[v]) continue; /* no pair of its touched */
             const float *px = w->px + 3 * (size_t)v, *pv = w->pv + 3 * (size_t)v;
             s->x[v] += px[0], s->y[v] += px[1], s->z[v] += px[2];
             s->vx[v] += pv[0], s->vy[v] += pv[1], s->vz[v] += pv[2];

@@ -79,7 +79,7 @@ typedef enum cs_contact_model { CS_CONTACT_VERTEX = 0, CS_CONTACT_SURFACE = 1 } 
     X(solver_iterations, INT, "-", 4, 1, 100, NONE, "implicit_euler: most Newton iterations per substep") \
     X(solver_tolerance, FLOAT, "-", 1e-3, 1e-7, 0.5, NONE, "implicit_euler: a substep stops once its residual (the net force's norm) is this fraction of its first") \
     X(cg_iterations, INT, "-", 30, 1, 1000, NONE, "implicit_euler: most conjugate-gradient iterations per Newton iteration, each preconditioned by one multigrid V-cycle") \
-    X(self_collision, BOOL, "-", 0, 0, 1, NONE, "Whether the cloth collides with itself: its layers push apart and never pass through each other (CPU backend)") \
+    X(self_collision, BOOL, "-", 0, 0, 1, NONE, "Whether the cloth collides with itself: its layers push apart and never pass through each other") \
     X(self_thickness, FLOAT, "m", 0.005, 1e-4, 0.5, NONE, "self_collision: layers of the cloth push apart while closer than this") \
 
 #define CS_FIELD_DECL_INT(name) int32_t name;

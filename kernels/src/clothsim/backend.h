@@ -107,7 +107,7 @@ typedef struct cs_kernel_cost {
     double per_frame;      /* runs per frame */
 } cs_kernel_cost;
 
-#define CS_COST_ROWS 16
+#define CS_COST_ROWS 32
 typedef struct cs_cost_model {
     cs_kernel_cost k[CS_COST_ROWS];
     int n;
