@@ -99,17 +99,18 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
 
 /* self_collision's pass (selfcontact_cuda.cuh) after each substep (a part: nominally one a
  * substep). The candidate scans dominate: a vertex reads each vertex within reach (its position,
- * cell and id: 28 bytes), about pi (reach / h)^2 of them on a flat cloth (more where it is folded:
- * contact-dependent, not modelled), with reach the lists' radius plus two edges; counted, filled
- * and once each sweep of the bound (nominally two). Each pass also waits for the device about
- * seven times (scalars read back): not bytes, so not modelled here. */
+ * cell and id: 28 bytes), about pi (reach / h)^2 of them on a flat cloth (more where it is folded,
+ * and twice the substep's motion wider: contact-dependent, not modelled), with reach
+ * self_thickness plus two edges; counted, filled and once each sweep of the bound (nominally
+ * two). Each pass also waits for the device about seven times (scalars read back): not bytes, so
+ * not modelled here. */
 #define SC_SWEEPS 2.0
 static void sc_cost(const cs_model *m, cs_cost_model *out)
 {
     const cs_phys *p = &m->phys;
     if (!p->self_on) return;
     const double F = m->substeps, h = p->self_hx < p->self_hy ? p->self_hx : p->self_hy;
-    const double reach = 7.0 * p->self_thickness + 2.0 * h, near = 3.14159265 * (reach / h) * (reach / h);
+    const double reach = p->self_thickness + 2.0 * h, near = 3.14159265 * (reach / h) * (reach / h);
     const double cand = 28.0 * (near < p->n ? near : p->n);
     cs_cost_add(out, "k_sc_begin (x0, the mask as floats)", 12.0 + 1.0, 12.0 + 4.0, 0, 1.0, F);
     cs_cost_add(out, "k_sc_disp, k_sc_far (the displacements)", 24.0 + 12.0, 12.0, 0, 1.0, 2.0 * F);

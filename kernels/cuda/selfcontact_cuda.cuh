@@ -10,12 +10,13 @@
  *      and maxima, exact in any order, totalled on the host as the CPU's reductions are);
  *   2. the longest intact edge at x0 (k_sc_edge); the hash grid of x0 (k_sc_keys in parallel,
  *      cs_sc_sort's counting sort on one thread, as the CPU runs it);
- *   3. every vertex's list of repelling pairs within self_thickness + 2 M + a margin at x0: counted
+ *   3. every vertex's list of repelling pairs within self_thickness + 2 M at x0: counted
  *      (cs_sc_pairs with no room), the room laid out on the host (an exact prefix sum; the key
  *      buffer grows to fit, and a failed allocation is an error, never a dropped pair), then
  *      filled and sorted (cs_sc_pairs again); the repulsion (cs_sc_repel) per vertex, added where
  *      a pair touched;
- *   4. the bound: Jacobi sweeps of cs_sc_limit over the grid until no scale changes (at most
+ *   4. the bound: Jacobi sweeps of cs_sc_limit over the grid (pairs within self_thickness +
+ *      2 Ma / CS_SC_GAMMA at x0) until no scale changes (at most
  *      CS_SC_SWEEPS, then one that cuts outright), then x = x0 + s d, v = s v.
  * The statistics differ from the CPU's where it skips: every pass here is a broad phase. */
 #ifndef CLOTHSIM_CUDA_SELFCONTACT_CUDA_CUH
@@ -372,7 +373,9 @@ static cs_status sc_end(cuda_ctx *c, const cs_phys *p, cs_self_stats *stats)
     if ((st = sc_partials(c, nb)) != CS_OK) return st;
     float L = 0.0f;
     for (unsigned b = 0; b < nb; b++) L = w->host_part[8 * b] > L ? w->host_part[8 * b] : L;
-    const float Rl = p->self_thickness + 2.0f * M + 6.0f * p->self_thickness; /* list_margin */
+    /* the pairs that may touch at x1: within self_thickness + 2 M at x0 (the CPU looks wider, for
+     * lists it keeps; the pairs that touch, and so the bits, are the same) */
+    const float Rl = p->self_thickness + 2.0f * M;
     float cell = Rl + 2.0f * L;
     cs_sc_grid G;
     if ((st = sc_grid(c, n, cell, &G)) != CS_OK) return st;
@@ -405,10 +408,10 @@ static cs_status sc_end(cuda_ctx *c, const cs_phys *p, cs_self_stats *stats)
         k_sc_push<<<nb, SC_THREADS, 0, c->stream>>>(S, w->push, w->touched, n);
         if ((st = sc_displacements(c, S, n, &M, &Ma)) != CS_OK) return st;
     }
-    /* the bound, from scales of 1 (a full pass: every vertex looks, R wider than r by the
-     * reference margin, as the CPU's full passes) */
-    const float r = p->self_thickness + 2.0f * Ma / CS_SC_GAMMA, h = p->self_hx < p->self_hy ? p->self_hx : p->self_hy;
-    const float R = r + (p->self_thickness > 0.5f * h ? p->self_thickness : 0.5f * h), reach = R + 2.0f * L;
+    /* the bound, from scales of 1, every vertex looking at its pairs within r (the CPU's full
+     * passes look wider, for the reference they keep: a pair beyond r is safe, so the cuts, and
+     * the bits, are the same) */
+    const float R = p->self_thickness + 2.0f * Ma / CS_SC_GAMMA, reach = R + 2.0f * L;
     if (!(cell >= reach) && (st = sc_grid(c, n, cell = reach, &G)) != CS_OK) return st;
     k_sc_ones<<<nb, SC_THREADS, 0, c->stream>>>(w->s, n);
     float *a = w->s, *b = w->s + n;
