@@ -9,10 +9,9 @@ import WebSocket from 'ws';
 import { daemon } from './daemon.mjs';
 import { MeshoptDecoder } from 'meshoptimizer';
 import { ZSTDDecoder } from 'zstddec';
-import { createDecoder, isDeltaKeyKind } from '../proto/frame.mjs';
+import { ENCODINGS, createDecoder, isDeltaKeyKind } from '../proto/frame.mjs';
 
 const secs = Number(process.argv[2] ?? 8);
-const ENCODINGS = ['f32', 'q16', 'meshopt', 'delta'];
 await MeshoptDecoder.ready;
 const zstd = new ZSTDDecoder();
 await zstd.init();

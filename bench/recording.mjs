@@ -12,10 +12,9 @@ import { ZSTDDecoder } from 'zstddec';
 import { MeshoptDecoder } from 'meshoptimizer';
 import { daemon } from './daemon.mjs';
 import { readRecording, buildRecording } from '../proto/recording.mjs';
-import { createDecoder } from '../proto/frame.mjs';
+import { ENCODINGS, createDecoder } from '../proto/frame.mjs';
 
 const seconds = Number(process.argv[2] ?? 10);
-const ENCODINGS = ['f32', 'q16', 'meshopt', 'delta'];
 const zstd = new ZSTDDecoder();
 await zstd.init();
 await MeshoptDecoder.ready;

@@ -3,7 +3,9 @@
  *   offset  size  field
  *        0     4  magic "CLF1"
  *        4     2  header size (72)
- *        6     2  flags: bits 0-1 encoding (0 f32, 1 q16, 2 meshopt, 3 delta), bit 2 scalar present
+ *        6     2  flags: bits 0-1 encoding (0 f32, 1 q16, 2 meshopt, 3 delta), bit 2 scalar present,
+ *                 bits 3-15 reserved (0: a reader refuses a frame with any set; bit 3 is kept for
+ *                 the encoding, the field's third bit, when a fifth encoding comes)
  *        8     8  frame (u64)
  *       16     8  step (u64)
  *       24     8  sim_time (f64, s)
@@ -72,9 +74,16 @@
 #define CLF_OFF_BBOX_MIN 48
 #define CLF_OFF_BBOX_MAX 60
 
-enum clf_encoding { CLF_F32 = 0, CLF_Q16 = 1, CLF_MESHOPT = 2, CLF_DELTA = 3 };
+/* The encodings, one list (X(symbol, name)): the enum below, the server's names
+ * (stream_encoding_names), and in the same order clients/js/src/frame.mjs's ENCODINGS and the
+ * Python client's POSITION_DECODERS; each encoding's value is its position here, its wire code. */
+#define CLF_ENCODINGS(X) X(CLF_F32, "f32") X(CLF_Q16, "q16") X(CLF_MESHOPT, "meshopt") X(CLF_DELTA, "delta")
+#define CLF_ENCODING_ENUM_(sym, name) sym,
+enum clf_encoding { CLF_ENCODINGS(CLF_ENCODING_ENUM_) CLF_ENCODING_COUNT };
+#undef CLF_ENCODING_ENUM_
 #define CLF_FLAG_ENCODING_MASK 0x3u
 #define CLF_FLAG_SCALAR 0x4u
+#define CLF_FLAG_RESERVED 0xFFF8u /* bits 3-15: 0 (bit 3: the encoding's third bit, later) */
 
 #define CLF_ROCK_SIZE 36
 #define CLF_MESHOPT_STRIDE 8 /* bytes per vertex given to the meshopt codec */

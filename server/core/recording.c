@@ -136,7 +136,7 @@ int rec_check_frame(const unsigned char *p, size_t len, int32_t n, int *encoding
         return -1;
     }
     const unsigned flags = get_u16(p + CLF_OFF_FLAGS);
-    if (flags & ~(CLF_FLAG_ENCODING_MASK | CLF_FLAG_SCALAR)) {
+    if (flags & CLF_FLAG_RESERVED) {
         snprintf(why, why_len, "a frame with unknown flags 0x%x", flags);
         return -1;
     }

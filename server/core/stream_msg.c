@@ -6,7 +6,9 @@
 #include "core/json_write.h"
 #include "core/stream_msg.h"
 
-const char *const stream_encoding_names[STREAM_ENCODINGS] = {"f32", "q16", "meshopt", "delta"};
+#define ENCODING_NAME(sym, name) name,
+const char *const stream_encoding_names[STREAM_ENCODINGS] = {CLF_ENCODINGS(ENCODING_NAME)};
+#undef ENCODING_NAME
 const char *const stream_scalar_names[SCALAR_KINDS] = {"none", "speed", "strain"};
 
 static stream_msg_kind refuse(stream_msg *m, const char *about, int has_param)

@@ -8,6 +8,7 @@
 
 #include <jansson.h>
 
+#include "clothd_frame.h"
 #include "core/pose.h"
 #include "core/problem.h"
 
@@ -15,12 +16,12 @@
 #define STREAM_PATH "/stream"
 #define STREAM_PROTOCOL "clothd.v1"
 
-#define STREAM_ENCODINGS 4
+#define STREAM_ENCODINGS CLF_ENCODING_COUNT
 /* Longest scene id, its NUL included (ids match [a-z0-9][a-z0-9_-]{0,62}). */
 #define STREAM_SCENE_ID_MAX 64
 /* The largest max_kbps a client may ask for (10 Gbit/s). */
 #define STREAM_MAX_KBPS 10000000
-/* Names in the order of proto/clothd_frame.h's encodings and of pose.h's scalars. */
+/* The names of proto/clothd_frame.h's encodings (CLF_ENCODINGS) and of pose.h's scalars. */
 extern const char *const stream_encoding_names[STREAM_ENCODINGS];
 extern const char *const stream_scalar_names[SCALAR_KINDS];
 

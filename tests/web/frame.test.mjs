@@ -217,6 +217,12 @@ test('bad input throws a clear Error', () => {
   const enc3 = F32_FRAME.slice();
   enc3[6] = 3;
   assert.throws(() => decodeFrame(enc3), { name: 'Error', message: /createDecoder/ });
+  // a reserved flag bit (bit 3: a fifth encoding's, later; bit 15): refused, not misread as f32
+  for (const bit of [3, 15]) {
+    const reserved = F32_FRAME.slice();
+    reserved[6 + (bit >> 3)] |= 1 << (bit & 7);
+    assert.throws(() => decodeFrame(reserved), { name: 'Error', message: /flags 0x[0-9a-f]+ set bits/ });
+  }
   const trailing = new Uint8Array(136);
   trailing.set(F32_FRAME);
   assert.throws(() => decodeFrame(trailing), { name: 'Error', message: /136 bytes/ });

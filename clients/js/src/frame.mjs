@@ -24,6 +24,8 @@ export const ENCODINGS = ['f32', 'q16', 'meshopt', 'delta'];
 export const ROCK_SIZE = 36;
 export const MESHOPT_STRIDE = 8;
 export const FLAG_SCALAR = 4;
+/** Flag bits 3-15: 0 in every frame (bit 3 is kept for the encoding's third bit, later). */
+export const FLAG_RESERVED = 0xfff8;
 /** The most vertices a frame may claim: clothd's largest cloth, 4096 x 4096. */
 export const MAX_VERTICES = 4096 * 4096;
 /** The delta positions section's head: kind, keyframe id and frame, quantum, origin, row, length. */
@@ -85,6 +87,7 @@ function decode(data, options, state) {
   if (magic !== MAGIC) throw new Error(`not a clothd frame (magic ${JSON.stringify(magic)})`);
   const headerSize = dv.getUint16(4, true);
   const flags = dv.getUint16(6, true);
+  if (flags & FLAG_RESERVED) throw new Error(`frame flags 0x${flags.toString(16)} set bits this reader does not know`);
   const encoding = ENCODINGS[flags & 3];
   if (!encoding) throw new Error(`unknown encoding ${flags & 3}`);
   const n = dv.getUint32(40, true);

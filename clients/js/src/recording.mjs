@@ -11,7 +11,7 @@
 //   r.frames[k] -> {offset, length, simTime, key, textsBefore}; r.frame(k) -> the CLF1 bytes;
 //   r.text(k) -> text record k parsed (0 is the hello); r.seek(t) -> the frame at t s.
 
-import { isDeltaKeyKind } from './frame.mjs';
+import { ENCODINGS, isDeltaKeyKind } from './frame.mjs';
 
 export const REC_MAGIC = 'CLR1';
 export const TAIL_MAGIC = 'CLRX';
@@ -191,7 +191,7 @@ function scan(b, dv, salvage = null) {
 // the keyframe its index entry names, the last one before it.
 function checkFrames(b, dv, frames, texts, hello, text) {
   const enc = hello.recording?.encoding;
-  const encodings = ['f32', 'q16', 'meshopt', 'delta'];
+  const encodings = ENCODINGS;
   const relayout = new Set(['scene', 'snapshot_restored']);
   let n = (hello.scene.nx | 0) * (hello.scene.ny | 0);
   let textsSeen = 1, keyId = -1;

@@ -74,6 +74,8 @@ ROCK_SIZE = 36
 MESHOPT_STRIDE = 8
 FLAG_SCALAR = 4
 ENCODING_MASK = 3
+#: flag bits 3-15: 0 in every frame (bit 3 is kept for the encoding's third bit, later)
+FLAG_RESERVED = 0xFFF8
 #: The most vertices a frame may claim: clothd's largest cloth, 4096 x 4096.
 MAX_VERTICES = 4096 * 4096
 #: Below this extent (m) a q16 axis is flat: all 0, decoding to bbox min.
@@ -372,6 +374,8 @@ def decode_frame(data: Buffer, numpy: Optional[bool] = None, _state: Optional[Fr
         raise FrameError("not a clothd frame (magic %r)" % bytes(magic))
     if header_size < HEADER_SIZE:
         raise FrameError("frame header size %d is below %d" % (header_size, HEADER_SIZE))
+    if flags & FLAG_RESERVED:
+        raise FrameError("frame flags 0x%x set bits this reader does not know" % flags)
     code = flags & ENCODING_MASK
     if n > MAX_VERTICES:
         raise FrameError("frame claims %d vertices, more than %d" % (n, MAX_VERTICES))

@@ -23,7 +23,7 @@ import warnings
 from typing import Any, Callable, Dict, Iterator, List, NoReturn, Optional, Tuple, Union
 
 from .errors import RecordingError as RecordingError  # raised here; clothd.recording.RecordingError stays
-from .frames import DELTA_KEY_KINDS, Buffer, Frame, FrameDecoder
+from .frames import DELTA_KEY_KINDS, POSITION_DECODERS, Buffer, Frame, FrameDecoder
 from .mcap import write_mcap
 from .timeline import require_frames
 from .usd import write_usd
@@ -45,7 +45,7 @@ MAX_RECORDS = 1 << 24
 _CLF_HEADER = 72
 _CLF_DELTA = 3
 _CLF_MAX_VERTICES = 4096 * 4096
-_ENCODINGS = ("f32", "q16", "meshopt", "delta")
+_ENCODINGS = tuple(POSITION_DECODERS[k][0] for k in sorted(POSITION_DECODERS))  # the wire's order
 _RELAYOUT = ("scene", "snapshot_restored")
 
 

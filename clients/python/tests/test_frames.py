@@ -206,6 +206,9 @@ def test_bad_input_is_a_frame_error_that_says_why():
         (F32_FRAME + b"\0\0\0\0", "136 bytes"),
         (F32_FRAME[:4] + b"\x10\x00" + F32_FRAME[6:], "header size 16"),
         (F32_FRAME[:40] + b"\xff\xff\xff\xff" + F32_FRAME[44:], "more than"),
+        # reserved flag bits (bit 3: a fifth encoding's, later; bit 15): refused, not misread as f32
+        (F32_FRAME[:6] + b"\x08\x00" + F32_FRAME[8:], "flags 0x8 set bits"),
+        (F32_FRAME[:6] + b"\x00\x80" + F32_FRAME[8:], "flags 0x8000 set bits"),
     ]
     for cut in (1, 36, 60):
         cases.append((F32_FRAME[:132 - cut], "truncated"))
