@@ -29,6 +29,10 @@ test('the picker makes a scene from the shown one, the URL names it, a link and 
   const page = await openViewer(browser.context, `${daemon.url}/`);
   assert.deepEqual(await shown(page), { id: 'default', hash: '', nx: 20, n: 320 });
   await page.waitForSelector('#scenes:not([hidden])');
+  // The shown scene is on this clothd: once the list is in, its label says so (not "not on this
+  // clothd", the label it has before the list arrives).
+  await page.waitForFunction(() => /^default \((running|paused), 320 vertices\)$/.test(document.querySelector('#scene-select option[value="default"]')?.textContent ?? ''),
+    null, { timeout: 15000 });
   await page.fill('#scene-new-id', 'copy-1');
   await page.click('#scene-new');
   await until('the new scene shown', async () => (await shown(page)).id === 'copy-1' && (await shown(page)).hash === '#scene=copy-1',

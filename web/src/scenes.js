@@ -42,13 +42,18 @@ export class ScenePicker {
     const current = this.hooks.current();
     const ids = this.list.map((s) => s.id);
     if (!ids.includes(current)) ids.push(current); // shown, though gone or not listed yet
-    const want = ids.join('\n');
+    const label = (id) => {
+      const s = this.list.find((x) => x.id === id);
+      return s ? `${id} (${s.state}, ${s.n_vertices} vertices)` : `${id} (not on this clothd)`;
+    };
+    // Redrawn when an id or a label changes (the list arriving after the first draw changes the
+    // labels of the same ids).
+    const labels = ids.map(label), want = JSON.stringify([ids, labels]);
     if (this.select.dataset.ids !== want) {
-      this.select.replaceChildren(...ids.map((id) => {
+      this.select.replaceChildren(...ids.map((id, k) => {
         const o = document.createElement('option');
         o.value = id;
-        const s = this.list.find((x) => x.id === id);
-        o.textContent = s ? `${id} (${s.state}, ${s.n_vertices} vertices)` : `${id} (not on this clothd)`;
+        o.textContent = labels[k];
         return o;
       }));
       this.select.dataset.ids = want;
