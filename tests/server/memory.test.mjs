@@ -170,6 +170,20 @@ const KINDS = [
   },
 ];
 
+/* A request whose connection the peer reset before any answer (seen once under ASan, on a loaded
+ * machine, and not reproduced since) is sent once more, and said so: this test is about memory,
+ * not the transport. A daemon that crashed answers the second try no better, and stop() still
+ * fails on any sanitizer report in its log. */
+async function sendAgainOnReset(sendIt, what) {
+  try {
+    return await sendIt();
+  } catch (e) {
+    if (!['ECONNRESET', 'EPIPE'].includes(e.cause?.code)) throw e;
+    console.log(`${what}: the connection was reset (${e.cause.code}) before an answer; sent again`);
+    return sendIt();
+  }
+}
+
 for (const { kind, flags, make, send, want, between } of KINDS) {
   test(`large bodies give their memory back: ${RUNS.join(' and ')} ${kind} bodies of ${LIMIT >> 10} KiB grow RSS by less than ${BODIES_BOUND / MiB} MiB`, async () => {
     const d = await start(['--paused', ...flags, '--auto-drop-interval', '0', '--journal-max-mb', '1', '--stream-events-mb', '1', '--max-body', String(LIMIT)], measured);
@@ -185,7 +199,7 @@ for (const { kind, flags, make, send, want, between } of KINDS) {
     for (const n of RUNS) {
       if (between) await between(d);
       for (let i = 0; i < n; i += 2) {
-        const rs = await Promise.all([i, i + 1].map((k) => send(d, bodies, k)));
+        const rs = await Promise.all([i, i + 1].map((k) => sendAgainOnReset(() => send(d, bodies, k), `${kind} ${k}`)));
         rs.forEach((r, k) => assert.equal(r.status, want(i + k), `${kind} ${i + k}: ${r.text.slice(0, 200)}`));
       }
       sent += n;
