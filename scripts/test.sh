@@ -32,8 +32,10 @@ export UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1"
 # sanitizers; deploy.* checks install scripts and manifests; web.look, web.shadow and web.capture
 # check what the page draws, web.export_usd, web.export_mcap and clients.js_export what the
 # JavaScript exporters write (the daemon's side of them is the server tests'); emu.batch batches
-# the same emulated kernels emu.parity runs (the batch's host code is the normal build's).
-asan_skip='^(emu\.(datapath|cost|batch)|deploy\..*|web\.(look|shadow|capture|export_usd|export_mcap)|clients\.js_export)$'
+# the same emulated kernels emu.parity runs (the batch's host code is the normal build's);
+# gpu.parity_self runs the CPU backend against itself on two threads, where emu.parity runs it
+# on every scene (thread counts are the normal build's to compare).
+asan_skip='^(emu\.(datapath|cost|batch)|gpu\.parity_self|deploy\..*|web\.(look|shadow|capture|export_usd|export_mcap)|clients\.js_export)$'
 (cd "$root/build-asan" && ctest --output-on-failure -j "$jobs" -E "$asan_skip" -LE bench)
 unset ASAN_OPTIONS UBSAN_OPTIONS
 
