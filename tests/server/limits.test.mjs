@@ -24,23 +24,30 @@ function idle(d) {
   });
 }
 
-// A whole request over its own connection: the status, or null when the server closed it unanswered.
-function rawStatus(d, method = 'GET', path = '/v1/sim') {
+// A whole request over its own connection, from `from` (any 127/8 address reaches a daemon on
+// 127.0.0.1): the status, or null when the server closed it unanswered; `text` the whole answer.
+function rawAnswer(d, method = 'GET', path = '/v1/sim', from = '127.0.0.1') {
   const { port } = new URL(d.url);
   return new Promise((resolve) => {
-    const sock = tcp(Number(port), '127.0.0.1');
+    const sock = tcp({ port: Number(port), host: '127.0.0.1', localAddress: from });
     let text = '';
     sock.on('data', (b) => (text += b));
     sock.on('error', () => {});
-    sock.on('close', () => resolve(/^HTTP\/1\.1 (\d+)/.exec(text)?.[1] ?? null));
+    sock.on('close', () => resolve({ status: /^HTTP\/1\.1 (\d+)/.exec(text)?.[1] ?? null, text }));
     sock.on('connect', () => sock.write(`${method} ${path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n`));
   });
 }
+const rawStatus = async (d, method, path) => (await rawAnswer(d, method, path)).status;
 
 test('connections: at most max_connections_per_ip from one address, idle ones closed after connection_timeout',
   async () => {
     const d = await start(['--paused', '--max-connections-per-ip', '3', '--connection-timeout', '2']);
     const held = [await idle(d), await idle(d), await idle(d)];
+    // The client's connect() returns once the kernel has the connection; wait until the daemon
+    // has taken all three (asked from another address: 3 idle + the asking one), or a fourth could
+    // race a third into a worker thread and be counted first.
+    await until('the daemon holds the three idle connections', async () =>
+      metric((await rawAnswer(d, 'GET', '/metrics', '127.0.0.2')).text, 'clothd_http_connections') === 4);
     assert.equal(await rawStatus(d), null, 'a fourth connection from this address is closed unanswered');
     // Idle connections go after connection_timeout, and then there is room again.
     await Promise.all(held.map((c) => c.closed));
