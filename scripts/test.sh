@@ -34,8 +34,11 @@ export UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1"
 # JavaScript exporters write (the daemon's side of them is the server tests'); emu.batch batches
 # the same emulated kernels emu.parity runs (the batch's host code is the normal build's);
 # gpu.parity_self runs the CPU backend against itself on two threads, where emu.parity runs it
-# on every scene (thread counts are the normal build's to compare).
-asan_skip='^(emu\.(datapath|cost|batch)|gpu\.parity_self|deploy\..*|web\.(look|shadow|capture|export_usd|export_mcap)|clients\.js_export)$'
+# on every scene (thread counts are the normal build's to compare). The viewer's walks through
+# the page (web.e2e, web.playback, web.scenes, web.remote: each alone, one core idle) and the
+# clients' packaging, types and numpy-less rerun check code that is not clothd's: the daemon's
+# side of each is the server tests' (web.crosssite and clients.python still run here).
+asan_skip='^(emu\.(datapath|cost|batch)|gpu\.parity_self|deploy\..*|web\.(look|shadow|capture|export_usd|export_mcap|e2e|playback|scenes|remote)|clients\.(js_export|js_package|python_types|python_nonumpy))$'
 (cd "$root/build-asan" && ctest --output-on-failure -j "$jobs" -E "$asan_skip" -LE bench)
 unset ASAN_OPTIONS UBSAN_OPTIONS
 
