@@ -13,7 +13,9 @@
  *      until none changes (at most CS_SC_SWEEPS, then one sweep that cuts every near pair
  *      outright); x = x0 + s d, v = s v.
  * Every maximum is exact in any order and every vertex writes only its own entries, so the result
- * does not depend on the thread count.
+ * does not depend on the thread count. The lists a full pass builds find each pair once, by the
+ * vertex that owns it (cs_sc_owned), and hand it to its four vertices (owned_lists): the same
+ * pairs the per-vertex gathers (cs_sc_pairs, cs_sc_limit) find, which the CUDA backend runs.
  *
  * Passes that provably change nothing are skipped. A full pass of the bound finds each vertex's
  * least pair distance at x0 within a wider reach and rebuilds the lists there, keeping x0 as the
@@ -108,6 +110,7 @@ struct cs_sc_work {
     float *xr, *dall;        /* the reference (3 n), the least distance of each vertex's pairs there */
     sc_lists rl;             /* each vertex's repelling pairs, sorted (cs_sc_pairs) */
     sc_lists bl;             /* each vertex's pairs within the bound's radius at the reference */
+    sc_lists ol;             /* the pairs each vertex owns there (cs_sc_owned), handed out to bl */
     uint8_t *look;           /* vertices whose pairs the bound looks at this substep */
     int have_ref, lists_whole, bound_whole;
     int64_t pairs;           /* in all the lists */
@@ -121,6 +124,7 @@ void cs_sc_free(cs_sc_work *w)
     if (!w) return;
     lists_free(&w->rl, w->n);
     lists_free(&w->bl, w->n);
+    lists_free(&w->ol, w->n);
     free(w->x0);
     free(w->xr);
     free(w->look);
@@ -148,7 +152,7 @@ static cs_status fit(cs_sc_work **wp, int32_t n)
     w->mask = size - 1;
     w->x0 = malloc(sizeof(float) * 3 * (size_t)n);
     w->xr = malloc(sizeof(float) * 3 * (size_t)n);
-    const int lists = lists_alloc(&w->rl, n) && lists_alloc(&w->bl, n);
+    const int lists = lists_alloc(&w->rl, n) && lists_alloc(&w->bl, n) && lists_alloc(&w->ol, n);
     w->look = malloc((size_t)n);
     w->dall = malloc(sizeof(float) * (size_t)n);
     w->dx = malloc(sizeof(float) * 3 * (size_t)n);
@@ -274,24 +278,76 @@ static float ref_margin(const cs_phys *p)
  * reference (they stay whole while the cloth moves less than half of it). */
 static float list_margin(const cs_phys *p) { return 6.0f * p->self_thickness; }
 
-/* Every vertex's list of repelling pairs within rad at positions x, y, z (cs_sc_pairs); returns
- * the vertices left without one (no memory for it). */
-static int32_t build_lists(cs_sc_work *w, const cs_phys *p, const float *L0, const float *x, const float *y,
-                           const float *z, const cs_sc_grid *G, float reach, float rad, int threads)
+static int key_order(const void *a, const void *b)
+{
+    const int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
+    return (x > y) - (x < y);
+}
+
+/* Every vertex's list of the pairs within r at x0 (with repel the repelling ones, cs_sc_pairs',
+ * each list sorted by key; else the bound's, cs_sc_limit's) into out: each pair found once, by
+ * the vertex that owns it (cs_sc_owned, in parallel), then handed to each of its four vertices in
+ * the owners' order (on one thread: a few keys a vertex). Returns 0, or n when there was no memory
+ * for them (then every list is empty). */
+static int32_t owned_lists(cs_sc_work *w, const cs_phys *p, const float *L0, const cs_sc_grid *G, float r,
+                           float reach, int repel, sc_lists *out, int threads)
 {
     (void)threads; /* only the OpenMP pragmas read it */
-    int32_t lost_ = 0;
-    int64_t pairs = 0;
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) reduction(+ : lost_, pairs)
-    for (int32_t c = 0; c < chunks(p->n); c++) {
-        const int32_t end = (c + 1) * CHUNK < p->n ? (c + 1) * CHUNK : p->n;
+    const int32_t n = p->n;
+    int32_t lost_ = 0, *count = out->count;
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) reduction(+ : lost_)
+    for (int32_t c = 0; c < chunks(n); c++) {
+        const int32_t end = (c + 1) * CHUNK < n ? (c + 1) * CHUNK : n;
         int64_t len = 0;
         for (int32_t v = c * CHUNK; v < end; v++)
-            LIST_FILL(&w->rl, c, len, v, keys, cap, cs_sc_pairs(p, G, L0, x, y, z, reach, rad, v, keys, cap));
-        pairs += len;
+            LIST_FILL(&w->ol, c, len, v, keys, cap,
+                      cs_sc_owned(p, G, L0, w->x0, w->y0, w->z0, r, reach, v, repel, keys, cap));
     }
+    for (int32_t v = 0; v < n; v++) count[v] = 0;
+    if (lost_) return n;
+    for (int pass = 0; pass < 2; pass++) { /* count, then (laid out) fill */
+        for (int32_t v = 0; v < n; v++)
+            for (int32_t k = 0; k < w->ol.count[v]; k++) {
+                const int64_t key = list_of(&w->ol, v)[k];
+                int32_t q[4], t[3], a[2], b[2];
+                if (cs_sc_key_decode(p, key, &q[0], t, a, b))
+                    q[0] = a[0], q[1] = a[1], q[2] = b[0], q[3] = b[1];
+                else
+                    q[1] = t[0], q[2] = t[1], q[3] = t[2];
+                for (int e = 0; e < 4; e++) {
+                    if (pass) out->chunk[q[e] / CHUNK][out->first[q[e]] + count[q[e]]] = key;
+                    count[q[e]]++;
+                }
+            }
+        if (pass) break;
+        for (int32_t c = 0; c < chunks(n); c++) {
+            const int32_t end = (c + 1) * CHUNK < n ? (c + 1) * CHUNK : n;
+            int64_t len = 0;
+            for (int32_t v = c * CHUNK; v < end; v++) out->first[v] = len, len += count[v], count[v] = 0;
+            if (!grow(out, c, 0, len)) {
+                for (int32_t v = 0; v < n; v++) count[v] = 0;
+                return n;
+            }
+        }
+    }
+    if (repel) { /* each list by key, as cs_sc_pairs keeps it: the repulsion sums in that order */
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 64)
+        for (int32_t v = 0; v < n; v++)
+            if (count[v] > 1) qsort(out->chunk[v / CHUNK] + out->first[v], (size_t)count[v], sizeof(int64_t), key_order);
+    }
+    return 0;
+}
+
+/* Every vertex's list of repelling pairs within rad at x0 (cs_sc_pairs', by owned_lists); returns
+ * the vertices left without one (no memory for them). */
+static int32_t build_lists(cs_sc_work *w, const cs_phys *p, const float *L0, const cs_sc_grid *G, float reach,
+                           float rad, int threads)
+{
+    const int32_t lost = owned_lists(w, p, L0, G, rad, reach, 1, &w->rl, threads);
+    int64_t pairs = 0;
+    for (int32_t v = 0; v < p->n; v++) pairs += w->rl.count[v];
     w->pairs = pairs;
-    return lost_;
+    return lost;
 }
 
 cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, cs_self_stats *st)
@@ -317,7 +373,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         const float Rl = p->self_thickness + 2.0f * M + list_margin(p);
         cell = Rl + 2.0f * L;
         G = build_grid(w, n, w->x0, w->y0, w->z0, cell, threads);
-        lost = build_lists(w, p, L0, w->x0, w->y0, w->z0, &G, cell, Rl, threads);
+        lost = build_lists(w, p, L0, &G, cell, Rl, threads);
         w->lists_whole = lost == 0;
         w->ref_list = Rl;
     }
@@ -380,7 +436,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
             if (!(cell >= need)) G = build_grid(w, n, w->x0, w->y0, w->z0, cell = need, threads);
         }
         if (new_lists) {
-            const int32_t none = build_lists(w, p, L0, w->x0, w->y0, w->z0, &G, Rl + 2.0f * L, Rl, threads);
+            const int32_t none = build_lists(w, p, L0, &G, Rl + 2.0f * L, Rl, threads);
             w->lists_whole = none == 0;
             lost += none;
             w->ref_list = Rl;
@@ -392,19 +448,18 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
             const int outright = sweep == CS_SC_SWEEPS;
             changed = 0;
             if (full && sweep == 0) { /* every vertex, keeping its pairs within R for later */
-                int32_t lost_ = 0;
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) reduction(| : changed) reduction(+ : lost_)
-                for (int32_t c = 0; c < chunks(n); c++) {
-                    const int32_t end = (c + 1) * CHUNK < n ? (c + 1) * CHUNK : n;
-                    int64_t len = 0;
-                    for (int32_t v = c * CHUNK; v < end; v++) {
-                        int32_t nk = 0;
-                        LIST_FILL(&w->bl, c, len, v, keys, cap,
-                                  (b[v] = cs_sc_limit(p, &G, L0, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, reach,
-                                                      v, outright, &w->dall[v], keys, cap, &nk),
-                                   nk));
-                        changed |= b[v] != a[v];
+                const int32_t lost_ = owned_lists(w, p, L0, &G, R, reach, 0, &w->bl, threads);
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 32) reduction(| : changed)
+                for (int32_t v = 0; v < n; v++) {
+                    if (lost_ == 0) {
+                        b[v] = cs_sc_limit_listed(p, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, v, outright,
+                                                  list_of(&w->bl, v), w->bl.count[v], &w->dall[v]);
+                    } else {
+                        int32_t nk;
+                        b[v] = cs_sc_limit(p, &G, L0, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, reach, v,
+                                           outright, &w->dall[v], NULL, 0, &nk);
                     }
+                    changed |= b[v] != a[v];
                 }
                 w->bound_whole = lost_ == 0;
                 w->ref_bound = R;
@@ -416,7 +471,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
                     if (!full && !w->look[v]) continue;
                     if (listed_now) {
                         b[v] = cs_sc_limit_listed(p, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, v, outright,
-                                                  list_of(&w->bl, v), w->bl.count[v]);
+                                                  list_of(&w->bl, v), w->bl.count[v], NULL);
                     } else {
                         float da;
                         int32_t nk;

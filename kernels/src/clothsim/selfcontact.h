@@ -678,11 +678,81 @@ SIM_HD static inline float cs_sc_limit(const cs_phys *ph, const cs_sc_grid *G, c
     return cut;
 }
 
+/* The pairs within r at x0 that vertex v owns, each pair owned by one vertex: vertex-triangle
+ * pairs with v as the point (the triangles its candidates own), edge-edge pairs of an edge of v's
+ * (from v) and an edge of a candidate u > v (from u); none that shares a vertex, and with repel
+ * only those that repel (cs_sc_repels, cs_sc_ee_repels: cs_sc_pairs' pairs). Keys into keys (room
+ * for cap, unsorted); returns how many there are (past cap too). Every pair cs_sc_limit (or
+ * cs_sc_pairs) finds for any of its vertices is owned by one of them (the owner of a triangle
+ * within r of a point lies within r + L of it, an edge's owner within r + 2 L of the other edge's:
+ * reach is r + 2 L), with the same tests on the same arguments, so the lists handed from owners
+ * to every vertex of their pairs are theirs, each pair looked at once rather than by each of its
+ * four vertices. */
+SIM_HD static inline int32_t cs_sc_owned(const cs_phys *ph, const cs_sc_grid *G, const float *L0, const float *x0,
+                                         const float *y0, const float *z0, float r, float reach, int32_t v,
+                                         int repel, int64_t *keys, int32_t cap)
+{
+    const int32_t nx = ph->nx, ny = ph->ny, vi = v % nx, vj = v / nx;
+    /* as cs_sc_pairs: within CS_SC_RINGS of v no pair repels, beyond twice that every pair does
+     * (unless the thickness spans that many rings at rest) */
+    const float h = ph->self_hx < ph->self_hy ? ph->self_hx : ph->self_hy;
+    const int fine = ph->self_thickness > (float)(CS_SC_RINGS + 1) * h;
+    const cs_vec3 xv = cs_sc_at(x0, y0, z0, v);
+    const float L = 0.5f * (reach - r); /* the longest edge */
+    int32_t own[3], nown = 0, n = 0;    /* v's edges: their other ends */
+    cs_vec3 xo[3];
+    float lo[3];
+    for (int e = 0; e < 3; e++) {
+        if ((e != 1 && vi + 1 >= nx) || (e != 0 && vj + 1 >= ny) || !cs_sc_edge_on(L0, nx, ny, vi, vj, e)) continue;
+        own[nown] = 3 * v + e;
+        xo[nown] = cs_sc_at(x0, y0, z0, e == 0 ? v + 1 : e == 1 ? v + nx : v + nx + 1);
+        lo[nown] = cs_len(cs_sub(xo[nown], xv));
+        nown++;
+    }
+    CS_SC_FOR_NEAR(G, x0, y0, z0, xv, reach, u, {
+        const int32_t rings = cs_sc_rings(nx, u, v);
+        if (u != v && !(repel && rings <= CS_SC_RINGS)) {
+            const cs_vec3 xu = cs_sc_at(x0, y0, z0, u);
+            int32_t t[2][3];
+            const int32_t ui = u % nx, uj = u / nx, f = cs_sc_quad_tris(L0, nx, ny, ui, uj, t);
+            const float D = cs_len(cs_sub(xu, xv));
+            const int any = !repel || (!fine && rings > 2 * CS_SC_RINGS); /* every pair here repels */
+            for (int k = 0; k < 2 && cs_sc_may(D, r, L); k++) {
+                if (!((f >> k) & 1) || t[k][0] == v || t[k][1] == v || t[k][2] == v) continue;
+                if (!any && !cs_sc_repels(ph, v, t[k])) continue;
+                const cs_vec3 c[3] = {cs_sc_at(x0, y0, z0, t[k][0]), cs_sc_at(x0, y0, z0, t[k][1]),
+                                      cs_sc_at(x0, y0, z0, t[k][2])};
+                float bw[3];
+                if (cs_sc_box_gap(xv, c, 3) < r && cs_sc_point_tri(xv, c[0], c[1], c[2], bw) < r)
+                    cs_sc_keep(keys, cap, &n, cs_sc_pair_key(ph, v, 2 * (uj * (nx - 1) + ui) + k));
+            }
+            for (int e = 0; e < 3 && u > v; e++) {
+                if ((e != 1 && ui + 1 >= nx) || (e != 0 && uj + 1 >= ny) || !cs_sc_edge_on(L0, nx, ny, ui, uj, e)) continue;
+                const int32_t z1 = e == 0 ? u + 1 : e == 1 ? u + nx : u + nx + 1;
+                if (z1 == v) continue;
+                const cs_vec3 xz = cs_sc_at(x0, y0, z0, z1);
+                const float lb = cs_len(cs_sub(xz, xu));
+                for (int k = 0; k < nown; k++) {
+                    const int32_t o = own[k] % 3 == 0 ? v + 1 : own[k] % 3 == 1 ? v + nx : v + nx + 1;
+                    if (o == u || o == z1 || !cs_sc_may(D, r, lb + lo[k])) continue;
+                    const int32_t ea[2] = {v, o}, eb[2] = {u, z1};
+                    if (!any && !cs_sc_ee_repels(ph, ea, eb)) continue;
+                    /* (the canonical order of cs_sc_ee_cut: v < u, so v's edge first) */
+                    if (cs_sc_seg_gap(xv, xo[k], xu, xz) < r && cs_sc_seg_seg(xv, xo[k], xu, xz) < r)
+                        cs_sc_keep(keys, cap, &n, cs_sc_ee_key(ph, own[k], 3 * u + e));
+                }
+            }
+        }
+    });
+    return n;
+}
+
 /* cs_sc_limit from a list of the pairs it kept (keys[0..n)) when that list holds every pair now
- * within r: the same cut (a least, in any order). */
+ * within r: the same cut (a least, in any order), and with dall the same least distance. */
 SIM_HD static inline float cs_sc_limit_listed(const cs_phys *ph, const float *x0, const float *y0, const float *z0,
                                               const float *dx, const float *dy, const float *dz, const float *s,
-                                              float r, int32_t v, int outright, const int64_t *keys, int32_t n)
+                                              float r, int32_t v, int outright, const int64_t *keys, int32_t n,
+                                              float *dall)
 {
     float cut = s[v], dmin = r;
     for (int32_t k = 0; k < n; k++) {
@@ -692,6 +762,7 @@ SIM_HD static inline float cs_sc_limit_listed(const cs_phys *ph, const float *x0
         else
             cs_sc_vf_cut(x0, y0, z0, dx, dy, dz, s, p, t, r, v, outright, &cut, &dmin);
     }
+    if (dall) *dall = dmin;
     return cut;
 }
 
