@@ -329,7 +329,7 @@ static cs_status sc_displacements(cuda_ctx *c, const float *S, int32_t n, float 
             lo[q] = l < lo[q] ? l : lo[q];
             hi[q] = h > hi[q] ? h : hi[q];
         }
-    const cs_vec3 centre = cs_v3(0.5f * (lo[0] + hi[0]), 0.5f * (lo[1] + hi[1]), 0.5f * (lo[2] + hi[2]));
+    const cs_vec3 centre = cs_sc_centre(lo, hi);
     k_sc_far<<<nb, SC_THREADS, sizeof(float) * 2 * SC_THREADS, c->stream>>>(w->d, n, centre, w->part);
     if ((st = sc_partials(c, nb)) != CS_OK) return st;
     float most = 0.0f, abs_most = 0.0f;

@@ -215,8 +215,8 @@ static float displacements(cs_sc_work *w, const cs_state *s, int threads, float 
             rhx = ex > rhx ? ex : rhx, rhy = ey > rhy ? ey : rhy, rhz = ez > rhz ? ez : rhz;
         }
     }
-    const cs_vec3 c = cs_v3(0.5f * (lx + hx), 0.5f * (ly + hy), 0.5f * (lz + hz)),
-                  cr = cs_v3(0.5f * (rlx + rhx), 0.5f * (rly + rhy), 0.5f * (rlz + rhz));
+    const float lo[3] = {lx, ly, lz}, hi[3] = {hx, hy, hz}, rlo[3] = {rlx, rly, rlz}, rhi[3] = {rhx, rhy, rhz};
+    const cs_vec3 c = cs_sc_centre(lo, hi), cr = cs_sc_centre(rlo, rhi);
     float most = 0.0f, far = 0.0f, abs_most = 0.0f;
 #pragma omp parallel for num_threads(threads) schedule(static) reduction(max : most, far, abs_most)
     for (int32_t v = 0; v < n; v++) {

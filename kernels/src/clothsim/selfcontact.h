@@ -229,6 +229,14 @@ SIM_HD static inline float cs_sc_seg_gap(cs_vec3 a0, cs_vec3 a1, cs_vec3 b0, cs_
     return sqrtf(gx * gx + gy * gy + gz * gz);
 }
 
+/* The centre of a box of displacements (lo, hi: their least and largest components): two vertices
+ * move apart by at most twice the farthest any moves from it, whatever the cloth's motion as a
+ * whole. */
+SIM_HD static inline cs_vec3 cs_sc_centre(const float lo[3], const float hi[3])
+{
+    return cs_v3(0.5f * (lo[0] + hi[0]), 0.5f * (lo[1] + hi[1]), 0.5f * (lo[2] + hi[2]));
+}
+
 /* Whether candidate u, dist from v, may be in a pair closer than rad: a triangle with corner u
  * (or v) lies within the longest edge L of it (vertex-triangle), an edge from u or v within its
  * length (edge-edge, la + lb for the two). The 1 % and 1 um only leave room for rounding: what is
