@@ -707,13 +707,14 @@ SIM_HD static inline int32_t cs_sc_owned(const cs_phys *ph, const cs_sc_grid *G,
     const int fine = ph->self_thickness > (float)(CS_SC_RINGS + 1) * h;
     const cs_vec3 xv = cs_sc_at(x0, y0, z0, v);
     const float L = 0.5f * (reach - r); /* the longest edge */
-    int32_t own[3], nown = 0, n = 0;    /* v's edges: their other ends */
+    int32_t own[3], oe[3][2], nown = 0, n = 0; /* v's edges, their ends, the other end's position and length */
     cs_vec3 xo[3];
     float lo[3];
     for (int e = 0; e < 3; e++) {
         if ((e != 1 && vi + 1 >= nx) || (e != 0 && vj + 1 >= ny) || !cs_sc_edge_on(L0, nx, ny, vi, vj, e)) continue;
         own[nown] = 3 * v + e;
-        xo[nown] = cs_sc_at(x0, y0, z0, e == 0 ? v + 1 : e == 1 ? v + nx : v + nx + 1);
+        cs_sc_edge_ends(ph, own[nown], oe[nown]);
+        xo[nown] = cs_sc_at(x0, y0, z0, oe[nown][1]);
         lo[nown] = cs_len(cs_sub(xo[nown], xv));
         nown++;
     }
@@ -736,14 +737,14 @@ SIM_HD static inline int32_t cs_sc_owned(const cs_phys *ph, const cs_sc_grid *G,
             }
             for (int e = 0; e < 3 && u > v; e++) {
                 if ((e != 1 && ui + 1 >= nx) || (e != 0 && uj + 1 >= ny) || !cs_sc_edge_on(L0, nx, ny, ui, uj, e)) continue;
-                const int32_t z1 = e == 0 ? u + 1 : e == 1 ? u + nx : u + nx + 1;
-                if (z1 == v) continue;
-                const cs_vec3 xz = cs_sc_at(x0, y0, z0, z1);
+                int32_t eb[2];
+                cs_sc_edge_ends(ph, 3 * u + e, eb);
+                if (eb[1] == v) continue;
+                const cs_vec3 xz = cs_sc_at(x0, y0, z0, eb[1]);
                 const float lb = cs_len(cs_sub(xz, xu));
                 for (int k = 0; k < nown; k++) {
-                    const int32_t o = own[k] % 3 == 0 ? v + 1 : own[k] % 3 == 1 ? v + nx : v + nx + 1;
-                    if (o == u || o == z1 || !cs_sc_may(D, r, lb + lo[k])) continue;
-                    const int32_t ea[2] = {v, o}, eb[2] = {u, z1};
+                    const int32_t *ea = oe[k];
+                    if (ea[1] == u || ea[1] == eb[1] || !cs_sc_may(D, r, lb + lo[k])) continue;
                     if (!any && !cs_sc_ee_repels(ph, ea, eb)) continue;
                     /* (the canonical order of cs_sc_ee_cut: v < u, so v's edge first) */
                     if (cs_sc_seg_gap(xv, xo[k], xu, xz) < r && cs_sc_seg_seg(xv, xo[k], xu, xz) < r)
