@@ -35,6 +35,7 @@
 /* One level's arrays (device memory); level 0's mask is the state's, as floats. */
 struct im_level_bufs {
     int32_t nx, ny, n;
+    size_t S; /* the blocks' stride (cs_im_stride) */
     float *D, *Dinv, *F[4], *mask;
     float *b, *x, *t; /* 3 n each: right side, solution, scratch */
 };
@@ -83,7 +84,7 @@ static cs_im_level im_view(const im_work *w, int l)
 {
     const im_level_bufs *v = &w->lv[l];
     cs_im_level L;
-    L.nx = v->nx, L.ny = v->ny;
+    L.nx = v->nx, L.ny = v->ny, L.S = v->S;
     L.mask = v->mask;
     L.D = v->D, L.Dinv = v->Dinv;
     for (int t = 0; t < 4; t++) L.F[t] = v->F[t];
@@ -115,9 +116,10 @@ __device__ static inline void im_put3(float *a, int32_t v, cs_vec3 x)
 {
     a[3 * (size_t)v] = x.x, a[3 * (size_t)v + 1] = x.y, a[3 * (size_t)v + 2] = x.z;
 }
-__device__ static inline void im_put_sym(float *a, int32_t v, const cs_mat3 *m)
+/* Block m as vertex v's of an array of blocks of S vertices (implicit.h: element major). */
+__device__ static inline void im_put_sym(float *a, size_t S, int32_t v, const cs_mat3 *m)
 {
-    cs_im_sym_put(a + CS_IM_SYM * (size_t)v, m);
+    cs_im_sym_put(a + v, S, m);
 }
 __device__ static inline int32_t im_vertex(void) { return (int32_t)(blockIdx.x * blockDim.x + threadIdx.x); }
 
@@ -243,6 +245,7 @@ __global__ void k_im_rocks_push(const cuda_scene *__restrict__ sc, cs_im_rocks R
 /* What an assembly writes (device pointers), and the rocks' carried mass it adds (rocks: 1). */
 struct im_asm {
     float *R, *q, *D, *F[4], *B[2], *part;
+    size_t S0; /* level 0's blocks' stride */
     const float *mask0;
     cs_im_rocks rk;
     int rocks;
@@ -291,7 +294,7 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_assemble(const cuda_scene *__re
             for (int t = 0; t < CS_NTYPES; t++) {
                 cs_mat3 b = owned[t];
                 for (int k = 0; k < 9; k++) b.m[k] = -b.m[k];
-                im_put_sym(to[t], v, &b);
+                im_put_sym(to[t], a.S0, v, &b);
             }
         }
         /* the contacts: the rock mass carried, then the ground (whose friction reads the
@@ -316,7 +319,7 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_assemble(const cuda_scene *__re
             R = cs_v3(0.0f, 0.0f, 0.0f);
             D = cs_m3_diag(1.0f);
         }
-        if (blocks) im_put_sym(a.D, v, &D);
+        if (blocks) im_put_sym(a.D, a.S0, v, &D);
         im_put3(a.R, v, R);
         mine = cs_dot(R, R);
     }
@@ -385,16 +388,16 @@ __global__ void k_im_galerkin(cs_im_level F, im_level_bufs c)
     const int32_t v = im_vertex();
     if (v >= c.n) return;
     float *Fc[4];
-    for (int t = 0; t < 4; t++) Fc[t] = c.F[t] + CS_IM_SYM * (size_t)v;
-    cs_im_galerkin(&F, v % c.nx, v / c.nx, c.D + CS_IM_SYM * (size_t)v, Fc, c.mask + v);
+    for (int t = 0; t < 4; t++) Fc[t] = c.F[t] + v;
+    cs_im_galerkin(&F, v % c.nx, v / c.nx, c.D + v, Fc, c.S, c.mask + v);
 }
 
-__global__ void k_im_inverse(const float *D, float *Dinv, int32_t n)
+__global__ void k_im_inverse(const float *D, float *Dinv, int32_t n, size_t S)
 {
     const int32_t v = im_vertex();
     if (v >= n) return;
-    const cs_mat3 Dv = cs_im_sym_get(D + CS_IM_SYM * (size_t)v), inv = cs_m3_inverse(Dv.m);
-    im_put_sym(Dinv, v, &inv);
+    const cs_mat3 Dv = cs_im_sym_get(D + v, S), inv = cs_m3_inverse(Dv.m);
+    im_put_sym(Dinv, S, v, &inv);
 }
 
 /* dx += alpha p; r -= alpha q. */
@@ -474,12 +477,14 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     im_work *w = (im_work *)calloc(1, sizeof *w);
     if (!w) return CS_E_NOMEM;
     w->nx = p->nx, w->ny = p->ny, w->n = p->n, w->nchunks = p->nchunks;
-    size_t floats = (size_t)w->n * (6 + 3 + 18 + 2 * CS_IM_SYM + 5) + (size_t)w->nchunks + 1;
+    const size_t S0 = cs_im_stride((size_t)w->n); /* level 0's, which the bending blocks share */
+    size_t floats = (size_t)w->n * (6 + 3 + 18 + 5) + 2 * CS_IM_SYM * S0 + (size_t)w->nchunks + 1;
     int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
     const int L = w->levels = cs_im_levels(p->nx, p->ny, lx, ly);
     for (int l = 0; l < L; l++) {
         w->lv[l].nx = lx[l], w->lv[l].ny = ly[l], w->lv[l].n = lx[l] * ly[l];
-        floats += (size_t)w->lv[l].n * CS_IM_LEVEL_FLOATS;
+        w->lv[l].S = cs_im_stride((size_t)w->lv[l].n);
+        floats += cs_im_level_floats((size_t)w->lv[l].n);
     }
     cudaError_t e = cudaMalloc(&w->mem, sizeof(float) * floats);
     if (e == cudaSuccess) e = cudaMalloc((void **)&w->sc, sizeof(cuda_scene));
@@ -499,7 +504,7 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     w->base = TAKE(6 * n), w->xo = TAKE(3 * n);
     w->R = TAKE(3 * n), w->q = TAKE(3 * n), w->dx = TAKE(3 * n);
     w->r = TAKE(3 * n), w->z = TAKE(3 * n), w->p = TAKE(3 * n);
-    w->B[0] = TAKE(CS_IM_SYM * n), w->B[1] = TAKE(CS_IM_SYM * n);
+    w->B[0] = TAKE(CS_IM_SYM * S0), w->B[1] = TAKE(CS_IM_SYM * S0);
     w->part = TAKE((size_t)w->nchunks);
     w->sh = TAKE(n), w->sn = TAKE(3 * n), w->sg = TAKE(n);
     w->fast = TAKE(1);
@@ -546,7 +551,7 @@ static cs_status im_assemble(cuda_ctx *c, float *S, const float *L0, int blocks,
 {
     im_work *w = c->im;
     im_asm a;
-    a.R = w->R, a.q = w->q, a.D = w->lv[0].D, a.part = w->part, a.mask0 = w->lv[0].mask;
+    a.R = w->R, a.q = w->q, a.D = w->lv[0].D, a.part = w->part, a.mask0 = w->lv[0].mask, a.S0 = w->lv[0].S;
     for (int t = 0; t < 4; t++) a.F[t] = w->lv[0].F[t];
     a.B[0] = w->B[0], a.B[1] = w->B[1];
     a.rk = im_rocks(c, S, L0);
@@ -574,7 +579,7 @@ static void im_hierarchy(cuda_ctx *c)
     for (int l = 0; l < w->levels; l++) {
         im_level_bufs *lv = &w->lv[l];
         if (l > 0) k_im_galerkin<<<im_blocks(lv->n), IM_THREADS, 0, c->stream>>>(im_view(w, l - 1), *lv);
-        k_im_inverse<<<im_blocks(lv->n), IM_THREADS, 0, c->stream>>>(lv->D, lv->Dinv, lv->n);
+        k_im_inverse<<<im_blocks(lv->n), IM_THREADS, 0, c->stream>>>(lv->D, lv->Dinv, lv->n, lv->S);
     }
 }
 

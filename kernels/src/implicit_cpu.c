@@ -33,6 +33,7 @@
 
 typedef struct im_level {
     int32_t nx, ny, n;
+    size_t S;                       /* the blocks' stride (cs_im_stride) */
     float *D, *Dinv, *F[4], *mask; /* coarse levels own mask; level 0 points at the state's w */
     float *b, *x, *t;               /* 3 n each: right side, solution, scratch */
 } im_level;
@@ -73,12 +74,14 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     cs_im_work *w = calloc(1, sizeof *w);
     if (!w) return NULL;
     w->nx = nx, w->ny = ny, w->n = nx * ny, w->nchunks = nchunks;
-    size_t floats = (size_t)w->n * (9 + 3 + 2 * CS_IM_SYM + 15 + 18 + 5) + (size_t)nchunks;
+    const size_t S0 = cs_im_stride((size_t)w->n); /* level 0's, which the bending blocks share */
+    size_t floats = (size_t)w->n * (9 + 3 + 15 + 18 + 5) + 2 * CS_IM_SYM * S0 + (size_t)nchunks;
     int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
     const int L = w->levels = cs_im_levels(nx, ny, lx, ly);
     for (int l = 0; l < L; l++) {
         w->lv[l].nx = lx[l], w->lv[l].ny = ly[l], w->lv[l].n = lx[l] * ly[l];
-        floats += (size_t)w->lv[l].n * CS_IM_LEVEL_FLOATS;
+        w->lv[l].S = cs_im_stride((size_t)w->lv[l].n);
+        floats += cs_im_level_floats((size_t)w->lv[l].n);
     }
     float *m = malloc(sizeof(float) * floats);
     w->star = calloc(CS_MAX_ROCKS, sizeof *w->star);
@@ -100,7 +103,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     w->xo = TAKE(n), w->yo = TAKE(n), w->zo = TAKE(n);
     const size_t nv = 3 * n;
     w->R = TAKE(nv);
-    w->B[0] = TAKE(CS_IM_SYM * n), w->B[1] = TAKE(CS_IM_SYM * n);
+    w->B[0] = TAKE(CS_IM_SYM * S0), w->B[1] = TAKE(CS_IM_SYM * S0);
     w->fo = TAKE(18 * n);
     w->dx = TAKE(nv), w->r = TAKE(nv), w->z = TAKE(nv), w->p = TAKE(nv), w->q = TAKE(nv);
     w->part = TAKE((size_t)nchunks);
@@ -130,7 +133,7 @@ static cs_im_level view(const cs_im_work *w, int l, const cs_state *s)
 {
     const im_level *v = &w->lv[l];
     cs_im_level L;
-    L.nx = v->nx, L.ny = v->ny;
+    L.nx = v->nx, L.ny = v->ny, L.S = v->S;
     L.mask = l == 0 ? s->w : v->mask;
     L.D = v->D, L.Dinv = v->Dinv;
     for (int t = 0; t < 4; t++) L.F[t] = v->F[t];
@@ -142,7 +145,8 @@ static void put3(float *a, int32_t v, cs_vec3 x)
 {
     a[3 * (size_t)v] = x.x, a[3 * (size_t)v + 1] = x.y, a[3 * (size_t)v + 2] = x.z;
 }
-static void put_sym(float *a, int32_t v, const cs_mat3 *m) { cs_im_sym_put(a + CS_IM_SYM * (size_t)v, m); }
+/* Block m as vertex v's of an array of blocks of S vertices (implicit.h: element major). */
+static void put_sym(float *a, size_t S, int32_t v, const cs_mat3 *m) { cs_im_sym_put(a + v, S, m); }
 
 /* ---- assembly ---- */
 
@@ -180,7 +184,7 @@ static void chunk_owned(const cs_phys *p, float h, const cs_state *s, cs_im_work
             put3(w->fo + (size_t)t * 3 * n, v, F);
             if (!blocks) continue;
             for (int k = 0; k < 9; k++) b.m[k] = -b.m[k];
-            put_sym(t < 4 ? l0->F[t] : w->B[t - 4], v, &b);
+            put_sym(t < 4 ? l0->F[t] : w->B[t - 4], l0->S, v, &b);
         }
     }
 }
@@ -207,8 +211,7 @@ static void chunk_springs(const cs_phys *p, float h, const cs_state *s, cs_im_wo
             const cs_vec3 F = cs_v3_from(w->fo + (size_t)(t) * 3 * n + 3 * (size_t)o);             \
             f = cs_add(f, (fwd) ? F : cs_neg(F));                                                  \
             if (blocks) {                                                                          \
-                const cs_mat3 B = cs_im_sym_get(((t) < 4 ? l0->F[(t) & 3] : w->B[((t) - 4) & 1]) + \
-                                                CS_IM_SYM * (size_t)o);                            \
+                const cs_mat3 B = cs_im_sym_get(((t) < 4 ? l0->F[(t) & 3] : w->B[((t) - 4) & 1]) + o, l0->S); \
                 for (int k = 0; k < 9; k++) d.m[k] += -B.m[k];                                     \
             }                                                                                      \
         }                                                                                          \
@@ -220,7 +223,7 @@ static void chunk_springs(const cs_phys *p, float h, const cs_state *s, cs_im_wo
         put3(w->q, v, f);
         if (blocks) {
             const cs_mat3 D = cs_im_inertia(p, h, d);
-            put_sym(l0->D, v, &D);
+            put_sym(l0->D, l0->S, v, &D);
         }
     }
 }
@@ -230,11 +233,11 @@ static void add3(float *a, int32_t v, cs_vec3 x)
     a[3 * (size_t)v] += x.x, a[3 * (size_t)v + 1] += x.y, a[3 * (size_t)v + 2] += x.z;
 }
 /* Adds block m to the stored block a of vertex v. */
-static void add_sym(float *a, int32_t v, const cs_mat3 *m)
+static void add_sym(float *a, size_t S, int32_t v, const cs_mat3 *m)
 {
-    cs_mat3 s = cs_im_sym_get(a + CS_IM_SYM * (size_t)v);
+    cs_mat3 s = cs_im_sym_get(a + v, S);
     cs_m3_addto(&s, m);
-    put_sym(a, v, &s);
+    put_sym(a, S, v, &s);
 }
 
 /* Contacts of chunk (row j, columns i0 .. i1): the rock mass each vertex carries (rocks_share:
@@ -250,7 +253,7 @@ static void chunk_contacts(const cs_phys *p, float h, const cs_state *s, cs_im_w
         cs_mat3 b;
         if (!cs_im_carried_at(rv, v, LOADX(v), cs_v3(w->xb[v], w->yb[v], w->zb[v]), h, &F, &b)) continue;
         add3(w->R, v, F);
-        if (blocks) add_sym(D, v, &b);
+        if (blocks) add_sym(D, w->lv[0].S, v, &b);
     }
     if (!p->ground) return;
     for (int32_t i = i0; i < i1; i++) {
@@ -262,7 +265,7 @@ static void chunk_contacts(const cs_phys *p, float h, const cs_state *s, cs_im_w
         add3(w->R, v, Fc);
         if (blocks) {
             const cs_mat3 b = cs_im_ground_block(xi, vi, p, h);
-            add_sym(D, v, &b);
+            add_sym(D, w->lv[0].S, v, &b);
         }
     }
 }
@@ -282,7 +285,7 @@ static void chunk_residual(const cs_phys *p, float h, const cs_state *s, cs_im_w
             R = cs_v3(0.0f, 0.0f, 0.0f);
             if (blocks) {
                 const cs_mat3 I = cs_m3_diag(1.0f);
-                put_sym(w->lv[0].D, v, &I);
+                put_sym(w->lv[0].D, w->lv[0].S, v, &I);
             }
         }
         put3(w->R, v, R);
@@ -333,6 +336,23 @@ static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b
     return cs_im_chunk_total(w->part, p->nchunks);
 }
 
+/* y = A x over a row's vertices v0 .. v1 - 1, each of whose neighbours is on the grid: plain loops
+ * that the compiler vectorizes (cs_im_apply_inner with bend a constant), each a function of its own
+ * so that y's restrict holds (as it does: without it the compiler would need more overlap checks
+ * than it makes; inlined into the OpenMP body, the qualifier is lost). */
+#define APPLY_RUN(name, bend)                                                                                     \
+    __attribute__((noinline)) static void name(const cs_im_level *L, const float *x, float *restrict y, int32_t v0, \
+                                               int32_t v1)                                                       \
+    {                                                                                                            \
+        for (int32_t v = v0; v < v1; v++) {                                                                      \
+            const cs_vec3 r = cs_im_apply_inner(L, x, v, bend);                                                  \
+            y[3 * (size_t)v] = r.x, y[3 * (size_t)v + 1] = r.y, y[3 * (size_t)v + 2] = r.z;                     \
+        }                                                                                                        \
+    }
+APPLY_RUN(apply_run_bend, 1)
+APPLY_RUN(apply_run_flat, 0)
+#undef APPLY_RUN
+
 /* y = A x on level l (bend: the true operator of level 0, bending blocks included). */
 static void apply(const cs_im_level *L, const float *x, float *y, int bend, int threads)
 {
@@ -340,15 +360,36 @@ static void apply(const cs_im_level *L, const float *x, float *y, int bend, int 
     const int32_t e = bend ? 2 : 1, nx = L->nx, ny = L->ny;
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t j = 0; j < ny; j++) {
-        if (j < e || j >= ny - e) {
+        if (j < e || j >= ny - e || nx <= 2 * e) {
             for (int32_t i = 0; i < nx; i++) put3(y, j * nx + i, cs_im_apply(L, x, i, j, bend));
             continue;
         }
-        for (int32_t i = 0; i < nx; i++)
-            put3(y, j * nx + i,
-                 i < e || i >= nx - e ? cs_im_apply(L, x, i, j, bend) : cs_im_apply_inner(L, x, j * nx + i, bend));
+        for (int32_t i = 0; i < e; i++) put3(y, j * nx + i, cs_im_apply(L, x, i, j, bend));
+        (bend ? apply_run_bend : apply_run_flat)(L, x, y, j * nx + e, j * nx + nx - e);
+        for (int32_t i = nx - e; i < nx; i++) put3(y, j * nx + i, cs_im_apply(L, x, i, j, bend));
     }
 }
+
+/* The Jacobi update (cs_im_jacobi) of vertices v0 .. v1 - 1: plain loops that vectorize, functions
+ * of their own for x's restrict (apply_run_bend's reasons). */
+#define JACOBI_RUN(name, first)                                                                                   \
+    __attribute__((noinline)) static void name(const cs_im_level *L, float *restrict x, const float *b,          \
+                                               const float *t, int32_t v0, int32_t v1)                           \
+    {                                                                                                            \
+        const cs_vec3 zero = cs_v3(0.0f, 0.0f, 0.0f);                                                            \
+        for (int32_t v = v0; v < v1; v++) {                                                                      \
+            const cs_vec3 xv = (first) ? zero : cs_v3(x[3 * (size_t)v], x[3 * (size_t)v + 1], x[3 * (size_t)v + 2]); \
+            const cs_vec3 r = cs_im_jacobi(L, v, xv, cs_v3_from(b + 3 * (size_t)v),                              \
+                                           (first) ? zero : cs_v3_from(t + 3 * (size_t)v));                      \
+            x[3 * (size_t)v] = r.x, x[3 * (size_t)v + 1] = r.y, x[3 * (size_t)v + 2] = r.z;                      \
+        }                                                                                                        \
+    }
+JACOBI_RUN(jacobi_first, 1)
+JACOBI_RUN(jacobi_next, 0)
+#undef JACOBI_RUN
+
+/* The vertices a thread's piece of a loop over a level takes at once. */
+#define PIECE 1024
 
 /* x = x + omega Dinv (b - t) where t = A x (first: x = omega Dinv b, from x = 0). */
 static void jacobi(const cs_im_level *L, float *x, const float *b, const float *t, int first, int threads)
@@ -356,11 +397,8 @@ static void jacobi(const cs_im_level *L, float *x, const float *b, const float *
     (void)threads; /* only the OpenMP pragmas read it */
     const int32_t n = L->nx * L->ny;
 #pragma omp parallel for num_threads(threads) schedule(static)
-    for (int32_t v = 0; v < n; v++) {
-        const cs_vec3 zero = cs_v3(0.0f, 0.0f, 0.0f);
-        const cs_vec3 xv = first ? zero : cs_v3_from(x + 3 * (size_t)v);
-        put3(x, v, cs_im_jacobi(L, v, xv, cs_v3_from(b + 3 * (size_t)v), first ? zero : cs_v3_from(t + 3 * (size_t)v)));
-    }
+    for (int32_t v0 = 0; v0 < n; v0 += PIECE)
+        (first ? jacobi_first : jacobi_next)(L, x, b, t, v0, v0 + PIECE < n ? v0 + PIECE : n);
 }
 
 /* The fewest vertices a level shares among threads. */
@@ -421,14 +459,14 @@ static void hierarchy(cs_im_work *w, const cs_state *s, int threads)
                 for (int32_t I = 0; I < lv->nx; I++) {
                     const int32_t v = J * lv->nx + I;
                     float *Fc[4];
-                    for (int t = 0; t < 4; t++) Fc[t] = lv->F[t] + CS_IM_SYM * (size_t)v;
-                    cs_im_galerkin(&F, I, J, lv->D + CS_IM_SYM * (size_t)v, Fc, lv->mask + v);
+                    for (int t = 0; t < 4; t++) Fc[t] = lv->F[t] + v;
+                    cs_im_galerkin(&F, I, J, lv->D + v, Fc, lv->S, lv->mask + v);
                 }
         }
 #pragma omp parallel for num_threads(threads) schedule(static)
         for (int32_t v = 0; v < lv->n; v++) {
-            const cs_mat3 D = cs_im_sym_get(lv->D + CS_IM_SYM * (size_t)v), inv = cs_m3_inverse(D.m);
-            put_sym(lv->Dinv, v, &inv);
+            const cs_mat3 D = cs_im_sym_get(lv->D + v, lv->S), inv = cs_m3_inverse(D.m);
+            put_sym(lv->Dinv, lv->S, v, &inv);
         }
     }
 }

@@ -115,26 +115,36 @@ SIM_HD static inline cs_mat3 cs_m3_inverse(const float *a)
  * products are sums of them (and of their transposes, the same bits), and cs_m3_inverse of a
  * symmetric block is symmetric (its cofactors pair up as commuted products). So a block is stored
  * as its upper triangle, xx xy xz yy yz zz: two thirds of the bytes the operator reads, with the
- * same bits as the full block (cs_im_sym_mul is cs_m3_mul and cs_m3_mul_t of it). */
+ * same bits as the full block (cs_im_sym_mul is cs_m3_mul and cs_m3_mul_t of it). An array of a
+ * level's blocks is element-major: element k of vertex v's block at a[k S + v], S the level's
+ * vertex count, so that a loop over vertices reads each element contiguously (the CPU's vector
+ * units, the GPU's coalesced loads). The functions below take a = the array + v, and S. */
 #define CS_IM_SYM 6
 
-SIM_HD static inline void cs_im_sym_put(float *a, const cs_mat3 *m)
+/* S for a level of k vertices (cs_im_stride): k below 1024; above, k rounded up to 1024 floats and
+ * 16 more, so that the element rows lie 64 bytes apart modulo 4 KiB. With S = k, a grid of a power
+ * of two (128 x 128: rows 64 KiB apart) would put the forty-odd streams of a loop over vertices
+ * into one set of the CPU's caches, which thrash (measured: the step 1.3 x slower at 128 x 128). */
+SIM_HD static inline size_t cs_im_stride(size_t k) { return k < 1024 ? k : (k + 1023) / 1024 * 1024 + 16; }
+
+SIM_HD static inline void cs_im_sym_put(float *a, size_t S, const cs_mat3 *m)
 {
-    a[0] = m->m[0], a[1] = m->m[1], a[2] = m->m[2], a[3] = m->m[4], a[4] = m->m[5], a[5] = m->m[8];
+    a[0] = m->m[0], a[S] = m->m[1], a[2 * S] = m->m[2], a[3 * S] = m->m[4], a[4 * S] = m->m[5], a[5 * S] = m->m[8];
 }
-SIM_HD static inline cs_mat3 cs_im_sym_get(const float *a)
+SIM_HD static inline cs_mat3 cs_im_sym_get(const float *a, size_t S)
 {
+    const float a0 = a[0], a1 = a[S], a2 = a[2 * S], a3 = a[3 * S], a4 = a[4 * S], a5 = a[5 * S];
     cs_mat3 m;
-    m.m[0] = a[0], m.m[1] = a[1], m.m[2] = a[2];
-    m.m[3] = a[1], m.m[4] = a[3], m.m[5] = a[4];
-    m.m[6] = a[2], m.m[7] = a[4], m.m[8] = a[5];
+    m.m[0] = a0, m.m[1] = a1, m.m[2] = a2;
+    m.m[3] = a1, m.m[4] = a3, m.m[5] = a4;
+    m.m[6] = a2, m.m[7] = a4, m.m[8] = a5;
     return m;
 }
 /* The block a (stored) times x: the sums of cs_m3_mul, term for term. */
-SIM_HD static inline cs_vec3 cs_im_sym_mul(const float *a, cs_vec3 x)
+SIM_HD static inline cs_vec3 cs_im_sym_mul(const float *a, size_t S, cs_vec3 x)
 {
-    return cs_v3(a[0] * x.x + a[1] * x.y + a[2] * x.z, a[1] * x.x + a[3] * x.y + a[4] * x.z,
-                 a[2] * x.x + a[4] * x.y + a[5] * x.z);
+    const float a0 = a[0], a1 = a[S], a2 = a[2 * S], a3 = a[3 * S], a4 = a[4 * S], a5 = a[5 * S];
+    return cs_v3(a0 * x.x + a1 * x.y + a2 * x.z, a1 * x.x + a3 * x.y + a4 * x.z, a2 * x.x + a4 * x.y + a5 * x.z);
 }
 
 /* ---- the linearised force law ---- */
@@ -728,9 +738,10 @@ SIM_HD static inline cs_vec3 cs_im_residual(const cs_phys *p, cs_vec3 F, cs_vec3
 /* What a backend hands the functions below of one level: its grid, its vertices' mask (1 in the
  * solve, 0 out), D, the four forward blocks and on the finest level the two bending blocks
  * (B_0 to (i + 2, j), B_1 to (i, j + 2); NULL on coarse levels). Blocks are CS_IM_SYM floats each,
- * vertex major: D[6 v + k], F[t][6 v + k]. */
+ * element major: element k of vertex v at D[k S + v], F[t][k S + v]. */
 typedef struct cs_im_level {
     int32_t nx, ny;
+    size_t S; /* the blocks' stride: cs_im_stride(nx ny) */
     const float *mask;
     const float *D, *Dinv;
     const float *F[4];
@@ -739,35 +750,37 @@ typedef struct cs_im_level {
 
 /* (A x)_v on a level: D x_v, then the forward blocks in order, then the backward ones (the
  * neighbours' forward blocks transposed), then (bend = 1, finest level) the bending blocks
- * likewise. x is 3 floats a vertex; 0 for a vertex out of the solve. */
+ * likewise; 0 for a vertex out of the solve. x is 3 floats a vertex; 0 for a vertex out of the
+ * solve. */
 SIM_HD static inline cs_vec3 cs_im_apply(const cs_im_level *L, const float *x, int32_t i, int32_t j, int bend)
 {
     const int32_t nx = L->nx, ny = L->ny, v = j * nx + i;
     if (L->mask[v] == 0.0f) return cs_v3(0.0f, 0.0f, 0.0f);
-    cs_vec3 y = cs_im_sym_mul(L->D + CS_IM_SYM * (size_t)v, cs_v3_from(x + 3 * (size_t)v));
+    const size_t S = L->S;
+    cs_vec3 y = cs_im_sym_mul(L->D + v, S, cs_v3_from(x + 3 * (size_t)v));
     for (int t = 0; t < 4; t++) {
         const int32_t ii = i + cs_im_fwd_di(t), jj = j + cs_im_fwd_dj(t);
         if (ii < 0 || ii >= nx || jj >= ny) continue;
         const int32_t q = jj * nx + ii;
-        y = cs_add(y, cs_im_sym_mul(L->F[t] + CS_IM_SYM * (size_t)v, cs_v3_from(x + 3 * (size_t)q)));
+        y = cs_add(y, cs_im_sym_mul(L->F[t] + v, S, cs_v3_from(x + 3 * (size_t)q)));
     }
     for (int t = 0; t < 4; t++) {
         const int32_t ii = i - cs_im_fwd_di(t), jj = j - cs_im_fwd_dj(t);
         if (ii < 0 || ii >= nx || jj < 0) continue;
         const int32_t q = jj * nx + ii;
-        y = cs_add(y, cs_im_sym_mul(L->F[t] + CS_IM_SYM * (size_t)q, cs_v3_from(x + 3 * (size_t)q)));
+        y = cs_add(y, cs_im_sym_mul(L->F[t] + q, S, cs_v3_from(x + 3 * (size_t)q)));
     }
     if (bend) {
         for (int b = 0; b < 2; b++) {
             const int32_t ii = i + 2 * (1 - b), jj = j + 2 * b;
             if (ii < nx && jj < ny) {
                 const int32_t q = jj * nx + ii;
-                y = cs_add(y, cs_im_sym_mul(L->B[b] + CS_IM_SYM * (size_t)v, cs_v3_from(x + 3 * (size_t)q)));
+                y = cs_add(y, cs_im_sym_mul(L->B[b] + v, S, cs_v3_from(x + 3 * (size_t)q)));
             }
             const int32_t ib = i - 2 * (1 - b), jb = j - 2 * b;
             if (ib >= 0 && jb >= 0) {
                 const int32_t q = jb * nx + ib;
-                y = cs_add(y, cs_im_sym_mul(L->B[b] + CS_IM_SYM * (size_t)q, cs_v3_from(x + 3 * (size_t)q)));
+                y = cs_add(y, cs_im_sym_mul(L->B[b] + q, S, cs_v3_from(x + 3 * (size_t)q)));
             }
         }
     }
@@ -775,53 +788,69 @@ SIM_HD static inline cs_vec3 cs_im_apply(const cs_im_level *L, const float *x, i
 }
 
 /* cs_im_apply for a vertex whose every neighbour it reads is on the grid (1 <= i <= nx - 2 and
- * 1 <= j <= ny - 2; with bend, 2 .. n - 3): the same sums in the same order, without the tests. */
-SIM_HD static inline cs_vec3 cs_im_apply_inner(const cs_im_level *L, const float *x, int32_t v, int bend)
+ * 1 <= j <= ny - 2; with bend, 2 .. n - 3): the same sums in the same order, written out without
+ * branches or loops (the mask a select at the end) and always inlined, so that a CPU loop over a
+ * row's vertices vectorizes. */
+#if defined(__GNUC__)
+#define CS_IM_FORCE_INLINE __attribute__((always_inline))
+#else
+#define CS_IM_FORCE_INLINE
+#endif
+SIM_HD static inline CS_IM_FORCE_INLINE cs_vec3 cs_im_apply_inner(const cs_im_level *L, const float *x, int32_t v,
+                                                                  int bend)
 {
-    if (L->mask[v] == 0.0f) return cs_v3(0.0f, 0.0f, 0.0f);
     const int32_t nx = L->nx;
-    cs_vec3 y = cs_im_sym_mul(L->D + CS_IM_SYM * (size_t)v, cs_v3_from(x + 3 * (size_t)v));
-    for (int t = 0; t < 4; t++) {
-        const int32_t q = v + cs_im_fwd_di(t) + cs_im_fwd_dj(t) * nx;
-        y = cs_add(y, cs_im_sym_mul(L->F[t] + CS_IM_SYM * (size_t)v, cs_v3_from(x + 3 * (size_t)q)));
-    }
-    for (int t = 0; t < 4; t++) {
-        const int32_t q = v - cs_im_fwd_di(t) - cs_im_fwd_dj(t) * nx;
-        y = cs_add(y, cs_im_sym_mul(L->F[t] + CS_IM_SYM * (size_t)q, cs_v3_from(x + 3 * (size_t)q)));
-    }
+    const size_t S = L->S;
+    /* the forward neighbours' offsets, in cs_im_fwd_di/dj's order: (1, 0), (0, 1), (1, 1), (-1, 1) */
+    const int32_t o0 = 1, o1 = nx, o2 = nx + 1, o3 = nx - 1;
+    const float *xv = x + 3 * (size_t)v; /* x of vertex v; of v + d at xv + 3 d */
+#define CS_IM_X(d) cs_v3_from(xv + 3 * (d))
+    cs_vec3 y = cs_im_sym_mul(L->D + v, S, CS_IM_X(0));
+    y = cs_add(y, cs_im_sym_mul(L->F[0] + v, S, CS_IM_X(o0)));
+    y = cs_add(y, cs_im_sym_mul(L->F[1] + v, S, CS_IM_X(o1)));
+    y = cs_add(y, cs_im_sym_mul(L->F[2] + v, S, CS_IM_X(o2)));
+    y = cs_add(y, cs_im_sym_mul(L->F[3] + v, S, CS_IM_X(o3)));
+    y = cs_add(y, cs_im_sym_mul(L->F[0] + (v - o0), S, CS_IM_X(-o0)));
+    y = cs_add(y, cs_im_sym_mul(L->F[1] + (v - o1), S, CS_IM_X(-o1)));
+    y = cs_add(y, cs_im_sym_mul(L->F[2] + (v - o2), S, CS_IM_X(-o2)));
+    y = cs_add(y, cs_im_sym_mul(L->F[3] + (v - o3), S, CS_IM_X(-o3)));
     if (bend) {
-        for (int b = 0; b < 2; b++) {
-            const int32_t o = b ? 2 * nx : 2;
-            y = cs_add(y, cs_im_sym_mul(L->B[b] + CS_IM_SYM * (size_t)v, cs_v3_from(x + 3 * (size_t)(v + o))));
-            y = cs_add(y, cs_im_sym_mul(L->B[b] + CS_IM_SYM * (size_t)(v - o), cs_v3_from(x + 3 * (size_t)(v - o))));
-        }
+        const int32_t b0 = 2, b1 = 2 * nx;
+        y = cs_add(y, cs_im_sym_mul(L->B[0] + v, S, CS_IM_X(b0)));
+        y = cs_add(y, cs_im_sym_mul(L->B[0] + (v - b0), S, CS_IM_X(-b0)));
+        y = cs_add(y, cs_im_sym_mul(L->B[1] + v, S, CS_IM_X(b1)));
+        y = cs_add(y, cs_im_sym_mul(L->B[1] + (v - b1), S, CS_IM_X(-b1)));
     }
-    return y;
+#undef CS_IM_X
+    return L->mask[v] != 0.0f ? y : cs_v3(0.0f, 0.0f, 0.0f);
 }
 
-/* One damped Jacobi update of vertex v: x_v + omega Dinv (b_v - (A x)_v); Ax is (A x)_v. */
+/* One damped Jacobi update of vertex v: x_v + omega Dinv (b_v - (A x)_v), 0 out of the solve; Ax
+ * is (A x)_v. Without branches (the mask a select), so that a CPU loop over vertices vectorizes. */
 SIM_HD static inline cs_vec3 cs_im_jacobi(const cs_im_level *L, int32_t v, cs_vec3 x, cs_vec3 b, cs_vec3 Ax)
 {
-    if (L->mask[v] == 0.0f) return cs_v3(0.0f, 0.0f, 0.0f);
-    return cs_add(x, cs_scale(cs_im_sym_mul(L->Dinv + CS_IM_SYM * (size_t)v, cs_sub(b, Ax)), CS_IM_OMEGA));
+    const cs_vec3 r = cs_add(x, cs_scale(cs_im_sym_mul(L->Dinv + v, L->S, cs_sub(b, Ax)), CS_IM_OMEGA));
+    return L->mask[v] != 0.0f ? r : cs_v3(0.0f, 0.0f, 0.0f);
 }
 
 /* The coarse level's size along an axis of n fine vertices. */
 SIM_HD static inline int32_t cs_im_coarse(int32_t n) { return (n + 1) / 2; }
 
-/* Floats a level's arrays take per vertex: D, Dinv and the four forward blocks (9 each), the mask,
- * and the V-cycle's three vectors (right side, solution, scratch: 3 each). */
-#define CS_IM_LEVEL_FLOATS (CS_IM_SYM * 6 + 1 + 9)
+/* Floats a level of k vertices takes: D, Dinv and the four forward blocks (CS_IM_SYM rows of
+ * cs_im_stride(k) each), the mask, and the V-cycle's three vectors (right side, solution, scratch: 3
+ * a vertex). */
+static inline size_t cs_im_level_floats(size_t k) { return CS_IM_SYM * 6 * cs_im_stride(k) + 10 * k; }
 
 /* Carves a level of k vertices out of a workspace block at m, in the order both backends use
- * (CS_IM_LEVEL_FLOATS k floats: D, Dinv, the four forward blocks, the mask, b, x, t); returns the
+ * (cs_im_level_floats(k): D, Dinv, the four forward blocks, the mask, b, x, t); returns the
  * block past it. Host code: the backends lay out their workspaces with it. */
 static inline float *cs_im_carve_level(float *m, size_t k, float **D, float **Dinv, float *F[4], float **mask,
                                        float **b, float **x, float **t)
 {
-    *D = m, m += CS_IM_SYM * k;
-    *Dinv = m, m += CS_IM_SYM * k;
-    for (int q = 0; q < 4; q++) F[q] = m, m += CS_IM_SYM * k;
+    const size_t S = cs_im_stride(k);
+    *D = m, m += CS_IM_SYM * S;
+    *Dinv = m, m += CS_IM_SYM * S;
+    for (int q = 0; q < 4; q++) F[q] = m, m += CS_IM_SYM * S;
     *mask = m, m += k;
     *b = m, m += 3 * k;
     *x = m, m += 3 * k;
@@ -847,11 +876,13 @@ SIM_HD static inline int cs_im_levels(int32_t nx, int32_t ny, int32_t *lx, int32
  * its vertices (both ways), F_C,t = the sum of the blocks coupling the aggregate to aggregate
  * (I, J) + fwd(t) - the fine forward blocks from this aggregate, then the fine backward ones into
  * it (transposed) - each in a fixed order of fine vertex, then direction. Writes D and F[t]
- * (CS_IM_SYM floats each) and the coarse mask; an empty aggregate gets the identity and mask 0. */
+ * (the coarse arrays + the coarse vertex; Sc the coarse level's vertex count) and the coarse
+ * mask; an empty aggregate gets the identity and mask 0. */
 SIM_HD static inline void cs_im_galerkin(const cs_im_level *L, int32_t I, int32_t J, float *D, float *F[4],
-                                         float *mask)
+                                         size_t Sc, float *mask)
 {
     const int32_t nx = L->nx, ny = L->ny;
+    const size_t S = L->S;
     cs_mat3 d = cs_m3_zero(), f[4];
     for (int t = 0; t < 4; t++) f[t] = cs_m3_zero();
     float any = 0.0f;
@@ -861,12 +892,12 @@ SIM_HD static inline void cs_im_galerkin(const cs_im_level *L, int32_t I, int32_
         const int32_t v = j * nx + i;
         if (L->mask[v] == 0.0f) continue;
         any = 1.0f;
-        const cs_mat3 Dv = cs_im_sym_get(L->D + CS_IM_SYM * (size_t)v);
+        const cs_mat3 Dv = cs_im_sym_get(L->D + v, S);
         cs_m3_addto(&d, &Dv);
         for (int s = 0; s < 4; s++) {
             const int32_t ii = i + cs_im_fwd_di(s), jj = j + cs_im_fwd_dj(s);
             if (ii < 0 || ii >= nx || jj >= ny || L->mask[jj * nx + ii] == 0.0f) continue;
-            const cs_mat3 Bv = cs_im_sym_get(L->F[s] + CS_IM_SYM * (size_t)v), *B = &Bv;
+            const cs_mat3 Bv = cs_im_sym_get(L->F[s] + v, S), *B = &Bv;
             const int32_t dI = ii / 2 - I, dJ = jj / 2 - J;
             if (dI == 0 && dJ == 0) { /* within the aggregate: both ways */
                 cs_m3_addto(&d, B);
@@ -891,16 +922,16 @@ SIM_HD static inline void cs_im_galerkin(const cs_im_level *L, int32_t I, int32_
             if (dI == 0 && dJ == 0) continue; /* counted above from q's side */
             for (int t = 0; t < 4; t++)
                 if (dI == cs_im_fwd_di(t) && dJ == cs_im_fwd_dj(t)) {
-                    const cs_mat3 Bq = cs_im_sym_get(L->F[s] + CS_IM_SYM * (size_t)q);
+                    const cs_mat3 Bq = cs_im_sym_get(L->F[s] + q, S);
                     cs_m3_addto_t(&f[t], &Bq);
                 }
         }
     }
     if (any == 0.0f) d = cs_m3_diag(1.0f);
-    cs_im_sym_put(D, &d);
+    cs_im_sym_put(D, Sc, &d);
     for (int t = 0; t < 4; t++) {
         if (any == 0.0f) f[t] = cs_m3_zero();
-        cs_im_sym_put(F[t], &f[t]);
+        cs_im_sym_put(F[t], Sc, &f[t]);
     }
     *mask = any;
 }
