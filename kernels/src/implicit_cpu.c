@@ -161,8 +161,44 @@ static void chunk_span(const cs_phys *p, int32_t c, int32_t *j, int32_t *i0, int
 #define LOADX(o) cs_v3(s->x[(o)], s->y[(o)], s->z[(o)])
 #define LOADV(o) cs_v3(s->vx[(o)], s->vy[(o)], s->vz[(o)])
 
+/* Before a loop whose iterations touch disjoint data that the compiler cannot tell apart (the rows
+ * of one restrict array of blocks): it vectorizes without checks of overlap at run time. */
+#if defined(__clang__)
+#define IVDEP _Pragma("clang loop vectorize(assume_safety)")
+#elif defined(__GNUC__)
+#define IVDEP _Pragma("GCC ivdep")
+#else
+#define IVDEP
+#endif
+
+/* The springs of type t that vertices v0 .. v1 - 1 own, each reaching v + off (on the grid), evaluated
+ * once from their owner (cs_im_spring): forces into fo (3 a vertex), with blocks their negated
+ * blocks into blk (stride S). Plain loops that vectorize (the outputs restrict, as they are: in
+ * functions of their own, as apply_run_bend). */
+#define OWNED_RUN(name, blocks)                                                                                   \
+    __attribute__((noinline)) static void name(const cs_phys *p, float h, const cs_state *s, int t, int32_t v0,   \
+                                               int32_t v1, int32_t off, float *restrict fo, float *restrict blk,  \
+                                               size_t S)                                                          \
+    {                                                                                                            \
+        const float *L0 = s->L0 + (size_t)t * (size_t)p->n;                                                      \
+        const float k = p->k[t], c = p->c_spring;                                                                \
+        IVDEP                                                                                                    \
+        for (int32_t v = v0; v < v1; v++) {                                                                      \
+            const int32_t q = v + off;                                                                           \
+            cs_mat3 b;                                                                                           \
+            const cs_vec3 F = cs_im_spring(LOADX(v), LOADV(v), LOADX(q), LOADV(q), L0[v], k, c, h, &b);          \
+            fo[3 * (size_t)v] = F.x, fo[3 * (size_t)v + 1] = F.y, fo[3 * (size_t)v + 2] = F.z;                   \
+            if (!(blocks)) continue;                                                                             \
+            for (int e = 0; e < 9; e++) b.m[e] = -b.m[e];                                                        \
+            cs_im_sym_put(blk + v, S, &b);                                                                       \
+        }                                                                                                        \
+    }
+OWNED_RUN(owned_run_blocks, 1)
+OWNED_RUN(owned_run_forces, 0)
+#undef OWNED_RUN
+
 /* The springs each vertex of chunk (row j, columns i0 .. i1) owns, evaluated once from their
- * owner (cs_im_spring): forces into fo, negated blocks into level 0's F and the bending blocks
+ * owner (owned_run_*): forces into fo, negated blocks into level 0's F and the bending blocks
  * (blocks: 1; zero where the grid has no such spring). */
 static void chunk_owned(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, int32_t j, int32_t i0, int32_t i1,
                         int blocks)
@@ -170,62 +206,102 @@ static void chunk_owned(const cs_phys *p, float h, const cs_state *s, cs_im_work
     const int32_t nx = p->nx, ny = p->ny;
     const size_t n = (size_t)p->n;
     im_level *l0 = &w->lv[0];
-    for (int32_t i = i0; i < i1; i++) {
-        const int32_t v = j * nx + i;
-        const cs_vec3 xi = LOADX(v), vi = LOADV(v);
-        for (int t = 0; t < CS_NTYPES; t++) {
-            cs_vec3 F = cs_v3(0.0f, 0.0f, 0.0f);
-            cs_mat3 b = cs_m3_zero();
-            if (cs_far_end_on_grid(nx, ny, i, j, cs_type_di[t], cs_type_dj[t])) {
-                const int32_t q = v + cs_type_di[t] + cs_type_dj[t] * nx;
-                F = cs_im_spring(xi, vi, LOADX(q), LOADV(q), s->L0[(size_t)t * n + (size_t)v], p->k[t], p->c_spring, h,
-                                 &b);
-            }
-            put3(w->fo + (size_t)t * 3 * n, v, F);
-            if (!blocks) continue;
-            for (int k = 0; k < 9; k++) b.m[k] = -b.m[k];
-            put_sym(t < 4 ? l0->F[t] : w->B[t - 4], l0->S, v, &b);
+    const cs_mat3 zero = cs_m3_zero();
+    for (int t = 0; t < CS_NTYPES; t++) {
+        float *fo = w->fo + (size_t)t * 3 * n, *blk = t < 4 ? l0->F[t] : w->B[t - 4];
+        const int di = cs_type_di[t], dj = cs_type_dj[t];
+        /* the columns whose spring of type t reaches the grid: i + di in 0 .. nx - 1, j + dj < ny */
+        int32_t a = i0 > -di ? i0 : -di, e = i1 < nx - di ? i1 : nx - di;
+        if (j + dj >= ny || a > e) a = e = i1;
+        for (int32_t i = i0; i < i1; i++) {
+            if (i == a) i = e;
+            if (i >= i1) break;
+            const int32_t v = j * nx + i;
+            put3(fo, v, cs_v3(0.0f, 0.0f, 0.0f));
+            if (blocks) put_sym(blk, l0->S, v, &zero);
         }
+        if (a < e)
+            (blocks ? owned_run_blocks : owned_run_forces)(p, h, s, t, j * nx + a, j * nx + e, di + dj * nx, fo, blk,
+                                                         l0->S);
     }
 }
 
-/* The springs, air and gravity of chunk c's vertices at the iterate, gathered in
- * CS_SPRING_SLOTS order from their owners' evaluations (the same bits as cs_im_springs: a spring
- * from its other end is the exact negation, its block the same): force into R (the residual comes
- * later), Ro into q (resultant friction reads it), the diagonal into level 0 (blocks: 1). */
-static void chunk_springs(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, int32_t j, int32_t i0,
-                          int32_t i1, int blocks)
+/* d + (-B), element by element, written out (a loop over the elements keeps a vectorizer from the
+ * loop around it). */
+static inline cs_mat3 minus(cs_mat3 d, const cs_mat3 *B)
 {
-    const int32_t nx = p->nx, ny = p->ny;
-    const size_t n = (size_t)p->n;
-    im_level *l0 = &w->lv[0];
-    for (int32_t i = i0; i < i1; i++) {
-        const int32_t v = j * nx + i;
-        cs_vec3 f = cs_v3(0.0f, 0.0f, 0.0f);
-        cs_mat3 d = cs_m3_zero();
+    d.m[0] += -B->m[0], d.m[1] += -B->m[1], d.m[2] += -B->m[2];
+    d.m[3] += -B->m[3], d.m[4] += -B->m[4], d.m[5] += -B->m[5];
+    d.m[6] += -B->m[6], d.m[7] += -B->m[7], d.m[8] += -B->m[8];
+    return d;
+}
+
+/* The springs, air and gravity of vertex v = (i, j) at the iterate, gathered in CS_SPRING_SLOTS
+ * order from their owners' evaluations (the same bits as cs_im_springs: a spring from its other end
+ * is the exact negation, its block the same): force into R (the residual comes later), Ro into q
+ * (resultant friction reads it), the diagonal into D (stride S; blocks: 1). inner: every slot's
+ * neighbour is on the grid (2 <= i < nx - 2, 2 <= j < ny - 2), which skips the tests. */
+__attribute__((always_inline)) static inline void springs_at(const cs_phys *p, float h, const cs_state *s,
+                                                            const cs_im_work *w, int32_t i, int32_t j, int blocks,
+                                                            int inner, float *restrict R, float *restrict q,
+                                                            float *restrict D)
+{
+    const int32_t nx = p->nx, ny = p->ny, v = j * nx + i;
+    const size_t n = (size_t)p->n, S = w->lv[0].S;
+    const float *const blk[CS_NTYPES] = {w->lv[0].F[0], w->lv[0].F[1], w->lv[0].F[2], w->lv[0].F[3], w->B[0], w->B[1]};
+    cs_vec3 f = cs_v3(0.0f, 0.0f, 0.0f);
+    cs_mat3 d = cs_m3_zero();
 #define CS_IM_GATHER(t, di, dj, fwd)                                                                \
     {                                                                                              \
         const int32_t ii = i + (di), jj = j + (dj);                                                \
-        if (ii >= 0 && ii < nx && jj >= 0 && jj < ny) {                                            \
+        if (inner || (ii >= 0 && ii < nx && jj >= 0 && jj < ny)) {                                 \
             const int32_t o = (fwd) ? v : jj * nx + ii; /* the owner */                            \
             const cs_vec3 F = cs_v3_from(w->fo + (size_t)(t) * 3 * n + 3 * (size_t)o);             \
             f = cs_add(f, (fwd) ? F : cs_neg(F));                                                  \
             if (blocks) {                                                                          \
-                const cs_mat3 B = cs_im_sym_get(((t) < 4 ? l0->F[(t) & 3] : w->B[((t) - 4) & 1]) + o, l0->S); \
-                for (int k = 0; k < 9; k++) d.m[k] += -B.m[k];                                     \
+                const cs_mat3 B = cs_im_sym_get(blk[t] + o, S);                                    \
+                d = minus(d, &B);                                                                  \
             }                                                                                      \
         }                                                                                          \
     }
-        CS_SPRING_SLOTS(CS_IM_GATHER)
+    CS_SPRING_SLOTS(CS_IM_GATHER)
 #undef CS_IM_GATHER
-        f = cs_add(f, cs_air_gravity(LOADV(v), p));
-        put3(w->R, v, f);
-        put3(w->q, v, f);
-        if (blocks) {
-            const cs_mat3 D = cs_im_inertia(p, h, d);
-            put_sym(l0->D, l0->S, v, &D);
-        }
+    f = cs_add(f, cs_air_gravity(LOADV(v), p));
+    R[3 * (size_t)v] = f.x, R[3 * (size_t)v + 1] = f.y, R[3 * (size_t)v + 2] = f.z;
+    q[3 * (size_t)v] = f.x, q[3 * (size_t)v + 1] = f.y, q[3 * (size_t)v + 2] = f.z;
+    if (blocks) {
+        const cs_mat3 Dv = cs_im_inertia(p, h, d);
+        cs_im_sym_put(D + v, S, &Dv);
     }
+}
+
+/* springs_at over the inner vertices v0 .. v1 - 1 of a row: plain loops that vectorize (as
+ * owned_run_blocks). */
+#define SPRINGS_RUN(name, blocks)                                                                                 \
+    __attribute__((noinline)) static void name(const cs_phys *p, float h, const cs_state *s, const cs_im_work *w, \
+                                               int32_t j, int32_t i0, int32_t i1, float *restrict R,             \
+                                               float *restrict q, float *restrict D)                             \
+    {                                                                                                            \
+        const cs_phys P = *p; /* its floats in registers: R, q, D are floats too */                               \
+        IVDEP                                                                                                    \
+        for (int32_t i = i0; i < i1; i++) springs_at(&P, h, s, w, i, j, blocks, 1, R, q, D);                     \
+    }
+SPRINGS_RUN(springs_run_blocks, 1)
+SPRINGS_RUN(springs_run_forces, 0)
+#undef SPRINGS_RUN
+
+/* springs_at for chunk (row j, columns i0 .. i1). */
+static void chunk_springs(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, int32_t j, int32_t i0,
+                          int32_t i1, int blocks)
+{
+    const int32_t nx = p->nx, ny = p->ny;
+    float *R = w->R, *q = w->q, *D = w->lv[0].D;
+    /* the inner columns of an inner row, a run; the rest one by one */
+    int32_t a = i0 > 2 ? i0 : 2, e = i1 < nx - 2 ? i1 : nx - 2;
+    if (j < 2 || j >= ny - 2 || a > e) a = e = i1;
+    for (int32_t i = i0; i < a; i++) springs_at(p, h, s, w, i, j, blocks, 0, R, q, D);
+    if (a < e) (blocks ? springs_run_blocks : springs_run_forces)(p, h, s, w, j, a, e, R, q, D);
+    for (int32_t i = e; i < i1; i++) springs_at(p, h, s, w, i, j, blocks, 0, R, q, D);
 }
 
 static void add3(float *a, int32_t v, cs_vec3 x)

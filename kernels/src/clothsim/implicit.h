@@ -152,26 +152,30 @@ SIM_HD static inline cs_vec3 cs_im_sym_mul(const float *a, size_t S, cs_vec3 x)
 /* The stiffness block of the spring from xi to xj (positive semi-definite): k u u^T + k max(0,
  * 1 - L0/l) (I - u u^T) + (c/h) u u^T - the elastic Hessian with its transverse part dropped in
  * compression, plus the damping's along u. Zero for a torn spring or below CS_MIN_LEN. Both ends
- * compute the same bits. */
-SIM_HD static inline cs_mat3 cs_im_spring_block(cs_vec3 xi, cs_vec3 xj, float L0, float k, float c_over_h)
+ * compute the same bits. _of: from d = xj - xi and its length l = sqrtf(d . d). */
+SIM_HD static inline cs_mat3 cs_im_spring_block_of(cs_vec3 d, float l, float L0, float k, float c_over_h)
 {
-    const cs_vec3 d = cs_sub(xj, xi);
-    const float l = sqrtf(cs_dot(d, d));
     if (!(l > CS_MIN_LEN && L0 > 0.0f)) return cs_m3_zero();
     const cs_vec3 u = cs_scale(d, 1.0f / l);
     const float g = 1.0f - L0 / l;
     return cs_m3_axial(u, k + c_over_h, g > 0.0f ? k * g : 0.0f);
 }
+SIM_HD static inline cs_mat3 cs_im_spring_block(cs_vec3 xi, cs_vec3 xj, float L0, float k, float c_over_h)
+{
+    const cs_vec3 d = cs_sub(xj, xi);
+    return cs_im_spring_block_of(d, sqrtf(cs_dot(d, d)), L0, k, c_over_h);
+}
 
-/* One spring seen from xi: its force on xi (cs_spring_force) and its block (cs_im_spring_block).
- * From the other end the force is exactly the negation and the block the same bits, so a backend
- * may evaluate each spring once, from the end that owns it, and gather (cs_im_springs' order). */
+/* One spring seen from xi: its force on xi (cs_spring_force) and its block (cs_im_spring_block, from
+ * the length the force computed: the same bits). From the other end the force is exactly the
+ * negation and the block the same bits, so a backend may evaluate each spring once, from the end
+ * that owns it, and gather (cs_im_springs' order). */
 SIM_HD static inline cs_vec3 cs_im_spring(cs_vec3 xi, cs_vec3 vi, cs_vec3 xj, cs_vec3 vj, float L0, float k, float c,
                                          float h, cs_mat3 *blk)
 {
     float len;
     const cs_vec3 F = cs_spring_force(xi, vi, xj, vj, L0, k, c, &len);
-    *blk = cs_im_spring_block(xi, xj, L0, k, c / h);
+    *blk = cs_im_spring_block_of(cs_sub(xj, xi), len, L0, k, c / h);
     return F;
 }
 
