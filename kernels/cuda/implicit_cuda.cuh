@@ -109,6 +109,7 @@ static cs_im_rocks im_rocks(const cuda_ctx *c, float *S, const float *L0)
     R.rx0 = w->rv3, R.F = w->rv3 + CS_MAX_ROCKS, R.T = w->rv3 + 2 * CS_MAX_ROCKS;
     R.cand = w->cand, R.sr = w->sr;
     R.sh = w->sh, R.sn = w->sn, R.sg = w->sg;
+    R.rowbox = NULL, R.rows = NULL; /* full scans (the same bits) */
     return R;
 }
 

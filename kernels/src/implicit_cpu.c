@@ -52,6 +52,8 @@ struct cs_im_work {
     float *sh, *sn;                        /* per vertex: the rock mass it carries, its normal (3 n) */
     float *sg;                             /* per vertex: what a rock's push moved it (0 between pushes) */
     int32_t *sr;                           /* per vertex: the rock it carries (-1 none) */
+    float *rowbox;                         /* per grid row: the box of it and the next (cs_im_row_box) */
+    int32_t rows[2 * CS_MAX_ROCKS];        /* each rock's vertex span in cs_im_rocks_share */
     cs_vec3 rx0[CS_MAX_ROCKS];             /* each rock at the part's start */
     cs_vec3 rf[CS_MAX_ROCKS], rt[CS_MAX_ROCKS]; /* the rock steps' scratch (cs_im_rocks' F, T) */
     im_level lv[CS_IM_MAX_LEVELS];
@@ -75,7 +77,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     if (!w) return NULL;
     w->nx = nx, w->ny = ny, w->n = nx * ny, w->nchunks = nchunks;
     const size_t S0 = cs_im_stride((size_t)w->n); /* level 0's, which the bending blocks share */
-    size_t floats = (size_t)w->n * (9 + 3 + 15 + 18 + 5) + 2 * CS_IM_SYM * S0 + (size_t)nchunks;
+    size_t floats = (size_t)w->n * (9 + 3 + 15 + 18 + 5) + 2 * CS_IM_SYM * S0 + (size_t)nchunks + 6 * (size_t)ny;
     int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
     const int L = w->levels = cs_im_levels(nx, ny, lx, ly);
     for (int l = 0; l < L; l++) {
@@ -108,6 +110,7 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     w->dx = TAKE(nv), w->r = TAKE(nv), w->z = TAKE(nv), w->p = TAKE(nv), w->q = TAKE(nv);
     w->part = TAKE((size_t)nchunks);
     w->sh = TAKE(n), w->sn = TAKE(3 * n), w->sg = TAKE(n);
+    w->rowbox = TAKE(6 * (size_t)ny);
     for (int l = 0; l < L; l++) {
         im_level *v = &w->lv[l];
         m = cs_im_carve_level(m, (size_t)v->n, &v->D, &v->Dinv, v->F, &v->mask, &v->b, &v->x, &v->t);
@@ -610,14 +613,25 @@ static cs_im_rocks rock_view(cs_state *s, cs_im_work *w)
     R.rocks = s->rocks, R.nr = s->n_rocks;
     R.star = w->star, R.rx0 = w->rx0, R.F = w->rf, R.T = w->rt;
     R.cand = w->cand, R.sr = w->sr, R.sh = w->sh, R.sn = w->sn, R.sg = w->sg;
+    R.rowbox = w->rowbox, R.rows = w->rows;
     return R;
+}
+
+/* The rows' boxes of the cloth as it is (cs_im_rocks' rowbox). */
+static void row_boxes(const cs_phys *p, const cs_im_rocks *rv, int threads)
+{
+    (void)threads; /* only the OpenMP pragmas read it */
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int32_t j = 0; j < p->ny; j++) cs_im_row_box(p, rv->x, rv->y, rv->z, j, rv->rowbox + 6 * (size_t)j);
 }
 
 /* Step 3 of a part: the rocks follow what their vertices carried, rocks and cloth are pushed
  * apart, the approach is stopped and friction acts (cs_im_rocks_push, one thread). */
-static void rocks_push(const cs_phys *p, const cs_im_rocks *rv, float h)
+static void rocks_push(const cs_phys *p, const cs_im_rocks *rv, float h, int threads)
 {
-    if (rv->nr) cs_im_rocks_push(p, rv, h);
+    if (!rv->nr) return;
+    row_boxes(p, rv, threads);
+    cs_im_rocks_push(p, rv, h);
 }
 
 /* One part of a substep, of length h (the sequence at the top). */
@@ -631,6 +645,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
     const int32_t n = p->n, g = s->grab;
     const cs_im_rocks rv = rock_view(s, w);
     cs_im_rocks_advance(p, &rv, h);
+    if (rv.nr) row_boxes(p, &rv, threads);
     cs_im_rocks_share(p, &rv);
     const cs_vec3 vg = g >= 0 ? cs_grab_velocity(LOADX(g), s->grab_target, p) : cs_v3(0.0f, 0.0f, 0.0f);
     const float inv_h = 1.0f / h;
@@ -683,7 +698,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
     const float rel = r0 > 0.0f ? r / r0 : 0.0f;
     st->residual = rel > st->residual ? rel : st->residual;
     st->substeps++;
-    rocks_push(p, &rv, h);
+    rocks_push(p, &rv, h, threads);
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int32_t v = 0; v < n; v++) {
         s->ax[v] = (s->vx[v] - w->vxb[v]) * inv_h * s->w[v];

@@ -296,6 +296,13 @@ typedef struct cs_im_rocks {
     int32_t *sr;               /* per vertex: the rock whose mass it carries (-1 none) */
     float *sh, *sn;            /* per vertex: the mass it carries, its normal (3 n) */
     float *sg;                 /* per vertex, 0 outside cs_im_rocks_push: the stop's impulse times h */
+    /* Optional (NULL: none; the results are the same bits either way, only the scans longer):
+     * rowbox, 6 a grid row, the box (lo xyz, hi xyz) of rows j and j + 1 at x as it is now
+     * (cs_im_row_box; the backend fills it before cs_im_rocks_share and before cs_im_rocks_push),
+     * which lets a rock's scan for candidates skip the rows it cannot reach; rows, 2 a rock, the
+     * first and last row of its candidates in cs_im_rocks_share (what a rock's vertices may be). */
+    float *rowbox;
+    int32_t *rows;
 } cs_im_rocks;
 
 SIM_HD static inline cs_vec3 cs_im_rock_x(const cs_im_rocks *R, int32_t v) { return cs_v3(R->x[v], R->y[v], R->z[v]); }
@@ -314,6 +321,23 @@ SIM_HD static inline int cs_im_near_box(cs_vec3 c, float reach, cs_vec3 lo, cs_v
     return ex * ex + ey * ey + ez * ez <= r * r;
 }
 
+/* Row j's entry of cs_im_rocks' rowbox: the box of the positions of rows j and j + 1 (row j alone
+ * on the last) into box[0..5] (lo xyz, hi xyz). */
+SIM_HD static inline void cs_im_row_box(const cs_phys *p, const float *x, const float *y, const float *z, int32_t j,
+                                        float *box)
+{
+    const int32_t nx = p->nx, v0 = j * nx, v1 = (j + 2 < p->ny ? j + 2 : p->ny) * nx;
+    float lo[3] = {x[v0], y[v0], z[v0]}, hi[3] = {x[v0], y[v0], z[v0]};
+    for (int32_t v = v0 + 1; v < v1; v++) {
+        const float c[3] = {x[v], y[v], z[v]};
+        for (int k = 0; k < 3; k++) {
+            lo[k] = c[k] < lo[k] ? c[k] : lo[k];
+            hi[k] = c[k] > hi[k] ? c[k] : hi[k];
+        }
+    }
+    for (int k = 0; k < 3; k++) box[k] = lo[k], box[3 + k] = hi[k];
+}
+
 /* A vertex's move over the part beyond rock r's own path: (x - x_n) - (star_r - rx0_r). */
 SIM_HD static inline cs_vec3 cs_im_beyond(const cs_im_rocks *R, int32_t r, cs_vec3 x, cs_vec3 xn)
 {
@@ -326,13 +350,19 @@ SIM_HD static inline cs_vec3 cs_im_beyond(const cs_im_rocks *R, int32_t r, cs_ve
 SIM_HD static inline int32_t cs_im_rock_candidates(const cs_phys *p, const cs_im_rocks *R, cs_vec3 c, float reach)
 {
     const int32_t nx = p->nx, ny = p->ny;
+    const int surface = p->contact_model == CS_CONTACT_SURFACE;
     int32_t nc = 0;
-    if (p->contact_model != CS_CONTACT_SURFACE) {
-        for (int32_t v = 0; v < p->n; v++)
-            if (cs_im_near_box(c, reach, cs_im_rock_x(R, v), cs_im_rock_x(R, v))) R->cand[nc++] = v;
-        return nc;
-    }
-    for (int32_t j = 0; j + 1 < ny; j++)
+    for (int32_t j = 0; j + (surface ? 1 : 0) < ny; j++) {
+        /* a row whose box (it and the next) is out of reach holds no candidate */
+        if (R->rowbox) {
+            const float *b = R->rowbox + 6 * (size_t)j;
+            if (!cs_im_near_box(c, reach, cs_v3(b[0], b[1], b[2]), cs_v3(b[3], b[4], b[5]))) continue;
+        }
+        if (!surface) {
+            for (int32_t v = j * nx; v < (j + 1) * nx; v++)
+                if (cs_im_near_box(c, reach, cs_im_rock_x(R, v), cs_im_rock_x(R, v))) R->cand[nc++] = v;
+            continue;
+        }
         for (int32_t i = 0; i + 1 < nx; i++) {
             const int32_t f = cs_quad_faces(R->L0, nx, ny, i, j);
             if (!f) continue;
@@ -348,7 +378,22 @@ SIM_HD static inline int32_t cs_im_rock_candidates(const cs_phys *p, const cs_im
             if (f & 1) R->cand[nc++] = 2 * v;
             if (f & 2) R->cand[nc++] = 2 * v + 1;
         }
+    }
     return nc;
+}
+
+/* The vertices candidates 0 .. nc - 1 (in grid order) may touch: v0 .. v1 - 1, whole rows (their
+ * first row to the row after their last). */
+SIM_HD static inline void cs_im_cand_span(const cs_phys *p, const cs_im_rocks *R, int32_t nc, int32_t *v0, int32_t *v1)
+{
+    const int32_t nx = p->nx, surface = p->contact_model == CS_CONTACT_SURFACE;
+    if (nc == 0) {
+        *v0 = *v1 = 0;
+        return;
+    }
+    const int32_t a = (surface ? R->cand[0] >> 1 : R->cand[0]) / nx, b = (surface ? R->cand[nc - 1] >> 1 : R->cand[nc - 1]) / nx;
+    *v0 = a * nx;
+    *v1 = (b + 2 < p->ny ? b + 2 : p->ny) * nx;
 }
 
 /* Candidate k's vertices (a vertex three times, vertex model). */
@@ -401,9 +446,15 @@ SIM_HD static inline void cs_im_rocks_share(const cs_phys *p, const cs_im_rocks 
     for (int32_t v = 0; v < n; v++) R->sr[v] = -1;
     for (int32_t r = 0; r < nr; r++) {
         const cs_rock_state *q = &R->rocks[r];
+        if (R->rows) R->rows[2 * r] = R->rows[2 * r + 1] = 0;
         if (!(q->inv_mass > 0.0f)) continue; /* a dynamic rock's translation only */
         const float Rc = q->radius + p->contact_offset + p->contact_offset;
         const int32_t nc = cs_im_rock_candidates(p, R, R->rx0[r], Rc);
+        int32_t v0 = 0, v1 = n; /* the vertices that may carry it */
+        if (R->rows) {
+            cs_im_cand_span(p, R, nc, &v0, &v1);
+            R->rows[2 * r] = v0, R->rows[2 * r + 1] = v1;
+        }
         float total = 0.0f;
         for (int32_t k = 0; k < nc; k++) {
             int32_t t[3];
@@ -427,7 +478,7 @@ SIM_HD static inline void cs_im_rocks_share(const cs_phys *p, const cs_im_rocks 
             }
         }
         /* each of its vertices once: M times its share of the weights, the unit mean normal */
-        for (int32_t v = 0; v < n && total > 0.0f; v++) {
+        for (int32_t v = v0; v < v1 && total > 0.0f; v++) {
             if (R->sr[v] != r) continue;
             const cs_vec3 nv = cs_v3_from(R->sn + 3 * (size_t)v);
             const float len = cs_len(nv);
@@ -470,15 +521,16 @@ SIM_HD static inline float cs_im_pressed(const cs_im_rocks *R, int32_t r, int32_
  * impulse J = -u_t / (1/M + R^2/I + sum beta_v^2 / m_v) (beta_v the weights normalised), at most
  * mu |P| / h: the rock gains J (and a x J of spin), the vertices -beta_v J, each moving by its
  * change of velocity times h, so momentum is kept and the spin's change matches the torque at the
- * contact; sticks within the cone, slides at mu beyond it. Clears sg. */
-SIM_HD static inline void cs_im_rock_friction(const cs_phys *p, const cs_im_rocks *R, int32_t r, float h, cs_vec3 P)
+ * contact; sticks within the cone, slides at mu beyond it. Clears sg. Over vertices v0 .. v1 - 1,
+ * which hold every one it presses (cs_im_pressed > 0) and every nonzero sg. */
+SIM_HD static inline void cs_im_rock_friction(const cs_phys *p, const cs_im_rocks *R, int32_t r, float h, cs_vec3 P,
+                                              int32_t v0, int32_t v1)
 {
-    const int32_t n = p->n;
     cs_rock_state *q = &R->rocks[r];
     const float pn = cs_len(P);
     float B = 0.0f, W2 = 0.0f;
     cs_vec3 V = cs_v3(0.0f, 0.0f, 0.0f);
-    for (int32_t v = 0; v < n; v++) {
+    for (int32_t v = v0; v < v1; v++) {
         const float c = cs_im_pressed(R, r, v);
         if (!(c > 0.0f)) continue;
         B += c;
@@ -500,7 +552,7 @@ SIM_HD static inline void cs_im_rock_friction(const cs_phys *p, const cs_im_rock
         q->x = cs_add(q->x, cs_scale(J, q->inv_mass * h));
         q->w = cs_add(q->w, cs_scale(cs_cross(a, J), q->inv_inertia));
     }
-    for (int32_t v = 0; v < n; v++) {
+    for (int32_t v = v0; v < v1; v++) {
         const float c = cs_im_pressed(R, r, v);
         R->sg[v] = 0.0f;
         if (!(c > 0.0f)) continue;
@@ -567,6 +619,13 @@ SIM_HD static inline void cs_im_rocks_push(const cs_phys *p, const cs_im_rocks *
         const cs_vec3 c0 = q->x;
         const float Rc = q->radius + p->contact_offset;
         const int32_t nc = cs_im_rock_candidates(p, R, c0, cs_surface_lim(q, p));
+        /* the vertices it may press: its candidates' and those that carry it */
+        int32_t v0 = 0, v1 = n;
+        if (R->rows) {
+            cs_im_cand_span(p, R, nc, &v0, &v1);
+            const int32_t a = R->rows[2 * r], b = R->rows[2 * r + 1];
+            if (a < b) v0 = v0 < v1 && v0 < a ? v0 : a, v1 = v1 > b ? v1 : b;
+        }
         /* what the rock moves, summed apart from its position: a heavy rock's share of one push
          * can be below the float spacing of its coordinates */
         cs_vec3 moved = cs_v3(0.0f, 0.0f, 0.0f), P = q->inv_mass > 0.0f ? acc[r] : cs_v3(0.0f, 0.0f, 0.0f);
@@ -611,7 +670,11 @@ SIM_HD static inline void cs_im_rocks_push(const cs_phys *p, const cs_im_rocks *
                 q->v = cs_add(q->v, dv);
                 P = cs_sub(P, cs_scale(nk, lambda * h));
             }
-        cs_im_rock_friction(p, R, r, h, P);
+        cs_im_rock_friction(p, R, r, h, P, v0, v1);
+        /* the boxes of the rows whose vertices it moved, for the next rock's candidates */
+        if (R->rowbox && v0 < v1)
+            for (int32_t j = (v0 / p->nx > 0 ? v0 / p->nx - 1 : 0); j <= (v1 - 1) / p->nx; j++)
+                cs_im_row_box(p, R->x, R->y, R->z, j, R->rowbox + 6 * (size_t)j);
         q->a = cs_scale(cs_sub(q->v, R->star[r].v), inv_h); /* the cloth's, as the state reports it */
         q->alpha = cs_v3(0.0f, 0.0f, 0.0f);
     }
