@@ -697,11 +697,12 @@ SIM_HD static inline float cs_im_depth(const cs_phys *p, float r)
  * substep - those whose centre lies within R + contact_offset + ring + (|v_r| + |v_v| + 2 gain) h,
  * ring the longest distance from v to its six render neighbours (a triangle's closest point lies
  * within its longest edge of each of its vertices), gain gravity's |g| h: the largest speed of
- * the vertex relative to the rock across the cloth's surface there (|(v_v - v_r) . n| over the
- * normals n of its six triangles; surface model) or toward the rock's centre (vertex model), plus
- * gain. Motion along the surface cannot carry a rock through it; 0 when no rock is that near, so a
- * fast cloth far from every rock, or a rock falling through the air, costs no parts. x..vz: the
- * state's arrays (a NaN is never taken). */
+ * the vertex relative to the rock across the cloth's surface toward it ((v_v - v_r) . n over the
+ * normals n of its six triangles, each turned to the side the rock's centre is on; surface model)
+ * or toward the rock's centre (vertex model), plus gain. Motion along the surface cannot carry a
+ * rock through it, nor motion away from the rock (a plane moving away from a centre only gets
+ * farther from it); 0 when no rock is that near, so a fast cloth far from every rock, or a rock
+ * falling through the air, costs no parts. x..vz: the state's arrays (a NaN is never taken). */
 SIM_HD static inline float cs_im_closing(const cs_phys *p, const cs_rock_state *rocks, int32_t nr, const float *x,
                                          const float *y, const float *z, const float *vx, const float *vy,
                                          const float *vz, int32_t v, float h)
@@ -740,7 +741,9 @@ SIM_HD static inline float cs_im_closing(const cs_phys *p, const cs_rock_state *
                 if (!has[k] || !has[(k + 1) % 6]) continue;
                 const cs_vec3 f = cs_cross(e[k], e[(k + 1) % 6]);
                 const float fl = cs_len(f);
-                const float s = fl > 0.0f ? fabsf(cs_dot(rel, f)) / fl : cs_len(rel);
+                /* toward the rock: along the normal on the side its centre is on */
+                const float a = cs_dot(rel, f) * (cs_dot(f, to) < 0.0f ? -1.0f : 1.0f);
+                const float s = fl > 0.0f ? (a > 0.0f ? a / fl : 0.0f) : cs_len(rel);
                 c = s > c ? s : c;
             }
         } else {
