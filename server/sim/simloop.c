@@ -19,7 +19,9 @@
 #define MAX_LAG 0.25        /* s of wall time a scene may fall behind before it stops catching up */
 #define COST_PRIOR 2e-8     /* s per vertex and substep assumed before the first measurement */
 #define WHOLE_WORK 1e6      /* vertex-substeps run in one call whatever the clock says (a few ms) */
-#define BEAT_EVERY 1.0      /* s the thread waits at most, however idle: each turn is a heartbeat */
+#define BEAT_EVERY 0.25     /* s the thread waits at most, however idle: each turn is a heartbeat, a
+                             * quarter of the least liveness_timeout (1 s), so that a turn that comes
+                             * late does not turn an idle daemon's /livez 503 */
 
 struct simloop {
     scenes *table;

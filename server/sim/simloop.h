@@ -36,7 +36,7 @@ int simloop_start(simloop *sl);
 void simloop_stop(simloop *sl);
 void simloop_free(simloop *sl);
 
-/* The heartbeat: the thread turns at least once a second however idle (a turn waits no longer),
+/* The heartbeat: the thread turns at least four times a second however idle (a turn waits no longer),
  * and each turn notes the time. simloop_last_turn: clock_mono() of the last turn, 0 before the
  * first (any thread; GET /livez compares it with liveness_timeout). simloop_set_beat (before
  * simloop_start): beat(ctx) is called from the sim thread at a turn at most every `every` seconds,

@@ -34,7 +34,10 @@ test('/livez goes 503 while the sim thread is wedged and 200 once it turns again
 
 test('/livez stays 200 while every scene is paused: the idle thread still turns', async () => {
   const d = await start([...small, '--paused', '--liveness-timeout', '1']);
-  // Three timeouts of idleness, each probe answered 200 (the thread turns at least once a second).
+  // The port may open before the sim thread's first turn (until then /livez says it has not
+  // started): from that turn on, three timeouts of idleness, each probe answered 200 (the thread
+  // turns at least four times a second, well within the timeout of 1 s).
+  await until('the first turn', async () => (await call(d, 'GET', '/livez')).status === 200, { every: 50 });
   const t0 = Date.now();
   while (Date.now() - t0 < 3000) {
     assert.equal((await call(d, 'GET', '/livez')).status, 200);
