@@ -298,9 +298,10 @@ typedef struct cs_im_rocks {
     float *sg;                 /* per vertex, 0 outside cs_im_rocks_push: the stop's impulse times h */
     /* Optional (NULL: none; the results are the same bits either way, only the scans longer):
      * rowbox, 6 a grid row, the box (lo xyz, hi xyz) of rows j and j + 1 at x as it is now
-     * (cs_im_row_box; the backend fills it before cs_im_rocks_share and before cs_im_rocks_push),
-     * which lets a rock's scan for candidates skip the rows it cannot reach; rows, 2 a rock, the
-     * first and last row of its candidates in cs_im_rocks_share (what a rock's vertices may be). */
+     * (cs_im_row_box; the backend fills it before cs_im_rocks_share and before cs_im_rocks_push,
+     * which keeps it true as it moves vertices), which lets a rock's scan for candidates skip the
+     * rows it cannot reach; rows, 2 a rock, the vertices v0 .. v1 - 1 that its candidates in
+     * cs_im_rocks_share span (cs_im_cand_span: every vertex that carries it lies there). */
     float *rowbox;
     int32_t *rows;
 } cs_im_rocks;
