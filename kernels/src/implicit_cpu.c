@@ -199,6 +199,16 @@ OWNED_RUN(owned_run_blocks, 1)
 OWNED_RUN(owned_run_forces, 0)
 #undef OWNED_RUN
 
+/* Vertex v has no spring of the type whose forces are fo and blocks blk (NULL: none kept). */
+static void no_spring(float *fo, float *blk, size_t S, int32_t v)
+{
+    put3(fo, v, cs_v3(0.0f, 0.0f, 0.0f));
+    if (blk) {
+        const cs_mat3 zero = cs_m3_zero();
+        put_sym(blk, S, v, &zero);
+    }
+}
+
 /* The springs each vertex of chunk (row j, columns i0 .. i1) owns, evaluated once from their
  * owner (owned_run_*): forces into fo, negated blocks into level 0's F and the bending blocks
  * (blocks: 1; zero where the grid has no such spring). */
@@ -208,23 +218,17 @@ static void chunk_owned(const cs_phys *p, float h, const cs_state *s, cs_im_work
     const int32_t nx = p->nx, ny = p->ny;
     const size_t n = (size_t)p->n;
     im_level *l0 = &w->lv[0];
-    const cs_mat3 zero = cs_m3_zero();
     for (int t = 0; t < CS_NTYPES; t++) {
         float *fo = w->fo + (size_t)t * 3 * n, *blk = t < 4 ? l0->F[t] : w->B[t - 4];
         const int di = cs_type_di[t], dj = cs_type_dj[t];
         /* the columns whose spring of type t reaches the grid: i + di in 0 .. nx - 1, j + dj < ny */
         int32_t a = i0 > -di ? i0 : -di, e = i1 < nx - di ? i1 : nx - di;
         if (j + dj >= ny || a > e) a = e = i1;
-        for (int32_t i = i0; i < i1; i++) {
-            if (i == a) i = e;
-            if (i >= i1) break;
-            const int32_t v = j * nx + i;
-            put3(fo, v, cs_v3(0.0f, 0.0f, 0.0f));
-            if (blocks) put_sym(blk, l0->S, v, &zero);
-        }
+        for (int32_t i = i0; i < a; i++) no_spring(fo, blocks ? blk : NULL, l0->S, j * nx + i);
         if (a < e)
             (blocks ? owned_run_blocks : owned_run_forces)(p, h, s, t, j * nx + a, j * nx + e, di + dj * nx, fo, blk,
                                                          l0->S);
+        for (int32_t i = e; i < i1; i++) no_spring(fo, blocks ? blk : NULL, l0->S, j * nx + i);
     }
 }
 

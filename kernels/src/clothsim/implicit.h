@@ -383,20 +383,6 @@ SIM_HD static inline int32_t cs_im_rock_candidates(const cs_phys *p, const cs_im
     return nc;
 }
 
-/* The vertices candidates 0 .. nc - 1 (in grid order) may touch: v0 .. v1 - 1, whole rows (their
- * first row to the row after their last). */
-SIM_HD static inline void cs_im_cand_span(const cs_phys *p, const cs_im_rocks *R, int32_t nc, int32_t *v0, int32_t *v1)
-{
-    const int32_t nx = p->nx, surface = p->contact_model == CS_CONTACT_SURFACE;
-    if (nc == 0) {
-        *v0 = *v1 = 0;
-        return;
-    }
-    const int32_t a = (surface ? R->cand[0] >> 1 : R->cand[0]) / nx, b = (surface ? R->cand[nc - 1] >> 1 : R->cand[nc - 1]) / nx;
-    *v0 = a * nx;
-    *v1 = (b + 2 < p->ny ? b + 2 : p->ny) * nx;
-}
-
 /* Candidate k's vertices (a vertex three times, vertex model). */
 SIM_HD static inline void cs_im_cand_vertices(const cs_phys *p, const cs_im_rocks *R, int32_t k, int32_t t[3])
 {
@@ -406,6 +392,24 @@ SIM_HD static inline void cs_im_cand_vertices(const cs_phys *p, const cs_im_rock
     }
     const int32_t v = R->cand[k] >> 1, face = R->cand[k] & 1, nx = p->nx;
     t[0] = v, t[1] = face ? v + nx + 1 : v + 1, t[2] = face ? v + nx : v + nx + 1;
+}
+
+/* The vertices candidates 0 .. nc - 1 (in grid order) may touch: v0 .. v1 - 1, whole rows (their
+ * first row to the row after their last). */
+SIM_HD static inline void cs_im_cand_span(const cs_phys *p, const cs_im_rocks *R, int32_t nc, int32_t *v0, int32_t *v1)
+{
+    if (nc == 0) {
+        *v0 = *v1 = 0;
+        return;
+    }
+    /* a candidate's first vertex is in its row (cs_im_cand_vertices: the quad's corner, or itself) */
+    const int32_t nx = p->nx;
+    int32_t first[3], last[3];
+    cs_im_cand_vertices(p, R, 0, first);
+    cs_im_cand_vertices(p, R, nc - 1, last);
+    const int32_t a = first[0] / nx, b = last[0] / nx;
+    *v0 = a * nx;
+    *v1 = (b + 2 < p->ny ? b + 2 : p->ny) * nx;
 }
 
 /* Step 1 of a part: the rocks over h without the cloth, sub-cycled at most rock_dt under their own
