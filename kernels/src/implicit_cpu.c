@@ -381,22 +381,21 @@ static void chunk_residual(const cs_phys *p, float h, const cs_state *s, cs_im_w
 static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *w, const cs_im_rocks *rv, int blocks,
                       int threads)
 {
-    (void)threads; /* only the OpenMP pragmas read it */
     const int32_t nchunks = p->nchunks;
-#pragma omp parallel for num_threads(threads) schedule(static)
+    CS_PARALLEL_FOR(threads, schedule(static),
     for (int32_t c = 0; c < nchunks; c++) {
         int32_t j, i0, i1;
         chunk_span(p, c, &j, &i0, &i1);
         chunk_owned(p, h, s, w, j, i0, i1, blocks);
-    }
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 4)
+    });
+    CS_PARALLEL_FOR(threads, schedule(dynamic, 4),
     for (int32_t c = 0; c < nchunks; c++) {
         int32_t j, i0, i1;
         chunk_span(p, c, &j, &i0, &i1);
         chunk_springs(p, h, s, w, j, i0, i1, blocks);
         chunk_contacts(p, h, s, w, rv, j, i0, i1, blocks);
         chunk_residual(p, h, s, w, j, i0, i1, c, blocks);
-    }
+    });
     return sqrtf(cs_im_chunk_total(w->part, nchunks));
 }
 
@@ -405,8 +404,7 @@ static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *
 /* a . b over level 0 (chunk trees, then chunks in order). */
 static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b, int threads)
 {
-    (void)threads; /* only the OpenMP pragmas read it */
-#pragma omp parallel for num_threads(threads) schedule(static)
+    CS_PARALLEL_FOR(threads, schedule(static),
     for (int32_t c = 0; c < p->nchunks; c++) {
         int32_t j, i0, i1;
         chunk_span(p, c, &j, &i0, &i1);
@@ -414,7 +412,7 @@ static float dot(const cs_phys *p, cs_im_work *w, const float *a, const float *b
         for (int k = 0; k < CS_CHUNK; k++) buf[k] = 0.0f;
         for (int32_t i = i0; i < i1; i++) buf[i - i0] = cs_im_dot3(a, b, j * p->nx + i);
         w->part[c] = cs_tree_sum(buf);
-    }
+    });
     return cs_im_chunk_total(w->part, p->nchunks);
 }
 
@@ -438,9 +436,8 @@ APPLY_RUN(apply_run_flat, 0)
 /* y = A x on level l (bend: the true operator of level 0, bending blocks included). */
 static void apply(const cs_im_level *L, const float *x, float *y, int bend, int threads)
 {
-    (void)threads; /* only the OpenMP pragmas read it */
     const int32_t e = bend ? 2 : 1, nx = L->nx, ny = L->ny;
-#pragma omp parallel for num_threads(threads) schedule(static)
+    CS_PARALLEL_FOR(threads, schedule(static),
     for (int32_t j = 0; j < ny; j++) {
         if (j < e || j >= ny - e || nx <= 2 * e) {
             for (int32_t i = 0; i < nx; i++) put3(y, j * nx + i, cs_im_apply(L, x, i, j, bend));
@@ -449,7 +446,7 @@ static void apply(const cs_im_level *L, const float *x, float *y, int bend, int 
         for (int32_t i = 0; i < e; i++) put3(y, j * nx + i, cs_im_apply(L, x, i, j, bend));
         (bend ? apply_run_bend : apply_run_flat)(L, x, y, j * nx + e, j * nx + nx - e);
         for (int32_t i = nx - e; i < nx; i++) put3(y, j * nx + i, cs_im_apply(L, x, i, j, bend));
-    }
+    });
 }
 
 /* The Jacobi update (cs_im_jacobi) of vertices v0 .. v1 - 1: plain loops that vectorize, functions
@@ -476,11 +473,10 @@ JACOBI_RUN(jacobi_next, 0)
 /* x = x + omega Dinv (b - t) where t = A x (first: x = omega Dinv b, from x = 0). */
 static void jacobi(const cs_im_level *L, float *x, const float *b, const float *t, int first, int threads)
 {
-    (void)threads; /* only the OpenMP pragmas read it */
     const int32_t n = L->nx * L->ny;
-#pragma omp parallel for num_threads(threads) schedule(static)
+    CS_PARALLEL_FOR(threads, schedule(static),
     for (int32_t v0 = 0; v0 < n; v0 += PIECE)
-        (first ? jacobi_first : jacobi_next)(L, x, b, t, v0, v0 + PIECE < n ? v0 + PIECE : n);
+        (first ? jacobi_first : jacobi_next)(L, x, b, t, v0, v0 + PIECE < n ? v0 + PIECE : n););
 }
 
 /* The fewest vertices a level shares among threads. */
@@ -506,22 +502,22 @@ static void vcycle(cs_im_work *w, const cs_state *s, int l, const float *b, floa
     /* the residual, restricted */
     apply(&L, x, t, 0, threads);
     const int32_t n = lv->n;
-#pragma omp parallel for num_threads(threads) schedule(static)
-    for (int32_t k = 0; k < 3 * n; k++) t[k] = b[k] - t[k];
+    CS_PARALLEL_FOR(threads, schedule(static),
+    for (int32_t k = 0; k < 3 * n; k++) t[k] = b[k] - t[k];);
     im_level *c = &w->lv[l + 1];
-#pragma omp parallel for num_threads(threads) schedule(static)
+    CS_PARALLEL_FOR(threads, schedule(static),
     for (int32_t J = 0; J < c->ny; J++)
-        for (int32_t I = 0; I < c->nx; I++) put3(c->b, J * c->nx + I, cs_im_restrict(&L, t, I, J));
+        for (int32_t I = 0; I < c->nx; I++) put3(c->b, J * c->nx + I, cs_im_restrict(&L, t, I, J)););
     vcycle(w, s, l + 1, c->b, c->x, threads);
     /* the coarse correction, interpolated (constant over each aggregate) and scaled */
-#pragma omp parallel for num_threads(threads) schedule(static)
+    CS_PARALLEL_FOR(threads, schedule(static),
     for (int32_t j = 0; j < L.ny; j++)
         for (int32_t i = 0; i < L.nx; i++) {
             const int32_t v = j * L.nx + i;
             if (L.mask[v] == 0.0f) continue;
             const cs_vec3 e = cs_v3_from(c->x + 3 * (size_t)((j / 2) * c->nx + i / 2));
             put3(x, v, cs_add(cs_v3_from(x + 3 * (size_t)v), cs_scale(e, CS_IM_COARSE_SCALE)));
-        }
+        });
     for (int k = 0; k < sweeps; k++) {
         apply(&L, x, t, 0, threads);
         jacobi(&L, x, b, t, 0, threads);
@@ -531,25 +527,24 @@ static void vcycle(cs_im_work *w, const cs_state *s, int l, const float *b, floa
 /* The hierarchy from level 0's matrix: each level's Dinv, the coarse levels' Galerkin products. */
 static void hierarchy(cs_im_work *w, const cs_state *s, int threads)
 {
-    (void)threads; /* only the OpenMP pragmas read it */
     for (int l = 0; l < w->levels; l++) {
         im_level *lv = &w->lv[l];
         if (l > 0) {
             const cs_im_level F = view(w, l - 1, s);
-#pragma omp parallel for num_threads(threads) schedule(static)
+            CS_PARALLEL_FOR(threads, schedule(static),
             for (int32_t J = 0; J < lv->ny; J++)
                 for (int32_t I = 0; I < lv->nx; I++) {
                     const int32_t v = J * lv->nx + I;
                     float *Fc[4];
                     for (int t = 0; t < 4; t++) Fc[t] = lv->F[t] + v;
                     cs_im_galerkin(&F, I, J, lv->D + v, Fc, lv->S, lv->mask + v);
-                }
+                });
         }
-#pragma omp parallel for num_threads(threads) schedule(static)
+        CS_PARALLEL_FOR(threads, schedule(static),
         for (int32_t v = 0; v < lv->n; v++) {
             const cs_mat3 D = cs_im_sym_get(lv->D + v, lv->S), inv = cs_m3_inverse(D.m);
             put_sym(lv->Dinv, lv->S, v, &inv);
-        }
+        });
     }
 }
 
@@ -570,19 +565,19 @@ static int pcg(const cs_phys *p, cs_im_work *w, const cs_state *s, float target,
         const float pq = dot(p, w, w->p, w->q, threads);
         if (!(pq > 0.0f) || !(rz > 0.0f)) break;
         const float alpha = rz / pq;
-#pragma omp parallel for num_threads(threads) schedule(static)
+        CS_PARALLEL_FOR(threads, schedule(static),
         for (int32_t k = 0; k < n3; k++) {
             w->dx[k] += alpha * w->p[k];
             w->r[k] -= alpha * w->q[k];
-        }
+        });
         it++;
         if (!(sqrtf(dot(p, w, w->r, w->r, threads)) > target)) break;
         vcycle(w, s, 0, w->r, w->z, threads);
         const float rz2 = dot(p, w, w->r, w->z, threads);
         const float beta = rz2 / rz;
         rz = rz2;
-#pragma omp parallel for num_threads(threads) schedule(static)
-        for (int32_t k = 0; k < n3; k++) w->p[k] = w->z[k] + beta * w->p[k];
+        CS_PARALLEL_FOR(threads, schedule(static),
+        for (int32_t k = 0; k < n3; k++) w->p[k] = w->z[k] + beta * w->p[k];);
     }
     return it;
 }
@@ -592,8 +587,7 @@ static int pcg(const cs_phys *p, cs_im_work *w, const cs_state *s, float target,
 /* x = x_k + a dx for the vertices in the solve, and v = (x - x_n)/h. */
 static void move(cs_im_work *w, cs_state *s, float a, float inv_h, int threads)
 {
-    (void)threads; /* only the OpenMP pragmas read it */
-#pragma omp parallel for num_threads(threads) schedule(static)
+    CS_PARALLEL_FOR(threads, schedule(static),
     for (int32_t v = 0; v < s->n; v++) {
         if (s->w[v] == 0.0f) continue;
         s->x[v] = w->xo[v] + a * w->dx[3 * (size_t)v];
@@ -602,7 +596,7 @@ static void move(cs_im_work *w, cs_state *s, float a, float inv_h, int threads)
         s->vx[v] = (s->x[v] - w->xb[v]) * inv_h;
         s->vy[v] = (s->y[v] - w->yb[v]) * inv_h;
         s->vz[v] = (s->z[v] - w->zb[v]) * inv_h;
-    }
+    });
 }
 
 /* The rock steps' view of the state and the workspace (implicit.h, "the rock steps of a part"):
@@ -623,9 +617,8 @@ static cs_im_rocks rock_view(cs_state *s, cs_im_work *w)
 /* The rows' boxes of the cloth as it is (cs_im_rocks' rowbox). */
 static void row_boxes(const cs_phys *p, const cs_im_rocks *rv, int threads)
 {
-    (void)threads; /* only the OpenMP pragmas read it */
-#pragma omp parallel for num_threads(threads) schedule(static)
-    for (int32_t j = 0; j < p->ny; j++) cs_im_row_box(p, rv->x, rv->y, rv->z, j, rv->rowbox + 6 * (size_t)j);
+    CS_PARALLEL_FOR(threads, schedule(static),
+    for (int32_t j = 0; j < p->ny; j++) cs_im_row_box(p, rv->x, rv->y, rv->z, j, rv->rowbox + 6 * (size_t)j););
 }
 
 /* Step 3 of a part: the rocks follow what their vertices carried, rocks and cloth are pushed
@@ -653,7 +646,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
     const cs_vec3 vg = g >= 0 ? cs_grab_velocity(LOADX(g), s->grab_target, p) : cs_v3(0.0f, 0.0f, 0.0f);
     const float inv_h = 1.0f / h;
     float reach = 0.0f; /* the largest coordinate, for float's floor (cs_im_float_floor) */
-#pragma omp parallel for num_threads(threads) schedule(static) reduction(max : reach)
+    CS_PARALLEL_FOR(threads, schedule(static) reduction(max : reach),
     for (int32_t v = 0; v < n; v++) {
         w->xb[v] = s->x[v], w->yb[v] = s->y[v], w->zb[v] = s->z[v];
         w->vxb[v] = s->vx[v], w->vyb[v] = s->vy[v], w->vzb[v] = s->vz[v];
@@ -665,7 +658,7 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
             x = cs_add(x, cs_scale(vg, h));
         s->x[v] = x.x, s->y[v] = x.y, s->z[v] = x.z;
         s->vx[v] = (x.x - w->xb[v]) * inv_h, s->vy[v] = (x.y - w->yb[v]) * inv_h, s->vz[v] = (x.z - w->zb[v]) * inv_h;
-    }
+    });
     const int most = p->solver_iterations;
     float r = assemble(p, h, s, w, &rv, 1, threads);
     const float r0 = r;
@@ -681,8 +674,8 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
         st->cg += pcg(p, w, s, aim > step ? aim : step, p->cg_iterations, threads);
         /* x = x_k + a dx, a = 1, 1/2, 1/4, 1/8 while the residual does not fall (a contact that
          * switches on or off within the step makes a full Newton step overshoot) */
-#pragma omp parallel for num_threads(threads) schedule(static)
-        for (int32_t v = 0; v < n; v++) w->xo[v] = s->x[v], w->yo[v] = s->y[v], w->zo[v] = s->z[v];
+        CS_PARALLEL_FOR(threads, schedule(static),
+        for (int32_t v = 0; v < n; v++) w->xo[v] = s->x[v], w->yo[v] = s->y[v], w->zo[v] = s->z[v];);
         float a = 1.0f, rn = r;
         for (int tries = 0; tries < 4; tries++, a *= 0.5f) {
             move(w, s, a, inv_h, threads);
@@ -702,16 +695,16 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
     st->residual = rel > st->residual ? rel : st->residual;
     st->substeps++;
     rocks_push(p, &rv, h, threads);
-#pragma omp parallel for num_threads(threads) schedule(static)
+    CS_PARALLEL_FOR(threads, schedule(static),
     for (int32_t v = 0; v < n; v++) {
         s->ax[v] = (s->vx[v] - w->vxb[v]) * inv_h * s->w[v];
         s->ay[v] = (s->vy[v] - w->vyb[v]) * inv_h * s->w[v];
         s->az[v] = (s->vz[v] - w->vzb[v]) * inv_h * s->w[v];
-    }
+    });
     int64_t torn = 0;
     if (p->strain_on) {
-#pragma omp parallel for num_threads(threads) schedule(static) reduction(+ : torn)
-        for (int32_t j = 0; j < p->ny; j++) torn += cs_cpu_strain_row(p, s, j);
+        CS_PARALLEL_FOR(threads, schedule(static) reduction(+ : torn),
+        for (int32_t j = 0; j < p->ny; j++) torn += cs_cpu_strain_row(p, s, j););
         float *t = s->L0;
         s->L0 = s->L0_next;
         s->L0_next = t;
@@ -723,10 +716,9 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
  * on any other part of the cloth (cs_sc_rate), as a rate: the parts of a substep. */
 static float fastest(const cs_phys *p, const cs_state *s, float h, int threads)
 {
-    (void)threads; /* only the OpenMP pragmas read it */
     float most = 0.0f;
     if (s->n_rocks || p->self_on) {
-#pragma omp parallel for num_threads(threads) schedule(static) reduction(max : most)
+        CS_PARALLEL_FOR(threads, schedule(static) reduction(max : most),
         for (int32_t v = 0; v < s->n; v++) {
             float c = cs_im_closing(p, s->rocks, s->n_rocks, s->x, s->y, s->z, s->vx, s->vy, s->vz, v, h);
             if (p->self_on) {
@@ -734,7 +726,7 @@ static float fastest(const cs_phys *p, const cs_state *s, float h, int threads)
                 c = q > c ? q : c;
             }
             most = c > most ? c : most;
-        }
+        });
     }
     return most;
 }

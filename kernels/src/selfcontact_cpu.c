@@ -197,13 +197,11 @@ cs_status cs_sc_begin(cs_sc_work **wp, const cs_state *s)
  * vertices' relative motion once some are cut). Maxima and minima: exact in any order. */
 static float displacements(cs_sc_work *w, const cs_state *s, int threads, float *C, float *far_most)
 {
-    (void)threads; /* only the OpenMP pragmas read it */
     const int ref = C != NULL;
     const int32_t n = s->n;
     float lx = 3e38f, ly = 3e38f, lz = 3e38f, hx = -3e38f, hy = -3e38f, hz = -3e38f;
     float rlx = 3e38f, rly = 3e38f, rlz = 3e38f, rhx = -3e38f, rhy = -3e38f, rhz = -3e38f;
-#pragma omp parallel for num_threads(threads) schedule(static) reduction(min : lx, ly, lz, rlx, rly, rlz) \
-    reduction(max : hx, hy, hz, rhx, rhy, rhz)
+    CS_PARALLEL_FOR(threads, schedule(static) reduction(min : lx, ly, lz, rlx, rly, rlz) reduction(max : hx, hy, hz, rhx, rhy, rhz),
     for (int32_t v = 0; v < n; v++) {
         const float dx = s->x[v] - w->x0[v], dy = s->y[v] - w->y0[v], dz = s->z[v] - w->z0[v];
         w->dx[v] = dx, w->dy[v] = dy, w->dz[v] = dz;
@@ -214,11 +212,11 @@ static float displacements(cs_sc_work *w, const cs_state *s, int threads, float 
             rlx = ex < rlx ? ex : rlx, rly = ey < rly ? ey : rly, rlz = ez < rlz ? ez : rlz;
             rhx = ex > rhx ? ex : rhx, rhy = ey > rhy ? ey : rhy, rhz = ez > rhz ? ez : rhz;
         }
-    }
+    });
     const float lo[3] = {lx, ly, lz}, hi[3] = {hx, hy, hz}, rlo[3] = {rlx, rly, rlz}, rhi[3] = {rhx, rhy, rhz};
     const cs_vec3 c = cs_sc_centre(lo, hi), cr = cs_sc_centre(rlo, rhi);
     float most = 0.0f, far = 0.0f, abs_most = 0.0f;
-#pragma omp parallel for num_threads(threads) schedule(static) reduction(max : most, far, abs_most)
+    CS_PARALLEL_FOR(threads, schedule(static) reduction(max : most, far, abs_most),
     for (int32_t v = 0; v < n; v++) {
         const cs_vec3 d = cs_v3(w->dx[v], w->dy[v], w->dz[v]);
         const float l = cs_len(cs_sub(d, c)), a = cs_len(d);
@@ -229,7 +227,7 @@ static float displacements(cs_sc_work *w, const cs_state *s, int threads, float 
             const float f = cs_len(cs_sub(e, cr));
             far = f > far ? f : far;
         }
-    }
+    });
     if (C) *C = far;
     *far_most = abs_most;
     return n > 0 ? most : 0.0f;
@@ -239,10 +237,9 @@ static float displacements(cs_sc_work *w, const cs_state *s, int threads, float 
 static float longest_edge(const cs_phys *p, const float *x, const float *y, const float *z, const float *L0,
                           int threads)
 {
-    (void)threads; /* only the OpenMP pragmas read it */
     float most = 0.0f;
     const int32_t nx = p->nx, ny = p->ny;
-#pragma omp parallel for num_threads(threads) schedule(static) reduction(max : most)
+    CS_PARALLEL_FOR(threads, schedule(static) reduction(max : most),
     for (int32_t v = 0; v < p->n; v++) {
         const int32_t i = v % nx, j = v / nx;
         for (int e = 0; e < 3; e++) {
@@ -251,7 +248,7 @@ static float longest_edge(const cs_phys *p, const float *x, const float *y, cons
             const float l = cs_len(cs_sub(cs_sc_at(x, y, z, o), cs_sc_at(x, y, z, v)));
             most = l > most ? l : most;
         }
-    }
+    });
     return most;
 }
 
@@ -259,9 +256,8 @@ static float longest_edge(const cs_phys *p, const float *x, const float *y, cons
 static cs_sc_grid build_grid(cs_sc_work *w, int32_t n, const float *x, const float *y, const float *z, float cell,
                              int threads)
 {
-    (void)threads; /* only the OpenMP pragmas read it */
-#pragma omp parallel for num_threads(threads) schedule(static)
-    for (int32_t v = 0; v < n; v++) w->key[v] = cs_sc_cell_of(cs_sc_at(x, y, z, v), cell, w->mask, w->cc + 3 * (size_t)v);
+    CS_PARALLEL_FOR(threads, schedule(static),
+    for (int32_t v = 0; v < n; v++) w->key[v] = cs_sc_cell_of(cs_sc_at(x, y, z, v), cell, w->mask, w->cc + 3 * (size_t)v););
     cs_sc_sort(n, w->key, w->mask, w->start, w->ids);
     return (cs_sc_grid){w->start, w->ids, w->cc, w->mask, cell};
 }
@@ -292,17 +288,16 @@ static int key_order(const void *a, const void *b)
 static int32_t owned_lists(cs_sc_work *w, const cs_phys *p, const float *L0, const cs_sc_grid *G, float r,
                            float reach, int repel, sc_lists *out, int threads)
 {
-    (void)threads; /* only the OpenMP pragmas read it */
     const int32_t n = p->n;
     int32_t lost_ = 0, *count = out->count;
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) reduction(+ : lost_)
+    CS_PARALLEL_FOR(threads, schedule(dynamic, 1) reduction(+ : lost_),
     for (int32_t c = 0; c < chunks(n); c++) {
         const int32_t end = (c + 1) * CHUNK < n ? (c + 1) * CHUNK : n;
         int64_t len = 0;
         for (int32_t v = c * CHUNK; v < end; v++)
             LIST_FILL(&w->ol, c, len, v, keys, cap,
                       cs_sc_owned(p, G, L0, w->x0, w->y0, w->z0, r, reach, v, repel, keys, cap));
-    }
+    });
     for (int32_t v = 0; v < n; v++) count[v] = 0;
     if (lost_) return n;
     for (int pass = 0; pass < 2; pass++) { /* count, then (laid out) fill */
@@ -331,9 +326,9 @@ static int32_t owned_lists(cs_sc_work *w, const cs_phys *p, const float *L0, con
         }
     }
     if (repel) { /* each list by key, as cs_sc_pairs keeps it: the repulsion sums in that order */
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 64)
+        CS_PARALLEL_FOR(threads, schedule(dynamic, 64),
         for (int32_t v = 0; v < n; v++)
-            if (count[v] > 1) qsort(out->chunk[v / CHUNK] + out->first[v], (size_t)count[v], sizeof(int64_t), key_order);
+            if (count[v] > 1) qsort(out->chunk[v / CHUNK] + out->first[v], (size_t)count[v], sizeof(int64_t), key_order););
     }
     return 0;
 }
@@ -380,7 +375,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
     int32_t touching = 0;
     /* look[v] (the bound's, free until then): whether a pair of v's touched, so that only those
      * vertices change (an x of -0 stays -0 elsewhere, whatever list a backend took the pairs from) */
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 32) reduction(+ : touching) if (w->pairs > 0)
+    CS_PARALLEL_FOR(threads, schedule(dynamic, 32) reduction(+ : touching) if (w->pairs > 0),
     for (int32_t v = 0; v < n; v++) {
         w->look[v] = 0;
         if (!w->rl.count[v]) continue;
@@ -392,15 +387,15 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         float *px = w->px + 3 * (size_t)v, *pv = w->pv + 3 * (size_t)v;
         px[0] = dx.x, px[1] = dx.y, px[2] = dx.z;
         pv[0] = dv.x, pv[1] = dv.y, pv[2] = dv.z;
-    }
+    });
     if (touching > 0) {
-#pragma omp parallel for num_threads(threads) schedule(static)
+        CS_PARALLEL_FOR(threads, schedule(static),
         for (int32_t v = 0; v < n; v++) {
             if (!w->look[v]) continue; /* no pair of its touched */
             const float *px = w->px + 3 * (size_t)v, *pv = w->pv + 3 * (size_t)v;
             s->x[v] += px[0], s->y[v] += px[1], s->z[v] += px[2];
             s->vx[v] += pv[0], s->vy[v] += pv[1], s->vz[v] += pv[2];
-        }
+        });
         M = displacements(w, s, threads, NULL, &Ma);
     }
     /* 4. the bound. A pair is safe by the reference when one of its vertices v is (its least
@@ -412,11 +407,11 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
     int full = !listed;
     if (!full) {
         looking = 0;
-#pragma omp parallel for num_threads(threads) schedule(static) reduction(+ : looking)
+        CS_PARALLEL_FOR(threads, schedule(static) reduction(+ : looking),
         for (int32_t v = 0; v < n; v++) {
             w->look[v] = !(2.0f * Ma / CS_SC_GAMMA < 0.95f * (w->dall[v] - 2.0f * C));
             looking += w->look[v];
-        }
+        });
         full = looking > n / 2;
     }
     if (full || looking > 0) {
@@ -449,7 +444,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
             changed = 0;
             if (full && sweep == 0) { /* every vertex, keeping its pairs within R for later */
                 const int32_t lost_ = owned_lists(w, p, L0, &G, R, reach, 0, &w->bl, threads);
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 32) reduction(| : changed)
+                CS_PARALLEL_FOR(threads, schedule(dynamic, 32) reduction(| : changed),
                 for (int32_t v = 0; v < n; v++) {
                     if (lost_ == 0) {
                         b[v] = cs_sc_limit_listed(p, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, v, outright,
@@ -460,13 +455,13 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
                                            outright, &w->dall[v], NULL, 0, &nk);
                     }
                     changed |= b[v] != a[v];
-                }
+                });
                 w->bound_whole = lost_ == 0;
                 w->ref_bound = R;
                 lost += lost_;
             } else {
                 const int listed_now = from_lists || (full && w->bound_whole);
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 32) reduction(| : changed)
+                CS_PARALLEL_FOR(threads, schedule(dynamic, 32) reduction(| : changed),
                 for (int32_t v = 0; v < n; v++) {
                     if (!full && !w->look[v]) continue;
                     if (listed_now) {
@@ -479,7 +474,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
                                            outright, &da, NULL, 0, &nk);
                     }
                     changed |= b[v] != a[v];
-                }
+                });
             }
             float *t = a;
             a = b, b = t;
@@ -489,7 +484,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
             w->have_ref = 1;
             w->ref_thickness = p->self_thickness;
         }
-#pragma omp parallel for num_threads(threads) schedule(static) reduction(+ : cut)
+        CS_PARALLEL_FOR(threads, schedule(static) reduction(+ : cut),
         for (int32_t v = 0; v < n; v++) {
             const float k = a[v];
             if (!(k < 1.0f)) continue;
@@ -498,7 +493,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
             s->y[v] = w->y0[v] + k * w->dy[v];
             s->z[v] = w->z0[v] + k * w->dz[v];
             s->vx[v] *= k, s->vy[v] *= k, s->vz[v] *= k;
-        }
+        });
     }
     if (st) {
         st->passes++;
