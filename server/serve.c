@@ -128,6 +128,7 @@ static int start_rooms(rooms *r, const clothd_config *cfg, const access_policy *
     char err[300];
     r->m = metrics_new();
     r->sl = r->m ? simloop_new(r->table, r->m) : NULL;
+    if (r->sl) simloop_set_threads(r->sl, cfg->set.threads);
     if (r->sl && sdnotify_watchdog_every() > 0) simloop_set_beat(r->sl, sdnotify_watchdog, NULL, sdnotify_watchdog_every());
     r->recs = r->sl ? recordings_new(&cfg->set, err, sizeof err) : NULL;
 #ifdef CLOTHD_TEST_HOOKS

@@ -117,6 +117,8 @@ static int thread_id(void)
 #endif
 }
 
+int cs_cpu_threads(void) { return max_threads(); }
+
 static int threads_of(const cs_model *m) { return m->threads > 0 ? m->threads : max_threads(); }
 
 static cs_status cpu_create(void **out, char *err, size_t err_len)

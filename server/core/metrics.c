@@ -1,6 +1,7 @@
 /* metrics.c - Prometheus counters, a substep-time histogram and HTTP requests by route. */
 #include <dirent.h>
 #include <pthread.h>
+#include <stdatomic.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -28,6 +29,7 @@ struct metrics {
     double seconds;
     http_count *http;
     size_t n_http, cap_http;
+    atomic_int threads; /* clothd_sim_threads (the sim thread sets it, readers read it) */
 };
 
 metrics *metrics_new(void)
@@ -44,6 +46,8 @@ void metrics_free(metrics *m)
     free(m->http);
     free(m);
 }
+
+void metrics_threads(metrics *m, int threads) { atomic_store(&m->threads, threads); }
 
 void metrics_frame(metrics *m, int32_t substeps, double seconds)
 {
@@ -223,6 +227,8 @@ char *metrics_render(metrics *m, const metrics_daemon *d, const metrics_scene *s
     pthread_mutex_lock(&m->lock);
     put(&b, "# HELP clothd_steps_total Substeps simulated.\n# TYPE clothd_steps_total counter\nclothd_steps_total %llu\n",
         (unsigned long long)m->steps);
+    put(&b, "# HELP clothd_sim_threads CPU threads the scenes step on now (the threads setting, or its automatic count).\n"
+            "# TYPE clothd_sim_threads gauge\nclothd_sim_threads %d\n", atomic_load(&m->threads));
     put(&b, "# HELP clothd_frames_total Frames simulated.\n# TYPE clothd_frames_total counter\nclothd_frames_total %llu\n",
         (unsigned long long)m->frames);
     put(&b, "# HELP clothd_substep_seconds Compute time per substep.\n# TYPE clothd_substep_seconds histogram\n");

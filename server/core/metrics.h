@@ -19,6 +19,8 @@ metrics *metrics_new(void);
 void metrics_free(metrics *m);
 /* A frame of `substeps` substeps took `seconds` of compute. */
 void metrics_frame(metrics *m, int32_t substeps, double seconds);
+/* The CPU threads the scenes step on now (clothd_sim_threads). */
+void metrics_threads(metrics *m, int threads);
 /* One HTTP request answered: its route pattern (e.g. "/v1/rocks/{id}"), method (a method HTTP
  * does not define counts as "other") and status. */
 void metrics_http(metrics *m, const char *route, const char *method, int status);

@@ -9,6 +9,7 @@
 
 #include "core/clock.h"
 #include "sim/autodrop.h"
+#include "sim/autothreads.h"
 #include "sim/commands.h"
 #include "sim/rectap.h"
 #include "sim/simloop.h"
@@ -45,6 +46,8 @@ struct simloop {
     double beat_last;
     void (*beat)(void *ctx);
     void *beat_ctx;
+    int auto_threads;    /* the threads setting is 0: at counts it (autothreads.h) */
+    autothreads at;
 };
 
 /* The heartbeat: a turn of the loop (any thread reads it: simloop_last_turn), and the beat hook
@@ -60,6 +63,13 @@ static void heartbeat(simloop *sl)
 }
 
 double simloop_last_turn(simloop *sl) { return 1e-9 * (double)atomic_load(&sl->last_turn_ns); }
+
+void simloop_set_threads(simloop *sl, int threads)
+{
+    sl->auto_threads = threads == 0;
+    if (sl->auto_threads) autothreads_init(&sl->at, cs_cpu_threads());
+    metrics_threads(sl->m, threads == 0 ? 1 : threads);
+}
 
 void simloop_set_beat(simloop *sl, void (*beat)(void *ctx), void *ctx, double every)
 {
@@ -79,10 +89,20 @@ static void wake(void *ctx)
 
 /* ---- stepping one scene ---- */
 
-/* Substeps run, and a backend failure told to the daemon: it saves and exits (serve.c, persist.c). */
-static cs_status run_substeps(scene *sc, int64_t n)
+/* Compute the engine spent on work (vertex-substeps), for the count of threads. */
+static void ran(simloop *sl, double seconds, double work)
 {
+    if (sl->auto_threads) autothreads_ran(&sl->at, seconds, work);
+}
+
+/* Substeps run, and a backend failure told to the daemon: it saves and exits (serve.c, persist.c). */
+static cs_status run_substeps(simloop *sl, scene *sc, int64_t n)
+{
+    cs_info info;
+    cs_sim_info(sc->engine, &info);
+    const double t0 = clock_mono();
     const cs_status st = scene_run_substeps(sc, n);
+    ran(sl, clock_mono() - t0, (double)n * (double)info.n_vertices);
     if (sc->lost) {
         sc->lost = 0;
         kill(getpid(), SIGUSR1);
@@ -139,7 +159,7 @@ static int advance_frame(simloop *sl, scene *sc, double budget)
     cs_sim_info(sc->engine, &info);
     const int32_t left = info.substeps - sc->frame_sub;
     const int64_t n = left > 0 ? fitting(sc, budget, left) : 0;
-    if (n > 0 && run_substeps(sc, n) != CS_OK) {
+    if (n > 0 && run_substeps(sl, sc, n) != CS_OK) {
         sc->frame_sub = 0;
         return -1;
     }
@@ -183,7 +203,7 @@ static void step_slice(simloop *sl, scene *sc)
             }
         } else {
             const long long done = (long long)(info.step - j->step0);
-            if (run_substeps(sc, fitting(sc, budget, j->want - done)) != CS_OK) {
+            if (run_substeps(sl, sc, fitting(sc, budget, j->want - done)) != CS_OK) {
                 scene_end_step(sc, sc->failed_as);
                 return;
             }
@@ -270,6 +290,7 @@ static void batch_run(simloop *sl, int nb)
     const double t0 = clock_mono();
     const cs_status st = cs_sims_step(sl->engines, (size_t)nb, sl->substeps, sl->each);
     const double took = clock_mono() - t0;
+    ran(sl, took, work);
     for (int k = 0; k < nb; k++) {
         scene *sc = sl->batch[k];
         cs_info info;
@@ -403,6 +424,16 @@ static int wait_for_work(simloop *sl, int wait, double until)
     return stop;
 }
 
+/* With threads 0 (auto), the count the scenes step on from now (autothreads.h), given to each
+ * engine (a new scene's too) and shown in /metrics. greedy: a step or a max_speed scene. */
+static void count_threads(simloop *sl, int n, int greedy)
+{
+    if (!sl->auto_threads) return;
+    const int t = autothreads_turn(&sl->at, clock_mono(), greedy);
+    for (int k = 0; k < n; k++) cs_sim_set_threads(sl->turn[k]->engine, t);
+    metrics_threads(sl->m, t);
+}
+
 /* A scene that stopped running leaves the frame clock; one that started joins it. */
 static void clock_in(simloop *sl, int n, scene *sc)
 {
@@ -450,6 +481,7 @@ static void *run(void *arg)
             clock_in(sl, n, turn[k]);
         }
         if (!stop) {
+            count_threads(sl, n, stepping || fast);
             step_slices(sl, n);
             run_due_frames(sl, n);
         }

@@ -36,6 +36,10 @@ int simloop_start(simloop *sl);
 void simloop_stop(simloop *sl);
 void simloop_free(simloop *sl);
 
+/* The `threads` setting (before simloop_start): 0, the fewest threads that keep the scenes in
+ * real time, counted as autothreads.h says; N, every engine on its own N (scene_engine_new). */
+void simloop_set_threads(simloop *sl, int threads);
+
 /* The heartbeat: the thread turns at least four times a second however idle (a turn waits no longer),
  * and each turn notes the time. simloop_last_turn: clock_mono() of the last turn, 0 before the
  * first (any thread; GET /livez compares it with liveness_timeout). simloop_set_beat (before

@@ -98,3 +98,28 @@ test('the daemon\'s series: build info, the process_* family, capacity gauges, s
   const check = spawnSync(promtool, ['check', 'metrics'], { input: text, encoding: 'utf8' });
   assert.equal(check.status, 0, `${check.stdout}${check.stderr}`);
 });
+
+test('threads 0 counts the threads: one for a small scene in real time, every core for a step, and back', async () => {
+  const d = await start(['--threads', '0', '--nx', '16', '--ny', '16', '--auto-drop-interval', '0']);
+  const threads = async () => {
+    const m = /^clothd_sim_threads (\d+)$/m.exec((await call(d, 'GET', '/metrics')).text);
+    assert.ok(m, 'clothd_sim_threads');
+    return Number(m[1]);
+  };
+  const cores = Number((await call(d, 'GET', '/v1/health')).json.device.match(/(\d+) thread/)[1]);
+  assert.ok(cores >= 1, `${cores}`);
+  // A 16 x 16 cloth in real time is a few percent of one core: one thread, and it stays one.
+  assert.equal(await threads(), 1);
+  const sim0 = (await call(d, 'GET', '/v1/sim')).json.sim_time;
+  await until('two simulated seconds', async () => (await call(d, 'GET', '/v1/sim')).json.sim_time > sim0 + 2);
+  assert.equal(await threads(), 1);
+  // A step runs as fast as it can: every thread the backend has, while it lasts.
+  assert.equal((await call(d, 'POST', '/v1/sim/pause')).status, 200);
+  const step = call(d, 'POST', '/v1/sim/step', { frames: 100000 });
+  await until('the step on every thread', async () => (await threads()) === cores);
+  assert.equal((await call(d, 'DELETE', '/v1/sim/step')).json.cancelled, true);
+  await step;
+  assert.equal((await call(d, 'POST', '/v1/sim/resume')).status, 200);
+  await until('one thread again once the step is over and the scene runs in real time', async () => (await threads()) === 1);
+  await stop(d);
+});

@@ -73,6 +73,9 @@ const char *cs_sim_device(const cs_sim *sim);
 const char *cs_sim_backend_note(const cs_sim *sim);
 /* CPU threads (1..256; 0 = OpenMP's default). Results do not depend on it. */
 cs_status cs_sim_set_threads(cs_sim *sim, int threads);
+/* The threads the CPU backend runs for 0: OpenMP's default (one per core, or OMP_NUM_THREADS);
+ * 1 when built without OpenMP. */
+int cs_cpu_threads(void);
 
 /* Host bytes a scene costs the engine with up to `rocks` rocks: its state twice (a scene change or
  * a snapshot load builds the new one beside the old), and the backends' host scratch (the CPU

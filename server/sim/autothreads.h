@@ -1,0 +1,46 @@
+/* autothreads.h - how many CPU threads the sim thread's scenes step on when the `threads` setting
+ * is 0 (auto): the fewest that keep them in real time, up to `most` (one per core).
+ *
+ * A thread more is not free: the step wakes it and meets it at a barrier many times a substep,
+ * and on a small cloth that costs more than the thread does. On the 2-vCPU build machine the
+ * default scene (64 x 64, implicit_euler) keeps real time on one thread with half a core busy, and
+ * on two with 1.2 cores (docs/developing.md, "The daemon's threads"). So the loop starts on one thread, takes one more while the
+ * scenes barely keep up, and gives one back when the others would keep up without it.
+ *
+ * It looks at windows of AUTOTHREADS_WINDOW s of wall time: `busy`, the share of the window spent
+ * stepping, and the compute per unit of work (vertex-substeps) last measured at each count, which
+ * says what a thread buys on this machine and these scenes:
+ *  - a step in progress or a scene at max_speed (greedy) takes every thread, at once;
+ *  - busy above AUTOTHREADS_UP: one thread more (when none is left, the scenes fall behind as they
+ *    would on a fixed count);
+ *  - busy as it would be on one thread fewer below AUTOTHREADS_DOWN: one fewer. That estimate
+ *    scales busy by the compute per work measured at the smaller count, or, before there is one,
+ *    as if each thread sped the step up in full (which never gives one back too early).
+ * A wrong guess corrects itself: the next window measures it. The engine's results do not depend
+ * on the count (cs_sim_set_threads), so a change mid-run changes no bits.
+ *
+ * Pure arithmetic on the times it is given: tests/server/unit/test_autothreads.c. */
+#ifndef CLOTHD_AUTOTHREADS_H
+#define CLOTHD_AUTOTHREADS_H
+
+#define AUTOTHREADS_WINDOW 1.0 /* s of wall time between two decisions */
+#define AUTOTHREADS_UP 0.9     /* busy above this: one thread more */
+#define AUTOTHREADS_DOWN 0.75  /* busy on one thread fewer below this: one fewer */
+#define AUTOTHREADS_MOST 256   /* the most threads it counts to (the `threads` setting's range) */
+
+typedef struct autothreads {
+    int most, now;
+    double start;                      /* wall clock of the window's start (< 0: none yet) */
+    double busy, work;                 /* compute s and vertex-substeps in the window */
+    double cost[AUTOTHREADS_MOST + 1]; /* compute s per vertex-substep last measured at each count (0: none) */
+} autothreads;
+
+/* Starts on one thread, of at most `most` (clamped to 1..AUTOTHREADS_MOST). */
+void autothreads_init(autothreads *a, int most);
+/* A call to the engine at the current count: `seconds` of compute for `work` vertex-substeps. */
+void autothreads_ran(autothreads *a, double seconds, double work);
+/* At a turn of the loop at wall time `now` (s, monotonic), before it steps: the count to step
+ * with. greedy: a step is in progress or a scene runs at max_speed. */
+int autothreads_turn(autothreads *a, double now, int greedy);
+
+#endif

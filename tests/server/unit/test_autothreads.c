@@ -1,0 +1,105 @@
+/* test_autothreads.c - the automatic count of CPU threads (sim/autothreads.c) on windows of busy
+ * time the test writes: one thread while one keeps up, one more while the scenes barely keep up,
+ * one back once the measured cost says the others suffice, every thread for a step. */
+#include "sim/autothreads.h"
+#include "unitkit.h"
+
+/* A window of 1 s of wall time from t in which `busy` s went to stepping `work` vertex-substeps;
+ * the count for the next one. */
+static int window(autothreads *a, double *t, double busy, double work, int greedy)
+{
+    autothreads_ran(a, busy, work);
+    *t += AUTOTHREADS_WINDOW;
+    return autothreads_turn(a, *t, greedy);
+}
+
+static void test_one_thread_while_it_keeps_up(void **unused)
+{
+    (void)unused;
+    autothreads a;
+    autothreads_init(&a, 4);
+    double t = 100;
+    assert_int_equal(autothreads_turn(&a, t, 0), 1);
+    for (int k = 0; k < 5; k++) assert_int_equal(window(&a, &t, 0.6, 1e6, 0), 1); /* 60 % busy */
+    assert_int_equal(autothreads_turn(&a, t + 0.5, 0), 1); /* mid-window: no decision */
+}
+
+static void test_more_while_behind_then_back(void **unused)
+{
+    (void)unused;
+    autothreads a;
+    autothreads_init(&a, 4);
+    double t = 0;
+    autothreads_turn(&a, t, 0);
+    assert_int_equal(window(&a, &t, 0.95, 1e6, 0), 2); /* 95 % busy on one: a second */
+    /* Two threads take 0.92 s for the work one thread did in 0.95 s: a poor machine. Still busy:
+     * a third. */
+    assert_int_equal(window(&a, &t, 0.92, 1e6, 0), 3);
+    /* On three, 0.5 s for the same work: on two it would take 0.92 (measured): stay. */
+    assert_int_equal(window(&a, &t, 0.5, 1e6, 0), 3);
+    /* The scene quietens: half the work. On two it was 0.92 s per 1e6, so 0.46: below 0.75, one
+     * back. */
+    assert_int_equal(window(&a, &t, 0.25, 5e5, 0), 2);
+    /* On two, 0.45 s for 5e5; on one 0.95 s per 1e6 gives 0.47: one back. */
+    assert_int_equal(window(&a, &t, 0.45, 5e5, 0), 1);
+    assert_int_equal(window(&a, &t, 0.5, 5e5, 0), 1);
+}
+
+static void test_unmeasured_count_assumed_full_speedup(void **unused)
+{
+    (void)unused;
+    autothreads a;
+    autothreads_init(&a, 2);
+    double t = 0;
+    autothreads_turn(&a, t, 1); /* a step: every thread at once, nothing measured on one */
+    assert_int_equal(a.now, 2);
+    /* On two, 40 % busy: on one it could be 80 % (two threads twice as fast), over 75 %: keep two. */
+    assert_int_equal(window(&a, &t, 0.4, 1e6, 0), 2);
+    /* 25 %: 50 % on one at worst: one back. */
+    assert_int_equal(window(&a, &t, 0.25, 1e6, 0), 1);
+}
+
+static void test_greedy_takes_every_thread(void **unused)
+{
+    (void)unused;
+    autothreads a;
+    autothreads_init(&a, 8);
+    double t = 0;
+    autothreads_turn(&a, t, 0);
+    assert_int_equal(autothreads_turn(&a, 0.1, 1), 8); /* at once, not at the window's end */
+    t = 0.1;
+    assert_int_equal(window(&a, &t, 1.0, 1e6, 1), 8);
+    /* no more steps: down one window at a time, never below what keeps up */
+    assert_int_equal(window(&a, &t, 0.05, 1e6, 0), 7);
+}
+
+static void test_idle_and_bounds(void **unused)
+{
+    (void)unused;
+    autothreads a;
+    autothreads_init(&a, 1);
+    double t = 0;
+    autothreads_turn(&a, t, 0);
+    assert_int_equal(window(&a, &t, 1.0, 1e6, 0), 1); /* one core: nowhere to go */
+    autothreads_init(&a, 100000);
+    assert_int_equal(a.most, AUTOTHREADS_MOST);
+    autothreads_init(&a, 0);
+    assert_int_equal(a.most, 1);
+    autothreads_init(&a, 3);
+    t = 0;
+    autothreads_turn(&a, t, 1);
+    assert_int_equal(window(&a, &t, 0, 0, 0), 3); /* paused: no work, no decision */
+    assert_int_equal(autothreads_turn(&a, t - 5, 0), 3); /* a clock that went back restarts the window */
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_one_thread_while_it_keeps_up),
+        cmocka_unit_test(test_more_while_behind_then_back),
+        cmocka_unit_test(test_unmeasured_count_assumed_full_speedup),
+        cmocka_unit_test(test_greedy_takes_every_thread),
+        cmocka_unit_test(test_idle_and_bounds),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
