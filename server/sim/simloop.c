@@ -46,7 +46,7 @@ struct simloop {
     double beat_last;
     void (*beat)(void *ctx);
     void *beat_ctx;
-    int auto_threads;    /* the threads setting is 0: at counts it (autothreads.h) */
+    int auto_threads;    /* the threads setting is 0: `at` counts them (autothreads.h) */
     autothreads at;
 };
 
