@@ -41,6 +41,7 @@ typedef struct sc_lists {
     int64_t *cap;      /* the room in each */
     int64_t *first;    /* where each vertex's list starts in its chunk's */
     int32_t *count;    /* and how many pairs it has */
+    int32_t nchunks;
 } sc_lists;
 
 static int32_t chunks(int32_t n) { return (n + CHUNK - 1) / CHUNK; }
@@ -61,14 +62,35 @@ static int lists_alloc(sc_lists *l, int32_t n)
     l->cap = calloc((size_t)chunks(n) + 1, sizeof(int64_t));
     l->first = malloc(sizeof(int64_t) * ((size_t)n + 1));
     l->count = malloc(sizeof(int32_t) * ((size_t)n + 1));
+    l->nchunks = chunks(n);
     return l->chunk && l->cap && l->first && l->count;
 }
 
-/* Room for need keys in chunk c (keeping the first len); 0 when there is no memory. */
+/* The most keys a chunk's list may hold: CS_SC_LIST_KEYS a vertex on average, or a share of
+ * CS_SC_LIST_FLOOR keys for the whole list, whichever is more (it depends on the cloth's size
+ * alone, so the same lists are given up on every thread count). A cloth finer than its thickness
+ * finds thousands of pairs a vertex within a list's radius (a flat 512 x 512 cloth of the default
+ * size asked for more than 20 GB and was killed for it); past this the lists are given up as when
+ * memory runs out - the bound finds the vertices' pairs in the grid instead, reported as lost -
+ * so that what a step holds stays bounded (a 512 x 512 cloth: 0.7 GB). */
+#define CS_SC_LIST_KEYS 341
+#define CS_SC_LIST_FLOOR (8 << 20) /* 64 MiB of keys */
+
+static int64_t chunk_most(int32_t nchunks)
+{
+    const int64_t share = CS_SC_LIST_FLOOR / (nchunks > 0 ? nchunks : 1), each = (int64_t)CHUNK * CS_SC_LIST_KEYS;
+    return share > each ? share : each;
+}
+
+/* Room for `need` keys in chunk c's list (its first len kept); 0 when there is no memory, or past
+ * chunk_most. */
 static int grow(sc_lists *l, int32_t c, int64_t len, int64_t need)
 {
     if (need <= l->cap[c]) return 1;
-    const int64_t cap = need > 2 * l->cap[c] ? need : 2 * l->cap[c];
+    const int64_t most = chunk_most(l->nchunks);
+    if (need > most) return 0;
+    int64_t cap = need > 2 * l->cap[c] ? need : 2 * l->cap[c];
+    cap = cap < most ? cap : most;
     int64_t *k = malloc(sizeof(int64_t) * (size_t)cap);
     if (!k) return 0;
     if (len) memcpy(k, l->chunk[c], sizeof(int64_t) * (size_t)len);
