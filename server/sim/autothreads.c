@@ -26,16 +26,19 @@ static double busy_on_fewer(const autothreads *a, double busy)
     return busy * (double)t / (double)(t - 1);
 }
 
+/* A new window from now. */
+static void restart(autothreads *a, double now)
+{
+    a->start = now;
+    a->busy = a->work = 0;
+}
+
 int autothreads_turn(autothreads *a, double now, int greedy)
 {
-    if (a->start < 0 || now < a->start) {
-        a->start = now;
-        a->busy = a->work = 0;
-    }
+    if (a->start < 0 || now < a->start) restart(a, now);
     if (greedy && a->now != a->most) { /* a new window begins on every thread */
         a->now = a->most;
-        a->start = now;
-        a->busy = a->work = 0;
+        restart(a, now);
         return a->now;
     }
     const double wall = now - a->start;
@@ -49,7 +52,6 @@ int autothreads_turn(autothreads *a, double now, int greedy)
         if (busy > AUTOTHREADS_UP && a->now < a->most) a->now++;
         else if (a->now > 1 && busy_on_fewer(a, busy) < AUTOTHREADS_DOWN) a->now--;
     }
-    a->start = now;
-    a->busy = a->work = 0;
+    restart(a, now);
     return a->now;
 }
