@@ -228,7 +228,17 @@ static cs_status reserve(cpu_ctx *c, const cs_model *m, const cs_state *s)
 
 static cs_status cpu_upload(void *ctx, const cs_model *m, cs_state *s)
 {
-    cs_sc_forget(((cpu_ctx *)ctx)->sc);
+    cpu_ctx *c = ctx;
+    cs_sc_forget(c->sc);
+    /* the workspaces go with the parameters that use them (cs_scene_memory counts them only then) */
+    if (m->phys.integrator != CS_IMPLICIT_EULER) {
+        cs_im_free(c->im);
+        c->im = NULL;
+    }
+    if (!m->phys.self_on) {
+        cs_sc_free(c->sc);
+        c->sc = NULL;
+    }
     return reserve(ctx, m, s);
 }
 

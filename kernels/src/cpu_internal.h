@@ -32,12 +32,17 @@ int cs_cpu_strain_row(const cs_phys *p, cs_state *s, int32_t r);
 /* implicit_cpu.c: the workspace of implicit_euler (NULL until first used), freed with the context. */
 typedef struct cs_im_work cs_im_work;
 void cs_im_free(cs_im_work *w);
+/* Bytes the workspace takes for an nx x ny cloth of nchunks chunks (cs_scene_memory counts them). */
+uint64_t cs_im_work_bytes(int32_t nx, int32_t ny, int32_t nchunks);
 /* Runs substeps of implicit_euler on threads threads (with self_collision, each part followed by
  * cs_sc_end on *sc). Returns CS_OK, or CS_E_NOMEM (nothing changed). *torn receives springs torn. */
 /* selfcontact_cpu.c: the workspace of self_collision (NULL until first used), freed with the
  * context, and what its passes did. */
 typedef struct cs_sc_work cs_sc_work;
 void cs_sc_free(cs_sc_work *w);
+/* The most bytes the workspace takes for n vertices, its pair lists full (cs_scene_memory counts
+ * them). */
+uint64_t cs_sc_work_bytes(int32_t n);
 /* The state changed from outside: the reference that lets passes be skipped is gone. */
 void cs_sc_forget(cs_sc_work *w);
 /* Keeps the positions a substep starts from. CS_E_NOMEM: nothing kept. */

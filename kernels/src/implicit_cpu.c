@@ -70,6 +70,24 @@ void cs_im_free(cs_im_work *w)
     free(w);
 }
 
+/* Floats of the workspace's block for an nx x ny cloth of nchunks chunks (work_new's layout). */
+static size_t work_floats(int32_t nx, int32_t ny, int32_t nchunks)
+{
+    const size_t n = (size_t)nx * (size_t)ny, S0 = cs_im_stride(n); /* level 0's, which the bending blocks share */
+    size_t floats = n * (9 + 3 + 15 + 18 + 5) + 2 * CS_IM_SYM * S0 + (size_t)nchunks + 6 * (size_t)ny;
+    int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
+    const int L = cs_im_levels(nx, ny, lx, ly);
+    for (int l = 0; l < L; l++) floats += cs_im_level_floats((size_t)lx[l] * (size_t)ly[l]);
+    return floats;
+}
+
+uint64_t cs_im_work_bytes(int32_t nx, int32_t ny, int32_t nchunks)
+{
+    const uint64_t n = (uint64_t)nx * (uint64_t)ny;
+    return sizeof(float) * (uint64_t)work_floats(nx, ny, nchunks) + sizeof(cs_im_work) +
+           sizeof(cs_rock_state) * CS_MAX_ROCKS + sizeof(int32_t) * 3 * n;
+}
+
 /* Lays out the workspace for an nx x ny cloth in one allocation; NULL when out of memory. */
 static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
 {
@@ -77,13 +95,12 @@ static cs_im_work *work_new(int32_t nx, int32_t ny, int32_t nchunks)
     if (!w) return NULL;
     w->nx = nx, w->ny = ny, w->n = nx * ny, w->nchunks = nchunks;
     const size_t S0 = cs_im_stride((size_t)w->n); /* level 0's, which the bending blocks share */
-    size_t floats = (size_t)w->n * (9 + 3 + 15 + 18 + 5) + 2 * CS_IM_SYM * S0 + (size_t)nchunks + 6 * (size_t)ny;
+    const size_t floats = work_floats(nx, ny, nchunks);
     int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
     const int L = w->levels = cs_im_levels(nx, ny, lx, ly);
     for (int l = 0; l < L; l++) {
         w->lv[l].nx = lx[l], w->lv[l].ny = ly[l], w->lv[l].n = lx[l] * ly[l];
         w->lv[l].S = cs_im_stride((size_t)w->lv[l].n);
-        floats += cs_im_level_floats((size_t)w->lv[l].n);
     }
     float *m = malloc(sizeof(float) * floats);
     w->star = calloc(CS_MAX_ROCKS, sizeof *w->star);

@@ -4,7 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sim_internal.h"
+#include "cpu_internal.h"
 
 /* Floats per vertex in the host state: x, y, z, v, a (9), w, two rest-length buffers (12). */
 #define CS_FLOATS_PER_VERTEX (9 + 1 + 2 * CS_NTYPES)
@@ -46,7 +46,7 @@ static int scratch_bytes(const cs_scene *scene, uint64_t n, int32_t rocks, uint6
 
 /* Twice the state: a scene change or a snapshot load builds the new state beside the old one and
  * lets the old one go only once the new one is adopted (and a rock change copies the rock list). */
-cs_status cs_scene_memory(const cs_scene *scene, int32_t rocks, uint64_t *bytes)
+cs_status cs_scene_memory(const cs_scene *scene, const cs_params *params, int32_t rocks, uint64_t *bytes)
 {
     if (!scene || !bytes || rocks < 0) return CS_E_INVALID;
     if (scene->nx < 2 || scene->ny < 2) return CS_E_RANGE;
@@ -56,6 +56,13 @@ cs_status cs_scene_memory(const cs_scene *scene, int32_t rocks, uint64_t *bytes)
         !cs_add_ok(state, sizeof(cs_state) + (uint64_t)rocks * sizeof(cs_rock_state), &state) ||
         !scratch_bytes(scene, n, rocks, &scratch) || !cs_mul_ok(state, 2, &total) || !cs_add_ok(total, scratch, &total))
         return CS_E_LIMIT;
+    /* the workspaces of implicit_euler and self_collision where the parameters use them (both
+     * without parameters): the CPU backend's, the larger on the host. No engine runs more than
+     * INT32_MAX vertices (its indices are int32). */
+    if (n > INT32_MAX) return CS_E_LIMIT;
+    const int32_t nchunks = scene->ny * ((scene->nx + CS_CHUNK - 1) / CS_CHUNK);
+    if (!params || params->integrator == CS_IMPLICIT_EULER) total += cs_im_work_bytes(scene->nx, scene->ny, nchunks);
+    if (!params || params->self_collision) total += cs_sc_work_bytes((int32_t)n);
     *bytes = total;
     return CS_OK;
 }

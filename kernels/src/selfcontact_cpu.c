@@ -66,28 +66,22 @@ static int lists_alloc(sc_lists *l, int32_t n)
     return l->chunk && l->cap && l->first && l->count;
 }
 
-/* The most keys a chunk's list may hold: CS_SC_LIST_KEYS a vertex on average, or a share of
- * CS_SC_LIST_FLOOR keys for the whole list, whichever is more (it depends on the cloth's size
- * alone, so the same lists are given up on every thread count). A cloth finer than its thickness
- * finds thousands of pairs a vertex within a list's radius (a flat 512 x 512 cloth of the default
- * size asked for more than 20 GB and was killed for it); past this the lists are given up as when
- * memory runs out - the bound finds the vertices' pairs in the grid instead, reported as lost -
- * so that what a step holds stays bounded (a 512 x 512 cloth: 0.7 GB). */
+/* The most keys a chunk's list may hold: CS_SC_LIST_KEYS a vertex on average (the same on every
+ * thread count). A cloth finer than its thickness finds thousands of pairs a vertex within a
+ * list's radius (a flat 512 x 512 cloth of the default size asked for more than 20 GB and was
+ * killed for it); past this the lists are given up as when memory runs out - the bound finds the
+ * vertices' pairs in the grid instead, reported as lost - so that what a step holds stays bounded,
+ * and cs_scene_memory counts it (cs_sc_work_bytes). */
 #define CS_SC_LIST_KEYS 341
-#define CS_SC_LIST_FLOOR (8 << 20) /* 64 MiB of keys */
 
-static int64_t chunk_most(int32_t nchunks)
-{
-    const int64_t share = CS_SC_LIST_FLOOR / (nchunks > 0 ? nchunks : 1), each = (int64_t)CHUNK * CS_SC_LIST_KEYS;
-    return share > each ? share : each;
-}
+static int64_t chunk_most(void) { return (int64_t)CHUNK * CS_SC_LIST_KEYS; }
 
 /* Room for `need` keys in chunk c's list (its first len kept); 0 when there is no memory, or past
  * chunk_most. */
 static int grow(sc_lists *l, int32_t c, int64_t len, int64_t need)
 {
     if (need <= l->cap[c]) return 1;
-    const int64_t most = chunk_most(l->nchunks);
+    const int64_t most = chunk_most();
     if (need > most) return 0;
     int64_t cap = need > 2 * l->cap[c] ? need : 2 * l->cap[c];
     cap = cap < most ? cap : most;
@@ -161,6 +155,24 @@ void cs_sc_free(cs_sc_work *w)
     free(w);
 }
 
+/* The hash table's size for n vertices (a power of two, at least 2 n). */
+static uint32_t table_size(int32_t n)
+{
+    uint32_t size = 1;
+    while (size < 2u * (uint32_t)n) size <<= 1;
+    return size;
+}
+
+uint64_t cs_sc_work_bytes(int32_t n)
+{
+    const uint64_t v = (uint64_t)n, c = (uint64_t)chunks(n) + 1, keys = sizeof(int64_t) * (uint64_t)chunk_most();
+    /* three sets of lists, each chunk's full, and one chunk's growing into a new buffer */
+    const uint64_t lists = 3 * (c * (sizeof(int64_t *) + sizeof(int64_t) + keys) +
+                                (v + 1) * (sizeof(int64_t) + sizeof(int32_t))) + keys;
+    return sizeof(cs_sc_work) + lists + sizeof(float) * 18 * v + v /* look */ + sizeof(uint32_t) * v +
+           sizeof(int32_t) * ((uint64_t)table_size(n) + 1 + 4 * v);
+}
+
 static cs_status fit(cs_sc_work **wp, int32_t n)
 {
     if (*wp && (*wp)->n == n) return CS_OK;
@@ -168,8 +180,7 @@ static cs_status fit(cs_sc_work **wp, int32_t n)
     *wp = NULL;
     cs_sc_work *w = calloc(1, sizeof *w);
     if (!w) return CS_E_NOMEM;
-    uint32_t size = 1;
-    while (size < 2u * (uint32_t)n) size <<= 1;
+    const uint32_t size = table_size(n);
     w->n = n;
     w->mask = size - 1;
     w->x0 = malloc(sizeof(float) * 3 * (size_t)n);

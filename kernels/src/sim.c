@@ -44,17 +44,24 @@ static cs_status check_scene(cs_sim *sim, const cs_scene *scene)
     const char *bad = NULL;
     char why[200];
     if (cs_scene_validate(scene, &bad, why, sizeof why) != 0) return cs_fail(sim, CS_E_RANGE, bad, "%s", why);
-    return cs_check_memory(sim, scene);
+    return cs_check_memory(sim, scene, &sim->model.params);
 }
 
-cs_status cs_check_memory(cs_sim *sim, const cs_scene *scene)
+/* What the scene costs under params (the owner's cost function, else cs_scene_memory). */
+static cs_status memory_of(const cs_sim *sim, const cs_scene *scene, const cs_params *params, uint64_t *bytes)
 {
-    uint64_t own, bytes;
-    cs_status st = cs_scene_memory(scene, sim->rock_limit, &own);
+    uint64_t own;
+    cs_status st = cs_scene_memory(scene, params, sim->rock_limit, &own);
     if (st == CS_OK && own > (uint64_t)SIZE_MAX / 2) st = CS_E_LIMIT;
-    bytes = own;
-    if (st == CS_OK && sim->memory_cost) st = sim->memory_cost(scene, sim->rock_limit, sim->memory_ctx, &bytes);
-    if (st != CS_OK)
+    *bytes = own;
+    if (st == CS_OK && sim->memory_cost) st = sim->memory_cost(scene, params, sim->rock_limit, sim->memory_ctx, bytes);
+    return st;
+}
+
+cs_status cs_check_memory(cs_sim *sim, const cs_scene *scene, const cs_params *params)
+{
+    uint64_t bytes;
+    if (memory_of(sim, scene, params, &bytes) != CS_OK)
         return cs_fail(sim, CS_E_LIMIT, "nx", "a %d x %d cloth is too large for this machine", (int)scene->nx,
                        (int)scene->ny);
     if (sim->memory_limit && bytes > sim->memory_limit)
@@ -62,6 +69,24 @@ cs_status cs_check_memory(cs_sim *sim, const cs_scene *scene)
                        (int)scene->nx, (int)scene->ny, ceil((double)bytes / 1048576.0),
                        (double)sim->memory_limit / 1048576.0);
     return CS_OK;
+}
+
+/* A change of parameters that costs more memory than the ones in force (implicit_euler's workspace,
+ * self_collision's) must fit the memory limit; it is blamed on self_collision when that turns on,
+ * else on integrator. */
+static cs_status check_params_memory(cs_sim *sim, const cs_params *params)
+{
+    if (!sim->memory_limit) return CS_OK;
+    uint64_t now, then;
+    const cs_scene *scene = &sim->model.scene;
+    if (memory_of(sim, scene, params, &then) == CS_OK && memory_of(sim, scene, &sim->model.params, &now) == CS_OK &&
+        (then <= now || then <= sim->memory_limit))
+        return CS_OK;
+    const char *name = params->self_collision && !sim->model.params.self_collision ? "self_collision" : "integrator";
+    return cs_fail(sim, CS_E_LIMIT, name, "a %d x %d cloth with %s needs more than the memory limit of %.0f MiB",
+                   (int)scene->nx, (int)scene->ny,
+                   name[0] == 's' ? "self_collision" : "implicit_euler's workspace",
+                   (double)sim->memory_limit / 1048576.0);
 }
 
 cs_status cs_sim_set_memory_limit(cs_sim *sim, uint64_t bytes, cs_cost_fn cost, void *ctx)
@@ -270,6 +295,7 @@ cs_status cs_sim_set_params(cs_sim *sim, const cs_params *params)
     char why[200];
     const char *lacks = cs_backend_lacks(sim->backend, params, why, sizeof why);
     if (lacks) return cs_fail(sim, CS_E_RANGE, lacks, "%s", why);
+    if ((st = check_params_memory(sim, params)) != CS_OK) return st;
     int32_t substeps;
     double dt_max;
     st = cs_guard_eval(sim, &sim->combos, &sim->model.scene, params, sim->state.rocks, sim->state.n_rocks,

@@ -34,9 +34,9 @@ struct cs_sim {
 };
 
 /* sim.c */
-/* CS_E_LIMIT (recorded, naming nx) when a scene would cost more than this machine or the memory
- * limit allows; checked before anything is allocated for it. */
-cs_status cs_check_memory(cs_sim *sim, const cs_scene *scene);
+/* CS_E_LIMIT (recorded, naming nx) when a scene under params would cost more than this machine or
+ * the memory limit allows; checked before anything is allocated for it. */
+cs_status cs_check_memory(cs_sim *sim, const cs_scene *scene, const cs_params *params);
 /* 1 when a * b fits 64 bits (then *out = a b). */
 int cs_mul_ok(uint64_t a, uint64_t b, uint64_t *out);
 /* 1 when a + b fits 64 bits (then *out = a + b). */

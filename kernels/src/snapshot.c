@@ -521,7 +521,7 @@ cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
         params.k_rock = def.k_rock;
         params.c_rock = def.c_rock;
     }
-    st = cs_check_memory(sim, &scene);
+    st = cs_check_memory(sim, &scene, &params);
     if (st != CS_OK) return st;
     /* Before allocating for the scene, make sure the buffer can hold its arrays at all. */
     const size_t n = (size_t)scene.nx * (size_t)scene.ny;

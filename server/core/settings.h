@@ -63,7 +63,7 @@ enum { LOG_DEBUG, LOG_INFO, LOG_WARN, LOG_ERROR };
     X(header_timeout, INT, "-", 10, 1, 3600, NONE, "Seconds a client has to send a request's head, from when its connection was opened or its previous answer sent (slowloris)") \
     X(min_body_rate, INT, "-", 1024, 0, 1073741824, NONE, "Slowest a request body may arrive, in bytes per second on average after header_timeout; 0 = no minimum") \
     X(max_rocks, INT, "-", 256, 1, 1024, NONE, "Most rocks in the simulation")                         \
-    X(max_state_mb, INT, "-", 1024, 1, 1048576, NONE, "MiB the scenes may take together (each one's state, checkpoints, frame and encode buffers, the backend's scratch), estimated before any allocation (a scene, scene change or snapshot past it is 422)") \
+    X(max_state_mb, INT, "-", 1024, 1, 1048576, NONE, "MiB the scenes may take together (each one's state, checkpoints, frame and encode buffers, the backend's scratch, the workspaces of implicit_euler and self_collision while on), estimated before any allocation (a scene, scene change, snapshot or parameter change past it is 422)") \
     X(max_scenes, INT, "-", 64, 1, 4096, NONE, "Most scenes the daemon holds (POST /v1/scenes is 422 beyond)") \
     X(stream_max_clients, INT, "-", 64, 1, 10000, NONE, "Most WebSocket clients at once")              \
     X(stream_max_message, INT, "-", 4096, 64, 1048576, NONE, "Largest message a stream client may send, in bytes") \

@@ -66,7 +66,7 @@ static const command table[] = {
     {"step_cancel", "DELETE", S, "/sim/step",      BODY_NONE,    CONTROL, 0,                               NULL,   NULL,       NULL,   rq_queue,        NULL,               control_step_cancel},
     {"reset",       "POST",   S, "/sim/reset",     BODY_NONE,    CONTROL, CMD_REBUILDS,                    NULL,   "command",  NULL,   rq_change,       change_reset,       NULL},
     {"params_get",  GET,      S, "/params",        BODY_IGNORED, VIEW,   0,                                NULL,   NULL,       NULL,   rq_params,       NULL,               NULL},
-    {"params",      "PATCH",  S, "/params",        BODY_OBJECT,  CONTROL, 0,                               "params", "command", NULL,   rq_change,       change_params,      NULL},
+    {"params",      "PATCH",  S, "/params",        BODY_OBJECT,  CONTROL, CMD_COSTS,                       "params", "command", NULL,   rq_change,       change_params,      NULL},
     {"schema",      GET,      S, "/params/schema", BODY_IGNORED, VIEW,   0,                                NULL,   NULL,       NULL,   rq_schema,       NULL,               NULL},
     {"scene_get",   GET,      S, "/scene",         BODY_IGNORED, VIEW,   0,                                NULL,   NULL,       NULL,   rq_fields,       NULL,               NULL},
     {"scene",       "PUT",    S, "/scene",         BODY_OBJECT,  CONTROL, CMD_REBUILDS,                    "scene", "command", NULL,   rq_change,       change_scene,       NULL},
@@ -393,7 +393,7 @@ int command_run(scene *sc, scene_cmd *c)
     } else {
         kept = d->control(sc, c);
     }
-    if (d->flags & (CMD_REBUILDS | CMD_CHANGES)) scenes_resized(sc->table, sc); /* it may have been resized */
+    if (d->flags & (CMD_REBUILDS | CMD_CHANGES | CMD_COSTS)) scenes_resized(sc->table, sc); /* its cost may have changed */
     return kept;
 }
 

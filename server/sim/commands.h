@@ -61,7 +61,9 @@ enum {
     CMD_ANSWER_SIM = 1 << 5,    /* answered with GET /v1/sim's JSON, from the publication after it */
     CMD_HASH = 1 << 6,          /* that publication carries the state hash */
     CMD_AFTER_FAILURE = 1 << 7, /* still runs once the backend has failed (it needs no engine) */
-    CMD_OCTETS_ASKED = 1 << 8   /* its bytes are application/octet-stream when asked for, else JSON */
+    CMD_OCTETS_ASKED = 1 << 8,  /* its bytes are application/octet-stream when asked for, else JSON */
+    CMD_COSTS = 1 << 9          /* may change what the scene costs (max_state_mb: the workspaces its
+                                   parameters use) */
 };
 
 typedef struct command command;

@@ -720,11 +720,11 @@ static uint64_t cloth_json_cap(uint64_t n) { return 128 + n * 2 * 3 * 18; }
  * spring of n vertices is torn. */
 static uint64_t torn_cap(uint64_t n) { return (uint64_t)CS_SPRING_TYPES_PER_VERTEX * n * (sizeof(uint32_t) + 11) + 16; }
 
-cs_status scene_cost(const cs_scene *fields, int32_t rocks, void *ctx, uint64_t *bytes)
+cs_status scene_cost(const cs_scene *fields, const cs_params *params, int32_t rocks, void *ctx, uint64_t *bytes)
 {
     const frame_sink_ops *sink = ctx;
     uint64_t engine, snap;
-    cs_status st = cs_scene_memory(fields, rocks, &engine);
+    cs_status st = cs_scene_memory(fields, params, rocks, &engine);
     if (st == CS_OK) st = cs_snapshot_bytes(fields, rocks, &snap);
     if (st != CS_OK) return st;
     const uint64_t n = (uint64_t)fields->nx * (uint64_t)fields->ny; /* no overflow: cs_scene_memory took it */
@@ -745,7 +745,7 @@ cs_sim *scene_engine_new(const scene_config *cfg, const clothd_settings *set, co
     cs_sim *sim = NULL;
     const uint64_t limit = (uint64_t)set->max_state_mb << 20;
     uint64_t bytes;
-    if (scene_cost(&cfg->fields, set->max_rocks, cost_ctx, &bytes) != CS_OK || bytes > limit) {
+    if (scene_cost(&cfg->fields, &cfg->params, set->max_rocks, cost_ctx, &bytes) != CS_OK || bytes > limit) {
         snprintf(err, err_len, "a %d x %d cloth needs more than max_state_mb (%d MiB)", (int)cfg->fields.nx,
                  (int)cfg->fields.ny, (int)set->max_state_mb);
         *st = CS_E_LIMIT;

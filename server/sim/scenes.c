@@ -90,12 +90,13 @@ static uint64_t others_bytes(const scenes *t, const scene *sc)
  * scenes would cost together with the scene built from fields in place of this one. A change that
  * fits is reserved at once (the larger of the two is counted until scenes_resized), so that a scene
  * created meanwhile cannot take the same room. */
-static cs_status table_cost(const cs_scene *fields, int32_t rocks, void *ctx, uint64_t *bytes)
+static cs_status table_cost(const cs_scene *fields, const cs_params *params, int32_t rocks, void *ctx,
+                            uint64_t *bytes)
 {
     scene *sc = ctx;
     scenes *t = sc->table;
     uint64_t own;
-    const cs_status st = scene_cost(fields, rocks, t->cost_ctx, &own);
+    const cs_status st = scene_cost(fields, params, rocks, t->cost_ctx, &own);
     if (st != CS_OK) return st;
     pthread_mutex_lock(&t->lock);
     const uint64_t total = others_bytes(t, sc) + own;
@@ -109,9 +110,11 @@ static cs_status table_cost(const cs_scene *fields, int32_t rocks, void *ctx, ui
 static uint64_t cost_now(const scenes *t, const scene *sc)
 {
     cs_scene fields;
+    cs_params params;
     cs_sim_scene(sc->engine, &fields);
+    cs_sim_params(sc->engine, &params);
     uint64_t own = 0;
-    if (scene_cost(&fields, t->rocks, t->cost_ctx, &own) != CS_OK) own = UINT64_MAX / 4;
+    if (scene_cost(&fields, &params, t->rocks, t->cost_ctx, &own) != CS_OK) own = UINT64_MAX / 4;
     return own;
 }
 
@@ -199,7 +202,7 @@ int scenes_create(scenes *t, const char *want, const json_t *fields, const json_
     if (fields && params_from_json(fields, SET_SCENE, &cfg, pr) != 0) return -1;
     if (params && params_from_json(params, SET_LIVE, &cfg, pr) != 0) return -1;
     uint64_t own;
-    if (t->cap && (scene_cost(&cfg.fields, set.max_rocks, cost_ctx, &own) != CS_OK || own > room))
+    if (t->cap && (scene_cost(&cfg.fields, &cfg.params, set.max_rocks, cost_ctx, &own) != CS_OK || own > room))
         return problem_set(pr, 422, "limit", "max_state_mb",
                            "a %d x %d scene does not fit in what max_state_mb (%d MiB) leaves beside the other scenes",
                            (int)cfg.fields.nx, (int)cfg.fields.ny, (int)set.max_state_mb);
@@ -321,13 +324,14 @@ int scenes_room(scenes *t, problem *pr)
     const int n = t->n, max = t->max, closed = t->closed;
     const uint64_t used = others_bytes(t, NULL), cap = t->cap;
     const cs_scene fields = t->base.fields;
+    const cs_params params = t->base.params;
     const int32_t rocks = t->has_factory ? t->set.max_rocks : t->rocks;
     void *cost_ctx = t->cost_ctx;
     pthread_mutex_unlock(&t->lock);
     if (closed) return problem_set(pr, 503, "not-ready", NULL, "the daemon is stopping");
     if (n >= max) return problem_set(pr, 503, "not-ready", "max_scenes", "the daemon holds max_scenes (%d) scenes", max);
     uint64_t own = 0;
-    if (cap && (used >= cap || scene_cost(&fields, rocks, cost_ctx, &own) != CS_OK || own > cap - used))
+    if (cap && (used >= cap || scene_cost(&fields, &params, rocks, cost_ctx, &own) != CS_OK || own > cap - used))
         return problem_set(pr, 503, "not-ready", "max_state_mb",
                            "another %d x %d scene does not fit in what max_state_mb (%llu MiB) leaves beside %d scene%s",
                            (int)fields.nx, (int)fields.ny, (unsigned long long)(cap >> 20), n, n == 1 ? "" : "s");

@@ -104,6 +104,31 @@ test('the largest scene max_state_mb 8 accepts grows RSS by less than 8 MiB, wor
   await stop(d);
 });
 
+// The workspaces count while the parameters use them (kernels/include/clothsim/clothsim.h,
+// cs_scene_memory): self_collision's pair lists full (8 KiB a vertex), implicit_euler's workspace.
+test('max_state_mb counts the workspaces the parameters use: a change past it is 422 naming the parameter', async () => {
+  const d = await start(['--paused', '--nx', '48', '--ny', '48', '--auto-drop-interval', '0', '--max-state-mb', '16']);
+  const stateBytes = async () => {
+    const text = (await call(d, 'GET', '/metrics')).text;
+    return Number(/^clothd_state_bytes (\S+)$/m.exec(text)[1]);
+  };
+  const b0 = await stateBytes();
+  // 48 x 48 = 2304 vertices: self_collision's lists alone may take 2304 x 3 x 341 x 8 bytes = 18.9 MB
+  const self = await call(d, 'PATCH', '/v1/params', { self_collision: true });
+  assert.equal(self.status, 422, self.text);
+  assert.equal(self.json.param, 'self_collision');
+  assert.equal((await ok(d, 'GET', '/v1/params')).self_collision, false);
+  assert.equal(await stateBytes(), b0);
+  // implicit_euler's workspace (at least 50 floats a vertex) fits, and counts while in use
+  await ok(d, 'PATCH', '/v1/params', { integrator: 'implicit_euler' });
+  await ok(d, 'POST', '/v1/sim/step', { frames: 3 });
+  const b1 = await stateBytes();
+  assert.ok(b1 >= b0 + 2304 * 50 * 4, `${b0} -> ${b1}`);
+  await ok(d, 'PATCH', '/v1/params', { integrator: 'velocity_verlet' });
+  assert.equal(await stateBytes(), b0);
+  await stop(d);
+});
+
 // Memory is bounded by bytes whatever a body holds (issue 29; docs/operating.md "Memory after large
 // bodies"): for each kind of large body - pins (PUT /v1/pins: an array of vertex ids, some 20 MB of
 // small blocks a MiB once parsed, as much again for the journal's copy), rocks (POST /v1/rocks) and

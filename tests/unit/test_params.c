@@ -180,6 +180,47 @@ static void test_validate_names_the_bad_field(void **unused)
     assert_string_equal(bad, "orientation");
 }
 
+/* A change of parameters past the memory limit (cs_sim_set_memory_limit: implicit_euler's
+ * workspace, self_collision's) is CS_E_LIMIT naming the parameter and changes nothing; the same
+ * change fits once the limit allows what cs_scene_memory counts for it, and a change that costs
+ * less always goes through. */
+static void test_params_past_the_memory_limit(void **unused)
+{
+    (void)unused;
+    cs_scene sc;
+    cs_params vv, im, both, now;
+    cs_scene_default(&sc);
+    cs_params_default(&vv);
+    sc.nx = sc.ny = 64;
+    im = vv, im.integrator = CS_IMPLICIT_EULER;
+    both = im, both.self_collision = true;
+    cs_sim *sim = tk_sim(&sc, &vv);
+    const int32_t rocks = cs_sim_rock_limit(sim);
+    uint64_t b_vv, b_im, b_both;
+    assert_int_equal(cs_scene_memory(&sc, &vv, rocks, &b_vv), CS_OK);
+    assert_int_equal(cs_scene_memory(&sc, &im, rocks, &b_im), CS_OK);
+    assert_int_equal(cs_scene_memory(&sc, &both, rocks, &b_both), CS_OK);
+    assert_true(b_vv < b_im && b_im < b_both);
+    assert_int_equal(cs_sim_set_memory_limit(sim, b_im - 1, NULL, NULL), CS_OK);
+    const uint64_t h0 = cs_state_hash(sim);
+    assert_int_equal(cs_sim_set_params(sim, &im), CS_E_LIMIT);
+    assert_string_equal(cs_sim_error_param(sim), "integrator");
+    cs_sim_params(sim, &now);
+    assert_int_equal(now.integrator, CS_VELOCITY_VERLET);
+    assert_true(cs_state_hash(sim) == h0);
+    assert_int_equal(cs_sim_set_memory_limit(sim, b_im, NULL, NULL), CS_OK);
+    assert_int_equal(cs_sim_set_params(sim, &im), CS_OK);
+    tk_step(sim, 2);
+    assert_int_equal(cs_sim_set_params(sim, &both), CS_E_LIMIT);
+    assert_string_equal(cs_sim_error_param(sim), "self_collision");
+    cs_sim_params(sim, &now);
+    assert_false(now.self_collision);
+    /* back to velocity_verlet costs less: it goes through below the limit too */
+    assert_int_equal(cs_sim_set_memory_limit(sim, b_vv, NULL, NULL), CS_OK);
+    assert_int_equal(cs_sim_set_params(sim, &vv), CS_OK);
+    cs_sim_destroy(sim);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -188,6 +229,7 @@ int main(void)
         cmocka_unit_test(test_scene_rows_are_scene_kind),
         cmocka_unit_test(test_choices_and_named_defaults),
         cmocka_unit_test(test_check_refuses_bad_values),
+        cmocka_unit_test(test_params_past_the_memory_limit),
         cmocka_unit_test(test_set_and_get_round_trip_and_refusal_changes_nothing),
         cmocka_unit_test(test_validate_names_the_bad_field),
     };

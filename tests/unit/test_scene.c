@@ -1,5 +1,7 @@
 /* test_scene.c - building the grid: positions, springs, rest lengths, pin presets, memory. */
+#include <malloc.h>
 #include <stdint.h>
+#include <string.h>
 #include "testkit.h"
 
 static cs_sim *grid(int nx, int ny, float sx, float sy, float height, int orientation, int pins)
@@ -116,22 +118,27 @@ static void test_memory_estimate(void **unused)
 {
     (void)unused;
     cs_scene sc;
+    cs_params p;
     cs_scene_default(&sc);
+    cs_params_default(&p);
     uint64_t small, big;
-    assert_int_equal(cs_scene_memory(&sc, CS_MAX_ROCKS, &small), CS_OK);
+    assert_int_equal(cs_scene_memory(&sc, &p, CS_MAX_ROCKS, &small), CS_OK);
     sc.nx = sc.ny = 4096;
-    assert_int_equal(cs_scene_memory(&sc, CS_MAX_ROCKS, &big), CS_OK);
+    assert_int_equal(cs_scene_memory(&sc, &p, CS_MAX_ROCKS, &big), CS_OK);
     /* At least the 22 floats a vertex holds (positions, velocities, accelerations, mask, two
      * rest-length buffers of 6). */
     assert_true(big >= 4096ull * 4096ull * 22 * 4);
     assert_true(small < big);
-    /* 2^31 x 2^31 vertices of 89 bytes overflow 64 bits: refused, not wrapped to a small size. */
+    /* 2^31 x 2^31 vertices of 89 bytes overflow 64 bits: refused, not wrapped to a small size;
+     * and no engine runs more than 2^31 - 1 vertices. */
     sc.nx = sc.ny = INT32_MAX;
-    assert_int_equal(cs_scene_memory(&sc, CS_MAX_ROCKS, &big), CS_E_LIMIT);
+    assert_int_equal(cs_scene_memory(&sc, &p, CS_MAX_ROCKS, &big), CS_E_LIMIT);
+    sc.nx = sc.ny = 65536;
+    assert_int_equal(cs_scene_memory(&sc, &p, CS_MAX_ROCKS, &big), CS_E_LIMIT);
     sc.nx = 1;
-    assert_int_equal(cs_scene_memory(&sc, CS_MAX_ROCKS, &small), CS_E_RANGE);
-    assert_int_equal(cs_scene_memory(NULL, CS_MAX_ROCKS, &small), CS_E_INVALID);
-    assert_int_equal(cs_scene_memory(&sc, -1, &small), CS_E_INVALID);
+    assert_int_equal(cs_scene_memory(&sc, &p, CS_MAX_ROCKS, &small), CS_E_RANGE);
+    assert_int_equal(cs_scene_memory(NULL, &p, CS_MAX_ROCKS, &small), CS_E_INVALID);
+    assert_int_equal(cs_scene_memory(&sc, &p, -1, &small), CS_E_INVALID);
     /* Rocks cost their state (twice: a rock change copies the list) and the CPU backend's
      * partials, 6 floats per chunk of a row (256 vertices) and rock. A 300 x 300 cloth has 600
      * chunks; 10 rocks instead of none (which still take one row of partials) add 20 rock states
@@ -139,12 +146,69 @@ static void test_memory_estimate(void **unused)
     cs_scene_default(&sc);
     sc.nx = sc.ny = 300;
     uint64_t r0, r10;
-    assert_int_equal(cs_scene_memory(&sc, 0, &r0), CS_OK);
-    assert_int_equal(cs_scene_memory(&sc, 10, &r10), CS_OK);
+    assert_int_equal(cs_scene_memory(&sc, &p, 0, &r0), CS_OK);
+    assert_int_equal(cs_scene_memory(&sc, &p, 10, &r10), CS_OK);
     assert_true(r10 - r0 == 20 * sizeof(cs_rock_state) + 600ull * 9 * 6 * 4);
-    /* With no rocks: the state of 89 bytes a vertex, twice (a rebuild makes the new one beside
-     * the old), one row of partials per chunk and a float4 staging buffer per vertex. */
+    /* With no rocks, under velocity_verlet without self_collision: the state of 89 bytes a vertex,
+     * twice (a rebuild makes the new one beside the old), one row of partials per chunk and a
+     * float4 staging buffer per vertex. */
     assert_true(r0 == 2 * (90000ull * 89 + sizeof(cs_state)) + 600ull * 6 * 4 + 90000ull * 16);
+    /* implicit_euler adds its workspace, at least its 50 floats a vertex of vectors;
+     * self_collision its own, at least its pair lists full: three sets of 341 keys of 8 bytes a
+     * vertex; no parameters count both (test_memory_covers_workspaces checks them against the
+     * heap). */
+    uint64_t im, self, both;
+    p.integrator = CS_IMPLICIT_EULER;
+    assert_int_equal(cs_scene_memory(&sc, &p, 0, &im), CS_OK);
+    assert_true(im >= r0 + 90000ull * 50 * 4);
+    cs_params_default(&p);
+    p.self_collision = true;
+    assert_int_equal(cs_scene_memory(&sc, &p, 0, &self), CS_OK);
+    assert_true(self >= r0 + 90000ull * 3 * 341 * 8);
+    assert_int_equal(cs_scene_memory(&sc, NULL, 0, &both), CS_OK);
+    assert_true(both == im + self - r0);
+}
+
+/* In-use heap bytes (glibc). */
+static size_t heap_in_use(void)
+{
+    const struct mallinfo2 m = mallinfo2();
+    return m.uordblks + m.hblkhd;
+}
+
+/* cs_scene_memory covers what the engine holds once implicit_euler and self_collision have run on
+ * a scene: the heap's growth, measured by glibc (skipped where malloc is not glibc's: ASan). */
+static void test_memory_covers_workspaces(void **unused)
+{
+    (void)unused;
+    const size_t probe_bytes = 1u << 20, h = heap_in_use();
+    char *probe = malloc(probe_bytes);
+    assert_non_null(probe);
+    memset(probe, 1, probe_bytes);
+    const int counted = heap_in_use() - h >= probe_bytes;
+    free(probe);
+    if (!counted) skip();
+    cs_scene sc;
+    cs_params p;
+    cs_scene_default(&sc);
+    cs_params_default(&p);
+    sc.nx = sc.ny = 200;
+    p.integrator = CS_IMPLICIT_EULER;
+    p.self_collision = true;
+    uint64_t counted_bytes;
+    assert_int_equal(cs_scene_memory(&sc, &p, 0, &counted_bytes), CS_OK);
+    const size_t h0 = heap_in_use();
+    cs_sim *sim = tk_sim_serial(&sc, &p);
+    cs_info info;
+    cs_sim_info(sim, &info);
+    tk_step(sim, 3 * (int64_t)info.substeps);
+    const size_t used = heap_in_use() - h0;
+    print_message("200 x 200, implicit_euler with self_collision: the heap grew by %.1f MB, cs_scene_memory counts %.1f MB\n",
+                  used / 1e6, counted_bytes / 1e6);
+    assert_true(used <= counted_bytes);
+    /* the workspaces are most of it: the state twice would not cover it */
+    assert_true(used > 2 * 40000ull * 89);
+    cs_sim_destroy(sim);
 }
 
 /* M = rho 4/3 pi R^3, I = 2/5 M R^2: R = 0.5, rho = 6 gives M = pi, I = pi/10. */
@@ -184,6 +248,7 @@ int main(void)
         cmocka_unit_test(test_springs_and_rest_lengths),
         cmocka_unit_test(test_pin_presets),
         cmocka_unit_test(test_memory_estimate),
+        cmocka_unit_test(test_memory_covers_workspaces),
         cmocka_unit_test(test_rock_mass_and_inertia),
         cmocka_unit_test(test_vertex_mass),
     };

@@ -77,19 +77,26 @@ cs_status cs_sim_set_threads(cs_sim *sim, int threads);
  * 1 when built without OpenMP. */
 int cs_cpu_threads(void);
 
-/* Host bytes a scene costs the engine with up to `rocks` rocks: its state twice (a scene change or
- * a snapshot load builds the new one beside the old), and the backends' host scratch (the CPU
- * backend's per-chunk rock partials, a device backend's staging buffer), computed with overflow
- * checks; CS_E_LIMIT when it overflows. */
-cs_status cs_scene_memory(const cs_scene *scene, int32_t rocks, uint64_t *bytes);
+/* Host bytes a scene costs the engine under params with up to `rocks` rocks: its state twice (a
+ * scene change or a snapshot load builds the new one beside the old), the backends' host scratch
+ * (the CPU backend's per-chunk rock partials, a device backend's staging buffer), and the CPU
+ * backend's workspaces where params use them: implicit_euler's, self_collision's with its pair
+ * lists full (three sets of at most 341 keys a vertex: 8.3 kB a vertex in all); NULL params count
+ * both.
+ * Computed with overflow checks; CS_E_LIMIT when it overflows or passes INT32_MAX vertices. */
+cs_status cs_scene_memory(const cs_scene *scene, const cs_params *params, int32_t rocks, uint64_t *bytes);
 /* Bytes of a snapshot of a scene with `rocks` rocks (cs_snapshot_size of such a state). */
 cs_status cs_snapshot_bytes(const cs_scene *scene, int32_t rocks, uint64_t *bytes);
-/* What a scene costs whoever runs it, in bytes: cs_scene_memory's part and what the owner keeps
- * per scene besides (checkpoints, frame buffers); CS_OK, or CS_E_LIMIT when it overflows. */
-typedef cs_status (*cs_cost_fn)(const cs_scene *scene, int32_t rocks, void *ctx, uint64_t *bytes);
-/* Caps what a scene change or a snapshot may bring (0: no cap): a scene whose cost - cost(scene,
- * the rock limit, ctx), or cs_scene_memory when cost is NULL - passes `bytes` is CS_E_LIMIT
- * (naming nx), refused before anything is allocated for it. */
+/* What a scene costs whoever runs it under params, in bytes: cs_scene_memory's part and what the
+ * owner keeps per scene besides (checkpoints, frame buffers); CS_OK, or CS_E_LIMIT when it
+ * overflows. */
+typedef cs_status (*cs_cost_fn)(const cs_scene *scene, const cs_params *params, int32_t rocks, void *ctx,
+                                uint64_t *bytes);
+/* Caps what a scene change, a snapshot or a change of parameters may bring (0: no cap): a scene
+ * whose cost - cost(scene, params, the rock limit, ctx), or cs_scene_memory when cost is NULL -
+ * passes `bytes` is CS_E_LIMIT, refused before anything is allocated for it: naming nx, or, for a
+ * change of parameters that costs more than the ones it replaces (implicit_euler's workspace,
+ * self_collision's), the parameter that does. Workspaces the parameters no longer use are freed. */
 cs_status cs_sim_set_memory_limit(cs_sim *sim, uint64_t bytes, cs_cost_fn cost, void *ctx);
 /* Most rocks this simulation takes, 1..CS_MAX_ROCKS (CS_MAX_ROCKS when created): cs_rock_add and
  * cs_snapshot_load refuse more with CS_E_LIMIT naming max_rocks. Rocks already there stay. */
@@ -104,7 +111,8 @@ cs_status cs_sim_set_scene(cs_sim *sim, const cs_scene *scene);
 /* Rebuilds the current scene. */
 cs_status cs_sim_reset(cs_sim *sim);
 void cs_sim_params(const cs_sim *sim, cs_params *out);
-/* Replaces every live parameter at once, or none (CS_E_RANGE, CS_E_UNSTABLE). */
+/* Replaces every live parameter at once, or none (CS_E_RANGE, CS_E_UNSTABLE, CS_E_LIMIT past the
+ * memory limit: cs_sim_set_memory_limit). */
 cs_status cs_sim_set_params(cs_sim *sim, const cs_params *params);
 
 /* ---- time ---- */

@@ -288,14 +288,14 @@ static void test_cost(void **unused)
     cs_scene_default(&f);
     f.nx = 10, f.ny = 20;
     uint64_t bare, with_sink, engine, snap;
-    assert_int_equal(scene_cost(&f, 4, NULL, &bare), CS_OK);
-    assert_int_equal(scene_cost(&f, 4, (void *)&rec_ops, &with_sink), CS_OK);
+    assert_int_equal(scene_cost(&f, NULL, 4, NULL, &bare), CS_OK);
+    assert_int_equal(scene_cost(&f, NULL, 4, (void *)&rec_ops, &with_sink), CS_OK);
     assert_true(with_sink - bare == 1000 * 200 + 4);
-    assert_int_equal(cs_scene_memory(&f, 4, &engine), CS_OK);
+    assert_int_equal(cs_scene_memory(&f, NULL, 4, &engine), CS_OK);
     assert_int_equal(cs_snapshot_bytes(&f, 4, &snap), CS_OK);
     assert_true(bare > engine + 2 * snap); /* and the answers, scratch and torn lists beside */
     f.nx = f.ny = 4096;
-    assert_int_equal(scene_cost(&f, 1024, NULL, &bare), CS_OK);
+    assert_int_equal(scene_cost(&f, NULL, 1024, NULL, &bare), CS_OK);
     assert_true(bare > (uint64_t)4096 * 4096 * 100);
 }
 
