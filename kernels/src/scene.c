@@ -35,11 +35,16 @@ int cs_add_ok(uint64_t a, uint64_t b, uint64_t *out)
 /* Bytes of the host's scratch beside the state, whichever backend runs: the CPU backend's rock
  * partials (6 floats per chunk and rock, backend_cpu.c) and a device backend's staging buffer of
  * one float4 per vertex (backend_cuda.cu). */
+/* The chunks of the scene's rows (cs_phys.nchunks: CS_CHUNK columns of a row each). */
+static int chunks_of(const cs_scene *scene, uint64_t *out)
+{
+    return cs_mul_ok(((uint64_t)scene->nx + CS_CHUNK - 1) / CS_CHUNK, (uint64_t)scene->ny, out);
+}
+
 static int scratch_bytes(const cs_scene *scene, uint64_t n, int32_t rocks, uint64_t *out)
 {
-    const uint64_t nseg = ((uint64_t)scene->nx + CS_CHUNK - 1) / CS_CHUNK;
     uint64_t chunks, partials, stage;
-    return cs_mul_ok(nseg, (uint64_t)scene->ny, &chunks) &&
+    return chunks_of(scene, &chunks) &&
            cs_mul_ok(chunks, (uint64_t)(rocks > 0 ? rocks : 1) * 6 * sizeof(float), &partials) &&
            cs_mul_ok(n, 4 * sizeof(float), &stage) && cs_add_ok(partials, stage, out);
 }
@@ -50,7 +55,7 @@ cs_status cs_scene_memory(const cs_scene *scene, const cs_params *params, int32_
 {
     if (!scene || !bytes || rocks < 0) return CS_E_INVALID;
     if (scene->nx < 2 || scene->ny < 2) return CS_E_RANGE;
-    uint64_t n, state, scratch, total;
+    uint64_t n, state, scratch, total, chunks;
     if (!cs_mul_ok((uint64_t)scene->nx, (uint64_t)scene->ny, &n)) return CS_E_LIMIT;
     if (!cs_mul_ok(n, CS_FLOATS_PER_VERTEX * sizeof(float) + 1, &state) ||
         !cs_add_ok(state, sizeof(cs_state) + (uint64_t)rocks * sizeof(cs_rock_state), &state) ||
@@ -59,9 +64,9 @@ cs_status cs_scene_memory(const cs_scene *scene, const cs_params *params, int32_
     /* the workspaces of implicit_euler and self_collision where the parameters use them (both
      * without parameters): the CPU backend's, the larger on the host. No engine runs more than
      * INT32_MAX vertices (its indices are int32). */
-    if (n > INT32_MAX) return CS_E_LIMIT;
-    const int32_t nchunks = scene->ny * ((scene->nx + CS_CHUNK - 1) / CS_CHUNK);
-    if (!params || params->integrator == CS_IMPLICIT_EULER) total += cs_im_work_bytes(scene->nx, scene->ny, nchunks);
+    if (n > INT32_MAX || !chunks_of(scene, &chunks)) return CS_E_LIMIT;
+    if (!params || params->integrator == CS_IMPLICIT_EULER)
+        total += cs_im_work_bytes(scene->nx, scene->ny, (int32_t)chunks); /* chunks <= n */
     if (!params || params->self_collision) total += cs_sc_work_bytes((int32_t)n);
     *bytes = total;
     return CS_OK;

@@ -82,10 +82,10 @@ static cs_status check_params_memory(cs_sim *sim, const cs_params *params)
     if (memory_of(sim, scene, params, &then) == CS_OK && memory_of(sim, scene, &sim->model.params, &now) == CS_OK &&
         (then <= now || then <= sim->memory_limit))
         return CS_OK;
-    const char *name = params->self_collision && !sim->model.params.self_collision ? "self_collision" : "integrator";
-    return cs_fail(sim, CS_E_LIMIT, name, "a %d x %d cloth with %s needs more than the memory limit of %.0f MiB",
-                   (int)scene->nx, (int)scene->ny,
-                   name[0] == 's' ? "self_collision" : "implicit_euler's workspace",
+    const int self = params->self_collision && !sim->model.params.self_collision;
+    return cs_fail(sim, CS_E_LIMIT, self ? "self_collision" : "integrator",
+                   "a %d x %d cloth with %s needs more than the memory limit of %.0f MiB", (int)scene->nx,
+                   (int)scene->ny, self ? "self_collision" : "implicit_euler's workspace",
                    (double)sim->memory_limit / 1048576.0);
 }
 

@@ -191,10 +191,10 @@ int scene_healthy(scene *sc);
 json_t *scene_hello(scene *sc, const cs_rock *rocks, int n_rocks);
 
 /* What a scene of these fields costs the daemon under params, in bytes, with up to `rocks` rocks:
- * the engine's part (cs_scene_memory, its workspaces included where params use them), two snapshots (the last checkpoint and the journal's base), one answer
- * the sim thread builds (the cloth state as JSON, or a snapshot), what the sink holds (ctx: its
- * const frame_sink_ops, or NULL), the scalars' scratch, and the list of torn springs with its
- * JSON. The one estimate max_state_mb caps: the engine is given it (cs_sim_set_memory_limit), for
+ * the engine's part (cs_scene_memory, its workspaces included where params use them), two
+ * snapshots (the last checkpoint and the journal's base), one answer the sim thread builds (the
+ * cloth state as JSON, or a snapshot), what the sink holds (ctx: its const frame_sink_ops, or
+ * NULL), the scalars' scratch, and the list of torn springs with its JSON. The one estimate max_state_mb caps: the engine is given it (cs_sim_set_memory_limit), for
  * scene changes, snapshots and changes of parameters, and the daemon checks its starting scene
  * with it. */
 cs_status scene_cost(const cs_scene *fields, const cs_params *params, int32_t rocks, void *ctx, uint64_t *bytes);
