@@ -153,6 +153,7 @@ static cs_status rebuild(cs_sim *sim, const cs_scene *scene, const cs_params *p)
     sim->model = model;
     sim->combos = combos;
     sim->host_stale = stale_after(sim, CS_SYNC_ACCELERATIONS | CS_SYNC_ROCKS);
+    cs_sim_no_step_yet(sim);
     return CS_OK;
 }
 

@@ -3,6 +3,8 @@
 #ifndef CLOTHSIM_SIM_INTERNAL_H
 #define CLOTHSIM_SIM_INTERNAL_H
 
+#include <string.h>
+
 #include "clothsim/backend.h"
 #include "clothsim/clothsim.h"
 #include "clothsim/physics.h"
@@ -32,6 +34,14 @@ struct cs_sim {
     cs_solver_stats solver; /* the last step call's, for cs_info */
     cs_self_stats self;     /* the last step call's, for cs_info */
 };
+
+/* A new state (a scene built, a snapshot loaded) has had no step: the last step call's statistics
+ * (cs_info's solver and self) go with the old one. */
+static inline void cs_sim_no_step_yet(cs_sim *sim)
+{
+    memset(&sim->solver, 0, sizeof sim->solver);
+    memset(&sim->self, 0, sizeof sim->self);
+}
 
 /* sim.c */
 /* CS_E_LIMIT (recorded, naming nx) when a scene under params would cost more than this machine or

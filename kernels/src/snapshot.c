@@ -551,6 +551,7 @@ cs_status cs_snapshot_load(cs_sim *sim, const void *buf, size_t len)
     sim->model = model;
     sim->combos = combos;
     sim->host_stale = 0;
+    cs_sim_no_step_yet(sim);
     cs_ok(sim);
     return CS_OK;
 }
