@@ -27,8 +27,14 @@ _F32 = struct.Struct("<f")
 
 
 def f32(x: float) -> str:
-    """A float32 value as the first of %.7g, %.8g, %.9g that reads back to the same float32."""
+    """A float32 value as the first of %.7g, %.8g, %.9g that reads back to the same float32. A
+    float64 (positions decoded without numpy) is rounded to float32 first: its own %.9g could read
+    back to the float32 next to it."""
     x = float(x)
+    try:
+        x = _F32.unpack(_F32.pack(x))[0]
+    except OverflowError:  # past float32's range
+        x = math.copysign(math.inf, x)
     if x == 0:
         return "-0" if math.copysign(1.0, x) < 0 else "0"
     if not math.isfinite(x):
