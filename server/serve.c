@@ -82,16 +82,17 @@ static void block_stop_signals(sigset_t *sigs)
     pthread_sigmask(SIG_BLOCK, sigs, NULL); /* every thread inherits it; main waits for them */
 }
 
-/* The engine of the settings, with a finer cloth on a GPU unless the settings give its size
- * (into cfg); NULL when it cannot start (logged). */
+/* The engine of the settings, with the defaults of its backend where the settings do not give them
+ * (settings_backend_defaults: on a GPU a finer cloth and velocity_verlet; into cfg, so the scenes
+ * made later have them too); NULL when it cannot start (logged). */
 static cs_sim *first_engine(clothd_config *cfg)
 {
     cs_sim *sim = make_engine(cfg);
     if (!sim) return NULL;
-    if (strcmp(cs_sim_backend(sim), "cuda") == 0 && !cfg->scene_size_given) {
-        cs_scene sc = cfg->scene.fields;
-        sc.nx = sc.ny = 256; /* a GPU takes a finer cloth in real time */
-        if (cs_sim_set_scene(sim, &sc) == CS_OK) cfg->scene.fields = sc;
+    clothd_config want = *cfg;
+    if (settings_backend_defaults(&want, cs_sim_backend(sim))) {
+        if (cs_sim_set_params(sim, &want.scene.params) == CS_OK) cfg->scene.params = want.scene.params;
+        if (cs_sim_set_scene(sim, &want.scene.fields) == CS_OK) cfg->scene.fields = want.scene.fields;
     }
     log_msg("backend: %s on %s (%s)", cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim));
     return sim;

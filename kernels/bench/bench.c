@@ -16,7 +16,8 @@
  * many default scenes one batch runs in real time (print_batch).
  *
  * --batch N,...: for each size and each count N, N scenes of the default scene and parameters
- * (cs_scene_default, cs_params_default; the effective substeps per frame from cs_sim_info),
+ * (cs_scene_default, cs_params_default with the backend's integrator, cs_params_default_integrator,
+ * or --integrator's; the effective substeps per frame from cs_sim_info),
  * stepped frame by frame for --seconds each way: all N in one cs_sims_step call a frame (batch),
  * and each by its own cs_sim_step (alone). Prints the aggregate vertex-substeps/s of both, their
  * ratio, the batch's against one scene stepped alone (the single-scene figure), and how many such
@@ -155,9 +156,11 @@ typedef struct batch_how {
     int read;
     float *buf;
     size_t len;
+    int integrator; /* -1: its backend's default (cs_params_default_integrator) */
 } batch_how;
 
-/* n default scenes of size x size. */
+/* n default scenes of size x size, under --integrator or else the default of the backend each runs
+ * on. */
 static cs_sim **batch_make(const batch_how *how, int size, int n, int threads)
 {
     cs_sim **sims = calloc((size_t)n, sizeof *sims);
@@ -169,7 +172,14 @@ static cs_sim **batch_make(const batch_how *how, int size, int n, int threads)
     sc.nx = sc.ny = size;
     for (int k = 0; k < n; k++) {
         char err[256];
-        if (cs_sim_create(&sc, &p, how->backend, &sims[k], err, sizeof err) != CS_OK) {
+        if (how->integrator >= 0) p.integrator = (cs_integrator)how->integrator;
+        cs_status st = cs_sim_create(&sc, &p, how->backend, &sims[k], err, sizeof err);
+        if (st == CS_OK && how->integrator < 0) {
+            p.integrator = cs_params_default_integrator(cs_sim_backend(sims[k]));
+            if ((st = cs_sim_set_params(sims[k], &p)) != CS_OK) snprintf(err, sizeof err, "%s", cs_sim_error(sims[k]));
+            if (st != CS_OK) cs_sim_destroy(sims[k]);
+        }
+        if (st != CS_OK) {
             fprintf(stderr, "clothd-bench: %dx%d: %s\n", size, size, err);
             for (int j = 0; j < k; j++) cs_sim_destroy(sims[j]);
             free(sims);
@@ -311,15 +321,19 @@ static double scenes_in_real_time(const cs_cost_model *m, double n, double subst
     return left > 0 ? floor(left / (traffic + host)) : 0;
 }
 
-/* The batch prediction: the default scene (scene and parameters as the engine's defaults, no
- * rocks) in one batch of many, on an H100 and an H200: by bandwidth and launches alone, with each
- * scene's host calls when no frame is read, and with every scene's frame read each frame. */
+/* The batch prediction: the default scene (scene and parameters as the engine's defaults with the
+ * CUDA backend's integrator, no rocks) in one batch of many, on an H100 and an H200: by bandwidth
+ * and launches alone, with each scene's host calls when no frame is read, and with every scene's
+ * frame read each frame. */
 static void print_batch(int json)
 {
     const cs_backend *cuda = cs_backend_cuda();
     cs_sim *sim = NULL;
     char err[256];
-    if (!cuda || cs_sim_create(NULL, NULL, "cpu", &sim, err, sizeof err) != CS_OK) return;
+    cs_params dp;
+    cs_params_default(&dp);
+    dp.integrator = cs_params_default_integrator("cuda");
+    if (!cuda || cs_sim_create(NULL, &dp, "cpu", &sim, err, sizeof err) != CS_OK) return;
     cs_info info;
     cs_params p;
     cs_cost_model m;
@@ -375,7 +389,7 @@ static int parse_list(const char *s, int *out, int cap)
 
 int main(int argc, char **argv)
 {
-    const char *backend = "cpu", *sizes_arg = "64,128,256,512", *integrator = "velocity_verlet", *rocks_arg = "0,16";
+    const char *backend = "cpu", *sizes_arg = "64,128,256,512", *integrator = NULL, *rocks_arg = "0,16";
     const char *contacts = "surface,vertex";
     const char *batch_arg = NULL, *only = NULL;
     int json = 0, threads = 0, model_only = 0, sizes_given = 0, read_frames = 0, self_collision = 0, crumple = 0;
@@ -412,7 +426,8 @@ int main(int argc, char **argv)
         return 2;
     }
     const cs_param_info *integ = cs_param_find("integrator");
-    const int integ_index = cs_param_choice(integ, integrator);
+    const char *integ_name = integrator ? integrator : "velocity_verlet"; /* the sizes' default */
+    const int integ_index = cs_param_choice(integ, integ_name);
     if (integ_index < 0) {
         fprintf(stderr, "clothd-bench: unknown integrator '%s'\n", integrator);
         return 2;
@@ -450,7 +465,7 @@ int main(int argc, char **argv)
             }
         int widest = 0;
         for (int k = 0; k < n_bsizes; k++) widest = bsizes[k] > widest ? bsizes[k] : widest;
-        batch_how how = {backend, read_frames, NULL, 3 * (size_t)widest * (size_t)widest};
+        batch_how how = {backend, read_frames, NULL, 3 * (size_t)widest * (size_t)widest, integrator ? integ_index : -1};
         if (read_frames && !(how.buf = malloc(sizeof(float) * how.len))) return 1;
         const int rc = run_batch(&how, bsizes, n_bsizes, counts, n_counts, threads, seconds, frames, only ? only : "", json);
         free(how.buf);
@@ -521,7 +536,7 @@ int main(int argc, char **argv)
                     if (json) {
                         printf("{\"backend\":\"%s\",\"nx\":%d,\"ny\":%d,\"rocks\":%d,\"contact_model\":\"%s\","
                                "\"integrator\":\"%s\",\"substeps_per_frame\":%d",
-                               kinds[k]->name, size, size, info.n_rocks, cm->choices[models[mi]], integrator,
+                               kinds[k]->name, size, size, info.n_rocks, cm->choices[models[mi]], integ_name,
                                info.substeps);
                         print_model(kinds[k]->name, &m, (double)size * size, 1, 0);
                         printf("}\n");
@@ -582,7 +597,7 @@ int main(int argc, char **argv)
                        "\"integrator\":\"%s\",\"substeps_per_frame\":%d,\"substeps\":%lld,\"seconds\":%.3f,\"substeps_per_s\":%.1f,"
                        "\"vertex_substeps_per_s\":%.0f,\"modelled_traffic_gb_s\":%.1f",
                        cs_sim_backend(sim), cs_sim_device(sim), size, size, info.n_rocks, cm->choices[models[mi]],
-                       integrator, info.substeps,
+                       integ_name, info.substeps,
                        (long long)done, t - t0, sps, vsps, traffic / 1e9);
                 if (bs.peak_bandwidth > 0)
                     printf(",\"peak_bandwidth_gb_s\":%.1f,\"fraction_of_peak\":%.3f", bs.peak_bandwidth / 1e9,

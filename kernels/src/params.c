@@ -148,6 +148,13 @@ void cs_params_default(cs_params *p)
     fill_defaults(CS_KIND_LIVE, p);
 }
 
+cs_integrator cs_params_default_integrator(const char *backend)
+{
+    cs_params p;
+    cs_params_default(&p);
+    return backend && strcmp(backend, "cuda") == 0 ? CS_VELOCITY_VERLET : p.integrator;
+}
+
 static int validate_rows(cs_param_kind kind, const void *base, const char **bad, char *why, size_t why_len)
 {
     for (size_t i = 0; i < CS_TABLE_LEN; i++) {

@@ -258,7 +258,18 @@ int settings_set_text(clothd_config *c, const char *name, const char *text, char
     }
     if (set_from_text(s, setting_field(s, &c->set, &c->scene), text, why, why_len) != 0) return -1;
     if (strcmp(s->name, "nx") == 0 || strcmp(s->name, "ny") == 0) c->scene_size_given = 1;
+    if (strcmp(s->name, "integrator") == 0) c->integrator_given = 1;
     return 0;
+}
+
+int settings_backend_defaults(clothd_config *cfg, const char *backend)
+{
+    const clothd_config was = *cfg;
+    const int cuda = strcmp(backend, "cuda") == 0;
+    if (cuda && !cfg->scene_size_given) cfg->scene.fields.nx = cfg->scene.fields.ny = 256;
+    if (!cfg->integrator_given) cfg->scene.params.integrator = cs_params_default_integrator(backend);
+    return was.scene.fields.nx != cfg->scene.fields.nx || was.scene.fields.ny != cfg->scene.fields.ny ||
+           was.scene.params.integrator != cfg->scene.params.integrator;
 }
 
 static char *trim(char *s)

@@ -122,13 +122,18 @@ typedef struct scene_config {
  * (cs_snapshot_value) carries them; a newer one none. Returns how many it set in loop. */
 int loop_from_snapshot(loop_settings *loop, const void *snapshot, size_t len);
 
-/* Everything a configuration source can set, and whether the cloth's size was given (the daemon
- * picks a larger default cloth on CUDA). */
+/* Everything a configuration source can set, and whether the cloth's size and the integrator were
+ * given (the daemon picks other defaults for them on CUDA: settings_backend_defaults). */
 typedef struct clothd_config {
     clothd_settings set;
     scene_config scene;
-    int scene_size_given;
+    int scene_size_given, integrator_given;
 } clothd_config;
+
+/* The defaults that depend on the backend the engine runs on (its cs_sim_backend), applied to cfg
+ * where the settings did not give them: on CUDA a cloth of 256 x 256 (a GPU keeps a finer cloth in
+ * real time) and cs_params_default_integrator's integrator. Returns 1 when it changed cfg. */
+int settings_backend_defaults(clothd_config *cfg, const char *backend);
 
 /* ---- the table ---- */
 

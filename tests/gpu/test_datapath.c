@@ -40,6 +40,7 @@ static cs_sim *make(const char *backend, int nx, int ny, int strain)
     cs_params p;
     cs_scene_default(&sc);
     cs_params_default(&p);
+    p.integrator = CS_VELOCITY_VERLET; /* the explicit step's data path (implicit_euler reads back each sum) */
     sc.nx = nx, sc.ny = ny;
     sc.size_x = 0.03f * (float)(nx - 1);
     sc.size_y = 0.03f * (float)(ny - 1);

@@ -107,6 +107,7 @@ static void test_cloth_verlet(void **unused)
     cs_scene sc;
     cs_params p;
     tk_quiet(&sc, &p);
+    p.integrator = CS_VELOCITY_VERLET;
     p.gravity[2] = (float)-G;
     sc.nx = sc.ny = 8;
     sc.pins = CS_PINS_NONE;

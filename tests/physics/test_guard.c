@@ -55,6 +55,7 @@ static void small_scene(cs_scene *sc, cs_params *p)
 {
     cs_scene_default(sc);
     cs_params_default(p);
+    p->integrator = CS_VELOCITY_VERLET; /* the guard bounds the explicit integrators' substeps */
     sc->nx = 16;
     sc->ny = 14;
     sc->size_x = 1.0f;

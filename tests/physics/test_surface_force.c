@@ -59,6 +59,7 @@ static void flat_cloth(int n, int vertical)
     cs_params p;
     cs_scene_default(&sc);
     cs_params_default(&p);
+    p.integrator = CS_VELOCITY_VERLET; /* the contact law's force (implicit_euler holds rocks otherwise: MODEL.md) */
     sc.nx = sc.ny = n;
     sc.orientation = vertical ? CS_VERTICAL : CS_HORIZONTAL;
     p.gravity[2] = 0.0f;

@@ -306,15 +306,15 @@ test('a corrupt, foreign or other-version state file is refused with a reason, u
 });
 
 test('a state file past max_state_mb is refused and kept, even with state_file_invalid = fresh', async () => {
-  // A 200 x 200 cloth's state is a few MiB: a good file, but more than a 1 MiB limit allows.
+  // A 200 x 200 cloth costs some 70 MB: a good file, but more than a 2 MiB limit allows.
   const dir = tempDir();
   const state = join(dir, 'state.bin');
   const a = await start(['--paused', '--nx', '200', '--ny', '200', '--state-file', state]);
   assert.equal((await stop(a)).code, 0);
   const bytes = readFileSync(state);
-  const r = await refusedStart([...small, '--max-state-mb', '1', '--state-file', state, '--state-file-invalid', 'fresh']);
+  const r = await refusedStart([...small, '--max-state-mb', '2', '--state-file', state, '--state-file-invalid', 'fresh']);
   assert.equal(r.code, 1);
-  assert.match(r.log, /cannot resume from the state file .*state\.bin: a 200 x 200 cloth needs \d+ MiB, more than the memory limit of 1 MiB \(raise max_state_mb to resume from it\)/);
+  assert.match(r.log, /cannot resume from the state file .*state\.bin: a 200 x 200 cloth needs \d+ MiB, more than the memory limit of 2 MiB \(raise max_state_mb to resume from it\)/);
   assert.deepEqual(readdirSync(dir), ['state.bin']); // not moved aside: it is not damaged
   assert.ok(readFileSync(state).equals(bytes));
   rmSync(dir, { recursive: true, force: true });

@@ -102,17 +102,18 @@ test('at most max_rocks rocks', async () => {
 });
 
 test('a scene or a snapshot past max_state_mb is refused before anything is allocated', async () => {
-  // The state of a 200 x 200 cloth is a few MiB: a 1 MiB limit refuses it, a 64 MiB one does not.
-  const big = await start(['--paused', '--nx', '200', '--ny', '200', '--max-state-mb', '64']);
+  // A 200 x 200 cloth costs some 70 MB (its state, implicit_euler's workspace, the stream's
+  // buffers): a 2 MiB limit refuses it, a 128 MiB one does not.
+  const big = await start(['--paused', '--nx', '200', '--ny', '200', '--max-state-mb', '128']);
   const snapshot = (await call(big, 'GET', '/v1/snapshot')).buf;
   await stop(big);
-  const d = await start(['--paused', '--nx', '16', '--ny', '16', '--max-state-mb', '1', '--max-body', String(64 << 20)]);
+  const d = await start(['--paused', '--nx', '16', '--ny', '16', '--max-state-mb', '2', '--max-body', String(64 << 20)]);
   const h0 = await hash(d);
   const r = await call(d, 'PUT', '/v1/scene', { nx: 200, ny: 200 });
   assert.equal(r.status, 422);
   assert.equal(r.json.type, 'urn:clothd:problem:limit');
   assert.equal(r.json.param, 'nx');
-  assert.match(r.json.detail, /200 x 200 cloth needs \d+ MiB, more than the memory limit of 1 MiB/);
+  assert.match(r.json.detail, /200 x 200 cloth needs \d+ MiB, more than the memory limit of 2 MiB/);
   const s = await call(d, 'PUT', '/v1/snapshot', snapshot, { 'Content-Type': 'application/octet-stream' });
   assert.equal(s.status, 422);
   assert.match(s.json.detail, /memory limit/);

@@ -59,12 +59,12 @@ test('/readyz: 200 with room for a scene, 503 with the reason at max_scenes or m
   assert.equal((await call(d, 'GET', '/readyz')).status, 200);
   await stop(d);
 
-  // A 24 x 24 cloth fits once in 1 MiB (with one rock), not twice.
-  const e = await start(['--nx', '24', '--ny', '24', '--auto-drop-interval', '0', '--paused', '--max-state-mb', '1', '--max-rocks', '1']);
+  // A 24 x 24 cloth (1.7 MB under implicit_euler, with one rock) fits once in 2 MiB, not twice.
+  const e = await start(['--nx', '24', '--ny', '24', '--auto-drop-interval', '0', '--paused', '--max-state-mb', '2', '--max-rocks', '1']);
   const room = await call(e, 'GET', '/readyz');
   assert.equal(room.status, 503, room.text);
   assert.equal(room.json.param, 'max_state_mb');
-  assert.match(room.json.detail, /does not fit in what max_state_mb \(1 MiB\) leaves/);
+  assert.match(room.json.detail, /does not fit in what max_state_mb \(2 MiB\) leaves/);
   await stop(e);
 });
 

@@ -15,9 +15,10 @@ const small = ['--nx', '8', '--ny', '8', '--auto-drop-interval', '0'];
 const ids = async (d) => (await ok(d, 'GET', '/v1/scenes')).scenes.map((s) => s.id);
 
 test('scenes are created, listed and deleted; bad ids, unknown, existing, max_scenes and the memory cap are refused and change nothing', async () => {
-  // max_state_mb 6: a scene of 64 x 64 (about 5.3 MiB with its checkpoints and the stream's
-  // buffers) fits alone, not beside the default 8 x 8 scene and another (about 0.5 MiB each).
-  const d = await start([...small, '--paused', '--max-scenes', '3', '--max-state-mb', '6']);
+  // max_state_mb 10: a scene of 70 x 70 (9.7 MB with implicit_euler's workspace, its checkpoints
+  // and the stream's buffers) fits alone, not beside the default 8 x 8 scene and another (about
+  // 0.7 MB each).
+  const d = await start([...small, '--paused', '--max-scenes', '3', '--max-state-mb', '10']);
   const made = await call(d, 'POST', '/v1/scenes', { id: 'b', scene: { nx: 6, ny: 5 }, params: { time_scale: 0.5 } });
   assert.equal(made.status, 201);
   assert.equal(made.headers.get('location'), '/v1/scenes/b');
@@ -40,7 +41,7 @@ test('scenes are created, listed and deleted; bad ids, unknown, existing, max_sc
     ['POST', '/v1/scenes', { id: 'c', scene: { k_bend: 1 } }, 400, 'unknown-field'],
     ['POST', '/v1/scenes', { id: 'c', scene: { nx: 1 } }, 422, null],
     ['POST', '/v1/scenes', { id: 'b' }, 409, 'exists'],
-    ['POST', '/v1/scenes', { id: 'big', scene: { nx: 64, ny: 64 } }, 422, 'limit'],
+    ['POST', '/v1/scenes', { id: 'big', scene: { nx: 70, ny: 70 } }, 422, 'limit'],
     ['GET', '/v1/scenes/Bad/sim', undefined, 400, 'bad-scene-id'],
     ['GET', '/v1/scenes/nope/sim', undefined, 404, 'not-found'],
     ['DELETE', '/v1/scenes/nope', undefined, 404, 'not-found'],
@@ -53,7 +54,7 @@ test('scenes are created, listed and deleted; bad ids, unknown, existing, max_sc
     if (slug) assert.equal(r.json.type, `urn:clothd:problem:${slug}`, r.text);
     assert.deepEqual(await ids(d), before, `${method} ${path} changed the table`);
   }
-  assert.equal((await call(d, 'POST', '/v1/scenes', { id: 'big', scene: { nx: 64, ny: 64 } })).json.param, 'max_state_mb');
+  assert.equal((await call(d, 'POST', '/v1/scenes', { id: 'big', scene: { nx: 70, ny: 70 } })).json.param, 'max_state_mb');
   // A made-up id; then the table is full.
   const gen = await ok(d, 'POST', '/v1/scenes', {});
   assert.match(gen.id, /^scene-\d+$/);
@@ -62,7 +63,7 @@ test('scenes are created, listed and deleted; bad ids, unknown, existing, max_sc
   assert.equal(full.json.param, 'max_scenes');
   assert.deepEqual(await ids(d), ['default', 'b', gen.id]);
   // Growing a scene past what the others leave is refused the same way (PUT scene), and changes nothing.
-  const grow = await call(d, 'PUT', '/v1/scenes/b/scene', { nx: 64, ny: 64 });
+  const grow = await call(d, 'PUT', '/v1/scenes/b/scene', { nx: 70, ny: 70 });
   assert.equal(grow.status, 422, grow.text);
   assert.equal((await ok(d, 'GET', '/v1/scenes/b/sim')).n_vertices, 30);
   // Deleted: its routes are gone, the others stay; default may go too.
@@ -74,9 +75,9 @@ test('scenes are created, listed and deleted; bad ids, unknown, existing, max_sc
   assert.equal(gone.status, 404);
   assert.equal(gone.json.param, 'scene');
   assert.deepEqual(await ids(d), [gen.id]);
-  // The room they held is free again: the 64 x 64 scene fits now that the others are gone.
+  // The room they held is free again: the 70 x 70 scene fits now that the others are gone.
   await ok(d, 'DELETE', `/v1/scenes/${gen.id}`);
-  assert.equal((await call(d, 'POST', '/v1/scenes', { id: 'big', scene: { nx: 64, ny: 64 } })).status, 201);
+  assert.equal((await call(d, 'POST', '/v1/scenes', { id: 'big', scene: { nx: 70, ny: 70 } })).status, 201);
   await stop(d);
 });
 

@@ -9,6 +9,7 @@ static void small_scene(cs_scene *sc, cs_params *p, int nx, int ny)
 {
     cs_scene_default(sc);
     cs_params_default(p);
+    p->integrator = CS_VELOCITY_VERLET; /* the guard bounds the explicit integrators' substeps */
     sc->nx = nx, sc->ny = ny, sc->size_x = 1, sc->size_y = 1, sc->areal_density = 1;
     p->k_structural = 100, p->k_shear = 10, p->k_bend = 1, p->k_contact = 50;
     p->c_spring = 0.1f, p->c_contact = 0.2f, p->c_tangent = 0.3f, p->drag = 2;

@@ -168,6 +168,9 @@ test('a panel edit reaches GET /v1/params and a second page', opts, async () => 
 });
 
 test('a refused value shows the server\'s reason and the control snaps back', opts, async () => {
+  // velocity_verlet's guard refuses a stiffness it cannot serve in max_substeps (implicit_euler,
+  // the default, takes any in range)
+  await ok(daemon, 'PATCH', '/v1/params', { integrator: 'velocity_verlet' });
   const input = page.locator('[data-param="k_structural"] input');
   await input.fill('1000000000');
   await input.press('Enter');
@@ -185,6 +188,7 @@ test('a refused value shows the server\'s reason and the control snaps back', op
   await input.press('Enter');
   await message.waitFor({ state: 'detached' });
   assert.equal((await ok(daemon, 'GET', '/v1/params')).k_structural, 410);
+  await ok(daemon, 'PATCH', '/v1/params', { integrator: 'implicit_euler' });
 });
 
 test('the scene panel rebuilds the cloth', opts, async () => {

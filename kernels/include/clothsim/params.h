@@ -73,7 +73,7 @@ typedef enum cs_contact_model { CS_CONTACT_VERTEX = 0, CS_CONTACT_SURFACE = 1 } 
     X(max_substeps, INT, "-", 1000, 1, 100000, NONE, "Most substeps per frame the stability guard may choose") \
     X(auto_substeps, BOOL, "-", 1, 0, 1, NONE, "Raise substeps when a change needs it (else refuse the change)") \
     X(stability_safety, FLOAT, "-", 0.7, 0.01, 1, NONE, "Fraction of the stable time step the guard allows") \
-    X(integrator, ENUM, "-", CS_VELOCITY_VERLET, 0, 2, INTEGRATOR, "velocity_verlet (kick-drift-kick), symplectic_euler, or implicit_euler (backward Euler solved by Newton and multigrid-preconditioned conjugate gradients: stiff springs cost no substeps)") \
+    X(integrator, ENUM, "-", CS_IMPLICIT_EULER, 0, 2, INTEGRATOR, "velocity_verlet (kick-drift-kick), symplectic_euler, or implicit_euler (backward Euler solved by Newton and multigrid-preconditioned conjugate gradients: stiff springs cost no substeps); the daemon on the CUDA backend defaults to velocity_verlet") \
     X(grab_speed, FLOAT, "m/s", 5.0, 0.001, 1000, NONE, "Fastest a grabbed vertex moves toward its target") \
     X(implicit_substeps, INT, "-", 1, 1, 100000, NONE, "Substeps per frame under implicit_euler (a substep is cut in parts while cloth near a rock would close on it by more than contact_offset or a quarter of its radius)") \
     X(solver_iterations, INT, "-", 4, 1, 100, NONE, "implicit_euler: most Newton iterations per substep") \
@@ -140,6 +140,11 @@ int cs_param_set(const cs_param_info *p, void *base, const double *v, char *why,
 
 void cs_scene_default(cs_scene *s);
 void cs_params_default(cs_params *p);
+/* The integrator that runs the default scene cheapest on a backend ("cpu", "cuda"): the table's
+ * default, implicit_euler, measured on the CPU; velocity_verlet on CUDA, by its cost model
+ * (kernels/MODEL.md, "Decisions the model leaves open"). The daemon and the benchmark's batches
+ * take it where the integrator is not given. */
+cs_integrator cs_params_default_integrator(const char *backend);
 /* Validates every field and the relations between them; on failure returns -1, the offending
  * name (static string) in *bad and a reason in why. */
 int cs_scene_validate(const cs_scene *s, const char **bad, char *why, size_t why_len);

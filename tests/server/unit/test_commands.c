@@ -302,11 +302,13 @@ static void test_apply(void **unused)
     assert_true(cs_state_hash(sim) == cs_state_hash(again));
     json_decref(j2), json_decref(r2), json_decref(journal), json_decref(result), json_decref(cmd);
     const uint64_t h = cs_state_hash(sim);
-    cmd = json_loads("{\"op\":\"params\",\"params\":{\"k_structural\":1e9,\"auto_substeps\":false,\"seed\":77}}", 0, NULL);
+    cmd = json_loads("{\"op\":\"params\",\"params\":{\"integrator\":\"velocity_verlet\",\"k_structural\":1e9,\"auto_substeps\":false,\"seed\":77}}", 0, NULL);
     assert_int_equal(command_apply(sim, &loop, cmd, &journal, &result, &pr), -1);
     assert_int_equal(pr.status, 422);
     assert_string_equal(pr.slug, "unstable");
     assert_int_equal(loop.seed, 1); /* all or nothing: the daemon-loop settings too */
+    cs_sim_params(sim, &p);
+    assert_int_equal(p.integrator, CS_IMPLICIT_EULER); /* and the integrator */
     assert_true(cs_state_hash(sim) == h);
     json_decref(cmd);
     cmd = json_loads("{\"op\":\"dance\"}", 0, NULL);

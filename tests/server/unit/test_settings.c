@@ -57,6 +57,33 @@ static void test_defaults(void **unused)
     assert_true(c.scene.loop.time_scale == 1.0f && c.scene.loop.auto_drop_interval == 3.0f && c.scene.loop.seed == 1);
     assert_int_equal(c.scene.loop.checkpoint_interval, 60);
     assert_false(c.scene_size_given);
+    assert_false(c.integrator_given);
+    assert_int_equal(c.scene.params.integrator, CS_IMPLICIT_EULER);
+}
+
+/* The backend's defaults: on the CPU the table's; on CUDA a 256 x 256 cloth and velocity_verlet,
+ * each only where the settings did not give it (the file's, the flags' or the environment's). */
+static void test_backend_defaults(void **unused)
+{
+    (void)unused;
+    char why[600] = "";
+    clothd_config c = uk_defaults(), was = c;
+    assert_int_equal(settings_backend_defaults(&c, "cpu"), 0);
+    assert_memory_equal(&c.scene, &was.scene, sizeof c.scene);
+    assert_int_equal(settings_backend_defaults(&c, "cuda"), 1);
+    assert_int_equal(c.scene.fields.nx, 256);
+    assert_int_equal(c.scene.fields.ny, 256);
+    assert_int_equal(c.scene.params.integrator, CS_VELOCITY_VERLET);
+    assert_true(c.scene.params.k_bend == was.scene.params.k_bend); /* nothing else */
+    assert_int_equal(settings_backend_defaults(&c, "cuda"), 0);    /* already so */
+    clothd_config g = uk_defaults();
+    const char *text = "integrator = implicit_euler\nny = 40\n";
+    assert_int_equal(settings_parse_config(&g, text, strlen(text), "x.conf", why, sizeof why), 0);
+    assert_true(g.integrator_given && g.scene_size_given);
+    assert_int_equal(settings_backend_defaults(&g, "cuda"), 0);
+    assert_int_equal(g.scene.params.integrator, CS_IMPLICIT_EULER);
+    assert_int_equal(g.scene.fields.nx, 64);
+    assert_int_equal(g.scene.fields.ny, 40);
 }
 
 static int apply(clothd_config *c, const char *text, char *why)
@@ -227,6 +254,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_one_table),
         cmocka_unit_test(test_defaults),
+        cmocka_unit_test(test_backend_defaults),
         cmocka_unit_test(test_config_text),
         cmocka_unit_test(test_precedence),
         cmocka_unit_test(test_markdown),
