@@ -93,6 +93,10 @@ static cs_sim *first_engine(clothd_config *cfg)
     if (settings_backend_defaults(&want, cs_sim_backend(sim))) {
         if (cs_sim_set_params(sim, &want.scene.params) == CS_OK) cfg->scene.params = want.scene.params;
         if (cs_sim_set_scene(sim, &want.scene.fields) == CS_OK) cfg->scene.fields = want.scene.fields;
+        const cs_param_info *integ = cs_param_find("integrator");
+        log_msg("the %s backend's defaults: a %d x %d cloth, integrator %s (--nx, --ny and --integrator choose others)",
+                cs_sim_backend(sim), (int)cfg->scene.fields.nx, (int)cfg->scene.fields.ny,
+                integ->choices[cfg->scene.params.integrator]);
     }
     log_msg("backend: %s on %s (%s)", cs_sim_backend(sim), cs_sim_device(sim), cs_sim_backend_note(sim));
     return sim;
