@@ -86,7 +86,7 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     }
     IM_ROW("k_im_accel", 24.0 + 4.0, 12.0, 1.0, 1.0);
     if (strain) IM_ROW("k_strain", 12.0 + 24.0 + 1.0, 0.0, 1.0, 1.0);
-    IM_ROW("k_im_finite (a step call's end)", 24.0, 0.0, 1.0 / F, 1.0);
+    IM_ROW("k_im_finite (a step call's end)", 36.0, 0.0, 1.0 / F, 1.0);
 #undef IM_ROW
     cs_cost_add(out, "frame copy (positions, on the device)", 12.0, 12.0, 0, 1.0 / F, 0);
     out->graphs_per_frame = 0.0; /* plain launches */

@@ -456,16 +456,19 @@ __global__ void k_im_refresh_accel(const cuda_scene *__restrict__ sc, const floa
     for (int q = 0; q < 3; q++) acc[(size_t)q * (size_t)n + v] = R[3 * (size_t)v + q] * k;
 }
 
-/* FLAG_NONFINITE where a position or velocity of the state, or a rock's position, velocity or
- * spin, is not finite (the CPU's state_finite). */
-__global__ void k_im_finite(const float *S, int32_t n, const cs_rock_state *rocks, int32_t nr, int *flags)
+/* FLAG_NONFINITE where a position, velocity or acceleration of the state, or a rock's position,
+ * velocity, spin or their rates, is not finite (the CPU's state_finite with acc: a step reported
+ * finite leaves a state that saves). */
+__global__ void k_im_finite(const float *S, const float *acc, int32_t n, const cs_rock_state *rocks, int32_t nr,
+                            int *flags)
 {
     const int32_t v = im_vertex();
     if (v >= n) return;
     int bad = 0;
     for (int q = 0; q < 6; q++) bad |= !isfinite(S[(size_t)q * (size_t)n + v]);
+    for (int q = 0; q < 3; q++) bad |= !isfinite(acc[(size_t)q * (size_t)n + v]);
     if (v == 0)
-        for (int32_t r = 0; r < nr; r++) bad |= !finite3(rocks[r].x) || !finite3(rocks[r].v) || !finite3(rocks[r].w);
+        for (int32_t r = 0; r < nr; r++) bad |= !cs_rock_finite(&rocks[r], 1);
     if (bad) atomicOr(&flags[FLAG_NONFINITE], 1);
 }
 
@@ -769,7 +772,7 @@ static cs_status im_step(cuda_ctx *c, const cs_model *m, int32_t substeps, cs_st
             if (p->self_on && (st = sc_end(c, p, &rep->self)) != CS_OK) return st;
         }
     }
-    k_im_finite<<<im_blocks(p->n), IM_THREADS, 0, c->stream>>>(c->vb.state[c->cur], p->n, c->rb.rocks, nr, c->flags);
+    k_im_finite<<<im_blocks(p->n), IM_THREADS, 0, c->stream>>>(c->vb.state[c->cur], c->vb.acc, p->n, c->rb.rocks, nr, c->flags);
     CUDA_CHECK(cudaGetLastError());
     rep->solver = stats;
     return CS_OK;

@@ -75,7 +75,7 @@ __device__ static void rock_move(int mode, cs_rock_state *k, const cs_phys *p, i
         break;
     default: break;
     }
-    if ((mode == ROCKS_VERLET_LAST || mode == ROCKS_EULER) && (!finite3(k->x) || !finite3(k->v) || !finite3(k->w)))
+    if ((mode == ROCKS_VERLET_LAST || mode == ROCKS_EULER) && !cs_rock_finite(k, 0))
         atomicOr(&flags[FLAG_NONFINITE], 1);
 }
 

@@ -998,21 +998,20 @@ static cs_status cpu_refresh(void *ctx, const cs_model *m, cs_state *s)
     return CS_OK;
 }
 
-static int state_finite(const cs_state *s)
+/* Whether the state's positions and velocities, and the rocks', are finite; with acc (implicit_euler,
+ * whose accelerations are (v - v_n) / h rather than forces the next substep meets) its accelerations
+ * and the rocks' too, so that a step reported finite leaves a state that saves (snapshot.c). */
+static int state_finite(const cs_state *s, int acc)
 {
     int ok = 1;
-    const float *arrays[] = {s->x, s->y, s->z, s->vx, s->vy, s->vz};
-    for (int a = 0; a < 6; a++) {
+    const float *arrays[] = {s->x, s->y, s->z, s->vx, s->vy, s->vz, s->ax, s->ay, s->az};
+    for (int a = 0; a < (acc ? 9 : 6); a++) {
         const float *q = arrays[a];
         float acc = 0.0f;
         for (int32_t v = 0; v < s->n; v++) acc += q[v] - q[v]; /* NaN for any NaN or infinity */
         ok &= acc == 0.0f;
     }
-    for (int32_t r = 0; r < s->n_rocks; r++) {
-        const cs_rock_state *k = &s->rocks[r];
-        const float vals[] = {k->x.x, k->x.y, k->x.z, k->v.x, k->v.y, k->v.z, k->w.x, k->w.y, k->w.z};
-        for (int i = 0; i < 9; i++) ok &= vals[i] - vals[i] == 0.0f;
-    }
+    for (int32_t r = 0; r < s->n_rocks; r++) ok &= cs_rock_finite(&s->rocks[r], acc);
     return ok;
 }
 
@@ -1053,10 +1052,10 @@ static void step_team(cpu_ctx *c, thread_buf *tb, const cs_model *m, cs_state *s
 }
 
 /* What a step call reports, once its team is done. */
-static void step_report(cpu_ctx *c, const cs_state *s, cs_step_report *rep)
+static void step_report(cpu_ctx *c, const cs_model *m, const cs_state *s, cs_step_report *rep)
 {
     rep->torn = take_torn(c);
-    rep->finite = state_finite(s);
+    rep->finite = state_finite(s, m->phys.integrator == CS_IMPLICIT_EULER);
 }
 
 static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t substeps, cs_step_report *rep)
@@ -1069,7 +1068,7 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
         const cs_status st = cs_im_step(&c->im, m, s, substeps, threads, rep, &torn, &c->sc);
         if (st != CS_OK) return st;
         c->torn += torn;
-        step_report(c, s, rep);
+        step_report(c, m, s, rep);
         return CS_OK;
     }
     thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(threads, m->phys.nx) : NULL;
@@ -1094,7 +1093,7 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
         done += run;
     }
     scratch_give(tb, threads);
-    step_report(c, s, rep);
+    step_report(c, m, s, rep);
     return CS_OK;
 }
 
@@ -1228,7 +1227,7 @@ static cs_status cpu_step_batch(cs_batch_item *items, int n)
             if (it->status != CS_OK) continue;
             step_team(it->ctx, mine, it->m, it->s, it->substeps, 0);
 #pragma omp single nowait
-            step_report(it->ctx, it->s, &it->rep);
+            step_report(it->ctx, it->m, it->s, &it->rep);
         }
         for (;;) {
             int k;
@@ -1238,7 +1237,7 @@ static cs_status cpu_step_batch(cs_batch_item *items, int n)
             cs_batch_item *it = jobs[k].it;
             if (it->status != CS_OK) continue;
             step_team(it->ctx, mine, it->m, it->s, it->substeps, 1);
-            step_report(it->ctx, it->s, &it->rep);
+            step_report(it->ctx, it->m, it->s, &it->rep);
         }
     }
     scratch_give(tb, t);

@@ -296,12 +296,8 @@ static int state_finite(const cs_state *s)
     const float *arrays[] = {s->x, s->y, s->z, s->vx, s->vy, s->vz, s->ax, s->ay, s->az};
     for (int a = 0; a < 9; a++)
         if (!all_finite(arrays[a], n)) return 0;
-    for (int32_t r = 0; r < s->n_rocks; r++) {
-        const cs_rock_state *k = &s->rocks[r];
-        const float f[15] = {k->x.x, k->x.y, k->x.z, k->v.x, k->v.y, k->v.z, k->w.x, k->w.y, k->w.z,
-                             k->a.x, k->a.y, k->a.z, k->alpha.x, k->alpha.y, k->alpha.z};
-        if (!all_finite(f, 15) || !all_finite(k->q, 4)) return 0;
-    }
+    for (int32_t r = 0; r < s->n_rocks; r++)
+        if (!cs_rock_finite(&s->rocks[r], 1)) return 0;
     return isfinite(s->time);
 }
 

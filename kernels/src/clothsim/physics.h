@@ -815,6 +815,20 @@ SIM_HD static inline void cs_rock_accel(cs_rock_state *r, cs_vec3 F, cs_vec3 T)
     r->alpha = cs_scale(T, r->inv_inertia);
 }
 
+/* Whether a rock's position, velocity, spin and orientation are finite (with rates, its linear and
+ * angular accelerations too): what a step call checks (a huge spin makes the orientation NaN while
+ * the rest stays finite), and a snapshot needs. */
+SIM_HD static inline int cs_rock_finite(const cs_rock_state *r, int rates)
+{
+    int ok = isfinite(r->x.x) && isfinite(r->x.y) && isfinite(r->x.z) && isfinite(r->v.x) && isfinite(r->v.y) &&
+             isfinite(r->v.z) && isfinite(r->w.x) && isfinite(r->w.y) && isfinite(r->w.z);
+    for (int k = 0; k < 4; k++) ok = ok && isfinite(r->q[k]);
+    if (rates)
+        ok = ok && isfinite(r->a.x) && isfinite(r->a.y) && isfinite(r->a.z) && isfinite(r->alpha.x) &&
+             isfinite(r->alpha.y) && isfinite(r->alpha.z);
+    return ok;
+}
+
 /* Velocity that moves a grabbed vertex from x toward target by at most grab_speed dt. */
 SIM_HD static inline cs_vec3 cs_grab_velocity(cs_vec3 x, cs_vec3 target, const cs_phys *p)
 {
