@@ -174,10 +174,12 @@ static cs_sim **batch_make(const batch_how *how, int size, int n, int threads)
         char err[256];
         if (how->integrator >= 0) p.integrator = (cs_integrator)how->integrator;
         cs_status st = cs_sim_create(&sc, &p, how->backend, &sims[k], err, sizeof err);
-        if (st == CS_OK && how->integrator < 0) {
+        if (st == CS_OK && how->integrator < 0) { /* the backend's default, now that it is known */
             p.integrator = cs_params_default_integrator(cs_sim_backend(sims[k]));
-            if ((st = cs_sim_set_params(sims[k], &p)) != CS_OK) snprintf(err, sizeof err, "%s", cs_sim_error(sims[k]));
-            if (st != CS_OK) cs_sim_destroy(sims[k]);
+            if ((st = cs_sim_set_params(sims[k], &p)) != CS_OK) {
+                snprintf(err, sizeof err, "%s", cs_sim_error(sims[k]));
+                cs_sim_destroy(sims[k]);
+            }
         }
         if (st != CS_OK) {
             fprintf(stderr, "clothd-bench: %dx%d: %s\n", size, size, err);

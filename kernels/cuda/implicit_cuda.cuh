@@ -457,7 +457,7 @@ __global__ void k_im_refresh_accel(const cuda_scene *__restrict__ sc, const floa
 }
 
 /* FLAG_NONFINITE where a position, velocity or acceleration of the state, or a rock's position,
- * velocity, spin or their rates, is not finite (the CPU's state_finite with acc: a step reported
+ * velocity, spin or their rates, is not finite (the CPU's state_finite with rates: a step reported
  * finite leaves a state that saves). */
 __global__ void k_im_finite(const float *S, const float *acc, int32_t n, const cs_rock_state *rocks, int32_t nr,
                             int *flags)

@@ -998,20 +998,20 @@ static cs_status cpu_refresh(void *ctx, const cs_model *m, cs_state *s)
     return CS_OK;
 }
 
-/* Whether the state's positions and velocities, and the rocks', are finite; with acc (implicit_euler,
+/* Whether the state's positions and velocities, and the rocks', are finite; with rates (implicit_euler,
  * whose accelerations are (v - v_n) / h rather than forces the next substep meets) its accelerations
  * and the rocks' too, so that a step reported finite leaves a state that saves (snapshot.c). */
-static int state_finite(const cs_state *s, int acc)
+static int state_finite(const cs_state *s, int rates)
 {
     int ok = 1;
     const float *arrays[] = {s->x, s->y, s->z, s->vx, s->vy, s->vz, s->ax, s->ay, s->az};
-    for (int a = 0; a < (acc ? 9 : 6); a++) {
+    for (int a = 0; a < (rates ? 9 : 6); a++) {
         const float *q = arrays[a];
         float acc = 0.0f;
         for (int32_t v = 0; v < s->n; v++) acc += q[v] - q[v]; /* NaN for any NaN or infinity */
         ok &= acc == 0.0f;
     }
-    for (int32_t r = 0; r < s->n_rocks; r++) ok &= cs_rock_finite(&s->rocks[r], acc);
+    for (int32_t r = 0; r < s->n_rocks; r++) ok &= cs_rock_finite(&s->rocks[r], rates);
     return ok;
 }
 

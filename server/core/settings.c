@@ -264,12 +264,14 @@ int settings_set_text(clothd_config *c, const char *name, const char *text, char
 
 int settings_backend_defaults(clothd_config *cfg, const char *backend)
 {
-    const clothd_config was = *cfg;
-    const int cuda = strcmp(backend, "cuda") == 0;
-    if (cuda && !cfg->scene_size_given) cfg->scene.fields.nx = cfg->scene.fields.ny = 256;
-    if (!cfg->integrator_given) cfg->scene.params.integrator = cs_params_default_integrator(backend);
-    return was.scene.fields.nx != cfg->scene.fields.nx || was.scene.fields.ny != cfg->scene.fields.ny ||
-           was.scene.params.integrator != cfg->scene.params.integrator;
+    cs_scene *f = &cfg->scene.fields;
+    cs_params *p = &cfg->scene.params;
+    const cs_integrator integrator = cs_params_default_integrator(backend);
+    int changed = 0;
+    if (strcmp(backend, "cuda") == 0 && !cfg->scene_size_given && (f->nx != 256 || f->ny != 256))
+        f->nx = f->ny = 256, changed = 1;
+    if (!cfg->integrator_given && p->integrator != (int32_t)integrator) p->integrator = integrator, changed = 1;
+    return changed;
 }
 
 static char *trim(char *s)
