@@ -52,7 +52,7 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     const double vcycle_launches = 3.0 * 7.0 + 2.0 * CS_IM_COARSE_SWEEPS - 1.0;
 #define IM_ROW(name, rd, wr, runs, launches) cs_cost_add(out, name, rd, wr, 0, runs, (runs) * F * (launches))
     IM_ROW("k_im_reach (the part's largest coordinate)", 12.0, 0.0, 1.0, 1.0);
-    IM_ROW("k_im_begin (x_n, v_n kept; the first guess)", 24.0 + 1.0, 24.0 + 4.0 + 24.0, 1.0, 1.0);
+    IM_ROW("k_im_begin (x_n, v_n kept; the first guess)", 24.0 + 1.0 + 12.0, 24.0 + 4.0 + 24.0, 1.0, 1.0);
     /* the state (24), x_n's velocity (12), rest lengths (24), mask (4); R, the springs' force,
      * level 0's D, forward and bending blocks */
     IM_ROW("k_im_assemble (residual and level 0's matrix)", 64.0, 12.0 + 12.0 + blocks + bend, 1.0 + N, 1.0);

@@ -142,10 +142,11 @@ __device__ static float im_tree(float *buf, float mine)
 }
 
 /* The part's start: x_n, v_n copied aside, level 0's mask as floats and (guess) the first guess
- * into the iterate S: x_n + h v_n + h^2 g for a free vertex, the grabbed one moved at its grab
- * velocity, the others kept; v = (x - x_n)/h. */
+ * into the iterate S: x_n + h v_n + h^2 a for a free vertex (a from its last acceleration acc:
+ * cs_im_guess_accel), the grabbed one moved at its grab velocity, the others kept; v = (x - x_n)/h. */
 __global__ void k_im_begin(const cuda_scene *__restrict__ sc, const float *__restrict__ in, float *S, float *base,
-                           const unsigned char *__restrict__ mask, float *mask0, int guess)
+                           const unsigned char *__restrict__ mask, float *mask0, const float *__restrict__ acc,
+                           int guess)
 {
     const cs_phys *p = &sc->p;
     const int32_t v = im_vertex(), g = sc->grab;
@@ -158,7 +159,8 @@ __global__ void k_im_begin(const cuda_scene *__restrict__ sc, const float *__res
     const float h = p->dt, inv_h = 1.0f / h;
     cs_vec3 x = IM_X(in, n, v);
     if (w != 0.0f)
-        x = cs_add(x, cs_add(cs_scale(IM_V(in, n, v), h), cs_scale(p->gravity, h * h)));
+        x = cs_add(x, cs_add(cs_scale(IM_V(in, n, v), h),
+                             cs_scale(cs_im_guess_accel(p, cs_v3(acc[v], acc[n + v], acc[2 * n + v])), h * h)));
     else if (v == g)
         x = cs_add(x, cs_scale(cs_grab_velocity(IM_X(in, n, g), sc->grab_target, p), h));
     const float o[6] = {x.x, x.y, x.z, (x.x - base[v]) * inv_h, (x.y - base[n + v]) * inv_h,
@@ -678,7 +680,7 @@ static cs_status im_part(cuda_ctx *c, const cs_phys *p0, float h, cs_solver_stat
     CUDA_CHECK(cudaGetLastError());
     CUDA_CHECK(cudaMemcpyAsync(w->host_part, w->part, sizeof(float) * (size_t)w->nchunks, cudaMemcpyDeviceToHost,
                                c->stream));
-    k_im_begin<<<nb, IM_THREADS, 0, c->stream>>>(w->sc, c->vb.state[c->cur], S, w->base, c->vb.mask, w->lv[0].mask, 1);
+    k_im_begin<<<nb, IM_THREADS, 0, c->stream>>>(w->sc, c->vb.state[c->cur], S, w->base, c->vb.mask, w->lv[0].mask, c->vb.acc, 1);
     /* the rocks over the part without the cloth, and the mass they lend, from the part's start
      * (after k_im_begin: it reads level 0's mask) */
     const int rocks = c->host_sc.nr > 0;
@@ -787,7 +789,7 @@ static cs_status im_refresh(cuda_ctx *c, const cs_model *m)
     if (st != CS_OK) return st;
     im_work *w = c->im;
     float *S = c->vb.state[c->cur];
-    k_im_begin<<<im_blocks(p->n), IM_THREADS, 0, c->stream>>>(w->sc, S, NULL, w->base, c->vb.mask, w->lv[0].mask, 0);
+    k_im_begin<<<im_blocks(p->n), IM_THREADS, 0, c->stream>>>(w->sc, S, NULL, w->base, c->vb.mask, w->lv[0].mask, NULL, 0);
     float r;
     /* nothing carried (the rocks are left as they are): the cloth's own force */
     if ((st = im_assemble(c, S, c->vb.rest[c->rest_cur], 0, 0, &r)) != CS_OK) return st;

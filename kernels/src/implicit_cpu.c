@@ -670,7 +670,8 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
         cs_vec3 x = LOADX(v);
         reach = cs_im_reach(x, reach);
         if (s->w[v] != 0.0f)
-            x = cs_add(x, cs_add(cs_scale(LOADV(v), h), cs_scale(p->gravity, h * h)));
+            x = cs_add(x, cs_add(cs_scale(LOADV(v), h),
+                                 cs_scale(cs_im_guess_accel(p, cs_v3(s->ax[v], s->ay[v], s->az[v])), h * h)));
         else if (v == g)
             x = cs_add(x, cs_scale(vg, h));
         s->x[v] = x.x, s->y[v] = x.y, s->z[v] = x.z;
