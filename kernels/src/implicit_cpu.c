@@ -541,6 +541,30 @@ static void vcycle(cs_im_work *w, const cs_state *s, int l, const float *b, floa
     }
 }
 
+/* Coarse vertex (I, J) of level lv from the finer level F (cs_im_galerkin). */
+static void galerkin_one(const cs_im_level *F, im_level *lv, int32_t I, int32_t J)
+{
+    const int32_t v = J * lv->nx + I;
+    float *Fc[4];
+    for (int t = 0; t < 4; t++) Fc[t] = lv->F[t] + v;
+    cs_im_galerkin(F, I, J, lv->D + v, Fc, lv->S, lv->mask + v);
+}
+
+/* cs_im_galerkin_inner over coarse row J's vertices I0 .. I1 - 1 (each inner; the coarse level
+ * cnx wide): a plain loop that vectorizes, the outputs restrict (apply_run_bend's reasons). */
+__attribute__((noinline)) static void galerkin_run(const cs_im_level *F, int32_t J, int32_t I0, int32_t I1,
+                                                   int32_t cnx, float *restrict D, float *restrict F0,
+                                                   float *restrict F1, float *restrict F2, float *restrict F3,
+                                                   size_t Sc, float *restrict mask)
+{
+    IVDEP
+    for (int32_t I = I0; I < I1; I++) {
+        const int32_t v = J * cnx + I;
+        float *Fc[4] = {F0 + v, F1 + v, F2 + v, F3 + v};
+        cs_im_galerkin_inner(F, I, J, D + v, Fc, Sc, mask + v);
+    }
+}
+
 /* The hierarchy from level 0's matrix: each level's Dinv, the coarse levels' Galerkin products. */
 static void hierarchy(cs_im_work *w, const cs_state *s, int threads)
 {
@@ -549,13 +573,15 @@ static void hierarchy(cs_im_work *w, const cs_state *s, int threads)
         if (l > 0) {
             const cs_im_level F = view(w, l - 1, s);
             CS_PARALLEL_FOR(threads, schedule(static),
-            for (int32_t J = 0; J < lv->ny; J++)
-                for (int32_t I = 0; I < lv->nx; I++) {
-                    const int32_t v = J * lv->nx + I;
-                    float *Fc[4];
-                    for (int t = 0; t < 4; t++) Fc[t] = lv->F[t] + v;
-                    cs_im_galerkin(&F, I, J, lv->D + v, Fc, lv->S, lv->mask + v);
-                });
+            for (int32_t J = 0; J < lv->ny; J++) {
+                /* the inner coarse vertices of a row, a run; the rest one by one */
+                int32_t a = 1, e = (F.nx - 3) / 2 + 1;
+                if (!cs_im_galerkin_is_inner(F.nx, F.ny, a, J) || a >= e) a = e = lv->nx;
+                for (int32_t I = 0; I < a; I++) galerkin_one(&F, lv, I, J);
+                if (a < e)
+                    galerkin_run(&F, J, a, e, lv->nx, lv->D, lv->F[0], lv->F[1], lv->F[2], lv->F[3], lv->S, lv->mask);
+                for (int32_t I = e; I < lv->nx; I++) galerkin_one(&F, lv, I, J);
+            });
         }
         CS_PARALLEL_FOR(threads, schedule(static),
         for (int32_t v = 0; v < lv->n; v++) {

@@ -1029,6 +1029,81 @@ SIM_HD static inline void cs_im_galerkin(const cs_im_level *L, int32_t I, int32_
     *mask = any;
 }
 
+/* Whether coarse vertex (I, J) of a level over an nx x ny fine grid is inner for
+ * cs_im_galerkin_inner: every fine vertex its product reads lies on the grid (columns 2I - 1 ..
+ * 2I + 2, rows 2J .. 2J + 2). */
+SIM_HD static inline int cs_im_galerkin_is_inner(int32_t nx, int32_t ny, int32_t I, int32_t J)
+{
+    return I >= 1 && 2 * I + 2 <= nx - 1 && 2 * J + 2 <= ny - 1;
+}
+
+/* cs_im_galerkin for an inner coarse vertex (cs_im_galerkin_is_inner): the same sums in the same
+ * order, the branches of the general loops resolved for the 2 x 2 aggregate (which fine block
+ * couples which aggregates is fixed there), a mask a select after the sum, and the symmetric
+ * blocks' six stored elements only (each of the nine takes the same sums as its mirror), so that a
+ * CPU loop over a row's coarse vertices vectorizes. The same bits as cs_im_galerkin
+ * (tests/unit/test_implicit.c). Fine vertices v0 = (2I, 2J), v1 = v0 + 1, v2 = v0 + nx, v3 = v2 + 1. */
+SIM_HD static inline CS_IM_FORCE_INLINE void cs_im_galerkin_inner(const cs_im_level *L, int32_t I, int32_t J,
+                                                                 float *D, float *F[4], size_t Sc, float *mask)
+{
+    const int32_t nx = L->nx;
+    const size_t S = L->S;
+    const int32_t v0 = 2 * J * nx + 2 * I, v1 = v0 + 1, v2 = v0 + nx, v3 = v2 + 1;
+    const float *m = L->mask;
+    const int m0 = m[v0] != 0.0f, m1 = m[v1] != 0.0f, m2 = m[v2] != 0.0f, m3 = m[v3] != 0.0f;
+    float d[6], f0[6], f1[6], f2[6], f3[6];
+    for (int e = 0; e < 6; e++) d[e] = f0[e] = f1[e] = f2[e] = f3[e] = 0.0f;
+    /* acc += blk[e S] where on (the fine blocks' element e); twice: B and its transpose */
+#define CS_IM_ADD(acc, blk, on)                                                                    \
+    for (int e = 0; e < 6; e++) {                                                                  \
+        const float t_ = acc[e] + (blk)[(size_t)e * S];                                            \
+        acc[e] = (on) ? t_ : acc[e];                                                               \
+    }
+#define CS_IM_ADD2(acc, blk, on)                                                                   \
+    for (int e = 0; e < 6; e++) {                                                                  \
+        const float b_ = (blk)[(size_t)e * S], t_ = (acc[e] + b_) + b_;                            \
+        acc[e] = (on) ? t_ : acc[e];                                                               \
+    }
+    /* fine vertex 0 (2I, 2J): its blocks to v1, v2, v3 lie within the aggregate */
+    CS_IM_ADD(d, L->D + v0, m0)
+    CS_IM_ADD2(d, L->F[0] + v0, m0 && m1)
+    CS_IM_ADD2(d, L->F[1] + v0, m0 && m2)
+    CS_IM_ADD2(d, L->F[2] + v0, m0 && m3)
+    /* fine vertex 1 (2I + 1, 2J): to (2I + 2, 2J) and (2I + 2, 2J + 1) in aggregate (I + 1, J) */
+    CS_IM_ADD(d, L->D + v1, m1)
+    CS_IM_ADD(f0, L->F[0] + v1, m1 && m[v1 + 1] != 0.0f)
+    CS_IM_ADD2(d, L->F[1] + v1, m1 && m3)
+    CS_IM_ADD(f0, L->F[2] + v1, m1 && m[v1 + nx + 1] != 0.0f)
+    CS_IM_ADD2(d, L->F[3] + v1, m1 && m2)
+    /* fine vertex 2 (2I, 2J + 1): up into (I, J + 1), and (2I - 1, 2J + 2) into (I - 1, J + 1) */
+    CS_IM_ADD(d, L->D + v2, m2)
+    CS_IM_ADD2(d, L->F[0] + v2, m2 && m3)
+    CS_IM_ADD(f1, L->F[1] + v2, m2 && m[v2 + nx] != 0.0f)
+    CS_IM_ADD(f1, L->F[2] + v2, m2 && m[v2 + nx + 1] != 0.0f)
+    CS_IM_ADD(f3, L->F[3] + v2, m2 && m[v2 + nx - 1] != 0.0f)
+    /* fine vertex 3 (2I + 1, 2J + 1) */
+    CS_IM_ADD(d, L->D + v3, m3)
+    CS_IM_ADD(f0, L->F[0] + v3, m3 && m[v3 + 1] != 0.0f)
+    CS_IM_ADD(f1, L->F[1] + v3, m3 && m[v3 + nx] != 0.0f)
+    CS_IM_ADD(f2, L->F[2] + v3, m3 && m[v3 + nx + 1] != 0.0f)
+    CS_IM_ADD(f1, L->F[3] + v3, m3 && m[v3 + nx - 1] != 0.0f)
+    /* the one backward block into a forward aggregate: (2I + 2, 2J)'s block to (2I + 1, 2J + 1),
+     * transposed (symmetric: the same elements) */
+    CS_IM_ADD(f0, L->F[3] + (v0 + 2), m3 && m[v0 + 2] != 0.0f)
+#undef CS_IM_ADD
+#undef CS_IM_ADD2
+    const int any = m0 || m1 || m2 || m3;
+    const float id[6] = {1.0f, 0.0f, 0.0f, 1.0f, 0.0f, 1.0f};
+    for (int e = 0; e < 6; e++) {
+        D[(size_t)e * Sc] = any ? d[e] : id[e];
+        F[0][(size_t)e * Sc] = any ? f0[e] : 0.0f;
+        F[1][(size_t)e * Sc] = any ? f1[e] : 0.0f;
+        F[2][(size_t)e * Sc] = any ? f2[e] : 0.0f;
+        F[3][(size_t)e * Sc] = any ? f3[e] : 0.0f;
+    }
+    *mask = any ? 1.0f : 0.0f;
+}
+
 /* Restriction (the sum over the aggregate, in its fixed order) of a fine vector r at coarse vertex
  * (I, J). */
 SIM_HD static inline cs_vec3 cs_im_restrict(const cs_im_level *L, const float *r, int32_t I, int32_t J)
