@@ -38,6 +38,36 @@ static int parse_list(const char *s, double *out, int most)
     return n;
 }
 
+/* The scene on the CPU backend (threads > 0: that many), NULL when refused. */
+static cs_sim *cpu_sim(const cs_scene *sc, const cs_params *p, int threads)
+{
+    cs_sim *sim = NULL;
+    char err[256];
+    if (cs_sim_create(sc, p, "cpu", &sim, err, sizeof err) != CS_OK) return NULL;
+    if (threads > 0) cs_sim_set_threads(sim, threads);
+    return sim;
+}
+
+/* Steps sim `seconds` of frames (wall ms a frame into *ms), then its cloth's lowest z into *lo;
+ * nonzero when a step or the read fails. */
+static int settle_lowest(cs_sim *sim, const cs_scene *sc, const cs_params *p, double seconds, double *ms, double *lo)
+{
+    const int frames = (int)(seconds * p->frame_rate + 0.5);
+    const size_t n = (size_t)sc->nx * (size_t)sc->ny;
+    const double t0 = now();
+    if (cs_sim_step_frames(sim, frames) != CS_OK) return -1;
+    *ms = 1e3 * (now() - t0) / frames;
+    float *x = malloc(sizeof(float) * 3 * n);
+    if (!x || cs_read_positions(sim, x, 3 * n) != CS_OK) {
+        free(x);
+        return -1;
+    }
+    *lo = 1e30;
+    for (size_t v = 0; v < n; v++) *lo = x[3 * v + 2] < *lo ? x[3 * v + 2] : *lo;
+    free(x);
+    return 0;
+}
+
 /* A curtain (N x N, vertical, pinned along its top, the default fabric, air drag 5/s so that it
  * settles) after S seconds under an integrator: its lowest point below the top (the stretch). */
 static double curtain(int N, int integrator, double seconds, int threads, double *ms)
@@ -52,20 +82,11 @@ static double curtain(int N, int integrator, double seconds, int threads, double
     sc.height = 2.0f;
     p.ground = 0, p.drag = 5.0f, p.auto_substeps = 1, p.max_substeps = 100000;
     p.integrator = integrator;
-    cs_sim *sim = NULL;
-    char err[256];
-    if (cs_sim_create(&sc, &p, "cpu", &sim, err, sizeof err) != CS_OK) return -1;
-    if (threads > 0) cs_sim_set_threads(sim, threads);
-    const int frames = (int)(seconds * p.frame_rate + 0.5);
-    const double t0 = now();
-    if (cs_sim_step_frames(sim, frames) != CS_OK) return -1;
-    *ms = 1e3 * (now() - t0) / frames;
-    float *x = malloc(sizeof(float) * 3 * (size_t)N * N);
-    if (!x || cs_read_positions(sim, x, 3 * (size_t)N * N) != CS_OK) return -1;
-    double lo = 1e30;
-    for (int v = 0; v < N * N; v++) lo = x[3 * v + 2] < lo ? x[3 * v + 2] : lo;
-    free(x);
+    cs_sim *sim = cpu_sim(&sc, &p, threads);
+    double lo = 0.0;
+    const int bad = !sim || settle_lowest(sim, &sc, &p, seconds, ms, &lo) != 0;
     cs_sim_destroy(sim);
+    if (bad) return -1;
     return (sc.height + sc.size_y / 2.0) - lo - sc.size_y; /* the stretch past the rest length */
 }
 
@@ -82,28 +103,19 @@ static double stone(int N, int integrator, double seconds, int threads, double *
     sc.pins = CS_PINS_EDGES;
     p.drag = 3.0f, p.auto_substeps = 1, p.max_substeps = 100000;
     p.integrator = integrator;
-    cs_sim *sim = NULL;
-    char err[256];
-    if (cs_sim_create(&sc, &p, "cpu", &sim, err, sizeof err) != CS_OK) return -1;
-    if (threads > 0) cs_sim_set_threads(sim, threads);
+    cs_sim *sim = cpu_sim(&sc, &p, threads);
     cs_rock_def d;
     cs_rock_def_default(&d);
     d.radius = 0.15f, d.density = 2500.0f;
     d.position[2] = sc.height + p.contact_offset + d.radius;
     uint32_t id;
-    if (cs_rock_add(sim, &d, &id) != CS_OK) return -1;
-    const int frames = (int)(seconds * p.frame_rate + 0.5);
-    const double t0 = now();
-    if (cs_sim_step_frames(sim, frames) != CS_OK) return -1;
-    *ms = 1e3 * (now() - t0) / frames;
     cs_rock r;
-    float *x = malloc(sizeof(float) * 3 * (size_t)N * N);
-    if (!x || cs_rock_get(sim, id, &r) != CS_OK || cs_read_positions(sim, x, 3 * (size_t)N * N) != CS_OK) return -1;
-    double lo = 1e30;
-    for (int v = 0; v < N * N; v++) lo = x[3 * v + 2] < lo ? x[3 * v + 2] : lo;
-    free(x);
-    *sag = sc.height - lo;
+    double lo = 0.0;
+    const int bad = !sim || cs_rock_add(sim, &d, &id) != CS_OK || settle_lowest(sim, &sc, &p, seconds, ms, &lo) != 0 ||
+                    cs_rock_get(sim, id, &r) != CS_OK;
     cs_sim_destroy(sim);
+    if (bad) return -1;
+    *sag = sc.height - lo;
     return sc.height - r.def.position[2];
 }
 

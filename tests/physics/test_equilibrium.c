@@ -15,8 +15,22 @@
  * it. */
 #include "testkit.h"
 
-/* One thread: ctest runs two tests at once on two cores. */
-static cs_sim *made(const cs_scene *sc, const cs_params *p) { return tk_sim_serial(sc, p); }
+/* Runs the scene `seconds` under integrator (one thread: ctest runs two tests at once on two
+ * cores), with a 0.15 m stone of 2,500 kg/m^3 set down on it if `stone`; returns how far its
+ * cloth's lowest point lies below `from`. */
+static double lowest_below(cs_scene *sc, cs_params *p, int integrator, int stone, double seconds, double from)
+{
+    p->integrator = integrator;
+    cs_sim *sim = tk_sim_serial(sc, p);
+    if (stone) tk_add_rock(sim, 0.0f, 0.0f, sc->height + p->contact_offset + 0.15f, 0.15f, 2500.0f);
+    assert_int_equal(cs_sim_step_frames(sim, (int)(seconds * p->frame_rate + 0.5)), CS_OK);
+    float *xyz = tk_positions(sim);
+    double lowest = 1e30;
+    for (int32_t v = 0; v < sim->state.n; v++) lowest = xyz[3 * v + 2] < lowest ? xyz[3 * v + 2] : lowest;
+    free(xyz);
+    cs_sim_destroy(sim);
+    return from - lowest;
+}
 
 /* The curtain's stretch past its rest length after `seconds` under integrator. */
 static double curtain_stretch(int integrator, double seconds)
@@ -31,16 +45,8 @@ static double curtain_stretch(int integrator, double seconds)
     sc.height = 2.0f;
     p.ground = 0;
     p.drag = 5.0f;
-    p.integrator = integrator;
-    cs_sim *sim = made(&sc, &p);
-    assert_int_equal(cs_sim_step_frames(sim, (int)(seconds * p.frame_rate + 0.5)), CS_OK);
-    static float xyz[3 * 128 * 128];
-    assert_int_equal(cs_read_positions(sim, xyz, 3 * 128 * 128), CS_OK);
-    double lowest = 1e30;
-    for (int v = 0; v < 128 * 128; v++) lowest = xyz[3 * v + 2] < lowest ? xyz[3 * v + 2] : lowest;
-    cs_sim_destroy(sim);
-    const double top = sc.height + 0.5 * sc.size_y;
-    return top - lowest - sc.size_y;
+    /* the lowest point below the top, less the rest length */
+    return lowest_below(&sc, &p, integrator, 0, seconds, sc.height + 0.5 * sc.size_y) - sc.size_y;
 }
 
 /* How deep the cloth's lowest point lies below its plane with the stone on it after `seconds`. */
@@ -53,16 +59,7 @@ static double stone_sag(int integrator, double seconds)
     sc.nx = sc.ny = 64;
     sc.pins = CS_PINS_EDGES;
     p.drag = 3.0f;
-    p.integrator = integrator;
-    cs_sim *sim = made(&sc, &p);
-    tk_add_rock(sim, 0.0f, 0.0f, sc.height + p.contact_offset + 0.15f, 0.15f, 2500.0f);
-    assert_int_equal(cs_sim_step_frames(sim, (int)(seconds * p.frame_rate + 0.5)), CS_OK);
-    static float xyz[3 * 64 * 64];
-    assert_int_equal(cs_read_positions(sim, xyz, 3 * 64 * 64), CS_OK);
-    double lowest = 1e30;
-    for (int v = 0; v < 64 * 64; v++) lowest = xyz[3 * v + 2] < lowest ? xyz[3 * v + 2] : lowest;
-    cs_sim_destroy(sim);
-    return sc.height - lowest;
+    return lowest_below(&sc, &p, integrator, 1, seconds, sc.height);
 }
 
 static void test_curtain_stretch(void **unused)
