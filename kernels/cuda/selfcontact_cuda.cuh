@@ -225,7 +225,8 @@ __global__ void k_sc_pairs(const cuda_scene *__restrict__ sc, cs_sc_grid G, cons
 }
 
 /* Vertex v's repulsion (cs_sc_repel) from its list into push; touched[v] its touching pairs. */
-__global__ void k_sc_repel(const cuda_scene *__restrict__ sc, const float *__restrict__ S, const float *__restrict__ w,
+__global__ void k_sc_repel(const cuda_scene *__restrict__ sc, const float *__restrict__ S, const float *__restrict__ x0,
+                           const float *__restrict__ w,
                            const int32_t *__restrict__ count, const int64_t *__restrict__ first,
                            const int64_t *__restrict__ keys, float *push, int32_t *touched, int *flags)
 {
@@ -236,8 +237,8 @@ __global__ void k_sc_repel(const cuda_scene *__restrict__ sc, const float *__res
     if (count[v]) {
         const size_t N = (size_t)n;
         cs_vec3 dx = cs_v3(0.0f, 0.0f, 0.0f), dv = dx;
-        t = cs_sc_repel(p, S, S + N, S + 2 * N, S + 3 * N, S + 4 * N, S + 5 * N, w, keys + first[v], count[v], v, &dx,
-                        &dv);
+        t = cs_sc_repel(p, S, S + N, S + 2 * N, S + 3 * N, S + 4 * N, S + 5 * N, w, x0, x0 + N, x0 + 2 * N,
+                        keys + first[v], count[v], v, &dx, &dv);
         float *q = push + 6 * (size_t)v;
         q[0] = dx.x, q[1] = dx.y, q[2] = dx.z, q[3] = dv.x, q[4] = dv.y, q[5] = dv.z;
         if (t) atomicAdd(&flags[1], t);
@@ -395,8 +396,8 @@ static cs_status sc_end(cuda_ctx *c, const cs_phys *p, cs_self_stats *stats)
     if (total > 0) {
         CUDA_CHECK(cudaMemcpyAsync(w->first, w->host_first, sizeof(int64_t) * (size_t)n, cudaMemcpyHostToDevice, c->stream));
         k_sc_pairs<<<nb, SC_THREADS, 0, c->stream>>>(c->sc, G, L0, w->x0, cell, Rl, w->count, w->first, w->keys);
-        k_sc_repel<<<nb, SC_THREADS, 0, c->stream>>>(c->sc, S, w->w, w->count, w->first, w->keys, w->push, w->touched,
-                                                    w->flag);
+        k_sc_repel<<<nb, SC_THREADS, 0, c->stream>>>(c->sc, S, w->x0, w->w, w->count, w->first, w->keys, w->push,
+                                                    w->touched, w->flag);
     } else {
         CUDA_CHECK(cudaMemsetAsync(w->touched, 0, sizeof(int32_t) * (size_t)n, c->stream));
     }

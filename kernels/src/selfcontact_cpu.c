@@ -413,8 +413,8 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         w->look[v] = 0;
         if (!w->rl.count[v]) continue;
         cs_vec3 dx = cs_v3(0.0f, 0.0f, 0.0f), dv = dx;
-        const int32_t t = cs_sc_repel(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->w, list_of(&w->rl, v),
-                                      w->rl.count[v], v, &dx, &dv);
+        const int32_t t = cs_sc_repel(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->w, w->x0, w->y0, w->z0,
+                                      list_of(&w->rl, v), w->rl.count[v], v, &dx, &dv);
         touching += t;
         w->look[v] = t > 0;
         float *px = w->px + 3 * (size_t)v, *pv = w->pv + 3 * (size_t)v;

@@ -9,15 +9,12 @@
 #include <sys/resource.h>
 
 #include "testkit.h"
+#include "tk_geom.h"
 
 #define SIDE 16
 /* Frames run: the lower edge lands at about 0.15 s, the cloth has folded onto itself by 1.1 s. */
 #define FRAMES 80
 
-typedef struct { double x, y, z; } d3;
-static d3 sub3(d3 a, d3 b) { return (d3){a.x - b.x, a.y - b.y, a.z - b.z}; }
-static d3 cross3(d3 a, d3 b) { return (d3){a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
-static double dot3(d3 a, d3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
 
 /* Whether segment p q passes through triangle a b c. */
 static int segment_through(d3 p, d3 q, d3 a, d3 b, d3 c)
@@ -142,33 +139,6 @@ static void test_fold_implicit_euler(void **unused)
     check_integrator(CS_IMPLICIT_EULER);
 }
 
-/* The folded cloth at rest on the ground: layers stay at least half the thickness apart (every
- * vertex from every triangle more than two rings away in the grid, by the distance written here). */
-static double point_triangle(d3 p, d3 a, d3 b, d3 c)
-{
-    /* the least of the distances to the three edges and, when the foot falls inside, to the plane */
-    const d3 n = cross3(sub3(b, a), sub3(c, a));
-    const double nn = dot3(n, n);
-    double best = 1e300;
-    if (nn > 0.0) {
-        const double t = dot3(sub3(p, a), n) / nn;
-        const d3 f = sub3(p, (d3){n.x * t, n.y * t, n.z * t});
-        const d3 e0 = cross3(sub3(b, a), sub3(f, a)), e1 = cross3(sub3(c, b), sub3(f, b)),
-                 e2 = cross3(sub3(a, c), sub3(f, c));
-        if (dot3(e0, n) >= 0.0 && dot3(e1, n) >= 0.0 && dot3(e2, n) >= 0.0) best = fabs(t) * sqrt(nn);
-    }
-    const d3 ends[3][2] = {{a, b}, {b, c}, {c, a}};
-    for (int k = 0; k < 3; k++) {
-        const d3 e = sub3(ends[k][1], ends[k][0]);
-        double s = dot3(sub3(p, ends[k][0]), e) / dot3(e, e);
-        s = s < 0.0 ? 0.0 : s > 1.0 ? 1.0 : s;
-        const d3 q = sub3(sub3(p, ends[k][0]), (d3){e.x * s, e.y * s, e.z * s});
-        const double d = sqrt(dot3(q, q));
-        best = d < best ? d : best;
-    }
-    return best;
-}
-
 /* Head-on: a free 1 m cloth without gravity, its corner grabbed and lifted over the cloth, then
  * driven down through it at grab_speed (5 m/s): the folded-over part meets the flat part face on.
  * Returns the most crossings at any frame, and the lowest the corner got (so the test knows the
@@ -216,6 +186,8 @@ static void test_head_on(void **unused)
     }
 }
 
+/* The folded cloth at rest on the ground: layers stay at least half the thickness apart (every
+ * vertex from every triangle more than two rings away in the grid, by the distance of tk_geom.h). */
 static void test_layers_keep_apart(void **unused)
 {
     (void)unused;

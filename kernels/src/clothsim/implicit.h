@@ -813,13 +813,11 @@ SIM_HD static inline cs_vec3 cs_im_residual(const cs_phys *p, cs_vec3 F, cs_vec3
  * adaptive initialisation of Vertex Block Descent (Chen et al. 2024). A falling vertex guesses its
  * free fall (a cloth in free fall needs no Newton iteration), a supported one no fall, so a cloth
  * at rest starts at rest rather than pulled off its pins by h^2 g (which left Newton at 5 % of its
- * first residual after two iterations). A NaN in a_last guesses no fall. With self_collision on,
- * gravity itself (MODEL.md, "Self-collision": the bound freezes pairs that come within float
- * rounding of each other, and the folding scenes came there from the adaptive guess). */
+ * first residual after two iterations). A NaN in a_last guesses no fall. */
 SIM_HD static inline cs_vec3 cs_im_guess_accel(const cs_phys *p, cs_vec3 a_last)
 {
     const float g = cs_len(p->gravity);
-    if (p->self_on || !(g > 0.0f)) return p->gravity;
+    if (!(g > 0.0f)) return p->gravity;
     const cs_vec3 u = cs_scale(p->gravity, 1.0f / g);
     float a = cs_dot(a_last, u);
     a = a > 0.0f ? (a < g ? a : g) : 0.0f;
