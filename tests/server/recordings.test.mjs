@@ -206,7 +206,9 @@ test('max_recordings_mb: a recording whose estimate does not fit is refused; one
   // 8 x 8 q16: a frame record is 72 + 384 + 8 bytes and 24 of index, so 30 s (1801 frames) is
   // about 0.90 MiB with the 64 KiB allowed for texts: it fits in 1 MiB; 60 s does not. 100 rocks
   // (36 bytes each in every frame) make each frame 8 times larger: it reaches the cap well before 30 s.
-  const d = await start([...small, '--max-recordings-mb', '1', '--time-scale', '4']);
+  // They are dropped while the scene is paused (a frame each, 0.18 MB in all), so that every frame
+  // after it resumes holds all 100, however slowly the commands come.
+  const d = await start([...small, '--max-recordings-mb', '1', '--time-scale', '4', '--paused']);
   const big = await call(d, 'POST', '/v1/recordings', { seconds: 60, encoding: 'q16' });
   assert.equal(big.status, 422, big.text);
   assert.equal(big.json.param, 'max_recordings_mb');
@@ -217,6 +219,7 @@ test('max_recordings_mb: a recording whose estimate does not fit is refused; one
   for (let k = 0; k < 100; k++) {
     await ok(d, 'POST', '/v1/rocks', { position: [-0.45 + 0.1 * (k % 10), -0.45 + 0.1 * Math.floor(k / 10), 2.5], radius: 0.02 });
   }
+  await ok(d, 'POST', '/v1/sim/resume');
   const r = await finished(d, 'capped');
   assert.deepEqual([r.state, r.reason], ['stopped', 'max_recordings_mb reached']);
   assert.ok(r.bytes <= 1 << 20, String(r.bytes));
