@@ -37,7 +37,7 @@ static float cloth_distance(const cs_sim *sim, cs_vec3 c, int32_t *near)
         for (int q = 0; q < 3; q++) x[q] = cs_v3(s->x[t[q]], s->y[t[q]], s->z[t[q]]);
         float w[3];
         cs_closest_on_triangle(c, x[0], x[1], x[2], w);
-        const cs_vec3 p = cs_add(cs_add(cs_scale(x[0], w[0]), cs_scale(x[1], w[1])), cs_scale(x[2], w[2]));
+        const cs_vec3 p = cs_tri_point(x[0], x[1], x[2], w);
         const float d = cs_len(cs_sub(p, c));
         if (d < best) best = d, *near = t[w[0] >= w[1] ? (w[0] >= w[2] ? 0 : 2) : (w[1] >= w[2] ? 1 : 2)];
     }

@@ -237,7 +237,7 @@ SIM_HD static inline cs_mat3 cs_im_ground_block(cs_vec3 xi, cs_vec3 vi, const cs
 SIM_HD static inline int cs_im_share_tri(const cs_vec3 x[3], cs_vec3 c, float reach, float b[3], cs_vec3 *n)
 {
     cs_closest_on_triangle(c, x[0], x[1], x[2], b);
-    const cs_vec3 p = cs_add(cs_add(cs_scale(x[0], b[0]), cs_scale(x[1], b[1])), cs_scale(x[2], b[2]));
+    const cs_vec3 p = cs_tri_point(x[0], x[1], x[2], b);
     const cs_vec3 d = cs_sub(p, c);
     const float len = cs_len(d);
     if (!(len < reach) || !(len > CS_MIN_LEN)) return 0;
@@ -253,7 +253,7 @@ SIM_HD static inline float cs_im_push_tri(const cs_vec3 x[3], const float wv[3],
     float b[3];
     cs_vec3 n;
     if (!cs_im_share_tri(x, c, Rc, b, &n)) return 0.0f;
-    const cs_vec3 p = cs_add(cs_add(cs_scale(x[0], b[0]), cs_scale(x[1], b[1])), cs_scale(x[2], b[2]));
+    const cs_vec3 p = cs_tri_point(x[0], x[1], x[2], b);
     const float W = wr + b[0] * b[0] * wv[0] + b[1] * b[1] * wv[1] + b[2] * b[2] * wv[2];
     if (!(W > 0.0f)) return 0.0f;
     const float lambda = (Rc - cs_len(cs_sub(p, c))) / W;
@@ -578,7 +578,7 @@ SIM_HD static inline float cs_im_stop_tri(const cs_vec3 x[3], const cs_vec3 u[3]
 {
     cs_vec3 n;
     if (!cs_im_share_tri(x, c, Rc * 1.0001f + 1e-6f, b, &n)) return 0.0f;
-    const cs_vec3 up = cs_add(cs_add(cs_scale(u[0], b[0]), cs_scale(u[1], b[1])), cs_scale(u[2], b[2]));
+    const cs_vec3 up = cs_tri_point(u[0], u[1], u[2], b);
     const cs_vec3 us = cs_add(q->v, cs_cross(q->w, cs_scale(n, q->radius)));
     const float vn = cs_dot(cs_sub(up, us), n);
     const float W = q->inv_mass + b[0] * b[0] * wv[0] + b[1] * b[1] * wv[1] + b[2] * b[2] * wv[2];

@@ -405,6 +405,12 @@ SIM_HD static inline void cs_closest_on_triangle(cs_vec3 c, cs_vec3 a, cs_vec3 b
     w[1] = vb * inv, w[2] = vo * inv, w[0] = 1.0f - w[1] - w[2];
 }
 
+/* The point of triangle a b o with barycentric weights w. */
+SIM_HD static inline cs_vec3 cs_tri_point(cs_vec3 a, cs_vec3 b, cs_vec3 o, const float w[3])
+{
+    return cs_add(cs_add(cs_scale(a, w[0]), cs_scale(b, w[1])), cs_scale(o, w[2]));
+}
+
 /* Weight of b (a's is 1 minus it) of the point of segment a b closest to c. */
 SIM_HD static inline float cs_closest_on_segment(cs_vec3 c, cs_vec3 a, cs_vec3 b)
 {
@@ -589,7 +595,7 @@ SIM_HD static inline int cs_surface_triangle(cs_vec3 c, cs_vec3 a, cs_vec3 b, cs
                                              float w[3])
 {
     cs_closest_on_triangle(c, a, b, o, w);
-    *p = cs_add(cs_add(cs_scale(a, w[0]), cs_scale(b, w[1])), cs_scale(o, w[2]));
+    *p = cs_tri_point(a, b, o, w);
     const cs_vec3 d = cs_sub(*p, c);
     return cs_dot(d, d) <= lim * lim;
 }

@@ -24,8 +24,9 @@
  *    CS_SC_GAMMA times its distance at x0 (its distance then changes too slowly to reach zero),
  *    or while a direction keeps its two sides apart all along their straight paths (cs_sc_safe,
  *    cs_sc_apart_along: layers sliding over each other, or pushed apart, however near): its
- *    closest points then never meet. An unsafe pair's vertices are cut back, each to CS_SC_GAMMA / 2 of that
- *    distance (then no two of them move apart by more than CS_SC_GAMMA of it); sweeps repeat
+ *    closest points then never meet. An unsafe pair's vertices are cut back, each to
+ *    CS_SC_GAMMA / 2 of that distance (then no two of them move apart by more than CS_SC_GAMMA of
+ *    it); sweeps repeat
  *    until every pair is safe (a vertex's cut only ever grows, so they end). Two triangles that
  *    share no vertex cross only after such a pair met (a vertex through a face, or an edge
  *    through an edge), so none cross: the guarantee needs no continuous collision detection.
@@ -93,8 +94,14 @@ SIM_HD static inline void cs_sc_sort(int32_t n, const uint32_t *key, uint32_t ma
 SIM_HD static inline float cs_sc_point_tri(cs_vec3 p, cs_vec3 a, cs_vec3 b, cs_vec3 c, float w[3])
 {
     cs_closest_on_triangle(p, a, b, c, w);
-    const cs_vec3 q = cs_add(cs_add(cs_scale(a, w[0]), cs_scale(b, w[1])), cs_scale(c, w[2]));
+    const cs_vec3 q = cs_tri_point(a, b, c, w);
     return cs_len(cs_sub(p, q));
+}
+
+/* The point of segment p0 p1 at parameter s. */
+SIM_HD static inline cs_vec3 cs_sc_seg_point(cs_vec3 p0, cs_vec3 p1, float s)
+{
+    return cs_add(p0, cs_scale(cs_sub(p1, p0), s));
 }
 
 /* Distance between segments p0 p1 and q0 q1 (closest points by clamped parameters, then each
@@ -127,7 +134,7 @@ SIM_HD static inline float cs_sc_seg_seg_st(cs_vec3 p0, cs_vec3 p1, cs_vec3 q0, 
         }
     }
     *ps = s, *pt = t;
-    const cs_vec3 cp = cs_add(p0, cs_scale(d1, s)), cq = cs_add(q0, cs_scale(d2, t));
+    const cs_vec3 cp = cs_sc_seg_point(p0, p1, s), cq = cs_sc_seg_point(q0, q1, t);
     return cs_len(cs_sub(cp, cq));
 }
 
@@ -281,7 +288,7 @@ SIM_HD static inline int cs_sc_pair_push(const cs_phys *ph, const float *x, cons
     float bw[3];
     const float d = cs_sc_point_tri(xp, a, b, c, bw);
     if (!(d < ph->self_thickness)) return 0;
-    const cs_vec3 q = cs_add(cs_add(cs_scale(a, bw[0]), cs_scale(b, bw[1])), cs_scale(c, bw[2]));
+    const cs_vec3 q = cs_tri_point(a, b, c, bw);
     cs_vec3 n;
     if (d > 1e-9f) {
         n = cs_scale(cs_sub(xp, q), 1.0f / d);
@@ -293,10 +300,8 @@ SIM_HD static inline int cs_sc_pair_push(const cs_phys *ph, const float *x, cons
     }
     /* the side the point was on at x0 (the same closest point): one the step took it through
      * is pushed back across, not further */
-    const cs_vec3 q0 = cs_add(cs_add(cs_scale(cs_sc_at(ox, oy, oz, t[0]), bw[0]),
-                                     cs_scale(cs_sc_at(ox, oy, oz, t[1]), bw[1])),
-                              cs_scale(cs_sc_at(ox, oy, oz, t[2]), bw[2]));
-    const cs_vec3 r0 = cs_sub(cs_sc_at(ox, oy, oz, p), q0);
+    const cs_vec3 r0 = cs_sub(cs_sc_at(ox, oy, oz, p), cs_tri_point(cs_sc_at(ox, oy, oz, t[0]), cs_sc_at(ox, oy, oz, t[1]),
+                                                                 cs_sc_at(ox, oy, oz, t[2]), bw));
     const int through = cs_dot(n, r0) < 0.0f;
     if (through) n = cs_scale(n, -1.0f);
     const float wp = w[p];
@@ -352,7 +357,7 @@ SIM_HD static inline int cs_sc_edge_push(const cs_phys *ph, const float *x, cons
     float ps, pt;
     const float d = cs_sc_seg_seg_st(a0, a1, b0, b1, &ps, &pt);
     if (!(d < ph->self_thickness)) return 0;
-    const cs_vec3 cp = cs_add(a0, cs_scale(cs_sub(a1, a0), ps)), cq = cs_add(b0, cs_scale(cs_sub(b1, b0), pt));
+    const cs_vec3 cp = cs_sc_seg_point(a0, a1, ps), cq = cs_sc_seg_point(b0, b1, pt);
     cs_vec3 n;
     if (d > 1e-9f) {
         n = cs_scale(cs_sub(cp, cq), 1.0f / d);
@@ -553,7 +558,8 @@ SIM_HD static inline int32_t cs_sc_pairs(const cs_phys *ph, const cs_sc_grid *G,
 }
 
 /* Vertex v's repulsion from its list of pairs (keys[0..n), sorted): what the pairs that touch at
- * x1 ask of it, averaged, into *dx, *dv. Returns the pairs that touch. */
+ * x1 ask of it, averaged (each weighted by v's part in the pair), into *dx, *dv. Returns the pairs
+ * that touch. */
 SIM_HD static inline int32_t cs_sc_repel(const cs_phys *ph, const float *x, const float *y, const float *z,
                                          const float *vx, const float *vy, const float *vz, const float *w,
                                          const float *ox, const float *oy, const float *oz, const int64_t *keys,
@@ -569,7 +575,7 @@ SIM_HD static inline int32_t cs_sc_repel(const cs_phys *ph, const float *x, cons
         else
             touching += cs_sc_pair_push(ph, x, y, z, vx, vy, vz, w, ox, oy, oz, p, t, v, &sx, &sv, &wsum);
     }
-    if (touching > 0 && wsum > 0.0f) {
+    if (wsum > 0.0f) { /* (some pair touched) */
         const float inv = 1.0f / wsum;
         *dx = cs_scale(sx, inv);
         *dv = cs_scale(sv, inv);
@@ -650,10 +656,11 @@ SIM_HD static inline int cs_sc_safe(const int32_t q[4], int na, float dist, cs_v
     }
     const double n0[3] = {dir.x, dir.y, dir.z};
     if (cs_sc_apart_along(n0, X, E, na)) return 1;
-    /* the triangle's normal (na 1), or the two edges' cross product (na 2) */
-    const int i = na == 1 ? 1 : 0, j = na == 1 ? 2 : 1, k = na == 1 ? 3 : 2, l = 3;
+    /* the triangle's normal (na 1: q1 q2 x q1 q3), or the two edges' cross product (na 2: q0 q1 x
+     * q2 q3) */
+    const int u0 = na == 1 ? 1 : 0, w0 = na == 1 ? 1 : 2;
     double u[3], w[3];
-    for (int c = 0; c < 3; c++) u[c] = X[j][c] - X[i][c], w[c] = X[l][c] - X[na == 1 ? i : k][c];
+    for (int c = 0; c < 3; c++) u[c] = X[u0 + 1][c] - X[u0][c], w[c] = X[3][c] - X[w0][c];
     const double n1[3] = {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]};
     return cs_sc_apart_along(n1, X, E, na);
 }
@@ -681,7 +688,7 @@ SIM_HD static inline int cs_sc_vf_cut(const float *x0, const float *y0, const fl
     const float d = cs_sc_point_tri(xp, a, b, c, bw);
     if (!(d < r)) return 0;
     const int32_t q[4] = {p, t[0], t[1], t[2]};
-    const cs_vec3 dir = cs_sub(xp, cs_add(cs_add(cs_scale(a, bw[0]), cs_scale(b, bw[1])), cs_scale(c, bw[2])));
+    const cs_vec3 dir = cs_sub(xp, cs_tri_point(a, b, c, bw));
     const int safe = !outright && cs_sc_safe(q, 1, d, dir, x0, y0, z0, dx, dy, dz, s);
     const float cv = cs_sc_pair_cut(safe, d, dx, dy, dz, v);
     *cut = cv < *cut ? cv : *cut;
@@ -703,7 +710,7 @@ SIM_HD static inline int cs_sc_ee_cut(const float *x0, const float *y0, const fl
     const float d = cs_sc_seg_seg_st(a0, a1, b0, b1, &ps, &pt);
     if (!(d < r)) return 0;
     const int32_t q[4] = {ea[0], ea[1], eb[0], eb[1]};
-    const cs_vec3 dir = cs_sub(cs_add(a0, cs_scale(cs_sub(a1, a0), ps)), cs_add(b0, cs_scale(cs_sub(b1, b0), pt)));
+    const cs_vec3 dir = cs_sub(cs_sc_seg_point(a0, a1, ps), cs_sc_seg_point(b0, b1, pt));
     const int safe = !outright && cs_sc_safe(q, 2, d, dir, x0, y0, z0, dx, dy, dz, s);
     const float cv = cs_sc_pair_cut(safe, d, dx, dy, dz, v);
     *cut = cv < *cut ? cv : *cut;
