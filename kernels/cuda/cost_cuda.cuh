@@ -72,14 +72,17 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     IM_ROW("k_im_keep, k_im_move (the line search)", 12.0 + 12.0 + 12.0 + 12.0 + 4.0, 12.0 + 24.0, N, 2.0);
     if (n_rocks > 0) {
         /* With rocks (nominally one part a substep; contact cuts substeps into more): the
-         * substep's closing rate (positions and velocities; the rocks), and a part's rock steps -
-         * the one-thread kernels scan the cloth twice for each rock for its candidates (positions
-         * and, surface model, rest lengths: about 28 bytes a vertex) and twice for its friction
-         * (positions, start, velocities, the carried rock, mass and normal, what the push moved:
-         * about 60 bytes a vertex, the push's mark cleared: 4), read the rock carried (4) and
-         * write it with the mass and normal (20) */
+         * substep's closing rate (positions and velocities; the rocks), the rows' boxes before
+         * each rock step (positions), and a part's rock steps - the one-thread kernels scan the
+         * cloth twice for each rock for its candidates (positions and, surface model, rest
+         * lengths: about 28 bytes a vertex) and twice for its friction (positions, start,
+         * velocities, the carried rock, mass and normal, what the push moved: about 60 bytes a
+         * vertex, the push's mark cleared: 4), read the rock carried (4) and write it with the
+         * mass and normal (20). The scans visit only the rows within a rock's reach (the rows'
+         * boxes), so the whole grid counted here is their bound, not their traffic. */
         const double rock = (double)sizeof(cs_rock_state) * n_rocks;
         cs_cost_add(out, "k_im_fastest_chunks, k_im_fastest (a substep's parts)", 24.0, 0.0, rock, 1.0, 2.0 * F);
+        cs_cost_add(out, "k_im_row_boxes (before each rock step)", 12.0, 24.0 / p->nx, 0, 2.0, 2.0 * F);
         cs_cost_add(out, "k_im_rocks_begin, k_im_rocks_push (one thread)",
                     n_rocks * (2.0 * 28.0 + 2.0 * 60.0) + 4.0 + 24.0 + 4.0, 20.0 + 4.0 * n_rocks, 3.0 * rock, 1.0,
                     2.0 * F);

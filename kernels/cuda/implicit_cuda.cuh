@@ -28,9 +28,11 @@
  * cloth and shares their mass (k_im_rocks_begin) before the solve, whose assembly adds the carried
  * term (cs_im_carried_at), and after it pushes rocks and cloth apart, stops their approach and
  * applies friction (k_im_rocks_push). The rock steps are serial by design (a fixed order, as the
- * CPU backend runs them): each is a kernel of one thread over the grid (cs_im_rocks_advance, _share, _push of implicit.h, the
- * code the CPU backend runs), the rocks and the workspace staying on the device. One thread
- * scanning the grid is slow on a large cloth; it is what keeps the bits for now. */
+ * CPU backend runs them): each is a kernel of one thread (cs_im_rocks_advance, _share, _push of
+ * implicit.h, the code the CPU backend runs), the rocks and the workspace staying on the device.
+ * Before each, k_im_row_boxes (a thread per row) gives it the rows' boxes the CPU backend keeps,
+ * so its scans visit the rows within a rock's reach rather than the whole grid (the same bits
+ * either way); one thread over those rows is still slow on a large, fine cloth. */
 
 /* One level's arrays (device memory); level 0's mask is the state's, as floats. */
 struct im_level_bufs {
@@ -54,8 +56,9 @@ struct im_work {
      * (cand, 2 n); per rock where it would be without the cloth (star), where it started (rx0) and
      * scratch (rf, rt) */
     float *sh, *sn, *sg;
-    int32_t *ints;             /* cand, then sr: 3 n, one allocation */
-    int32_t *cand, *sr;
+    float *rowbox;             /* per grid row the box of it and the next (cs_im_row_box): 6 ny */
+    int32_t *ints;             /* cand, then sr, then rows: 3 n + 2 CS_MAX_ROCKS, one allocation */
+    int32_t *cand, *sr, *rows; /* rows: the vertices each rock's candidates span (cs_im_rocks) */
     cs_rock_state *star;       /* CS_MAX_ROCKS */
     cs_vec3 *rv3;              /* rx0, rf, rt: CS_MAX_ROCKS each, one allocation */
     im_level_bufs lv[CS_IM_MAX_LEVELS];
@@ -109,7 +112,7 @@ static cs_im_rocks im_rocks(const cuda_ctx *c, float *S, const float *L0)
     R.rx0 = w->rv3, R.F = w->rv3 + CS_MAX_ROCKS, R.T = w->rv3 + 2 * CS_MAX_ROCKS;
     R.cand = w->cand, R.sr = w->sr;
     R.sh = w->sh, R.sn = w->sn, R.sg = w->sg;
-    R.rowbox = NULL, R.rows = NULL; /* full scans (the same bits) */
+    R.rowbox = w->rowbox, R.rows = w->rows; /* the rows' boxes: k_im_row_boxes */
     return R;
 }
 
@@ -226,11 +229,23 @@ __global__ void k_im_fastest(const float *part, int32_t nchunks, float *out)
     out[0] = most;
 }
 
+/* The rows' boxes of the cloth at S (SoA: x, y, z first), a thread per grid row (cs_im_row_box,
+ * as row_boxes of implicit_cpu.c): before each of the rock steps below, so that their scans skip
+ * the rows no rock can reach. */
+__global__ void k_im_row_boxes(const cuda_scene *__restrict__ sc, const float *S, float *rowbox)
+{
+    const cs_phys *p = &sc->p;
+    const int32_t j = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x);
+    if (j >= p->ny) return;
+    const size_t n = (size_t)p->n;
+    cs_im_row_box(p, S, S + n, S + 2 * n, j, rowbox + 6 * (size_t)j);
+}
+
 /* Step 1 of a part with rocks: the rocks advanced without the cloth, then the mass they lend
  * (cs_im_rocks_advance, cs_im_rocks_share; R.x the part's start). One thread: the rock steps are
- * serial by design (a fixed order, the CPU backend's), so this single-thread kernel scans the grid
- * alone - slow on a large cloth, kept for the bits until a parallel scan with the same order is
- * written. */
+ * serial by design (a fixed order, the CPU backend's). Its scans visit only the rows whose box
+ * (k_im_row_boxes, just before) comes within a rock's reach, so a rock costs the rows it spans,
+ * not the grid; still one thread over those rows. */
 __global__ void k_im_rocks_begin(const cuda_scene *__restrict__ sc, cs_im_rocks R, float h)
 {
     cs_im_rocks_advance(&sc->p, &R, h);
@@ -484,7 +499,8 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     if (!w) return CS_E_NOMEM;
     w->nx = p->nx, w->ny = p->ny, w->n = p->n, w->nchunks = p->nchunks;
     const size_t S0 = cs_im_stride((size_t)w->n); /* level 0's, which the bending blocks share */
-    size_t floats = (size_t)w->n * (6 + 3 + 18 + 5) + 2 * CS_IM_SYM * S0 + (size_t)w->nchunks + 1;
+    size_t floats = (size_t)w->n * (6 + 3 + 18 + 5) + 2 * CS_IM_SYM * S0 + (size_t)w->nchunks + 1 + 6 * (size_t)w->ny;
+    const size_t ints = 3 * (size_t)w->n + 2 * CS_MAX_ROCKS;
     int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
     const int L = w->levels = cs_im_levels(p->nx, p->ny, lx, ly);
     for (int l = 0; l < L; l++) {
@@ -495,11 +511,11 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     cudaError_t e = cudaMalloc(&w->mem, sizeof(float) * floats);
     if (e == cudaSuccess) e = cudaMalloc((void **)&w->sc, sizeof(cuda_scene));
     if (e == cudaSuccess) e = cudaMallocHost((void **)&w->host_part, sizeof(float) * (size_t)w->nchunks);
-    if (e == cudaSuccess) e = cudaMalloc((void **)&w->ints, sizeof(int32_t) * 3 * (size_t)w->n);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&w->ints, sizeof(int32_t) * ints);
     if (e == cudaSuccess) e = cudaMalloc((void **)&w->star, sizeof(cs_rock_state) * CS_MAX_ROCKS);
     if (e == cudaSuccess) e = cudaMalloc((void **)&w->rv3, sizeof(cs_vec3) * 3 * CS_MAX_ROCKS);
     if (e == cudaSuccess) e = cudaMemsetAsync(w->mem, 0, sizeof(float) * floats, c->stream);
-    if (e == cudaSuccess) e = cudaMemsetAsync(w->ints, 0xff, sizeof(int32_t) * 3 * (size_t)w->n, c->stream); /* sr -1 */
+    if (e == cudaSuccess) e = cudaMemsetAsync(w->ints, 0xff, sizeof(int32_t) * ints, c->stream); /* sr -1 */
     if (e != cudaSuccess) {
         im_free(w);
         return cuda_fail(c, e, "allocating implicit_euler's workspace", __FILE__, __LINE__);
@@ -514,7 +530,8 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     w->part = TAKE((size_t)w->nchunks);
     w->sh = TAKE(n), w->sn = TAKE(3 * n), w->sg = TAKE(n);
     w->fast = TAKE(1);
-    w->cand = w->ints, w->sr = w->ints + 2 * n;
+    w->rowbox = TAKE(6 * (size_t)w->ny);
+    w->cand = w->ints, w->sr = w->ints + 2 * n, w->rows = w->ints + 3 * n;
     for (int l = 0; l < L; l++) {
         im_level_bufs *v = &w->lv[l];
         m = cs_im_carve_level(m, (size_t)v->n, &v->D, &v->Dinv, v->F, &v->mask, &v->b, &v->x, &v->t);
@@ -684,7 +701,10 @@ static cs_status im_part(cuda_ctx *c, const cs_phys *p0, float h, cs_solver_stat
     /* the rocks over the part without the cloth, and the mass they lend, from the part's start
      * (after k_im_begin: it reads level 0's mask) */
     const int rocks = c->host_sc.nr > 0;
-    if (rocks) k_im_rocks_begin<<<1, 1, 0, c->stream>>>(w->sc, im_rocks(c, c->vb.state[c->cur], L0), h);
+    if (rocks) {
+        k_im_row_boxes<<<im_blocks(p->ny), IM_THREADS, 0, c->stream>>>(w->sc, c->vb.state[c->cur], w->rowbox);
+        k_im_rocks_begin<<<1, 1, 0, c->stream>>>(w->sc, im_rocks(c, c->vb.state[c->cur], L0), h);
+    }
     CUDA_CHECK(cudaStreamSynchronize(c->stream));
     float reach = 0.0f;
     for (int32_t q = 0; q < w->nchunks; q++) reach = w->host_part[q] > reach ? w->host_part[q] : reach;
@@ -727,6 +747,7 @@ static cs_status im_part(cuda_ctx *c, const cs_phys *p0, float h, cs_solver_stat
     if (rocks) {
         /* the rocks follow their vertices, rocks and cloth pushed apart, the approach stopped,
          * friction */
+        k_im_row_boxes<<<im_blocks(p->ny), IM_THREADS, 0, c->stream>>>(w->sc, S, w->rowbox);
         k_im_rocks_push<<<1, 1, 0, c->stream>>>(w->sc, im_rocks(c, S, L0), h);
     }
     k_im_accel<<<nb, IM_THREADS, 0, c->stream>>>(S, w->base, w->lv[0].mask, c->vb.acc, inv_h, n);
