@@ -53,7 +53,7 @@ enum { LOG_DEBUG, LOG_INFO, LOG_WARN, LOG_ERROR };
     X(paused, BOOL, "-", 0, 0, 1, NONE, "Start paused (POST /v1/sim/resume runs it)")                  \
     X(threads, INT, "-", 0, 0, 256, NONE, "CPU backend threads; 0 = auto: the fewest, up to one per core, that keep the scenes in real time (every one for a step or max_speed)")                     \
     X(http_threads, INT, "-", 2, 1, 64, NONE, "Threads serving HTTP")                                  \
-    X(http_nice, INT, "-", 10, 0, 19, NONE, "Niceness of the HTTP threads: under overload the simulation keeps the CPU") \
+    X(http_nice, INT, "-", 5, 0, 19, NONE, "Niceness of the HTTP threads: under overload the simulation keeps the CPU") \
     X(max_body, INT, "-", 1048576, 1024, 1073741824, NONE, "Largest request body in bytes (413 beyond)") \
     X(max_connections, INT, "-", 512, 1, 100000, NONE, "Most HTTP connections at once")                \
     X(max_connections_per_ip, INT, "-", 64, 1, 100000, NONE, "Most HTTP connections at once from one address") \
