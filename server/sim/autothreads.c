@@ -26,6 +26,13 @@ static double busy_on_fewer(const autothreads *a, double busy)
     return busy * (double)t / (double)(t - 1);
 }
 
+/* Whether t threads were measured to buy less than AUTOTHREADS_GAIN over t - 1: a unit of work
+ * cost no less than AUTOTHREADS_GAIN of what it cost on one thread fewer (both measured). */
+static int no_gain(const autothreads *a, int t)
+{
+    return a->cost[t] > 0 && a->cost[t - 1] > 0 && a->cost[t] >= AUTOTHREADS_GAIN * a->cost[t - 1];
+}
+
 /* A new window from now. */
 static void restart(autothreads *a, double now)
 {
@@ -49,8 +56,14 @@ int autothreads_turn(autothreads *a, double now, int greedy)
         a->cost[a->now] = a->cost[a->now] > 0 ? 0.5 * (a->cost[a->now] + c) : c;
     }
     if (!greedy && a->work > 0) {
-        if (busy > AUTOTHREADS_UP && a->now < a->most) a->now++;
-        else if (a->now > 1 && busy_on_fewer(a, busy) < AUTOTHREADS_DOWN) a->now--;
+        const int t = a->now;
+        a->windows++;
+        if (busy > AUTOTHREADS_UP && t < a->most && (!no_gain(a, t + 1) || a->windows >= a->probe)) {
+            a->now++;
+            a->probe = a->windows + AUTOTHREADS_PROBE;
+        } else if (t > 1 && (busy_on_fewer(a, busy) < AUTOTHREADS_DOWN || no_gain(a, t))) {
+            a->now--;
+        }
     }
     restart(a, now);
     return a->now;
