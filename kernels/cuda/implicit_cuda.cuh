@@ -50,6 +50,9 @@ struct im_work {
     float *B[2];               /* bending blocks of level 0 */
     float *part;               /* per-chunk partials of a sum */
     float *host_part;          /* their pinned host copy */
+    struct im_cg *cg, *host_cg; /* the conjugate gradients' scalars (device) and their pinned copy */
+    int cg_last;               /* the iterations the last solve took: queued before its first look */
+    cudaGraphExec_t cg_exec;   /* one iteration of them (im_cg_iteration), captured once */
     float *fast;               /* k_im_fastest's answer (1 float) */
     /* the rock steps' workspace (cs_im_rocks): per vertex the mass carried (sh), its normal (sn,
      * 3 n), what a push moved it (sg, 0 between pushes); the rock carried (sr) and the candidates
@@ -70,6 +73,15 @@ struct im_work {
 
 #define IM_THREADS 256 /* threads of a per-vertex block */
 
+/* The conjugate gradients' scalars, kept on the device (k_im_cg_*): the host queues iterations
+ * without waiting for each sum, and every kernel of an iteration does nothing once done is set
+ * (IM_STOPPED), so the iterations that run are the CPU's. */
+struct im_cg {
+    float rz, alpha, beta, target;
+    int32_t it, most, done, pad;
+};
+#define IM_STOPPED(cg) ((cg) != NULL && (cg)->done)
+
 static void im_free(im_work *w)
 {
     if (!w) return;
@@ -78,7 +90,10 @@ static void im_free(im_work *w)
     cudaFree(w->star);
     cudaFree(w->rv3);
     cudaFree(w->sc);
+    cudaFree(w->cg);
+    if (w->cg_exec) cudaGraphExecDestroy(w->cg_exec);
     cudaFreeHost(w->host_part);
+    cudaFreeHost(w->host_cg);
     free(w);
 }
 
@@ -347,9 +362,10 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_assemble(const cuda_scene *__re
 
 /* a . b over level 0: chunk blockIdx.x's partial (cs_im_dot3 terms, the chunk tree). */
 __global__ void __launch_bounds__(CS_CHUNK) k_im_dot(const cuda_scene *__restrict__ sc, const float *a, const float *b,
-                                                    float *part)
+                                                    float *part, const im_cg *stop)
 {
     CS_DYNAMIC_SHARED(float, buf);
+    if (IM_STOPPED(stop)) return;
     const cs_phys *p = &sc->p;
     const int32_t c = (int32_t)blockIdx.x, j = c / p->nseg, i = (c % p->nseg) * CS_CHUNK + (int32_t)threadIdx.x;
     const float mine = i < p->nx ? cs_im_dot3(a, b, j * p->nx + i) : 0.0f;
@@ -358,43 +374,43 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_dot(const cuda_scene *__restric
 }
 
 /* y = A x on a level (bend: level 0's true operator, bending blocks included). */
-__global__ void k_im_apply(cs_im_level L, const float *x, float *y, int bend)
+__global__ void k_im_apply(cs_im_level L, const float *x, float *y, int bend, const im_cg *stop)
 {
     const int32_t v = im_vertex();
-    if (v >= L.nx * L.ny) return;
+    if (v >= L.nx * L.ny || IM_STOPPED(stop)) return;
     im_put3(y, v, cs_im_apply(&L, x, v % L.nx, v / L.nx, bend));
 }
 
 /* x = x + omega Dinv (b - t), t = A x (first: from x = 0). */
-__global__ void k_im_jacobi(cs_im_level L, float *x, const float *b, const float *t, int first)
+__global__ void k_im_jacobi(cs_im_level L, float *x, const float *b, const float *t, int first, const im_cg *stop)
 {
     const int32_t v = im_vertex();
-    if (v >= L.nx * L.ny) return;
+    if (v >= L.nx * L.ny || IM_STOPPED(stop)) return;
     const cs_vec3 zero = cs_v3(0.0f, 0.0f, 0.0f);
     const cs_vec3 xv = first ? zero : cs_v3_from(x + 3 * (size_t)v);
     im_put3(x, v, cs_im_jacobi(&L, v, xv, cs_v3_from(b + 3 * (size_t)v), first ? zero : cs_v3_from(t + 3 * (size_t)v)));
 }
 
 /* t = b - t over 3 n floats. */
-__global__ void k_im_sub(const float *b, float *t, int32_t n3)
+__global__ void k_im_sub(const float *b, float *t, int32_t n3, const im_cg *stop)
 {
     const int32_t k = im_vertex();
-    if (k < n3) t[k] = b[k] - t[k];
+    if (k < n3 && !IM_STOPPED(stop)) t[k] = b[k] - t[k];
 }
 
 /* The coarse right side: the fine residual t restricted to coarse level C. */
-__global__ void k_im_restrict(cs_im_level L, const float *t, float *cb, int32_t cnx, int32_t cny)
+__global__ void k_im_restrict(cs_im_level L, const float *t, float *cb, int32_t cnx, int32_t cny, const im_cg *stop)
 {
     const int32_t v = im_vertex();
-    if (v >= cnx * cny) return;
+    if (v >= cnx * cny || IM_STOPPED(stop)) return;
     im_put3(cb, v, cs_im_restrict(&L, t, v % cnx, v / cnx));
 }
 
 /* x += CS_IM_COARSE_SCALE e, e the coarse correction constant over each aggregate. */
-__global__ void k_im_prolong(cs_im_level L, float *x, const float *cx, int32_t cnx)
+__global__ void k_im_prolong(cs_im_level L, float *x, const float *cx, int32_t cnx, const im_cg *stop)
 {
     const int32_t v = im_vertex();
-    if (v >= L.nx * L.ny || L.mask[v] == 0.0f) return;
+    if (v >= L.nx * L.ny || L.mask[v] == 0.0f || IM_STOPPED(stop)) return;
     const int32_t i = v % L.nx, j = v / L.nx;
     const cs_vec3 e = cs_v3_from(cx + 3 * (size_t)((j / 2) * cnx + i / 2));
     im_put3(x, v, cs_add(cs_v3_from(x + 3 * (size_t)v), cs_scale(e, CS_IM_COARSE_SCALE)));
@@ -418,20 +434,64 @@ __global__ void k_im_inverse(const float *D, float *Dinv, int32_t n, size_t S)
     im_put_sym(Dinv, S, v, &inv);
 }
 
+/* The conjugate gradients' scalars, one thread each (pcg of implicit_cpu.c, the same float
+ * operations in the same order: the chunk partials totalled by cs_im_chunk_total): rz = r . z
+ * from the partials, the stopping |r| and the most iterations. */
+__global__ void k_im_cg_begin(const float *part, int32_t nchunks, im_cg *cg, float target, int32_t most)
+{
+    cg->rz = cs_im_chunk_total(part, nchunks);
+    cg->alpha = cg->beta = 0.0f;
+    cg->target = target;
+    cg->most = most;
+    cg->it = 0;
+    cg->done = most <= 0;
+}
+
+/* alpha = rz / p . q from the partials of p . q; the end once the iterations are spent or the
+ * direction has no descent. */
+__global__ void k_im_cg_alpha(const float *part, int32_t nchunks, im_cg *cg)
+{
+    if (cg->done) return;
+    const float pq = cs_im_chunk_total(part, nchunks);
+    if (cg->it >= cg->most || !(pq > 0.0f) || !(cg->rz > 0.0f)) {
+        cg->done = 1;
+        return;
+    }
+    cg->alpha = cg->rz / pq;
+}
+
+/* An iteration more, and the end once |r| (from the partials of r . r) is down to the target. */
+__global__ void k_im_cg_check(const float *part, int32_t nchunks, im_cg *cg)
+{
+    if (cg->done) return;
+    cg->it++;
+    if (!(sqrtf(cs_im_chunk_total(part, nchunks)) > cg->target)) cg->done = 1;
+}
+
+/* beta = rz' / rz from the partials of r . z (the new rz). */
+__global__ void k_im_cg_beta(const float *part, int32_t nchunks, im_cg *cg)
+{
+    if (cg->done) return;
+    const float rz2 = cs_im_chunk_total(part, nchunks);
+    cg->beta = rz2 / cg->rz;
+    cg->rz = rz2;
+}
+
 /* dx += alpha p; r -= alpha q. */
-__global__ void k_im_cg_step(float *dx, float *r, const float *p, const float *q, float alpha, int32_t n3)
+__global__ void k_im_cg_step(float *dx, float *r, const float *p, const float *q, const im_cg *cg, int32_t n3)
 {
     const int32_t k = im_vertex();
-    if (k >= n3) return;
+    if (k >= n3 || cg->done) return;
+    const float alpha = cg->alpha;
     dx[k] += alpha * p[k];
     r[k] -= alpha * q[k];
 }
 
 /* p = z + beta p. */
-__global__ void k_im_cg_dir(float *p, const float *z, float beta, int32_t n3)
+__global__ void k_im_cg_dir(float *p, const float *z, const im_cg *cg, int32_t n3)
 {
     const int32_t k = im_vertex();
-    if (k < n3) p[k] = z[k] + beta * p[k];
+    if (k < n3 && !cg->done) p[k] = z[k] + cg->beta * p[k];
 }
 
 /* The iterate's positions kept for the line search. */
@@ -511,6 +571,8 @@ static cs_status im_fit(cuda_ctx *c, const cs_phys *p)
     cudaError_t e = cudaMalloc(&w->mem, sizeof(float) * floats);
     if (e == cudaSuccess) e = cudaMalloc((void **)&w->sc, sizeof(cuda_scene));
     if (e == cudaSuccess) e = cudaMallocHost((void **)&w->host_part, sizeof(float) * (size_t)w->nchunks);
+    if (e == cudaSuccess) e = cudaMalloc((void **)&w->cg, sizeof(im_cg));
+    if (e == cudaSuccess) e = cudaMallocHost((void **)&w->host_cg, sizeof(im_cg));
     if (e == cudaSuccess) e = cudaMalloc((void **)&w->ints, sizeof(int32_t) * ints);
     if (e == cudaSuccess) e = cudaMalloc((void **)&w->star, sizeof(cs_rock_state) * CS_MAX_ROCKS);
     if (e == cudaSuccess) e = cudaMalloc((void **)&w->rv3, sizeof(cs_vec3) * 3 * CS_MAX_ROCKS);
@@ -587,12 +649,11 @@ static cs_status im_assemble(cuda_ctx *c, float *S, const float *L0, int blocks,
     return st;
 }
 
-/* a . b over level 0. */
-static cs_status im_dot(cuda_ctx *c, const float *a, const float *b, float *out)
+/* The chunk partials of a . b over level 0 into w->part (nothing once stop is done). */
+static void im_dot(cuda_ctx *c, const float *a, const float *b, const im_cg *stop)
 {
     im_work *w = c->im;
-    k_im_dot<<<(unsigned)w->nchunks, CS_CHUNK, sizeof(float) * CS_CHUNK, c->stream>>>(w->sc, a, b, w->part);
-    return im_total(c, out);
+    k_im_dot<<<(unsigned)w->nchunks, CS_CHUNK, sizeof(float) * CS_CHUNK, c->stream>>>(w->sc, a, b, w->part, stop);
 }
 
 /* The hierarchy from level 0's matrix: the coarse levels' Galerkin products, each level's Dinv. */
@@ -606,8 +667,9 @@ static void im_hierarchy(cuda_ctx *c)
     }
 }
 
-/* One V-cycle from level l: x = B b (vcycle of implicit_cpu.c). */
-static void im_vcycle(cuda_ctx *c, int l, const float *b, float *x)
+/* One V-cycle from level l: x = B b (vcycle of implicit_cpu.c); nothing once stop (when not NULL)
+ * is done. */
+static void im_vcycle(cuda_ctx *c, int l, const float *b, float *x, const im_cg *stop)
 {
     im_work *w = c->im;
     const cs_im_level L = im_view(w, l);
@@ -616,61 +678,105 @@ static void im_vcycle(cuda_ctx *c, int l, const float *b, float *x)
     cudaStream_t st = c->stream;
     const int last = l + 1 == w->levels;
     const int sweeps = last ? CS_IM_COARSE_SWEEPS : CS_IM_SMOOTH;
-    k_im_jacobi<<<nb, IM_THREADS, 0, st>>>(L, x, b, lv->t, 1);
+    k_im_jacobi<<<nb, IM_THREADS, 0, st>>>(L, x, b, lv->t, 1, stop);
     for (int k = 1; k < sweeps; k++) {
-        k_im_apply<<<nb, IM_THREADS, 0, st>>>(L, x, lv->t, 0);
-        k_im_jacobi<<<nb, IM_THREADS, 0, st>>>(L, x, b, lv->t, 0);
+        k_im_apply<<<nb, IM_THREADS, 0, st>>>(L, x, lv->t, 0, stop);
+        k_im_jacobi<<<nb, IM_THREADS, 0, st>>>(L, x, b, lv->t, 0, stop);
     }
     if (last) return;
-    k_im_apply<<<nb, IM_THREADS, 0, st>>>(L, x, lv->t, 0);
-    k_im_sub<<<im_blocks(3 * (int64_t)lv->n), IM_THREADS, 0, st>>>(b, lv->t, 3 * lv->n);
+    k_im_apply<<<nb, IM_THREADS, 0, st>>>(L, x, lv->t, 0, stop);
+    k_im_sub<<<im_blocks(3 * (int64_t)lv->n), IM_THREADS, 0, st>>>(b, lv->t, 3 * lv->n, stop);
     im_level_bufs *cl = &w->lv[l + 1];
-    k_im_restrict<<<im_blocks(cl->n), IM_THREADS, 0, st>>>(L, lv->t, cl->b, cl->nx, cl->ny);
-    im_vcycle(c, l + 1, cl->b, cl->x);
-    k_im_prolong<<<nb, IM_THREADS, 0, st>>>(L, x, cl->x, cl->nx);
+    k_im_restrict<<<im_blocks(cl->n), IM_THREADS, 0, st>>>(L, lv->t, cl->b, cl->nx, cl->ny, stop);
+    im_vcycle(c, l + 1, cl->b, cl->x, stop);
+    k_im_prolong<<<nb, IM_THREADS, 0, st>>>(L, x, cl->x, cl->nx, stop);
     for (int k = 0; k < sweeps; k++) {
-        k_im_apply<<<nb, IM_THREADS, 0, st>>>(L, x, lv->t, 0);
-        k_im_jacobi<<<nb, IM_THREADS, 0, st>>>(L, x, b, lv->t, 0);
+        k_im_apply<<<nb, IM_THREADS, 0, st>>>(L, x, lv->t, 0, stop);
+        k_im_jacobi<<<nb, IM_THREADS, 0, st>>>(L, x, b, lv->t, 0, stop);
     }
 }
 
-/* Conjugate gradients on A dx = R preconditioned by a V-cycle (pcg of implicit_cpu.c): stops at
- * |r| <= target or after most iterations; the iterations run into its. */
-static cs_status im_pcg(cuda_ctx *c, float target, int most, int *its)
+/* One iteration of the conjugate gradients, queued (pcg of implicit_cpu.c's loop body): every
+ * scalar stays on the device, and once the solve is done each launch does nothing. */
+static void im_cg_iteration(cuda_ctx *c)
 {
     im_work *w = c->im;
     const cs_im_level L0 = im_view(w, 0);
     const int32_t n3 = 3 * w->n;
-    const size_t bytes = sizeof(float) * (size_t)n3;
     const unsigned nb = im_blocks(w->n), nb3 = im_blocks(n3);
-    cs_status st;
+    const im_cg *cg = w->cg;
+    k_im_apply<<<nb, IM_THREADS, 0, c->stream>>>(L0, w->p, w->q, 1, cg);
+    im_dot(c, w->p, w->q, cg);
+    k_im_cg_alpha<<<1, 1, 0, c->stream>>>(w->part, w->nchunks, w->cg);
+    k_im_cg_step<<<nb3, IM_THREADS, 0, c->stream>>>(w->dx, w->r, w->p, w->q, cg, n3);
+    im_dot(c, w->r, w->r, cg);
+    k_im_cg_check<<<1, 1, 0, c->stream>>>(w->part, w->nchunks, w->cg);
+    im_vcycle(c, 0, w->r, w->z, cg);
+    im_dot(c, w->r, w->z, cg);
+    k_im_cg_beta<<<1, 1, 0, c->stream>>>(w->part, w->nchunks, w->cg);
+    k_im_cg_dir<<<nb3, IM_THREADS, 0, c->stream>>>(w->p, w->z, cg, n3);
+}
+
+/* Queues one iteration of the conjugate gradients: a graph of im_cg_iteration's launches, captured
+ * the first time (its arguments are the workspace's buffers and the scalars it reads on the
+ * device, so it holds while the workspace lives). */
+static cs_status im_cg_queue(cuda_ctx *c)
+{
+    im_work *w = c->im;
+    if (!w->cg_exec) {
+        CUDA_CHECK(cudaStreamBeginCapture(c->stream, cudaStreamCaptureModeThreadLocal));
+        im_cg_iteration(c);
+        const cudaError_t launched = cudaGetLastError();
+        cudaGraph_t graph;
+        const cudaError_t ended = cudaStreamEndCapture(c->stream, &graph);
+        if (launched != cudaSuccess) {
+            if (ended == cudaSuccess) cudaGraphDestroy(graph);
+            return cuda_fail(c, launched, "a launch while capturing a graph", __FILE__, __LINE__);
+        }
+        CUDA_CHECK(ended);
+        const cudaError_t ie = cudaGraphInstantiate(&w->cg_exec, graph, 0);
+        cudaGraphDestroy(graph);
+        if (ie != cudaSuccess) {
+            w->cg_exec = NULL;
+            return cuda_fail(c, ie, "cudaGraphInstantiate", __FILE__, __LINE__);
+        }
+    }
+    CUDA_CHECK(cudaGraphLaunch(w->cg_exec, c->stream));
+    return CS_OK;
+}
+
+/* Conjugate gradients on A dx = R preconditioned by a V-cycle (pcg of implicit_cpu.c): stops at
+ * |r| <= target or after most iterations; the iterations run into its. The host queues as many
+ * iterations as the last solve took, less one, before it first reads whether the solve is done,
+ * then one at a time: a wait or two a solve rather than three an iteration, and an iteration
+ * queued past the end costs a graph of launches that return at once. */
+static cs_status im_pcg(cuda_ctx *c, float target, int most, int *its)
+{
+    im_work *w = c->im;
+    const size_t bytes = sizeof(float) * (size_t)(3 * w->n);
     *its = 0;
     CUDA_CHECK(cudaMemsetAsync(w->dx, 0, bytes, c->stream));
     CUDA_CHECK(cudaMemcpyAsync(w->r, w->R, bytes, cudaMemcpyDeviceToDevice, c->stream));
-    im_vcycle(c, 0, w->r, w->z);
+    im_vcycle(c, 0, w->r, w->z, NULL);
     CUDA_CHECK(cudaMemcpyAsync(w->p, w->z, bytes, cudaMemcpyDeviceToDevice, c->stream));
-    float rz;
-    if ((st = im_dot(c, w->r, w->z, &rz)) != CS_OK) return st;
-    int it = 0;
-    while (it < most) {
-        k_im_apply<<<nb, IM_THREADS, 0, c->stream>>>(L0, w->p, w->q, 1);
-        float pq;
-        if ((st = im_dot(c, w->p, w->q, &pq)) != CS_OK) return st;
-        if (!(pq > 0.0f) || !(rz > 0.0f)) break;
-        const float alpha = rz / pq;
-        k_im_cg_step<<<nb3, IM_THREADS, 0, c->stream>>>(w->dx, w->r, w->p, w->q, alpha, n3);
-        it++;
-        float rr;
-        if ((st = im_dot(c, w->r, w->r, &rr)) != CS_OK) return st;
-        if (!(sqrtf(rr) > target)) break;
-        im_vcycle(c, 0, w->r, w->z);
-        float rz2;
-        if ((st = im_dot(c, w->r, w->z, &rz2)) != CS_OK) return st;
-        const float beta = rz2 / rz;
-        rz = rz2;
-        k_im_cg_dir<<<nb3, IM_THREADS, 0, c->stream>>>(w->p, w->z, beta, n3);
+    im_dot(c, w->r, w->z, NULL);
+    k_im_cg_begin<<<1, 1, 0, c->stream>>>(w->part, w->nchunks, w->cg, target, most);
+    int queued = 0, group = w->cg_last > 1 ? w->cg_last - 1 : 1;
+    while (queued < most) {
+        const int k = group < most - queued ? group : most - queued;
+        for (int q = 0; q < k; q++) {
+            const cs_status st = im_cg_queue(c);
+            if (st != CS_OK) return st;
+        }
+        queued += k;
+        CUDA_CHECK(cudaGetLastError());
+        CUDA_CHECK(cudaMemcpyAsync(w->host_cg, w->cg, sizeof(im_cg), cudaMemcpyDeviceToHost, c->stream));
+        CUDA_CHECK(cudaStreamSynchronize(c->stream));
+        if (w->host_cg->done) break;
+        group = 1;
     }
-    *its = it;
+    if (queued > 0) *its = w->host_cg->it;
+    w->cg_last = *its;
     CUDA_CHECK(cudaGetLastError());
     return CS_OK;
 }

@@ -10,7 +10,9 @@
  *   4. rocks are culled per tile: rocks that touch nothing cost the cloth kernel nothing;
  *   5. a failed upload (scene change, snapshot) leaves the state as it was;
  *   6. each spring's neighbours come from shared memory (loads per vertex), no 8-byte pad per
- *      vertex, and the stats allocate nothing.
+ *      vertex, and the stats allocate nothing;
+ *   7. implicit_euler's conjugate gradients keep their scalars on the device: the host does not
+ *      wait for each sum (three an iteration), only to learn whether a solve is done.
  * Plain C; exit 0 pass, 1 fail. */
 #include <math.h>
 #include <stdio.h>
@@ -381,6 +383,50 @@ static void smaller(void)
     cs_sim_destroy(g);
 }
 
+/* 7: implicit_euler waits for a solve's end, not for each of its sums. */
+static void implicit_waits(void)
+{
+    printf("7: implicit_euler's waits\n");
+    const int nx = sanitized ? 16 : 32, ny = sanitized ? 12 : 24, frames = sanitized ? 4 : 12;
+    cs_sim *g = make("cuda", nx, ny, 0);
+    cs_params p;
+    cs_sim_params(g, &p);
+    p.integrator = CS_IMPLICIT_EULER;
+    CHECK(cs_sim_set_params(g, &p) == CS_OK, "implicit_euler refused: %s", cs_sim_error(g));
+    rocks(g, 1, 0.05f, 0.0f); /* a rock on the cloth: parts and Newton iterations */
+    cs_sim_step(g, 1);
+    emu_reset_counters();
+    int64_t cg = 0, newton = 0, parts = 0;
+    for (int f = 0; f < frames; f++) {
+        cs_sim_step(g, 1);
+        cs_info info;
+        cs_sim_info(g, &info);
+        cg += info.solver.cg, newton += info.solver.newton, parts += info.solver.substeps;
+    }
+    emu_counters e;
+    emu_get_counters(&e);
+    printf("  %d frames: %lld parts, %lld Newton and %lld CG iterations, %llu waits (%.2f a Newton iteration), "
+           "%llu kernels, %llu graph launches, %llu graphs built\n",
+           frames, (long long)parts, (long long)newton, (long long)cg, (unsigned long long)e.host_waits,
+           newton > 0 ? (double)e.host_waits / (double)newton : 0.0, (unsigned long long)e.kernel_launches,
+           (unsigned long long)e.graph_launches, (unsigned long long)e.graph_instantiations);
+    CHECK(cg > 2 * newton, "too few CG iterations (%lld for %lld Newton) to tell", (long long)cg, (long long)newton);
+    /* a wait for each of an iteration's three sums would be 3 cg waits at least */
+    CHECK(e.host_waits < 3 * (uint64_t)cg, "%llu waits for %lld CG iterations: the host waits for their sums",
+          (unsigned long long)e.host_waits, (long long)cg);
+    /* each iteration one graph, built once for the workspace (the frames before) */
+    CHECK(e.graph_launches >= (uint64_t)cg, "%llu graph launches for %lld CG iterations",
+          (unsigned long long)e.graph_launches, (long long)cg);
+    CHECK(e.graph_instantiations == 0, "%llu graphs built again", (unsigned long long)e.graph_instantiations);
+    cs_sim *c = make("cpu", nx, ny, 0);
+    CHECK(cs_sim_set_params(c, &p) == CS_OK, "implicit_euler refused on the CPU");
+    rocks(c, 1, 0.05f, 0.0f);
+    cs_sim_step(c, 1 + frames);
+    CHECK(cs_state_hash(g) == cs_state_hash(c), "the state is not the CPU backend's");
+    cs_sim_destroy(g);
+    cs_sim_destroy(c);
+}
+
 int main(void)
 {
     sanitized = getenv("CLOTHD_SANITIZED") != NULL;
@@ -389,6 +435,7 @@ int main(void)
     graphs();
     failed_uploads();
     smaller();
+    implicit_waits();
     printf(failures ? "datapath: %d checks FAILED\n" : "datapath: every check passed\n", failures);
     return failures ? 1 : 0;
 }
