@@ -11,7 +11,8 @@
  * folding. Prints one line per case (JSON with --json), with the backend's cost model: the bytes each
  * kernel (or CPU pass) reads and writes per vertex per substep and its launches per frame; for CUDA
  * the bandwidth roofline on an H100 (3.35 TB/s) and an H200 (4.8 TB/s), the launch floor at
- * LAUNCH_US per dependent kernel of a graph, and what this device's memory bandwidth allows.
+ * LAUNCH_US per dependent kernel of a graph, WAIT_US per wait of the host for the device, and
+ * what this device's memory bandwidth allows.
  * --model prints the cost models without running anything (no device needed), and for CUDA how
  * many default scenes one batch runs in real time (print_batch).
  *
@@ -42,6 +43,9 @@
 /* The host time of one CUDA runtime call a batch makes per scene (an event, a wait, an async
  * copy; an assumption until measured). */
 #define HOST_CALL_US 1.5
+/* A wait of the host for the device mid-step (a few bytes copied back, the stream synchronized,
+ * the device idle until the host queues more; an assumption until measured). */
+#define WAIT_US 10.0
 
 static double now(void)
 {
@@ -103,11 +107,13 @@ static double roofline(const cs_cost_model *m, double n, double bw)
     return bw / (m->bytes_per_vertex_substep * n + m->fixed_per_substep);
 }
 
-/* The bandwidth time and the dependent kernels' time one after the other: a substep's kernels
- * each wait for the one before, so their launch gaps are not hidden behind the traffic. */
+/* The bandwidth time, the dependent kernels' time and the host's waits one after the other: a
+ * substep's kernels each wait for the one before, so their launch gaps are not hidden behind the
+ * traffic, and while the host waits the device has nothing queued. */
 static double predicted(const cs_cost_model *m, double n, double bw)
 {
-    return 1.0 / (1.0 / roofline(m, n, bw) + m->nodes_per_substep * LAUNCH_US * 1e-6);
+    return 1.0 / (1.0 / roofline(m, n, bw) + m->nodes_per_substep * LAUNCH_US * 1e-6 +
+                  m->waits_per_substep * WAIT_US * 1e-6);
 }
 
 /* The model's rows and totals (and for CUDA its predictions) as JSON members or text lines. */
@@ -126,8 +132,9 @@ static void print_model(const char *backend, const cs_cost_model *m, double n, i
                m->bytes_per_vertex_substep, m->fixed_per_substep, m->launches_per_frame);
         if (cuda)
             printf("  %.1f graphs per frame; roofline %.0f substeps/s on an H100, %.0f on an H200; launch floor %.0f at "
-                   "%.1f us a kernel;\n  predicted (roofline time plus kernel gaps) %.0f on an H100, %.0f on an H200\n",
-                   m->graphs_per_frame, rh100, rh200, launch, LAUNCH_US, ph100, ph200);
+                   "%.1f us a kernel;\n  %.1f host waits a substep at %.0f us; predicted (roofline time plus kernel gaps "
+                   "plus waits) %.0f on an H100, %.0f on an H200\n",
+                   m->graphs_per_frame, rh100, rh200, launch, LAUNCH_US, m->waits_per_substep, WAIT_US, ph100, ph200);
         return;
     }
     printf(",\"model\":{\"kernels\":[");
@@ -140,9 +147,9 @@ static void print_model(const char *backend, const cs_cost_model *m, double n, i
            m->bytes_per_vertex_substep, m->fixed_per_substep, m->launches_per_frame);
     if (cuda)
         printf(",\"graphs_per_frame\":%.1f,\"roofline_h100_substeps_per_s\":%.0f,\"roofline_h200_substeps_per_s\":%.0f,"
-               "\"launch_floor_substeps_per_s\":%.0f,\"launch_us_assumed\":%.1f,\"predicted_h100_substeps_per_s\":%.0f,"
-               "\"predicted_h200_substeps_per_s\":%.0f",
-               m->graphs_per_frame, rh100, rh200, launch, LAUNCH_US, ph100, ph200);
+               "\"launch_floor_substeps_per_s\":%.0f,\"launch_us_assumed\":%.1f,\"host_waits_per_substep\":%.2f,"
+               "\"wait_us_assumed\":%.1f,\"predicted_h100_substeps_per_s\":%.0f,\"predicted_h200_substeps_per_s\":%.0f",
+               m->graphs_per_frame, rh100, rh200, launch, LAUNCH_US, m->waits_per_substep, WAIT_US, ph100, ph200);
     if (cuda && measured_bw > 0) printf(",\"roofline_this_device_substeps_per_s\":%.0f", roofline(m, n, measured_bw));
     printf("}");
 }

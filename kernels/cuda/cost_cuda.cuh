@@ -34,10 +34,13 @@ static double peak_bandwidth(int dev)
  * MODEL.md's table) - and the bytes per vertex each kernel's loads and stores name (a vertex's
  * own; neighbours' reads come from cache). A V-cycle's coarse levels add about a third of level 0's
  * traffic (2 x 2 aggregation), counted in its rows. Rough by design: what bench measures is the
- * truth; the copies of the partials back to the host (4 bytes a chunk) and the waits for them, one
- * per sum, are not bytes a vertex but they bound a small cloth's speed. */
+ * truth. The host waits for the device at a part's start, for each assembly's |R| (the Newton
+ * iteration's and its line search's, IM_TRIES) and to learn whether a linear solve is done
+ * (IM_LOOKS); test_datapath counts them (about 4.2 a Newton iteration with a rock). */
 #define IM_NEWTON 3.0
 #define IM_CG 5.0
+#define IM_TRIES 1.3
+#define IM_LOOKS 2.0
 static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
 {
     const cs_phys *p = &m->phys;
@@ -47,9 +50,18 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
      * forward blocks (120 bytes); level 0's bending blocks (48). Rows: bytes a vertex per run, runs
      * a substep, launches a run. */
     const double blk = 4.0 * CS_IM_SYM, blocks = 5 * blk, bend = 2 * blk;
-    /* a V-cycle's launches: per level above the coarsest a sweep each way, three products A x, the
-     * residual, restriction and prolongation; the coarsest's 16 sweeps (the default 4 levels) */
-    const double vcycle_launches = 3.0 * 7.0 + 2.0 * CS_IM_COARSE_SWEEPS - 1.0;
+    /* a V-cycle's launches: per level of more than IM_TAIL vertices a sweep each way, two products
+     * A x, the residual, restriction and prolongation; the levels below in one block (k_im_tail) */
+    int32_t lx[CS_IM_MAX_LEVELS], ly[CS_IM_MAX_LEVELS];
+    const int nlev = cs_im_levels(p->nx, p->ny, lx, ly);
+    double vcycle_launches = 0.0;
+    for (int l = 0; l < nlev; l++) {
+        if ((int64_t)lx[l] * ly[l] <= IM_TAIL) {
+            vcycle_launches += 1.0;
+            break;
+        }
+        vcycle_launches += l + 1 == nlev ? 2.0 * CS_IM_COARSE_SWEEPS - 1.0 : 7.0;
+    }
 #define IM_ROW(name, rd, wr, runs, launches) cs_cost_add(out, name, rd, wr, 0, runs, (runs) * F * (launches))
     IM_ROW("k_im_reach (the part's largest coordinate)", 12.0, 0.0, 1.0, 1.0);
     IM_ROW("k_im_begin (x_n, v_n kept; the first guess)", 24.0 + 1.0 + 12.0, 24.0 + 4.0 + 24.0, 1.0, 1.0);
@@ -66,6 +78,10 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     IM_ROW("k_im_apply (A p, bending included)", blocks + bend + 12.0 + 4.0, 12.0, N * C, 1.0);
     IM_ROW("k_im_dot (chunk partials)", 24.0, 0.0, N * (3.0 * C + 1.0), 1.0);
     IM_ROW("k_im_cg_step, k_im_cg_dir", 48.0 + 24.0, 24.0 + 12.0, N * C, 2.0);
+    /* the scalars (k_im_cg_begin a solve; _alpha, _check, _beta an iteration): a chunk's partial
+     * each, read by one thread */
+    cs_cost_add(out, "k_im_cg_begin, _alpha, _check, _beta (one thread)", 0, 0, 4.0 * p->nchunks, N * (3.0 * C + 1.0),
+                N * (3.0 * C + 1.0) * F);
     IM_ROW("V-cycle (k_im_jacobi, k_im_apply, k_im_sub, k_im_restrict, k_im_prolong)",
            levels * (2 * (blk + 40.0) + 3 * (blocks + 16.0) + 24.0 + 12.0 + 24.0),
            levels * (2 * 12.0 + 3 * 12.0 + 12.0 + 3.0 + 12.0), N * (C + 1.0), vcycle_launches);
@@ -92,7 +108,8 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
     IM_ROW("k_im_finite (a step call's end)", 36.0, 0.0, 1.0 / F, 1.0);
 #undef IM_ROW
     cs_cost_add(out, "frame copy (positions, on the device)", 12.0, 12.0, 0, 1.0 / F, 0);
-    out->graphs_per_frame = 0.0; /* plain launches */
+    out->graphs_per_frame = N * C * F; /* a CG iteration's launches in one; the rest plain */
+    out->waits_per_substep = 2.0 + N * (IM_TRIES + IM_LOOKS) + (n_rocks > 0 ? 1.0 : 0.0);
     /* every launch waits for the one before */
     out->nodes_per_substep = out->launches_per_frame / F;
     /* stepped alone in a batch (cuda_step_batch): every launch and copy is its own call */
@@ -105,9 +122,9 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
  * cell and id: 28 bytes), about pi (reach / h)^2 of them on a flat cloth (more where it is folded,
  * and twice the substep's motion wider: contact-dependent, not modelled), with reach
  * self_thickness plus two edges; counted, filled and once each sweep of the bound (nominally
- * two). Each pass also waits for the device about seven times (scalars read back): not bytes, so
- * not modelled here. */
+ * two). Each pass also waits for the device about seven times (scalars read back: SC_WAITS). */
 #define SC_SWEEPS 2.0
+#define SC_WAITS 7.0
 static void sc_cost(const cs_model *m, cs_cost_model *out)
 {
     const cs_phys *p = &m->phys;
@@ -125,6 +142,7 @@ static void sc_cost(const cs_model *m, cs_cost_model *out)
     cs_cost_add(out, "k_sc_limit (the bound's sweeps)", SC_SWEEPS * (48.0 + cand), SC_SWEEPS * 4.0, 0, 1.0,
                 SC_SWEEPS * F);
     cs_cost_add(out, "k_sc_cut", 12.0 + 12.0 + 4.0, 0, 0, 1.0, F);
+    out->waits_per_substep += SC_WAITS;
 }
 
 static void cuda_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)

@@ -11,16 +11,18 @@
 
 /* The CPU backend's sequence (implicit_cpu.c) with each of its loops a kernel that calls the same
  * functions of clothsim/implicit.h and physics.h per vertex, in the same order, so the state ends
- * bitwise the same. Simple launches on the scene's stream, no graphs: a part of a substep runs
+ * bitwise the same. Launches on the scene's stream (a conjugate-gradient iteration is one graph:
+ * im_cg_queue): a part of a substep runs
  * the first guess, then Newton (assemble, the multigrid hierarchy, conjugate gradients
  * preconditioned by a V-cycle, a backtracking line search), then the accelerations and the strain
  * pass. The iterate lives in the state buffer a substep writes (state[cur ^ 1]); the part's start
  * (x_n, v_n) is copied aside, so the buffers swap once a part as the explicit substeps do.
  *
  * Sums: a block per chunk (a row's CS_CHUNK columns) sums its terms with cs_tree_sum's tree in
- * shared memory into the chunk's partial; the host copies the partials back and totals them with
- * cs_im_chunk_total, then computes the solver's scalars (residual norms, alpha, beta) in float as
- * the CPU does. A copy back and a wait per dot product: simple, not fast.
+ * shared memory into the chunk's partial, and cs_im_chunk_total totals the partials in the CPU's
+ * order: on the host for the residuals Newton decides on (a copy back and a wait each), on the
+ * device, in one-thread kernels, for the conjugate gradients' dot products and scalars (alpha,
+ * beta, the stopping test: the CPU's float operations), which the host never waits for.
  *
  * Rocks (implicit.h, "rock contact" and "the rock steps of a part"): with rocks, each substep
  * first asks how many parts it takes (k_im_fastest_chunks, k_im_fastest: the largest closing
@@ -416,6 +418,83 @@ __global__ void k_im_prolong(cs_im_level L, float *x, const float *cx, int32_t c
     im_put3(x, v, cs_add(cs_v3_from(x + 3 * (size_t)v), cs_scale(e, CS_IM_COARSE_SCALE)));
 }
 
+/* The V-cycle's small levels in one block: from level `first` (at most IM_TAIL vertices) down to the
+ * coarsest and back up, each step of im_vcycle's launches a loop over the level's vertices
+ * (the same functions, each vertex computed as alone: the same bits) followed by a barrier.
+ * At 64 x 64 this is four levels of the five, 52 launches of a V-cycle's 59 (the coarsest's 16
+ * sweeps alone 31). */
+#define IM_TAIL 1024  /* vertices of the largest level the block takes */
+#define IM_TAIL_THREADS 256
+struct im_tail {
+    cs_im_level L[CS_IM_MAX_LEVELS];
+    float *b[CS_IM_MAX_LEVELS], *x[CS_IM_MAX_LEVELS], *t[CS_IM_MAX_LEVELS];
+    int first, levels;
+};
+
+/* x = x + omega Dinv (b - t) over level L's vertices (first: from x = 0); then a barrier. */
+__device__ static void im_tail_jacobi(const cs_im_level *L, float *x, const float *b, const float *t, int first)
+{
+    const cs_vec3 zero = cs_v3(0.0f, 0.0f, 0.0f);
+    for (int32_t v = (int32_t)threadIdx.x; v < L->nx * L->ny; v += (int32_t)blockDim.x) {
+        const cs_vec3 xv = first ? zero : cs_v3_from(x + 3 * (size_t)v);
+        im_put3(x, v, cs_im_jacobi(L, v, xv, cs_v3_from(b + 3 * (size_t)v), first ? zero : cs_v3_from(t + 3 * (size_t)v)));
+    }
+    __syncthreads();
+}
+
+/* t = A x over level L's vertices; then a barrier. */
+__device__ static void im_tail_apply(const cs_im_level *L, const float *x, float *t)
+{
+    for (int32_t v = (int32_t)threadIdx.x; v < L->nx * L->ny; v += (int32_t)blockDim.x)
+        im_put3(t, v, cs_im_apply(L, x, v % L->nx, v / L->nx, 0));
+    __syncthreads();
+}
+
+__global__ void __launch_bounds__(IM_TAIL_THREADS) k_im_tail(im_tail T, const float *b0, float *x0, const im_cg *stop)
+{
+    if (IM_STOPPED(stop)) return; /* the whole block alike */
+    const int last = T.levels - 1;
+    /* down: smooth, the residual, restricted */
+    for (int l = T.first; l <= last; l++) {
+        const cs_im_level *L = &T.L[l];
+        const float *b = l == T.first ? b0 : T.b[l];
+        float *x = l == T.first ? x0 : T.x[l], *t = T.t[l];
+        const int sweeps = l == last ? CS_IM_COARSE_SWEEPS : CS_IM_SMOOTH;
+        im_tail_jacobi(L, x, b, t, 1);
+        for (int k = 1; k < sweeps; k++) {
+            im_tail_apply(L, x, t);
+            im_tail_jacobi(L, x, b, t, 0);
+        }
+        if (l == last) break;
+        im_tail_apply(L, x, t);
+        const int32_t n = L->nx * L->ny, cnx = T.L[l + 1].nx, cny = T.L[l + 1].ny;
+        for (int32_t k = (int32_t)threadIdx.x; k < 3 * n; k += (int32_t)blockDim.x) t[k] = b[k] - t[k];
+        __syncthreads();
+        for (int32_t v = (int32_t)threadIdx.x; v < cnx * cny; v += (int32_t)blockDim.x)
+            im_put3(T.b[l + 1], v, cs_im_restrict(L, t, v % cnx, v / cnx));
+        __syncthreads();
+    }
+    /* up: the coarse correction, interpolated and scaled, then smooth */
+    for (int l = last - 1; l >= T.first; l--) {
+        const cs_im_level *L = &T.L[l];
+        const float *b = l == T.first ? b0 : T.b[l];
+        float *x = l == T.first ? x0 : T.x[l], *t = T.t[l];
+        const float *cx = T.x[l + 1];
+        const int32_t cnx = T.L[l + 1].nx;
+        for (int32_t v = (int32_t)threadIdx.x; v < L->nx * L->ny; v += (int32_t)blockDim.x) {
+            if (L->mask[v] == 0.0f) continue;
+            const int32_t i = v % L->nx, j = v / L->nx;
+            const cs_vec3 e = cs_v3_from(cx + 3 * (size_t)((j / 2) * cnx + i / 2));
+            im_put3(x, v, cs_add(cs_v3_from(x + 3 * (size_t)v), cs_scale(e, CS_IM_COARSE_SCALE)));
+        }
+        __syncthreads();
+        for (int k = 0; k < CS_IM_SMOOTH; k++) {
+            im_tail_apply(L, x, t);
+            im_tail_jacobi(L, x, b, t, 0);
+        }
+    }
+}
+
 /* Coarse level c's Galerkin row of each of its vertices from the fine level F. */
 __global__ void k_im_galerkin(cs_im_level F, im_level_bufs c)
 {
@@ -678,6 +757,15 @@ static void im_vcycle(cuda_ctx *c, int l, const float *b, float *x, const im_cg 
     cudaStream_t st = c->stream;
     const int last = l + 1 == w->levels;
     const int sweeps = last ? CS_IM_COARSE_SWEEPS : CS_IM_SMOOTH;
+    if (lv->n <= IM_TAIL) { /* this level and those below: one block */
+        im_tail T;
+        memset(&T, 0, sizeof T);
+        for (int k = l; k < w->levels; k++)
+            T.L[k] = im_view(w, k), T.b[k] = w->lv[k].b, T.x[k] = w->lv[k].x, T.t[k] = w->lv[k].t;
+        T.first = l, T.levels = w->levels;
+        k_im_tail<<<1, IM_TAIL_THREADS, 0, st>>>(T, b, x, stop);
+        return;
+    }
     k_im_jacobi<<<nb, IM_THREADS, 0, st>>>(L, x, b, lv->t, 1, stop);
     for (int k = 1; k < sweeps; k++) {
         k_im_apply<<<nb, IM_THREADS, 0, st>>>(L, x, lv->t, 0, stop);
@@ -747,9 +835,11 @@ static cs_status im_cg_queue(cuda_ctx *c)
 
 /* Conjugate gradients on A dx = R preconditioned by a V-cycle (pcg of implicit_cpu.c): stops at
  * |r| <= target or after most iterations; the iterations run into its. The host queues as many
- * iterations as the last solve took, less one, before it first reads whether the solve is done,
- * then one at a time: a wait or two a solve rather than three an iteration, and an iteration
- * queued past the end costs a graph of launches that return at once. */
+ * iterations as the last solve took before it first reads whether the solve is done, then one at
+ * a time: about two waits a solve rather than three an iteration, and an iteration queued past
+ * the end costs a graph of launches that return at once. (As many less one: 4.8 waits a Newton
+ * iteration and 198 graphs for 170 iterations in test_datapath's scene; as many, 4.2 and 215;
+ * one more, 3.8 and 239.) */
 static cs_status im_pcg(cuda_ctx *c, float target, int most, int *its)
 {
     im_work *w = c->im;
@@ -761,7 +851,7 @@ static cs_status im_pcg(cuda_ctx *c, float target, int most, int *its)
     CUDA_CHECK(cudaMemcpyAsync(w->p, w->z, bytes, cudaMemcpyDeviceToDevice, c->stream));
     im_dot(c, w->r, w->z, NULL);
     k_im_cg_begin<<<1, 1, 0, c->stream>>>(w->part, w->nchunks, w->cg, target, most);
-    int queued = 0, group = w->cg_last > 1 ? w->cg_last - 1 : 1;
+    int queued = 0, group = w->cg_last > 1 ? w->cg_last : 1;
     while (queued < most) {
         const int k = group < most - queued ? group : most - queued;
         for (int q = 0; q < k; q++) {

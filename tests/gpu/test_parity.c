@@ -115,6 +115,8 @@ static const variant variants[] = {
     {"implicit: switched to and from velocity_verlet", 24, 20, VV, CV, 1, 0, S_GRAB | S_SWITCH_IM, 0, 0},
     {"implicit: snapshot loaded into both", 24, 20, IM, CV, 1, 0, S_GRAB | S_SNAPSHOT, 0, 0},
     {"implicit: wide rows (2 chunks a row), grab", 300, 3, IM, CV, 1, 0, S_GRAB, 0, 0},
+    /* more than 1,024 vertices: the V-cycle's finest level by launches, the rest in one block */
+    {"implicit: 36 x 30, grab", 36, 30, IM, RS, 0, 0, S_GRAB, 0, 0},
     /* implicit_euler with rocks: carried mass, the push, substeps cut into parts (and the cap) */
     {"implicit: a rock thrown on the cloth, surface", 24, 20, IM, CV, 1, 1, 0, 0.06f, 1},
     {"implicit: vertex contact, two rocks at once", 21, 21, IM, RS, 1, 2, S_PAIR, 0.02f, 0},

@@ -116,6 +116,7 @@ typedef struct cs_cost_model {
     double launches_per_frame;       /* kernels (or parallel passes) per frame */
     double graphs_per_frame;         /* CUDA graph launches per frame (0: none) */
     double nodes_per_substep;        /* kernels per substep on the critical path */
+    double waits_per_substep;        /* host waits for the device (a round trip each) per substep */
     /* A batch of such simulations (step_batch) launches the kernels above once for all of them:
      * launches_per_frame is the whole batch's, whatever its size. What each simulation adds is
      * host work: the runtime calls the batch makes for it per step call, without and with its
