@@ -28,6 +28,7 @@
 #ifndef CLOTHSIM_IMPLICIT_H
 #define CLOTHSIM_IMPLICIT_H
 
+#include "clothsim/clothsim.h" /* CS_MAX_ROCKS */
 #include "clothsim/physics.h"
 
 /* Forward directions of a level's off-diagonal blocks (t = 0..3). */
@@ -448,10 +449,17 @@ SIM_HD static inline void cs_im_rocks_share(const cs_phys *p, const cs_im_rocks 
 {
     const int32_t n = p->n, nr = R->nr;
     const int surface = p->contact_model == CS_CONTACT_SURFACE;
-    for (int32_t v = 0; v < n; v++) R->sr[v] = -1;
-    for (int32_t r = 0; r < nr; r++) {
-        const cs_rock_state *q = &R->rocks[r];
+    if (R->rows) { /* nothing carried: the last share's carriers lie within its spans */
+        for (int32_t r = 0; r < CS_MAX_ROCKS; r++)
+            for (int32_t v = R->rows[2 * r] > 0 ? R->rows[2 * r] : 0; v < R->rows[2 * r + 1] && v < n; v++)
+                R->sr[v] = -1;
+    } else {
+        for (int32_t v = 0; v < n; v++) R->sr[v] = -1;
+    }
+    for (int32_t r = 0; r < CS_MAX_ROCKS; r++) {
         if (R->rows) R->rows[2 * r] = R->rows[2 * r + 1] = 0;
+        if (r >= nr) continue;
+        const cs_rock_state *q = &R->rocks[r];
         if (!(q->inv_mass > 0.0f)) continue; /* a dynamic rock's translation only */
         const float Rc = q->radius + p->contact_offset + p->contact_offset;
         const int32_t nc = cs_im_rock_candidates(p, R, R->rx0[r], Rc);
@@ -603,13 +611,16 @@ SIM_HD static inline void cs_im_rocks_push(const cs_phys *p, const cs_im_rocks *
     if (!nr) return;
     const float inv_h = 1.0f / h;
     cs_vec3 *acc = R->F;
-    for (int32_t r = 0; r < nr; r++) acc[r] = cs_v3(0.0f, 0.0f, 0.0f);
-    for (int32_t v = 0; v < n; v++) {
-        const int32_t r = R->sr[v];
-        if (r < 0 || R->w[v] == 0.0f) continue;
-        const cs_vec3 nv = cs_v3_from(R->sn + 3 * (size_t)v);
-        const cs_vec3 d = cs_im_beyond(R, r, cs_im_rock_x(R, v), cs_im_rock_xb(R, v));
-        acc[r] = cs_add(acc[r], cs_scale(nv, R->sh[v] * R->rocks[r].inv_mass * cs_dot(nv, d)));
+    /* each rock's carriers in vertex order (within its span of cs_im_rocks_share where kept) */
+    for (int32_t r = 0; r < nr; r++) {
+        acc[r] = cs_v3(0.0f, 0.0f, 0.0f);
+        const int32_t v0 = R->rows ? R->rows[2 * r] : 0, v1 = R->rows ? R->rows[2 * r + 1] : n;
+        for (int32_t v = v0; v < v1; v++) {
+            if (R->sr[v] != r || R->w[v] == 0.0f) continue;
+            const cs_vec3 nv = cs_v3_from(R->sn + 3 * (size_t)v);
+            const cs_vec3 d = cs_im_beyond(R, r, cs_im_rock_x(R, v), cs_im_rock_xb(R, v));
+            acc[r] = cs_add(acc[r], cs_scale(nv, R->sh[v] * R->rocks[r].inv_mass * cs_dot(nv, d)));
+        }
     }
     for (int32_t r = 0; r < nr; r++) {
         cs_rock_state *q = &R->rocks[r];
