@@ -135,8 +135,10 @@ static void sc_cost(const cs_model *m, cs_cost_model *out)
     cs_cost_add(out, "k_sc_begin (x0, the mask as floats)", 12.0 + 1.0, 12.0 + 4.0, 0, 1.0, F);
     cs_cost_add(out, "k_sc_disp, k_sc_far (the displacements)", 24.0 + 12.0, 12.0, 0, 1.0, 2.0 * F);
     cs_cost_add(out, "k_sc_edge (the longest edge)", 12.0 + 36.0 + 12.0, 0, 0, 1.0, F);
-    cs_cost_add(out, "k_sc_keys, k_sc_sort (the grid; the sort on one thread)", 12.0 + 4.0 + 8.0, 4.0 + 12.0 + 8.0, 0,
-                1.0, 2.0 * F);
+    /* the grid: keys; the counting sort's count, scan, fill and order (start and the cursor about
+     * two cells a vertex, each read and zeroed) */
+    cs_cost_add(out, "k_sc_keys, k_sc_count, _scan, _fill, _order (the grid)", 12.0 + 4.0 + 8.0 + 20.0,
+                4.0 + 12.0 + 8.0 + 16.0, 0, 1.0, 5.0 * F);
     cs_cost_add(out, "k_sc_pairs (counted, then filled)", 2.0 * (24.0 + cand), 4.0 + 8.0, 0, 1.0, 2.0 * F);
     cs_cost_add(out, "k_sc_repel, k_sc_push", 24.0 + 8.0 + 4.0 + 24.0, 24.0 + 4.0, 0, 1.0, 2.0 * F);
     cs_cost_add(out, "k_sc_limit (the bound's sweeps)", SC_SWEEPS * (48.0 + cand), SC_SWEEPS * 4.0, 0, 1.0,

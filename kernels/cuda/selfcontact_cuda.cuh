@@ -8,8 +8,9 @@
  * same state. A pass, with the host reading back a few scalars between its launches:
  *   1. d = x - x0 and the largest displacements M and Ma (k_sc_disp, k_sc_far: per-block minima
  *      and maxima, exact in any order, totalled on the host as the CPU's reductions are);
- *   2. the longest intact edge at x0 (k_sc_edge); the hash grid of x0 (k_sc_keys in parallel,
- *      cs_sc_sort's counting sort on one thread, as the CPU runs it);
+ *   2. the longest intact edge at x0 (k_sc_edge); the hash grid of x0 (k_sc_keys, then the
+ *      counting sort in parallel - k_sc_count, k_sc_scan, k_sc_fill, k_sc_order - ending with
+ *      cs_sc_sort's start and ids, each cell's vertices in vertex order, as the CPU's);
  *   3. every vertex's list of repelling pairs within self_thickness + 2 M at x0: counted
  *      (cs_sc_pairs with no room), the room laid out on the host (an exact prefix sum; the key
  *      buffer grows to fit, and a failed allocation is an error, never a dropped pair), then
@@ -38,6 +39,7 @@ struct sc_work {
     float *host_part;
     uint32_t *key;
     int32_t *start, *ids, *cc, *count, *touched;
+    int32_t *cursor; /* each cell's fill so far (k_sc_fill): size + 1 */
     int64_t *first;  /* each vertex's list in keys */
     int64_t *host_first;
     int32_t *host_count;
@@ -76,10 +78,10 @@ static cs_status sc_fit(cuda_ctx *c, int32_t n)
     w->n = n, w->mask = size - 1;
     const size_t N = (size_t)n, blocks = sc_blocks(n);
     /* floats: x0 3n, d 3n, s 2n, push 6n, w n; ints: key n, start size + 2, ids n, cc 3n, count n,
-     * touched n */
+     * touched n, cursor size + 2 */
     cudaError_t e = cudaMalloc((void **)&w->x0, sizeof(float) * 15 * N);
     if (e == cudaSuccess) e = cudaMalloc((void **)&w->part, sizeof(float) * 8 * blocks);
-    if (e == cudaSuccess) e = cudaMalloc((void **)&w->key, sizeof(int32_t) * (7 * N + size + 2));
+    if (e == cudaSuccess) e = cudaMalloc((void **)&w->key, sizeof(int32_t) * (7 * N + 2 * ((size_t)size + 2)));
     if (e == cudaSuccess) e = cudaMalloc((void **)&w->first, sizeof(int64_t) * N);
     if (e == cudaSuccess) e = cudaMalloc((void **)&w->flag, sizeof(int) * 3);
     if (e == cudaSuccess) e = cudaMallocHost((void **)&w->host_part, sizeof(float) * 8 * blocks);
@@ -94,7 +96,7 @@ static cs_status sc_fit(cuda_ctx *c, int32_t n)
     w->d = w->x0 + 3 * N, w->s = w->d + 3 * N, w->push = w->s + 2 * N, w->w = w->push + 6 * N;
     int32_t *ints = (int32_t *)w->key;
     w->ids = ints + N, w->cc = w->ids + N, w->count = w->cc + 3 * N, w->touched = w->count + N;
-    w->start = w->touched + N;
+    w->start = w->touched + N, w->cursor = w->start + size + 2;
     c->scw = w;
     return CS_OK;
 }
@@ -205,10 +207,56 @@ __global__ void k_sc_keys(const float *__restrict__ x0, int32_t n, float cell, u
     key[v] = cs_sc_cell_of(cs_sc_at(x0, x0 + n, x0 + 2 * (size_t)n, v), cell, mask, cc + 3 * (size_t)v);
 }
 
-/* The counting sort (cs_sc_sort). One thread: the CPU's order. */
-__global__ void k_sc_sort(int32_t n, const uint32_t *key, uint32_t mask, int32_t *start, int32_t *ids)
+/* The counting sort of cs_sc_sort in parallel, ending with its start and ids (a cell's vertices
+ * in vertex order): the cells counted (integer atomics, exact in any order), their sums in one
+ * block, each vertex placed in its cell by an atomic cursor, then each cell put back in vertex
+ * order. start and cursor zeroed before. */
+__global__ void k_sc_count(int32_t n, const uint32_t *key, int32_t *start)
 {
-    cs_sc_sort(n, key, mask, start, ids);
+    const int32_t v = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x);
+    if (v < n) atomicAdd(&start[key[v] + 1], 1);
+}
+
+#define SC_SCAN_THREADS 1024
+/* start[k] = start[0] + .. + start[k] over `entries`, one block: each thread a run of them. */
+__global__ void __launch_bounds__(SC_SCAN_THREADS) k_sc_scan(int32_t *start, uint32_t entries)
+{
+    __shared__ int32_t before[SC_SCAN_THREADS];
+    const uint32_t t = threadIdx.x, per = (entries + blockDim.x - 1) / blockDim.x;
+    const uint32_t a = t * per < entries ? t * per : entries, b = a + per < entries ? a + per : entries;
+    int32_t sum = 0;
+    for (uint32_t k = a; k < b; k++) start[k] = sum += start[k];
+    before[t] = sum;
+    __syncthreads();
+    if (t == 0) /* each run's total into what comes before it */
+        for (uint32_t q = 0, run = 0; q < blockDim.x; q++) {
+            const int32_t x = before[q];
+            before[q] = (int32_t)run;
+            run += (uint32_t)x;
+        }
+    __syncthreads();
+    for (uint32_t k = a; k < b; k++) start[k] += before[t];
+}
+
+__global__ void k_sc_fill(int32_t n, const uint32_t *key, const int32_t *start, int32_t *cursor, int32_t *ids)
+{
+    const int32_t v = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x);
+    if (v >= n) return;
+    const uint32_t k = key[v];
+    ids[start[k] + atomicAdd(&cursor[k], 1)] = v;
+}
+
+/* Cell k's vertices in vertex order (insertion sort: a cell holds a few). */
+__global__ void k_sc_order(uint32_t cells, const int32_t *start, int32_t *ids)
+{
+    const uint32_t k = blockIdx.x * blockDim.x + threadIdx.x;
+    if (k >= cells) return;
+    for (int32_t i = start[k] + 1; i < start[k + 1]; i++) {
+        const int32_t v = ids[i];
+        int32_t j = i;
+        for (; j > start[k] && ids[j - 1] > v; j--) ids[j] = ids[j - 1];
+        ids[j] = v;
+    }
 }
 
 /* Vertex v's repelling pairs within rad at x0: counted (keys NULL), or written into its room. */
@@ -349,7 +397,12 @@ static cs_status sc_grid(cuda_ctx *c, int32_t n, float cell, cs_sc_grid *G)
 {
     sc_work *w = c->scw;
     k_sc_keys<<<sc_blocks(n), SC_THREADS, 0, c->stream>>>(w->x0, n, cell, w->mask, w->key, w->cc);
-    k_sc_sort<<<1, 1, 0, c->stream>>>(n, w->key, w->mask, w->start, w->ids);
+    const uint32_t cells = w->mask + 1;
+    CUDA_CHECK(cudaMemsetAsync(w->start, 0, sizeof(int32_t) * 2 * ((size_t)cells + 1), c->stream)); /* and cursor */
+    k_sc_count<<<sc_blocks(n), SC_THREADS, 0, c->stream>>>(n, w->key, w->start);
+    k_sc_scan<<<1, SC_SCAN_THREADS, 0, c->stream>>>(w->start, cells + 1);
+    k_sc_fill<<<sc_blocks(n), SC_THREADS, 0, c->stream>>>(n, w->key, w->start, w->cursor, w->ids);
+    k_sc_order<<<sc_blocks((int32_t)cells), SC_THREADS, 0, c->stream>>>(cells, w->start, w->ids);
     CUDA_CHECK(cudaGetLastError());
     G->start = w->start, G->ids = w->ids, G->cc = w->cc, G->mask = w->mask, G->cell = cell;
     return CS_OK;
