@@ -383,14 +383,31 @@ __global__ void k_im_apply(cs_im_level L, const float *x, float *y, int bend, co
     im_put3(y, v, cs_im_apply(&L, x, v % L.nx, v / L.nx, bend));
 }
 
+/* Vertex v's x = x + omega Dinv (b - t), t = A x (first: from x = 0): k_im_jacobi's, k_im_tail's. */
+__device__ static inline void im_jacobi_at(const cs_im_level *L, float *x, const float *b, const float *t, int first,
+                                           int32_t v)
+{
+    const cs_vec3 zero = cs_v3(0.0f, 0.0f, 0.0f);
+    const cs_vec3 xv = first ? zero : cs_v3_from(x + 3 * (size_t)v);
+    im_put3(x, v, cs_im_jacobi(L, v, xv, cs_v3_from(b + 3 * (size_t)v), first ? zero : cs_v3_from(t + 3 * (size_t)v)));
+}
+
+/* Vertex v's x += CS_IM_COARSE_SCALE e, e the coarse correction (cx, cnx wide) constant over each
+ * aggregate: k_im_prolong's, k_im_tail's. */
+__device__ static inline void im_prolong_at(const cs_im_level *L, float *x, const float *cx, int32_t cnx, int32_t v)
+{
+    if (L->mask[v] == 0.0f) return;
+    const int32_t i = v % L->nx, j = v / L->nx;
+    const cs_vec3 e = cs_v3_from(cx + 3 * (size_t)((j / 2) * cnx + i / 2));
+    im_put3(x, v, cs_add(cs_v3_from(x + 3 * (size_t)v), cs_scale(e, CS_IM_COARSE_SCALE)));
+}
+
 /* x = x + omega Dinv (b - t), t = A x (first: from x = 0). */
 __global__ void k_im_jacobi(cs_im_level L, float *x, const float *b, const float *t, int first, const im_cg *stop)
 {
     const int32_t v = im_vertex();
     if (v >= L.nx * L.ny || IM_STOPPED(stop)) return;
-    const cs_vec3 zero = cs_v3(0.0f, 0.0f, 0.0f);
-    const cs_vec3 xv = first ? zero : cs_v3_from(x + 3 * (size_t)v);
-    im_put3(x, v, cs_im_jacobi(&L, v, xv, cs_v3_from(b + 3 * (size_t)v), first ? zero : cs_v3_from(t + 3 * (size_t)v)));
+    im_jacobi_at(&L, x, b, t, first, v);
 }
 
 /* t = b - t over 3 n floats. */
@@ -412,10 +429,8 @@ __global__ void k_im_restrict(cs_im_level L, const float *t, float *cb, int32_t 
 __global__ void k_im_prolong(cs_im_level L, float *x, const float *cx, int32_t cnx, const im_cg *stop)
 {
     const int32_t v = im_vertex();
-    if (v >= L.nx * L.ny || L.mask[v] == 0.0f || IM_STOPPED(stop)) return;
-    const int32_t i = v % L.nx, j = v / L.nx;
-    const cs_vec3 e = cs_v3_from(cx + 3 * (size_t)((j / 2) * cnx + i / 2));
-    im_put3(x, v, cs_add(cs_v3_from(x + 3 * (size_t)v), cs_scale(e, CS_IM_COARSE_SCALE)));
+    if (v >= L.nx * L.ny || IM_STOPPED(stop)) return;
+    im_prolong_at(&L, x, cx, cnx, v);
 }
 
 /* The V-cycle's small levels in one block: from level `first` (at most IM_TAIL vertices) down to the
@@ -434,11 +449,8 @@ struct im_tail {
 /* x = x + omega Dinv (b - t) over level L's vertices (first: from x = 0); then a barrier. */
 __device__ static void im_tail_jacobi(const cs_im_level *L, float *x, const float *b, const float *t, int first)
 {
-    const cs_vec3 zero = cs_v3(0.0f, 0.0f, 0.0f);
-    for (int32_t v = (int32_t)threadIdx.x; v < L->nx * L->ny; v += (int32_t)blockDim.x) {
-        const cs_vec3 xv = first ? zero : cs_v3_from(x + 3 * (size_t)v);
-        im_put3(x, v, cs_im_jacobi(L, v, xv, cs_v3_from(b + 3 * (size_t)v), first ? zero : cs_v3_from(t + 3 * (size_t)v)));
-    }
+    for (int32_t v = (int32_t)threadIdx.x; v < L->nx * L->ny; v += (int32_t)blockDim.x)
+        im_jacobi_at(L, x, b, t, first, v);
     __syncthreads();
 }
 
@@ -479,14 +491,8 @@ __global__ void __launch_bounds__(IM_TAIL_THREADS) k_im_tail(im_tail T, const fl
         const cs_im_level *L = &T.L[l];
         const float *b = l == T.first ? b0 : T.b[l];
         float *x = l == T.first ? x0 : T.x[l], *t = T.t[l];
-        const float *cx = T.x[l + 1];
-        const int32_t cnx = T.L[l + 1].nx;
-        for (int32_t v = (int32_t)threadIdx.x; v < L->nx * L->ny; v += (int32_t)blockDim.x) {
-            if (L->mask[v] == 0.0f) continue;
-            const int32_t i = v % L->nx, j = v / L->nx;
-            const cs_vec3 e = cs_v3_from(cx + 3 * (size_t)((j / 2) * cnx + i / 2));
-            im_put3(x, v, cs_add(cs_v3_from(x + 3 * (size_t)v), cs_scale(e, CS_IM_COARSE_SCALE)));
-        }
+        for (int32_t v = (int32_t)threadIdx.x; v < L->nx * L->ny; v += (int32_t)blockDim.x)
+            im_prolong_at(L, x, T.x[l + 1], T.L[l + 1].nx, v);
         __syncthreads();
         for (int k = 0; k < CS_IM_SMOOTH; k++) {
             im_tail_apply(L, x, t);

@@ -449,16 +449,16 @@ SIM_HD static inline void cs_im_rocks_share(const cs_phys *p, const cs_im_rocks 
 {
     const int32_t n = p->n, nr = R->nr;
     const int surface = p->contact_model == CS_CONTACT_SURFACE;
-    if (R->rows) { /* nothing carried: the last share's carriers lie within its spans */
-        for (int32_t r = 0; r < CS_MAX_ROCKS; r++)
+    if (R->rows) { /* nothing carried: the last share's carriers lie within its spans, cleared too */
+        for (int32_t r = 0; r < CS_MAX_ROCKS; r++) {
             for (int32_t v = R->rows[2 * r] > 0 ? R->rows[2 * r] : 0; v < R->rows[2 * r + 1] && v < n; v++)
                 R->sr[v] = -1;
+            R->rows[2 * r] = R->rows[2 * r + 1] = 0;
+        }
     } else {
         for (int32_t v = 0; v < n; v++) R->sr[v] = -1;
     }
-    for (int32_t r = 0; r < CS_MAX_ROCKS; r++) {
-        if (R->rows) R->rows[2 * r] = R->rows[2 * r + 1] = 0;
-        if (r >= nr) continue;
+    for (int32_t r = 0; r < nr; r++) {
         const cs_rock_state *q = &R->rocks[r];
         if (!(q->inv_mass > 0.0f)) continue; /* a dynamic rock's translation only */
         const float Rc = q->radius + p->contact_offset + p->contact_offset;
