@@ -122,9 +122,11 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
  * cell and id: 28 bytes), about pi (reach / h)^2 of them on a flat cloth (more where it is folded,
  * and twice the substep's motion wider: contact-dependent, not modelled), with reach
  * self_thickness plus two edges; counted, filled and once each sweep of the bound (nominally
- * two). Each pass also waits for the device about seven times (scalars read back: SC_WAITS). */
+ * two). Each pass also waits for the device about seven times (scalars read back: SC_WAITS), and
+ * under implicit_euler the gather for each substep's parts five more (SC_RATE_WAITS). */
 #define SC_SWEEPS 2.0
 #define SC_WAITS 7.0
+#define SC_RATE_WAITS 5.0
 static void sc_cost(const cs_model *m, cs_cost_model *out)
 {
     const cs_phys *p = &m->phys;
@@ -145,6 +147,16 @@ static void sc_cost(const cs_model *m, cs_cost_model *out)
                 SC_SWEEPS * F);
     cs_cost_add(out, "k_sc_cut", 12.0 + 12.0 + 4.0, 0, 0, 1.0, F);
     out->waits_per_substep += SC_WAITS;
+    if (p->integrator == CS_IMPLICIT_EULER) {
+        /* before each substep, the pairs for its parts (sc_part_rate): x0, the velocities' box and
+         * spread, the longest edge, the grid, the repelling pairs within the fastest's reach
+         * (nominally the pass's), each vertex's closing speeds; five waits */
+        cs_cost_add(out, "sc_part_rate: k_sc_begin, k_sc_box, k_sc_far, k_sc_edge", 13.0 + 12.0 + 12.0 + 60.0, 16.0, 0,
+                    1.0, 4.0 * F);
+        cs_cost_add(out, "sc_part_rate: the grid, k_sc_pairs", 44.0 + 2.0 * (24.0 + cand), 40.0 + 12.0, 0, 1.0, 7.0 * F);
+        cs_cost_add(out, "sc_part_rate: k_sc_near", 12.0 + 24.0 + 8.0, 0, 0, 1.0, F);
+        out->waits_per_substep += SC_RATE_WAITS;
+    }
 }
 
 static void cuda_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)

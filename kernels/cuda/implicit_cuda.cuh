@@ -209,8 +209,8 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_reach(const cuda_scene *__restr
     if (t == 0) part[c] = buf[0];
 }
 
-/* The fastest chunk blockIdx.x's vertices close on a rock near them at a substep's start (cs_im_closing,
- * with self_collision cs_sc_rate too: fastest of implicit_cpu.c; a NaN is never taken): the chunk's largest into part (a maximum: any
+/* The fastest chunk blockIdx.x's vertices close on a rock near them at a substep's start (cs_im_closing:
+ * fastest of implicit_cpu.c; a NaN is never taken): the chunk's largest into part (a maximum: any
  * order gives the same). */
 __global__ void __launch_bounds__(CS_CHUNK) k_im_fastest_chunks(const cuda_scene *__restrict__ sc, const cs_rock_state *rocks,
                                                                const float *in, float h, float *part)
@@ -222,12 +222,8 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_fastest_chunks(const cuda_scene
     const size_t n = (size_t)p->n;
     float most = 0.0f;
     if (i < p->nx) {
-        float q = cs_im_closing(p, rocks, sc->nr, in, in + n, in + 2 * n, in + 3 * n, in + 4 * n, in + 5 * n,
-                                j * p->nx + i, h);
-        if (p->self_on) { /* and how fast it moves against its own thickness (cs_sc_rate) */
-            const float r = cs_sc_rate(p, in + 3 * n, in + 4 * n, in + 5 * n, j * p->nx + i, h);
-            q = r > q ? r : q;
-        }
+        const float q = cs_im_closing(p, rocks, sc->nr, in, in + n, in + 2 * n, in + 3 * n, in + 4 * n,
+                                      in + 5 * n, j * p->nx + i, h);
         most = q > most ? q : most;
     }
     buf[t] = most;
@@ -977,10 +973,10 @@ static cs_status im_step(cuda_ctx *c, const cs_model *m, int32_t substeps, cs_st
     im_work *w = c->im;
     const int32_t nr = c->host_sc.nr;
     for (int32_t k = 0; k < substeps; k++) {
-        /* fastest() of implicit_cpu.c: how fast the cloth closes on a rock near it, or with
-         * self_collision moves against its thickness (0 without either) */
-        float rate = 0.0f;
-        if (nr > 0 || p->self_on) {
+        /* fastest() of implicit_cpu.c: how fast the cloth closes on a rock near it (0 without
+         * one), and with self_collision how fast layers that may meet move (sc_part_rate) */
+        float rate = 0.0f, layers = 0.0f;
+        if (nr > 0) {
             k_im_fastest_chunks<<<(unsigned)w->nchunks, CS_CHUNK, sizeof(float) * CS_CHUNK, c->stream>>>(
                 c->sc, c->rb.rocks, c->vb.state[c->cur], p->dt, w->part);
             k_im_fastest<<<1, 1, 0, c->stream>>>(w->part, w->nchunks, w->fast);
@@ -989,6 +985,8 @@ static cs_status im_step(cuda_ctx *c, const cs_model *m, int32_t substeps, cs_st
             CUDA_CHECK(cudaStreamSynchronize(c->stream));
             rate = w->host_part[0];
         }
+        if (p->self_on && (st = sc_part_rate(c, p, p->dt, &layers)) != CS_OK) return st;
+        rate = layers > rate ? layers : rate;
         const int32_t parts = cs_im_splits(rate, p->dt, p->most_splits);
         const float h = p->dt / (float)parts;
         for (int32_t q = 0; q < parts; q++) {

@@ -3,9 +3,10 @@
  * explicit integrators and every part of an implicit_euler substep, so that the state equals the
  * CPU backend's bit for bit (kernels/MODEL.md, "Self-collision").
  *
- * Every pass is a full one: the CPU backend skips passes that provably change nothing (its
- * reference and lists), which leaves the bits as they are, so a pass that never skips gives the
- * same state. A pass, with the host reading back a few scalars between its launches:
+ * Every pass gathers its pairs afresh within the cloth's largest reach, where the CPU backend keeps
+ * lists of the pairs within each pair's own reach (cs_sc_pair_reach): a pair beyond its reach is
+ * safe and never touches, and the CPU's sweep that cuts outright gathers as this one does, so the
+ * state is the same. A pass, with the host reading back a few scalars between its launches:
  *   1. d = x - x0 and the largest displacements M and Ma (k_sc_disp, k_sc_far: per-block minima
  *      and maxima, exact in any order, totalled on the host as the CPU's reductions are);
  *   2. the longest intact edge at x0 (k_sc_edge); the hash grid of x0 (k_sc_keys, then the
@@ -17,9 +18,11 @@
  *      filled and sorted (cs_sc_pairs again); the repulsion (cs_sc_repel) per vertex, added where
  *      a pair touched;
  *   4. the bound: Jacobi sweeps of cs_sc_limit over the grid (pairs within self_thickness +
- *      2 Ma / CS_SC_GAMMA at x0) until no scale changes (at most
- *      CS_SC_SWEEPS, then one that cuts outright), then x = x0 + s d, v = s v.
- * The statistics differ from the CPU's where it skips: every pass here is a broad phase. */
+ *      2 Ma / CS_SC_GAMMA at x0) until no scale changes (at most CS_SC_SWEEPS, then one that cuts
+ *      outright), then x = x0 + s d, v = s v.
+ * Before each implicit_euler substep sc_part_rate gathers the repelling pairs within reach of the
+ * fastest vertex the same way for the parts (cs_sc_near_speed). The statistics differ from the
+ * CPU's where it keeps its lists: every pass here is a broad phase. */
 #ifndef CLOTHSIM_CUDA_SELFCONTACT_CUDA_CUH
 #define CLOTHSIM_CUDA_SELFCONTACT_CUDA_CUH
 
@@ -259,6 +262,21 @@ __global__ void k_sc_order(uint32_t cells, const int32_t *start, int32_t *ids)
     }
 }
 
+/* Each block's least and largest of a (3 n, SoA) per axis (part[8 b .. 8 b + 5]). */
+__global__ void __launch_bounds__(SC_THREADS) k_sc_box(const float *__restrict__ a, int32_t n, float *part)
+{
+    CS_DYNAMIC_SHARED(float, buf);
+    const int32_t v = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x);
+    float lo[3] = {3e38f, 3e38f, 3e38f}, hi[3] = {-3e38f, -3e38f, -3e38f};
+    if (v < n)
+        for (int q = 0; q < 3; q++) {
+            const float x = a[(size_t)q * n + v];
+            lo[q] = x < lo[q] ? x : lo[q];
+            hi[q] = x > hi[q] ? x : hi[q];
+        }
+    sc_block_minmax(buf, lo, hi, part);
+}
+
 /* Vertex v's repelling pairs within rad at x0: counted (keys NULL), or written into its room. */
 __global__ void k_sc_pairs(const cuda_scene *__restrict__ sc, cs_sc_grid G, const float *__restrict__ L0,
                            const float *__restrict__ x0, float reach, float rad, int32_t *count,
@@ -270,6 +288,29 @@ __global__ void k_sc_pairs(const cuda_scene *__restrict__ sc, cs_sc_grid G, cons
     const float *y0 = x0 + n, *z0 = y0 + n;
     if (!keys) count[v] = cs_sc_pairs(p, &G, L0, x0, y0, z0, reach, rad, v, NULL, 0);
     else if (count[v]) cs_sc_pairs(p, &G, L0, x0, y0, z0, reach, rad, v, keys + first[v], count[v]);
+}
+
+/* Each block's fastest closing of a repelling pair that may touch within h (cs_sc_near_speed over
+ * each vertex's list) into part[8 b]. */
+__global__ void __launch_bounds__(SC_THREADS) k_sc_near(const cuda_scene *__restrict__ sc, const float *__restrict__ S,
+                                                        float h, const int32_t *__restrict__ count,
+                                                        const int64_t *__restrict__ first,
+                                                        const int64_t *__restrict__ keys, float *part)
+{
+    CS_DYNAMIC_SHARED(float, buf);
+    const cs_phys *p = &sc->p;
+    const int t = (int)threadIdx.x;
+    const int32_t v = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x), n = p->n;
+    const size_t N = (size_t)n;
+    float most = 0.0f;
+    if (v < n && count[v])
+        most = cs_sc_near_speed(p, S, S + N, S + 2 * N, S + 3 * N, S + 4 * N, S + 5 * N, h, keys + first[v], count[v]);
+    buf[t] = most;
+    for (int s = SC_THREADS / 2; s > 0; s >>= 1) {
+        __syncthreads();
+        if (t < s) buf[t] = buf[t + s] > buf[t] ? buf[t + s] : buf[t];
+    }
+    if (t == 0) part[8 * blockIdx.x] = buf[0];
 }
 
 /* Vertex v's repulsion (cs_sc_repel) from its list into push; touched[v] its touching pairs. */
@@ -362,6 +403,19 @@ static cs_status sc_partials(cuda_ctx *c, unsigned blocks)
     return CS_OK;
 }
 
+/* The centre of the box the blocks' least and largest (part[8 b .. 8 b + 5], read back) make. */
+static cs_vec3 sc_box_centre(const sc_work *w, unsigned nb)
+{
+    float lo[3] = {3e38f, 3e38f, 3e38f}, hi[3] = {-3e38f, -3e38f, -3e38f};
+    for (unsigned b = 0; b < nb; b++)
+        for (int q = 0; q < 3; q++) {
+            const float l = w->host_part[8 * b + q], h = w->host_part[8 * b + 3 + q];
+            lo[q] = l < lo[q] ? l : lo[q];
+            hi[q] = h > hi[q] ? h : hi[q];
+        }
+    return cs_sc_centre(lo, hi);
+}
+
 /* displacements() of selfcontact_cpu.c: d = x - x0; M (from the centre of all the displacements)
  * and *Ma (the largest). */
 static cs_status sc_displacements(cuda_ctx *c, const float *S, int32_t n, float *M, float *Ma)
@@ -371,14 +425,7 @@ static cs_status sc_displacements(cuda_ctx *c, const float *S, int32_t n, float 
     k_sc_disp<<<nb, SC_THREADS, sizeof(float) * 6 * SC_THREADS, c->stream>>>(S, w->x0, w->d, n, w->part);
     cs_status st = sc_partials(c, nb);
     if (st != CS_OK) return st;
-    float lo[3] = {3e38f, 3e38f, 3e38f}, hi[3] = {-3e38f, -3e38f, -3e38f};
-    for (unsigned b = 0; b < nb; b++)
-        for (int q = 0; q < 3; q++) {
-            const float l = w->host_part[8 * b + q], h = w->host_part[8 * b + 3 + q];
-            lo[q] = l < lo[q] ? l : lo[q];
-            hi[q] = h > hi[q] ? h : hi[q];
-        }
-    const cs_vec3 centre = cs_sc_centre(lo, hi);
+    const cs_vec3 centre = sc_box_centre(w, nb);
     k_sc_far<<<nb, SC_THREADS, sizeof(float) * 2 * SC_THREADS, c->stream>>>(w->d, n, centre, w->part);
     if ((st = sc_partials(c, nb)) != CS_OK) return st;
     float most = 0.0f, abs_most = 0.0f;
@@ -408,6 +455,88 @@ static cs_status sc_grid(cuda_ctx *c, int32_t n, float cell, cs_sc_grid *G)
     return CS_OK;
 }
 
+/* Every vertex's list of repelling pairs within rad at x0 (cs_sc_pairs over grid G, whose cells are
+ * the candidates' reach): counted, laid out on the host (an exact prefix sum; the key buffer grows
+ * to fit, and a failed allocation is an error, never a dropped pair), filled and sorted; the total
+ * into *total. */
+static cs_status sc_pair_lists(cuda_ctx *c, int32_t n, const cs_sc_grid *G, const float *L0, float rad, int64_t *total)
+{
+    sc_work *w = c->scw;
+    const unsigned nb = sc_blocks(n);
+    k_sc_pairs<<<nb, SC_THREADS, 0, c->stream>>>(c->sc, *G, L0, w->x0, G->cell, rad, w->count, NULL, NULL);
+    CUDA_CHECK(cudaGetLastError());
+    CUDA_CHECK(cudaMemcpyAsync(w->host_count, w->count, sizeof(int32_t) * (size_t)n, cudaMemcpyDeviceToHost, c->stream));
+    CUDA_CHECK(cudaStreamSynchronize(c->stream));
+    int64_t all = 0;
+    for (int32_t v = 0; v < n; v++) w->host_first[v] = all, all += w->host_count[v];
+    if (all > w->cap) {
+        const int64_t cap = all > 2 * w->cap ? all : 2 * w->cap;
+        cudaFree(w->keys);
+        w->keys = NULL, w->cap = 0;
+        CUDA_CHECK(cudaMalloc((void **)&w->keys, sizeof(int64_t) * (size_t)cap));
+        w->cap = cap;
+    }
+    if (all > 0) {
+        CUDA_CHECK(cudaMemcpyAsync(w->first, w->host_first, sizeof(int64_t) * (size_t)n, cudaMemcpyHostToDevice, c->stream));
+        k_sc_pairs<<<nb, SC_THREADS, 0, c->stream>>>(c->sc, *G, L0, w->x0, G->cell, rad, w->count, w->first, w->keys);
+        CUDA_CHECK(cudaGetLastError());
+    }
+    *total = all;
+    return CS_OK;
+}
+
+/* The longest intact edge at x0 (k_sc_edge, its blocks' maxima totalled here). */
+static cs_status sc_longest(cuda_ctx *c, int32_t n, const float *L0, float *L)
+{
+    sc_work *w = c->scw;
+    const unsigned nb = sc_blocks(n);
+    k_sc_edge<<<nb, SC_THREADS, sizeof(float) * SC_THREADS, c->stream>>>(c->sc, w->x0, L0, w->part);
+    const cs_status st = sc_partials(c, nb);
+    if (st != CS_OK) return st;
+    float most = 0.0f;
+    for (unsigned b = 0; b < nb; b++) most = w->host_part[8 * b] > most ? w->host_part[8 * b] : most;
+    *L = most;
+    return CS_OK;
+}
+
+/* cs_sc_part_rate of selfcontact_cpu.c on the state the context holds (x0 set to its positions):
+ * the fastest vertex of a repelling pair that may touch within h, about the velocities' centre,
+ * over CS_SC_PART self_thickness, into *rate (0 where none may). The pairs from every vertex's
+ * gathered list within the fastest's reach (the CPU's lists hold them all too). */
+static cs_status sc_part_rate(cuda_ctx *c, const cs_phys *p, float h, float *rate)
+{
+    const int32_t n = p->n;
+    cs_status st = sc_begin(c, n);
+    if (st != CS_OK) return st;
+    sc_work *w = c->scw;
+    const float *S = c->vb.state[c->cur], *L0 = c->vb.rest[c->rest_cur];
+    const unsigned nb = sc_blocks(n);
+    k_sc_box<<<nb, SC_THREADS, sizeof(float) * 6 * SC_THREADS, c->stream>>>(S + 3 * (size_t)n, n, w->part);
+    if ((st = sc_partials(c, nb)) != CS_OK) return st;
+    const cs_vec3 cv = sc_box_centre(w, nb);
+    k_sc_far<<<nb, SC_THREADS, sizeof(float) * 2 * SC_THREADS, c->stream>>>(S + 3 * (size_t)n, n, cv, w->part);
+    if ((st = sc_partials(c, nb)) != CS_OK) return st;
+    float Vm = 0.0f; /* the largest cs_sc_speed: the largest |v - cv|, then gravity's part */
+    for (unsigned b = 0; b < nb; b++) Vm = w->host_part[8 * b] > Vm ? w->host_part[8 * b] : Vm;
+    Vm += cs_len(p->gravity) * h;
+    *rate = 0.0f;
+    if (!(Vm < 3.0e38f)) return CS_OK; /* not finite: the step reports it */
+    float L;
+    if ((st = sc_longest(c, n, L0, &L)) != CS_OK) return st;
+    const float rad = cs_sc_near_reach(p->self_thickness, h, Vm);
+    cs_sc_grid G;
+    if ((st = sc_grid(c, n, rad + 2.0f * L, &G)) != CS_OK) return st;
+    int64_t total;
+    if ((st = sc_pair_lists(c, n, &G, L0, rad, &total)) != CS_OK) return st;
+    if (total == 0) return CS_OK;
+    k_sc_near<<<nb, SC_THREADS, sizeof(float) * SC_THREADS, c->stream>>>(c->sc, S, h, w->count, w->first, w->keys, w->part);
+    if ((st = sc_partials(c, nb)) != CS_OK) return st;
+    float most = 0.0f;
+    for (unsigned b = 0; b < nb; b++) most = w->host_part[8 * b] > most ? w->host_part[8 * b] : most;
+    *rate = most / (CS_SC_PART * p->self_thickness);
+    return CS_OK;
+}
+
 /* cs_sc_end of selfcontact_cpu.c, every pass a full one: after a substep (a part) that began at
  * sc_begin, on the state the context holds now. */
 static cs_status sc_end(cuda_ctx *c, const cs_phys *p, cs_self_stats *stats)
@@ -423,32 +552,17 @@ static cs_status sc_end(cuda_ctx *c, const cs_phys *p, cs_self_stats *stats)
     if (!(M < 3.0e38f)) return CS_OK; /* not finite: the step reports it */
     CUDA_CHECK(cudaMemsetAsync(w->flag, 0, sizeof(int) * 3, c->stream));
     /* the longest edge at x0, the grid, the lists (selfcontact_cpu.c's path without lists) */
-    k_sc_edge<<<nb, SC_THREADS, sizeof(float) * SC_THREADS, c->stream>>>(c->sc, w->x0, L0, w->part);
-    if ((st = sc_partials(c, nb)) != CS_OK) return st;
-    float L = 0.0f;
-    for (unsigned b = 0; b < nb; b++) L = w->host_part[8 * b] > L ? w->host_part[8 * b] : L;
+    float L;
+    if ((st = sc_longest(c, n, L0, &L)) != CS_OK) return st;
     /* the pairs that may touch at x1: within self_thickness + 2 M at x0 (the CPU looks wider, for
      * lists it keeps; the pairs that touch, and so the bits, are the same) */
     const float Rl = p->self_thickness + 2.0f * M;
     float cell = Rl + 2.0f * L;
     cs_sc_grid G;
     if ((st = sc_grid(c, n, cell, &G)) != CS_OK) return st;
-    k_sc_pairs<<<nb, SC_THREADS, 0, c->stream>>>(c->sc, G, L0, w->x0, cell, Rl, w->count, NULL, NULL);
-    CUDA_CHECK(cudaGetLastError());
-    CUDA_CHECK(cudaMemcpyAsync(w->host_count, w->count, sizeof(int32_t) * (size_t)n, cudaMemcpyDeviceToHost, c->stream));
-    CUDA_CHECK(cudaStreamSynchronize(c->stream));
-    int64_t total = 0;
-    for (int32_t v = 0; v < n; v++) w->host_first[v] = total, total += w->host_count[v];
-    if (total > w->cap) {
-        const int64_t cap = total > 2 * w->cap ? total : 2 * w->cap;
-        cudaFree(w->keys);
-        w->keys = NULL, w->cap = 0;
-        CUDA_CHECK(cudaMalloc((void **)&w->keys, sizeof(int64_t) * (size_t)cap));
-        w->cap = cap;
-    }
+    int64_t total;
+    if ((st = sc_pair_lists(c, n, &G, L0, Rl, &total)) != CS_OK) return st;
     if (total > 0) {
-        CUDA_CHECK(cudaMemcpyAsync(w->first, w->host_first, sizeof(int64_t) * (size_t)n, cudaMemcpyHostToDevice, c->stream));
-        k_sc_pairs<<<nb, SC_THREADS, 0, c->stream>>>(c->sc, G, L0, w->x0, cell, Rl, w->count, w->first, w->keys);
         k_sc_repel<<<nb, SC_THREADS, 0, c->stream>>>(c->sc, S, w->x0, w->w, w->count, w->first, w->keys, w->push,
                                                     w->touched, w->flag);
     } else {
@@ -462,9 +576,9 @@ static cs_status sc_end(cuda_ctx *c, const cs_phys *p, cs_self_stats *stats)
         k_sc_push<<<nb, SC_THREADS, 0, c->stream>>>(S, w->push, w->touched, n);
         if ((st = sc_displacements(c, S, n, &M, &Ma)) != CS_OK) return st;
     }
-    /* the bound, from scales of 1, every vertex looking at its pairs within r (the CPU's full
-     * passes look wider, for the reference they keep: a pair beyond r is safe, so the cuts, and
-     * the bits, are the same) */
+    /* the bound, from scales of 1, every vertex looking at its pairs within r (the CPU's lists
+     * hold those within their own reach: a pair beyond it is safe, so the cuts, and the bits, are
+     * the same) */
     const float R = p->self_thickness + 2.0f * Ma / CS_SC_GAMMA, reach = R + 2.0f * L;
     if (!(cell >= reach) && (st = sc_grid(c, n, cell = reach, &G)) != CS_OK) return st;
     k_sc_ones<<<nb, SC_THREADS, 0, c->stream>>>(w->s, n);

@@ -1083,12 +1083,14 @@ static cs_status cpu_step(void *ctx, const cs_model *m, cs_state *s, int32_t sub
             scratch_give(tb, threads);
             return CS_E_NOMEM;
         }
+        const int64_t torn = c->torn;
         if (threads == 1) {
             step_team(c, tb[0], m, s, run, 1);
         } else {
 #pragma omp parallel num_threads(threads)
             step_team(c, tb[thread_id()], m, s, run, 0);
         }
+        if (self && c->torn != torn) cs_sc_forget(c->sc); /* its lists may hold torn triangles */
         if (self) cs_sc_end(c->sc, &m->phys, s, threads, &rep->self);
         done += run;
     }

@@ -43,8 +43,13 @@ void cs_sc_free(cs_sc_work *w);
 /* The most bytes the workspace takes for n vertices, its pair lists full (cs_scene_memory counts
  * them). */
 uint64_t cs_sc_work_bytes(int32_t n);
-/* The state changed from outside: the reference that lets passes be skipped is gone. */
+/* The state changed from outside, or a spring tore: the lists of pairs are found again. */
 void cs_sc_forget(cs_sc_work *w);
+/* With self_collision the rate for implicit_euler's parts of a substep h (cs_im_splits): the
+ * fastest a vertex of a repelling pair that may touch within h moves about the cloth's common
+ * motion, over CS_SC_PART self_thickness (cs_sc_near_speed; 0 where no pair may touch). Finds the
+ * lists at the positions now when those it has do not hold every such pair. CS_E_NOMEM: none. */
+cs_status cs_sc_part_rate(cs_sc_work **w, const cs_phys *p, const cs_state *s, float h, int threads, float *rate);
 /* Keeps the positions a substep starts from. CS_E_NOMEM: nothing kept. */
 cs_status cs_sc_begin(cs_sc_work **w, const cs_state *s);
 /* After the substep: repulsion, then the bound (selfcontact.h); st (may be NULL) counts. */

@@ -756,19 +756,15 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
     return torn;
 }
 
-/* The fastest a cloth vertex closes on a rock near it now (cs_im_closing), or with self_collision
- * on any other part of the cloth (cs_sc_rate), as a rate: the parts of a substep. */
+/* The fastest a cloth vertex closes on a rock near it now (cs_im_closing), as a rate: the parts of
+ * a substep. */
 static float fastest(const cs_phys *p, const cs_state *s, float h, int threads)
 {
     float most = 0.0f;
-    if (s->n_rocks || p->self_on) {
+    if (s->n_rocks) {
         CS_PARALLEL_FOR(threads, schedule(static) reduction(max : most),
         for (int32_t v = 0; v < s->n; v++) {
-            float c = cs_im_closing(p, s->rocks, s->n_rocks, s->x, s->y, s->z, s->vx, s->vy, s->vz, v, h);
-            if (p->self_on) {
-                const float q = cs_sc_rate(p, s->vx, s->vy, s->vz, v, h);
-                c = q > c ? q : c;
-            }
+            const float c = cs_im_closing(p, s->rocks, s->n_rocks, s->x, s->y, s->z, s->vx, s->vy, s->vz, v, h);
             most = c > most ? c : most;
         });
     }
@@ -784,11 +780,16 @@ cs_status cs_im_step(cs_im_work **wp, const cs_model *m, cs_state *s, int32_t su
     cs_solver_stats st = {0, 0, 0, 0.0f, 0};
     int64_t t = 0;
     for (int32_t k = 0; k < substeps; k++) {
-        const int32_t parts = cs_im_splits(fastest(p, s, p->dt, threads), p->dt, p->most_splits);
+        float rate = fastest(p, s, p->dt, threads), layers = 0.0f;
+        if (p->self_on && cs_sc_part_rate(sc, p, s, p->dt, threads, &layers) != CS_OK) return CS_E_NOMEM;
+        rate = layers > rate ? layers : rate; /* (self_collision: layers that may meet, cs_sc_part_rate) */
+        const int32_t parts = cs_im_splits(rate, p->dt, p->most_splits);
         const float h = p->dt / (float)parts;
         for (int32_t q = 0; q < parts; q++) {
             if (p->self_on && cs_sc_begin(sc, s) != CS_OK) return CS_E_NOMEM;
-            t += part(p, w, s, h, threads, &st);
+            const int64_t torn = part(p, w, s, h, threads, &st);
+            t += torn;
+            if (p->self_on && torn) cs_sc_forget(*sc); /* its lists may hold torn triangles */
             if (p->self_on) cs_sc_end(*sc, p, s, threads, &rep->self);
         }
     }

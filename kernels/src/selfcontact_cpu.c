@@ -1,29 +1,35 @@
 /* selfcontact_cpu.c - self_collision on the CPU backend: the functions of clothsim/selfcontact.h
- * looped over the grid with OpenMP (kernels/MODEL.md, "Self-collision"). After a substep (a part
+ * looped over the cloth with OpenMP (kernels/MODEL.md, "Self-collision"). After a substep (a part
  * under implicit_euler) that began at x0 (cs_sc_begin):
- *   1. d = x - x0, M the farthest a vertex moves from the centre of all the displacements (what
- *      the lists need) and Ma the farthest a vertex moves (what the bound needs): pairs within
- *      r = self_thickness + 2 Ma / CS_SC_GAMMA at x0 are the ones that may meet;
- *   2. repulsion (cs_sc_repel) per vertex into scratch, then added: from each vertex's list of
- *      repelling pairs while the lists provably hold every pair that can touch, else from new
- *      lists at x0 (within self_thickness + 2 M and a margin);
- *   3. the bound (cs_sc_limit) over a hash grid of x0 (cells of the reach plus twice the longest
- *      edge; keys in parallel, the counting sort on one thread), or over each vertex's list of its
- *      pairs at the reference while that provably holds them all, in Jacobi sweeps of the scales
- *      until none changes (at most CS_SC_SWEEPS, then one sweep that cuts every near pair
- *      outright); x = x0 + s d, v = s v.
+ *   1. d = x - x0, a centre c of it (centre_of), and each vertex's spread e = |s d - c| (every
+ *      scale s 1):
+ *      a pair's vertices move relative to one another by at most the sum of its two sides'
+ *      largest e, so it can touch, or fail the bound's test, only within its own reach
+ *      (cs_sc_pair_reach) - small where the cloth barely moves, large only where it moves;
+ *   2. the lists: each pair within its reach at x0 found once, by the one of its two owners that
+ *      moves more (cs_sc_found: a vertex looks as far as its own spread says), and handed to its
+ *      four vertices (find_lists; the repelling ones also into lists sorted by key). They are kept
+ *      while they provably still hold every such pair: each vertex's spread within the one they
+ *      were found for (plus a slack), x0 within a drift of where they were found (drift()), the
+ *      same thickness, and no spring torn or state set from outside since (cs_sc_forget);
+ *   3. repulsion (cs_sc_repel) per vertex into scratch, then added;
+ *   4. the bound (cs_sc_limit_listed) over each vertex's list, in Jacobi sweeps of the scales until
+ *      none changes (at most CS_SC_SWEEPS, then one sweep that cuts every pair within the cloth's
+ *      largest reach outright, from the grid as the CUDA backend); a cut that spreads a vertex
+ *      past its lists has them found again; x = x0 + s d, v = s v. A vertex whose pairs all lay
+ *      beyond their reach where the lists were found, less the drift since, is skipped (dminb,
+ *      dminr, ehp).
  * Every maximum is exact in any order and every vertex writes only its own entries, so the result
- * does not depend on the thread count. The lists a full pass builds find each pair once, by the
- * vertex that owns it (cs_sc_owned), and hand it to its four vertices (owned_lists): the same
- * pairs the per-vertex gathers (cs_sc_pairs, cs_sc_limit) find, which the CUDA backend runs.
+ * does not depend on the thread count. A pair beyond its reach is safe and never touches, so the
+ * CUDA backend, which gathers every pair within the cloth's largest reach afresh each pass
+ * (cs_sc_pairs, cs_sc_limit), gets the same bits. When there is no memory or room for the lists,
+ * the pass gathers as the CUDA backend does (its repulsion on one thread).
  *
- * Passes that provably change nothing are skipped. A full pass of the bound finds each vertex's
- * least pair distance at x0 within a wider reach and rebuilds the lists there, keeping x0 as the
- * reference. While every vertex has moved less than C from it (from the centre of all the
- * motions), no pair is nearer than that least distance less 2 C: a vertex for which that leaves
- * every pair safe for this substep's motion is not looked at. So the reference only saves time:
- * the result is the same bits whenever it was taken. */
+ * Under implicit_euler the parts of a substep come from the repelling pairs that may touch in it
+ * (cs_sc_part_rate: cs_sc_near_speed over the lists, found at the positions now when they do not
+ * hold every such pair). */
 #include <math.h>
+#include <stdatomic.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -38,10 +44,13 @@
 
 typedef struct sc_lists {
     int64_t **chunk;   /* each chunk's lists, one after another */
+    float **dist;      /* where kept (the finders' lists), each key's distance at x0 beside it */
     int64_t *cap;      /* the room in each */
     int64_t *first;    /* where each vertex's list starts in its chunk's */
     int32_t *count;    /* and how many pairs it has */
     int32_t nchunks;
+    _Atomic int64_t used; /* the room the chunks hold, all together */
+    int64_t budget;       /* the most they may (CS_SC_LIST_KEYS a vertex) */
 } sc_lists;
 
 static int32_t chunks(int32_t n) { return (n + CHUNK - 1) / CHUNK; }
@@ -50,43 +59,90 @@ static void lists_free(sc_lists *l, int32_t n)
 {
     if (l->chunk)
         for (int32_t c = 0; c < chunks(n); c++) free(l->chunk[c]);
+    if (l->dist)
+        for (int32_t c = 0; c < chunks(n); c++) free(l->dist[c]);
     free(l->chunk);
+    free(l->dist);
     free(l->cap);
     free(l->first);
     free(l->count);
 }
 
-static int lists_alloc(sc_lists *l, int32_t n)
-{
-    l->chunk = calloc((size_t)chunks(n) + 1, sizeof(int64_t *));
-    l->cap = calloc((size_t)chunks(n) + 1, sizeof(int64_t));
-    l->first = malloc(sizeof(int64_t) * ((size_t)n + 1));
-    l->count = malloc(sizeof(int32_t) * ((size_t)n + 1));
-    l->nchunks = chunks(n);
-    return l->chunk && l->cap && l->first && l->count;
-}
-
-/* The most keys a chunk's list may hold: CS_SC_LIST_KEYS a vertex on average (the same on every
- * thread count). A cloth finer than its thickness finds thousands of pairs a vertex within a
- * list's radius (a flat 512 x 512 cloth of the default size asked for more than 20 GB and was
- * killed for it); past this the lists are given up as when memory runs out - the bound finds the
- * vertices' pairs in the grid instead, reported as lost - so that what a step holds stays bounded,
- * and cs_scene_memory counts it (cs_sc_work_bytes). */
+/* The most keys a set of lists may hold: CS_SC_LIST_KEYS a vertex on average, wherever they lie
+ * (where the cloth moves fast, its chunks hold many more; the chunks' buffers grow in parallel
+ * against one integer budget, so which chunk passes it first may vary, but past it every list is
+ * given up and the pass's bits do not depend on the lists). A cloth finer than its thickness
+ * finds thousands of pairs a vertex within a list's radius (a flat 512 x 512 cloth of the
+ * default size asked for more than 20 GB and was killed for it); past this the lists are given up
+ * as when memory runs out - the bound finds the vertices' pairs in the grid instead, reported as
+ * lost - so that what a step holds stays bounded, and cs_scene_memory counts it
+ * (cs_sc_work_bytes). */
 #define CS_SC_LIST_KEYS 341
 
 static int64_t chunk_most(void) { return (int64_t)CHUNK * CS_SC_LIST_KEYS; }
 
+static int lists_alloc(sc_lists *l, int32_t n, int dists)
+{
+    l->chunk = calloc((size_t)chunks(n) + 1, sizeof(int64_t *));
+    if (dists && !(l->dist = calloc((size_t)chunks(n) + 1, sizeof(float *)))) return 0;
+    l->cap = calloc((size_t)chunks(n) + 1, sizeof(int64_t));
+    l->first = malloc(sizeof(int64_t) * ((size_t)n + 1));
+    l->count = malloc(sizeof(int32_t) * ((size_t)n + 1));
+    l->nchunks = chunks(n);
+    atomic_init(&l->used, 0);
+    l->budget = (int64_t)chunks(n) * chunk_most();
+    return l->chunk && l->cap && l->first && l->count;
+}
+
+/* Gives back the room of every chunk when the chunks hold more than a quarter of the budget: a
+ * chunk keeps the most it ever needed, so after the cloth moved fast in one place and then in
+ * another the budget would run out with most of it idle. Before the chunks fill again. */
+static void lists_trim(sc_lists *l)
+{
+    if (atomic_load(&l->used) <= l->budget / 4) return;
+    for (int32_t c = 0; c < l->nchunks; c++) {
+        free(l->chunk[c]);
+        l->chunk[c] = NULL;
+        if (l->dist) free(l->dist[c]), l->dist[c] = NULL;
+        l->cap[c] = 0;
+    }
+    atomic_store(&l->used, 0);
+}
+
+/* Takes more keys of room from the lists' budget; 0 (nothing taken) past it. */
+static int take_room(sc_lists *l, int64_t more)
+{
+    if (atomic_fetch_add(&l->used, more) + more <= l->budget) return 1;
+    atomic_fetch_sub(&l->used, more);
+    return 0;
+}
+
 /* Room for `need` keys in chunk c's list (its first len kept); 0 when there is no memory, or past
- * chunk_most. */
+ * the budget. */
 static int grow(sc_lists *l, int32_t c, int64_t len, int64_t need)
 {
     if (need <= l->cap[c]) return 1;
-    const int64_t most = chunk_most();
-    if (need > most) return 0;
     int64_t cap = need > 2 * l->cap[c] ? need : 2 * l->cap[c];
-    cap = cap < most ? cap : most;
+    if (!take_room(l, cap - l->cap[c])) {
+        cap = need;
+        if (!take_room(l, cap - l->cap[c])) return 0;
+    }
     int64_t *k = malloc(sizeof(int64_t) * (size_t)cap);
-    if (!k) return 0;
+    if (!k) {
+        atomic_fetch_sub(&l->used, cap - l->cap[c]);
+        return 0;
+    }
+    if (l->dist) {
+        float *d = malloc(sizeof(float) * (size_t)cap);
+        if (!d) {
+            free(k);
+            atomic_fetch_sub(&l->used, cap - l->cap[c]);
+            return 0;
+        }
+        if (len) memcpy(d, l->dist[c], sizeof(float) * (size_t)len);
+        free(l->dist[c]);
+        l->dist[c] = d;
+    }
     if (len) memcpy(k, l->chunk[c], sizeof(int64_t) * (size_t)len);
     free(l->chunk[c]);
     l->chunk[c] = k;
@@ -99,13 +155,15 @@ static const int64_t *list_of(const sc_lists *l, int32_t v) { return l->chunk[v 
 /* Makes room for vertex v's list at len of its chunk and calls fill(keys, cap) until the list
  * fits (fill returns how many keys it has, past cap too). Returns the count, or -1 when there is
  * no memory (v then has an empty list). */
-#define LIST_FILL(L, C, LEN, V, KEYS, CAP, FILL)                                                          \
+#define LIST_FILL(L, C, LEN, V, KEYS, DISTS, CAP, FILL)                                                   \
     do {                                                                                                  \
         int32_t k_ = -1;                                                                                  \
         while (grow((L), (C), (LEN), (LEN) + 64)) {                                                       \
             const int64_t room_ = (L)->cap[C] - (LEN);                                                    \
             const int32_t CAP = room_ < INT32_MAX ? (int32_t)room_ : INT32_MAX;                           \
             int64_t *const KEYS = (L)->chunk[C] + (LEN);                                                  \
+            float *const DISTS = (L)->dist ? (L)->dist[C] + (LEN) : NULL;                                 \
+            (void)DISTS;                                                                                  \
             k_ = (FILL);                                                                                  \
             if (k_ <= CAP) break;                                                                         \
             if (!grow((L), (C), (LEN), (LEN) + k_)) {                                                     \
@@ -123,14 +181,22 @@ struct cs_sc_work {
     int32_t n;
     uint32_t mask;
     float *x0, *y0, *z0, *dx, *dy, *dz, *s, *s2, *px, *pv;
-    float *xr, *dall;        /* the reference (3 n), the least distance of each vertex's pairs there */
-    sc_lists rl;             /* each vertex's repelling pairs, sorted (cs_sc_pairs) */
-    sc_lists bl;             /* each vertex's pairs within the bound's radius at the reference */
-    sc_lists ol;             /* the pairs each vertex owns there (cs_sc_owned), handed out to bl */
-    uint8_t *look;           /* vertices whose pairs the bound looks at this substep */
-    int have_ref, lists_whole, bound_whole;
-    int64_t pairs;           /* in all the lists */
-    float ref_list, ref_bound, ref_thickness;
+    float *e;                /* each vertex's spread now: |s d - c| (cs_sc_spread's) */
+    float *eu;               /* the spread the lists were found for (at least e while they serve) */
+    float *eh;               /* the largest eu of each vertex and the far ends of its own edges */
+    float *dminb, *dminr;    /* the least distance where they were found of each vertex's pairs in bl, rl */
+    float *ehp;              /* the largest eu of a vertex of any of each vertex's pairs */
+    float *xr;               /* x0 where the lists were found (3 n) */
+    int have_ref;            /* whether xr and the lists belong to the state now */
+    float ref_thickness;     /* the self_thickness they were found for */
+    int64_t bpairs, rpairs;  /* the keys in all of bl and all of rl */
+    sc_lists rl;             /* each vertex's repelling pairs, sorted by key (the repulsion's order) */
+    sc_lists bl;             /* each vertex's pairs, all of them (the bound's) */
+    sc_lists ol;             /* the pairs each vertex finds (cs_sc_found), handed out to rl and bl */
+    uint8_t *look;           /* vertices one of whose pairs touched */
+    uint8_t *intact;         /* cs_sc_intact of each vertex, for cs_sc_found */
+    int64_t *fb;             /* the repulsion's keys when there are no lists (one vertex's, growing) */
+    int32_t fbcap;
     uint32_t *key;
     int32_t *start, *ids, *cc;
 };
@@ -142,9 +208,10 @@ void cs_sc_free(cs_sc_work *w)
     lists_free(&w->bl, w->n);
     lists_free(&w->ol, w->n);
     free(w->x0);
+    free(w->e);
     free(w->xr);
     free(w->look);
-    free(w->dall);
+    free(w->fb);
     free(w->dx);
     free(w->s);
     free(w->px);
@@ -168,8 +235,9 @@ uint64_t cs_sc_work_bytes(int32_t n)
     const uint64_t v = (uint64_t)n, c = (uint64_t)chunks(n) + 1, keys = sizeof(int64_t) * (uint64_t)chunk_most();
     /* three sets of lists, each chunk's full, and one chunk's growing into a new buffer */
     const uint64_t lists = 3 * (c * (sizeof(int64_t *) + sizeof(int64_t) + keys) +
-                                (v + 1) * (sizeof(int64_t) + sizeof(int32_t))) + keys;
-    return sizeof(cs_sc_work) + lists + sizeof(float) * 18 * v + v /* look */ + sizeof(uint32_t) * v +
+                                (v + 1) * (sizeof(int64_t) + sizeof(int32_t))) + keys +
+                           c * (sizeof(float *) + keys / 2) /* the finders' distances */;
+    return sizeof(cs_sc_work) + lists + sizeof(float) * 23 * v + 2 * v /* look, intact */ + sizeof(uint32_t) * v +
            sizeof(int32_t) * ((uint64_t)table_size(n) + 1 + 4 * v);
 }
 
@@ -184,10 +252,10 @@ static cs_status fit(cs_sc_work **wp, int32_t n)
     w->n = n;
     w->mask = size - 1;
     w->x0 = malloc(sizeof(float) * 3 * (size_t)n);
+    w->e = malloc(sizeof(float) * 6 * (size_t)n);
     w->xr = malloc(sizeof(float) * 3 * (size_t)n);
-    const int lists = lists_alloc(&w->rl, n) && lists_alloc(&w->bl, n) && lists_alloc(&w->ol, n);
-    w->look = malloc((size_t)n);
-    w->dall = malloc(sizeof(float) * (size_t)n);
+    const int lists = lists_alloc(&w->rl, n, 0) && lists_alloc(&w->bl, n, 0) && lists_alloc(&w->ol, n, 1);
+    w->look = malloc(2 * (size_t)n);
     w->dx = malloc(sizeof(float) * 3 * (size_t)n);
     w->s = malloc(sizeof(float) * 2 * (size_t)n);
     w->px = malloc(sizeof(float) * 6 * (size_t)n);
@@ -195,11 +263,14 @@ static cs_status fit(cs_sc_work **wp, int32_t n)
     w->start = malloc(sizeof(int32_t) * ((size_t)size + 1));
     w->ids = malloc(sizeof(int32_t) * (size_t)n);
     w->cc = malloc(sizeof(int32_t) * 3 * (size_t)n);
-    if (!lists || !w->x0 || !w->xr || !w->look || !w->dall || !w->dx || !w->s || !w->px || !w->key || !w->start || !w->ids || !w->cc) {
+    if (!lists || !w->x0 || !w->e || !w->xr || !w->look || !w->dx || !w->s || !w->px || !w->key || !w->start || !w->ids || !w->cc) {
         cs_sc_free(w);
         return CS_E_NOMEM;
     }
     w->y0 = w->x0 + n, w->z0 = w->y0 + n;
+    w->eu = w->e + n, w->eh = w->eu + n, w->dminb = w->eh + n, w->dminr = w->dminb + n, w->ehp = w->dminr + n;
+    w->intact = w->look + n;
+    memset(w->e, 0, sizeof(float) * 6 * (size_t)n);
     w->dy = w->dx + n, w->dz = w->dy + n;
     w->s2 = w->s + n;
     w->pv = w->px + 3 * (size_t)n;
@@ -223,47 +294,103 @@ cs_status cs_sc_begin(cs_sc_work **wp, const cs_state *s)
     return CS_OK;
 }
 
-/* d = x - x0. Returns how far a vertex moves from the middle of all their displacements (the centre
- * of their box: two vertices move apart by at most twice it, whatever the cloth's motion as a
- * whole), into *C (when not NULL) the same of x0 from the reference, and into *far_most the
- * largest displacement itself (the bound's cuts scale displacements, so it is what bounds two
- * vertices' relative motion once some are cut). Maxima and minima: exact in any order. */
-static float displacements(cs_sc_work *w, const cs_state *s, int threads, float *C, float *far_most)
+static int float_order(const void *a, const void *b)
 {
-    const int ref = C != NULL;
-    const int32_t n = s->n;
-    float lx = 3e38f, ly = 3e38f, lz = 3e38f, hx = -3e38f, hy = -3e38f, hz = -3e38f;
-    float rlx = 3e38f, rly = 3e38f, rlz = 3e38f, rhx = -3e38f, rhy = -3e38f, rhz = -3e38f;
-    CS_PARALLEL_FOR(threads, schedule(static) reduction(min : lx, ly, lz, rlx, rly, rlz) reduction(max : hx, hy, hz, rhx, rhy, rhz),
-    for (int32_t v = 0; v < n; v++) {
-        const float dx = s->x[v] - w->x0[v], dy = s->y[v] - w->y0[v], dz = s->z[v] - w->z0[v];
-        w->dx[v] = dx, w->dy[v] = dy, w->dz[v] = dz;
-        lx = dx < lx ? dx : lx, ly = dy < ly ? dy : ly, lz = dz < lz ? dz : lz;
-        hx = dx > hx ? dx : hx, hy = dy > hy ? dy : hy, hz = dz > hz ? dz : hz;
-        if (ref) {
-            const float ex = w->x0[v] - w->xr[v], ey = w->y0[v] - w->xr[n + v], ez = w->z0[v] - w->xr[2 * n + v];
-            rlx = ex < rlx ? ex : rlx, rly = ey < rly ? ey : rly, rlz = ez < rlz ? ez : rlz;
-            rhx = ex > rhx ? ex : rhx, rhy = ey > rhy ? ey : rhy, rhz = ez > rhz ? ez : rhz;
+    const float x = *(const float *)a, y = *(const float *)b;
+    return (x > y) - (x < y);
+}
+
+/* A centre of the vectors (a[.][v] - b[.][v]) (b may be NULL), v in 0 .. n: each axis's median over
+ * at most 64 of them, every n / 64-th (a point most of the cloth moves about, which a fast corner
+ * does not pull as it pulls the box's centre; the bounds hold about any point, so a sample does). 0
+ * where one is not finite. */
+static cs_vec3 centre_of(const float *const a[3], const float *const b[3], int32_t n)
+{
+    float buf[3][64];
+    const int32_t step = n / 64 + 1;
+    int32_t k = 0;
+    for (int32_t v = 0; v < n && k < 64; v += step, k++)
+        for (int q = 0; q < 3; q++) {
+            const float x = a[q][v] - (b ? b[q][v] : 0.0f);
+            if (!(x - x == 0.0f)) return cs_v3(0.0f, 0.0f, 0.0f);
+            buf[q][k] = x;
         }
+    if (k == 0) return cs_v3(0.0f, 0.0f, 0.0f);
+    for (int q = 0; q < 3; q++) qsort(buf[q], (size_t)k, sizeof(float), float_order);
+    return cs_v3(buf[0][k / 2], buf[1][k / 2], buf[2][k / 2]);
+}
+
+/* d = x - x0. Returns the farthest a vertex moves from a centre (centre_of: two vertices move apart
+ * by at most twice it, whatever the cloth's motion as a whole), and into *far_most the largest
+ * displacement itself (the bound's cuts scale displacements, so it is what bounds two vertices'
+ * relative motion once some are cut). Also each vertex's spread e = |d - centre| (every scale 1,
+ * as spreads()), into *over whether one passes the eu the lists were found for, and with have_ref
+ * into *drifted drift() (else 3e38). Maxima: exact in any order. */
+static float displacements(cs_sc_work *w, const cs_state *s, int threads, cs_vec3 *centre, float *far_most,
+                           int *over, float *drifted)
+{
+    const int32_t n = s->n, ref = w->have_ref;
+    CS_PARALLEL_FOR(threads, schedule(static),
+    for (int32_t v = 0; v < n; v++) {
+        w->dx[v] = s->x[v] - w->x0[v], w->dy[v] = s->y[v] - w->y0[v], w->dz[v] = s->z[v] - w->z0[v];
     });
-    const float lo[3] = {lx, ly, lz}, hi[3] = {hx, hy, hz}, rlo[3] = {rlx, rly, rlz}, rhi[3] = {rhx, rhy, rhz};
-    const cs_vec3 c = cs_sc_centre(lo, hi), cr = cs_sc_centre(rlo, rhi);
-    float most = 0.0f, far = 0.0f, abs_most = 0.0f;
-    CS_PARALLEL_FOR(threads, schedule(static) reduction(max : most, far, abs_most),
+    const float *xr = w->xr, *const d3[3] = {w->dx, w->dy, w->dz}, *const x3[3] = {w->x0, w->y0, w->z0},
+                *const r3[3] = {xr, xr + n, xr + 2 * (size_t)n};
+    const cs_vec3 c = centre_of(d3, NULL, n), cr = ref ? centre_of(x3, r3, n) : c;
+    float most = 0.0f, abs_most = 0.0f, far = 0.0f;
+    int past = 0;
+    CS_PARALLEL_FOR(threads, schedule(static) reduction(max : most, abs_most, far) reduction(| : past),
     for (int32_t v = 0; v < n; v++) {
         const cs_vec3 d = cs_v3(w->dx[v], w->dy[v], w->dz[v]);
-        const float l = cs_len(cs_sub(d, c)), a = cs_len(d);
-        most = l > most ? l : most;
+        const float a = cs_len(d);
+        w->e[v] = cs_len(cs_sub(cs_scale(d, 1.0f), c));
+        most = w->e[v] > most ? w->e[v] : most;
         abs_most = a > abs_most ? a : abs_most;
+        past |= !(w->e[v] <= w->eu[v]);
         if (ref) {
-            const cs_vec3 e = cs_v3(w->x0[v] - w->xr[v], w->y0[v] - w->xr[n + v], w->z0[v] - w->xr[2 * n + v]);
+            const cs_vec3 e = cs_v3(w->x0[v] - xr[v], w->y0[v] - xr[n + v], w->z0[v] - xr[2 * n + v]);
             const float f = cs_len(cs_sub(e, cr));
             far = f > far ? f : far;
         }
     });
-    if (C) *C = far;
+    *centre = c;
     *far_most = abs_most;
+    *over = past;
+    *drifted = ref ? far : 3e38f;
     return n > 0 ? most : 0.0f;
+}
+
+/* How far x0 has drifted from where the lists were found: the farthest any vertex's drift lies from
+ * a centre of them all (centre_of; the maximum exact in any order). */
+static float drift(const cs_sc_work *w, int32_t n, int threads)
+{
+    const float *xr = w->xr, *const x3[3] = {w->x0, w->y0, w->z0}, *const r3[3] = {xr, xr + n, xr + 2 * (size_t)n};
+    const cs_vec3 c = centre_of(x3, r3, n);
+    float most = 0.0f;
+    CS_PARALLEL_FOR(threads, schedule(static) reduction(max : most),
+    for (int32_t v = 0; v < n; v++) {
+        const cs_vec3 e = cs_v3(w->x0[v] - xr[v], w->y0[v] - xr[n + v], w->z0[v] - xr[2 * n + v]);
+        const float l = cs_len(cs_sub(e, c));
+        most = l > most ? l : most;
+    });
+    return most;
+}
+
+/* Each vertex's spread e = |s d - centre| for the scales s (as cs_sc_spread computes it), the
+ * largest into *most; returns whether the lists still serve: every e within the eu they were
+ * found for. */
+static int spreads(cs_sc_work *w, const float *s, cs_vec3 centre, int32_t n, int threads, float *most)
+{
+    int over = 0;
+    float m = 0.0f;
+    CS_PARALLEL_FOR(threads, schedule(static) reduction(| : over) reduction(max : m),
+    for (int32_t v = 0; v < n; v++) {
+        w->e[v] = cs_len(cs_sub(cs_scale(cs_sc_at(w->dx, w->dy, w->dz, v), s[v]), centre));
+        over |= !(w->e[v] <= w->eu[v]);
+        m = w->e[v] > m ? w->e[v] : m;
+    });
+    *most = m;
+    return !over;
 }
 
 /* The longest intact render edge at positions x, y, z (each vertex's three own edges). */
@@ -295,243 +422,330 @@ static cs_sc_grid build_grid(cs_sc_work *w, int32_t n, const float *x, const flo
     return (cs_sc_grid){w->start, w->ids, w->cc, w->mask, cell};
 }
 
-/* How much wider than the pairs that may meet this substep the bound looks when it takes a new
- * reference: more work then, and fewer passes after. */
-static float ref_margin(const cs_phys *p)
-{
-    const float h = p->self_hx < p->self_hy ? p->self_hx : p->self_hy;
-    return p->self_thickness > 0.5f * h ? p->self_thickness : 0.5f * h;
-}
-
-/* How far beyond the pairs that may touch in a substep the lists look when the bound takes a new
- * reference (they stay whole while the cloth moves less than half of it). */
-static float list_margin(const cs_phys *p) { return 6.0f * p->self_thickness; }
-
 static int key_order(const void *a, const void *b)
 {
     const int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
     return (x > y) - (x < y);
 }
 
-/* Every vertex's list of the pairs within r at x0 (with repel the repelling ones, cs_sc_pairs',
- * each list sorted by key; else the bound's, cs_sc_limit's) into out: each pair found once, by
- * the vertex that owns it (cs_sc_owned, in parallel), then handed to each of its four vertices in
- * the owners' order (on one thread: a few keys a vertex). Returns 0, or n when there was no memory
- * for them (then every list is empty). */
-static int32_t owned_lists(cs_sc_work *w, const cs_phys *p, const float *L0, const cs_sc_grid *G, float r,
-                           float reach, int repel, sc_lists *out, int threads)
+/* How far beyond its spread now each vertex's lists look: the room the repulsion's pushes and the
+ * centre's shift take before the lists must be found again. */
+static float slack(const cs_phys *p) { return 0.25f * p->self_thickness; }
+
+/* How far x0 may drift (drift()) before the lists are found again: every reach is twice this
+ * wider, as a pair's distance changes by at most the drift of its two sides. More room means
+ * fewer finds, but a pass skips a vertex only while its nearest pair lies beyond the thickness
+ * and twice the drift: on a flat grid the nearest pairs that share no vertex lie about 0.7 of the
+ * spacing apart, so the room keeps the thickness and twice it under that (from a quarter of the
+ * thickness to the thickness). */
+static float room(const cs_phys *p)
 {
-    const int32_t n = p->n;
-    int32_t lost_ = 0, *count = out->count;
+    const float h = p->self_hx < p->self_hy ? p->self_hx : p->self_hy, th = p->self_thickness;
+    const float q = 0.4f * (0.7f * h - th);
+    return q < 0.25f * th ? 0.25f * th : q > th ? th : q;
+}
+
+/* Every vertex's lists for spreads up to eu = e + slack (e from spreads()): the pairs each vertex
+ * finds (cs_sc_found, in parallel, over a grid of x0), handed on one thread, in the finders' order,
+ * to each of their four vertices - into bl all of them, into rl those that repel, each rl then
+ * sorted by key. L: the longest edge at x0. Returns the vertices left without lists (n when there
+ * was no memory or room for them: then every list is empty and the lists do not serve). */
+static int32_t find_lists(cs_sc_work *w, const cs_phys *p, const float *L0, float L, int threads)
+{
+    const int32_t n = p->n, nx = p->nx, ny = p->ny;
+    const float more = slack(p), extra = 2.0f * room(p);
+    double sum = 0.0; /* (the cells' size only: what is found does not depend on it) */
+    for (int32_t v = 0; v < n; v++) w->eu[v] = w->e[v] + more, sum += w->eu[v];
+    CS_PARALLEL_FOR(threads, schedule(static),
+    for (int32_t v = 0; v < n; v++) {
+        const int32_t i = v % nx, j = v / nx;
+        w->intact[v] = cs_sc_intact(L0, nx, ny, v);
+        float m = w->eu[v];
+        if (i + 1 < nx) m = cs_sc_max(m, w->eu[v + 1]);
+        if (j + 1 < ny) m = cs_sc_max(m, w->eu[v + nx]);
+        if (i + 1 < nx && j + 1 < ny) m = cs_sc_max(m, w->eu[v + nx + 1]);
+        w->eh[v] = m;
+    });
+    const float mean = n > 0 ? (float)(sum / n) : 0.0f;
+    const cs_sc_grid G = build_grid(w, n, w->x0, w->y0, w->z0,
+                                    cs_sc_pair_reach(p->self_thickness, 2.0f * mean) + extra + 2.0f * L, threads);
+    memcpy(w->xr, w->x0, sizeof(float) * 3 * (size_t)n);
+    w->ref_thickness = p->self_thickness;
+    w->have_ref = 0; /* until they are whole */
+    int32_t lost_ = 0;
+    lists_trim(&w->ol);
+    lists_trim(&w->bl);
+    lists_trim(&w->rl);
     CS_PARALLEL_FOR(threads, schedule(dynamic, 1) reduction(+ : lost_),
     for (int32_t c = 0; c < chunks(n); c++) {
         const int32_t end = (c + 1) * CHUNK < n ? (c + 1) * CHUNK : n;
         int64_t len = 0;
         for (int32_t v = c * CHUNK; v < end; v++)
-            LIST_FILL(&w->ol, c, len, v, keys, cap,
-                      cs_sc_owned(p, G, L0, w->x0, w->y0, w->z0, r, reach, v, repel, keys, cap));
+            LIST_FILL(&w->ol, c, len, v, keys, dists, cap,
+                      cs_sc_found(p, &G, L0, w->x0, w->y0, w->z0, w->intact, w->eh, L, extra, v, keys, dists, cap));
     });
-    for (int32_t v = 0; v < n; v++) count[v] = 0;
+    sc_lists *out[2] = {&w->bl, &w->rl};
+    for (int l = 0; l < 2; l++)
+        for (int32_t v = 0; v < n; v++) out[l]->count[v] = 0;
     if (lost_) return n;
-    for (int pass = 0; pass < 2; pass++) { /* count, then (laid out) fill */
+    for (int32_t v = 0; v < n; v++) w->dminb[v] = w->dminr[v] = 3e38f, w->ehp[v] = 0.0f;
+    for (int pass = 0; pass < 2; pass++) { /* count (and the least distances), then (laid out) fill */
         for (int32_t v = 0; v < n; v++)
             for (int32_t k = 0; k < w->ol.count[v]; k++) {
                 const int64_t key = list_of(&w->ol, v)[k];
-                int32_t q[4], t[3], a[2], b[2];
-                if (cs_sc_key_decode(p, key, &q[0], t, a, b))
-                    q[0] = a[0], q[1] = a[1], q[2] = b[0], q[3] = b[1];
-                else
+                const float d = w->ol.dist[v / CHUNK][w->ol.first[v] + k];
+                int32_t q[4], t[3], ea[2], eb[2];
+                int repels;
+                if (cs_sc_key_decode(p, key, &q[0], t, ea, eb)) {
+                    q[0] = ea[0], q[1] = ea[1], q[2] = eb[0], q[3] = eb[1];
+                    repels = cs_sc_ee_repels(p, ea, eb);
+                } else {
                     q[1] = t[0], q[2] = t[1], q[3] = t[2];
-                for (int e = 0; e < 4; e++) {
-                    if (pass) out->chunk[q[e] / CHUNK][out->first[q[e]] + count[q[e]]] = key;
-                    count[q[e]]++;
+                    repels = cs_sc_repels(p, q[0], t);
                 }
+                float eq = 0.0f;
+                for (int e = 0; e < 4 && !pass; e++) eq = cs_sc_max(eq, w->eu[q[e]]);
+                for (int e = 0; e < 4 && !pass; e++) w->ehp[q[e]] = cs_sc_max(w->ehp[q[e]], eq);
+                for (int l = 0; l < 1 + repels; l++)
+                    for (int e = 0; e < 4; e++) {
+                        sc_lists *o = out[l];
+                        if (pass) o->chunk[q[e] / CHUNK][o->first[q[e]] + o->count[q[e]]] = key;
+                        o->count[q[e]]++;
+                        float *m = l ? w->dminr : w->dminb;
+                        m[q[e]] = d < m[q[e]] ? d : m[q[e]];
+                    }
             }
         if (pass) break;
-        for (int32_t c = 0; c < chunks(n); c++) {
-            const int32_t end = (c + 1) * CHUNK < n ? (c + 1) * CHUNK : n;
-            int64_t len = 0;
-            for (int32_t v = c * CHUNK; v < end; v++) out->first[v] = len, len += count[v], count[v] = 0;
-            if (!grow(out, c, 0, len)) {
-                for (int32_t v = 0; v < n; v++) count[v] = 0;
-                return n;
+        for (int l = 0; l < 2; l++)
+            for (int32_t c = 0; c < chunks(n); c++) {
+                const int32_t end = (c + 1) * CHUNK < n ? (c + 1) * CHUNK : n;
+                int64_t len = 0;
+                for (int32_t v = c * CHUNK; v < end; v++) out[l]->first[v] = len, len += out[l]->count[v], out[l]->count[v] = 0;
+                if (!grow(out[l], c, 0, len)) {
+                    for (int m = 0; m < 2; m++)
+                        for (int32_t v = 0; v < n; v++) out[m]->count[v] = 0;
+                    return n;
+                }
             }
-        }
     }
-    if (repel) { /* each list by key, as cs_sc_pairs keeps it: the repulsion sums in that order */
-        CS_PARALLEL_FOR(threads, schedule(dynamic, 64),
-        for (int32_t v = 0; v < n; v++)
-            if (count[v] > 1) qsort(out->chunk[v / CHUNK] + out->first[v], (size_t)count[v], sizeof(int64_t), key_order););
-    }
+    int32_t *count = w->rl.count;
+    w->bpairs = w->rpairs = 0;
+    for (int32_t v = 0; v < n; v++) w->bpairs += w->bl.count[v], w->rpairs += count[v];
+    CS_PARALLEL_FOR(threads, schedule(dynamic, 64),
+    for (int32_t v = 0; v < n; v++)
+        if (count[v] > 1) qsort(w->rl.chunk[v / CHUNK] + w->rl.first[v], (size_t)count[v], sizeof(int64_t), key_order););
+    w->have_ref = 1;
     return 0;
 }
 
-/* Every vertex's list of repelling pairs within rad at x0 (cs_sc_pairs', by owned_lists); returns
- * the vertices left without one (no memory for them). */
-static int32_t build_lists(cs_sc_work *w, const cs_phys *p, const float *L0, const cs_sc_grid *G, float reach,
-                           float rad, int threads)
+/* Vertex v's repelling pairs found afresh (cs_sc_pairs, sorted) into w->fb, for a pass without
+ * lists; returns how many, or -1 when there is no memory for them. */
+static int32_t repel_keys(cs_sc_work *w, const cs_phys *p, const float *L0, const cs_sc_grid *G, float rad,
+                          int32_t v)
 {
-    const int32_t lost = owned_lists(w, p, L0, G, rad, reach, 1, &w->rl, threads);
-    int64_t pairs = 0;
-    for (int32_t v = 0; v < p->n; v++) pairs += w->rl.count[v];
-    w->pairs = pairs;
-    return lost;
+    for (;;) {
+        const int32_t k = cs_sc_pairs(p, G, L0, w->x0, w->y0, w->z0, G->cell, rad, v, w->fb, w->fbcap);
+        if (k <= w->fbcap) return k;
+        int64_t *b = realloc(w->fb, sizeof(int64_t) * (size_t)k);
+        if (!b) return -1;
+        w->fb = b, w->fbcap = k;
+    }
+}
+
+/* Vertex v's repulsion from its pairs keys[0..k) (cs_sc_repel) into the scratch px, pv, and look[v]
+ * whether one touched; returns the pairs that touch. */
+static int32_t repel(cs_sc_work *w, const cs_phys *p, const cs_state *s, int32_t v, const int64_t *keys, int32_t k)
+{
+    cs_vec3 dx = cs_v3(0.0f, 0.0f, 0.0f), dv = dx;
+    const int32_t t = cs_sc_repel(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->w, w->x0, w->y0, w->z0, keys, k, v,
+                                  &dx, &dv);
+    w->look[v] = t > 0;
+    float *px = w->px + 3 * (size_t)v, *pv = w->pv + 3 * (size_t)v;
+    px[0] = dx.x, px[1] = dx.y, px[2] = dx.z;
+    pv[0] = dv.x, pv[1] = dv.y, pv[2] = dv.z;
+    return t;
+}
+
+cs_status cs_sc_part_rate(cs_sc_work **wp, const cs_phys *p, const cs_state *s, float h, int threads, float *rate)
+{
+    if (cs_sc_begin(wp, s) != CS_OK) return CS_E_NOMEM; /* x0: the positions now */
+    cs_sc_work *w = *wp;
+    const int32_t n = s->n;
+    const float th = p->self_thickness;
+    const float *const v3[3] = {s->vx, s->vy, s->vz};
+    const cs_vec3 cv = centre_of(v3, NULL, n);
+    /* the lists hold every repelling pair that may touch within h while each vertex's reach in h
+     * lies within the spread they were found for (as for a pass: cs_sc_end), else they are found
+     * again for it here */
+    int over = 0;
+    float Vm = 0.0f;
+    CS_PARALLEL_FOR(threads, schedule(static) reduction(| : over) reduction(max : Vm),
+    for (int32_t v = 0; v < n; v++) {
+        const float V = cs_sc_speed(p, s->vx, s->vy, s->vz, v, cv, h);
+        w->e[v] = h * V;
+        over |= !(w->e[v] <= w->eu[v]);
+        Vm = V > Vm ? V : Vm;
+    });
+    *rate = 0.0f;
+    if (!(Vm < 3.0e38f)) return CS_OK; /* not finite: the step reports it */
+    const float *L0 = s->L0;
+    int listed = !over && w->have_ref && w->ref_thickness == th && drift(w, n, threads) <= room(p);
+    float L = -1.0f;
+    if (!listed) {
+        L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads);
+        listed = find_lists(w, p, L0, L, threads) == 0;
+    }
+    float most = 0.0f;
+    if (listed) {
+        CS_PARALLEL_FOR(threads, schedule(dynamic, 64) reduction(max : most),
+        for (int32_t v = 0; v < n; v++) {
+            if (!w->rl.count[v]) continue;
+            const float q = cs_sc_near_speed(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, h, list_of(&w->rl, v),
+                                             w->rl.count[v]);
+            most = q > most ? q : most;
+        });
+    } else { /* one thread, as the passes without lists: every repelling pair within the reach of the fastest */
+        const float rad = cs_sc_near_reach(th, h, Vm);
+        const cs_sc_grid G = build_grid(w, n, w->x0, w->y0, w->z0, rad + 2.0f * L, threads);
+        for (int32_t v = 0; v < n; v++) {
+            const int32_t k = repel_keys(w, p, L0, &G, rad, v);
+            const float q = k > 0 ? cs_sc_near_speed(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, h, w->fb, k)
+                                  : k < 0 ? Vm : 0.0f; /* (no memory: as fast as the fastest) */
+            most = q > most ? q : most;
+        }
+    }
+    *rate = most / (CS_SC_PART * th);
+    return CS_OK;
 }
 
 cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, cs_self_stats *st)
 {
     const int32_t n = s->n;
-    const float *L0 = s->L0;
-    const int fresh = w->have_ref && w->ref_thickness == p->self_thickness;
-    float C = 0.0f;
-    float Ma; /* the largest displacement */
-    float M = displacements(w, s, threads, fresh ? &C : NULL, &Ma);
-    if (!(M < 3.0e38f) || !(C < 3.0e38f)) return CS_OK; /* not finite: the caller reports it */
-    int32_t lost = 0;
-    /* 3. repulsion, from the lists while they are whole and hold every repelling pair that can
-     * touch at x1 (self_thickness + 2 (C + M) under the radius they were taken with); else new
-     * lists at x0, within Rl (a pair within self_thickness at x1 was within self_thickness + 2 M
-     * at x0), and the bound takes a new reference below. Either way the pairs that touch are the
-     * same, and each vertex sums them in the same order (by key). */
-    const int listed = fresh && w->lists_whole && p->self_thickness + 2.0f * (C + M) < 0.95f * w->ref_list;
-    cs_sc_grid G = {0};
-    float L = -1.0f, cell = 0.0f; /* the longest edge at x0 once known, the cells of G once built */
+    const float *L0 = s->L0, th = p->self_thickness;
+    cs_vec3 c;
+    float Ma, drifted; /* the largest displacement; drift() */
+    int over;
+    float M = displacements(w, s, threads, &c, &Ma, &over, &drifted);
+    if (!(M < 3.0e38f)) return CS_OK; /* not finite: the caller reports it */
+    float L = -1.0f; /* the longest edge at x0, once needed */
+#define LONGEST() (L < 0.0f ? (L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads)) : L)
+    /* 1. the lists, found again unless they serve: the spreads now (every scale 1) within theirs, x0
+     * within their room of where they were found, the same thickness, and the same state (the
+     * backend forgets them when the state is set from outside or a spring tore: a torn triangle
+     * or edge leaves the pairs) */
+    int32_t lost = 0, finds = 0;
+    int listed = !over && w->have_ref && w->ref_thickness == th && drifted <= room(p);
     if (!listed) {
-        L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads);
-        const float Rl = p->self_thickness + 2.0f * M + list_margin(p);
-        cell = Rl + 2.0f * L;
-        G = build_grid(w, n, w->x0, w->y0, w->z0, cell, threads);
-        lost = build_lists(w, p, L0, &G, cell, Rl, threads);
-        w->lists_whole = lost == 0;
-        w->ref_list = Rl;
+        lost = find_lists(w, p, L0, LONGEST(), threads), finds = 1;
+        listed = lost == 0;
+        drifted = 0.0f; /* (found at x0) */
     }
-    int32_t touching = 0;
-    /* look[v] (the bound's, free until then): whether a pair of v's touched, so that only those
-     * vertices change (an x of -0 stays -0 elsewhere, whatever list a backend took the pairs from) */
-    CS_PARALLEL_FOR(threads, schedule(dynamic, 32) reduction(+ : touching) if (w->pairs > 0),
-    for (int32_t v = 0; v < n; v++) {
-        w->look[v] = 0;
-        if (!w->rl.count[v]) continue;
-        cs_vec3 dx = cs_v3(0.0f, 0.0f, 0.0f), dv = dx;
-        const int32_t t = cs_sc_repel(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, s->w, w->x0, w->y0, w->z0,
-                                      list_of(&w->rl, v), w->rl.count[v], v, &dx, &dv);
-        touching += t;
-        w->look[v] = t > 0;
-        float *px = w->px + 3 * (size_t)v, *pv = w->pv + 3 * (size_t)v;
-        px[0] = dx.x, px[1] = dx.y, px[2] = dx.z;
-        pv[0] = dv.x, pv[1] = dv.y, pv[2] = dv.z;
-    });
+    int32_t touching = 0, cut = 0;
+    float *a = w->s;
+    if (listed && w->bpairs == 0) goto done; /* no pair within its reach: nothing touches or is cut */
+    for (int32_t v = 0; v < n; v++) w->s[v] = w->s2[v] = 1.0f;
+    /* 2. repulsion: a pair that touches at x1 was within self_thickness + its spread at x0, so the
+     * lists hold it (or, without them, cs_sc_pairs within self_thickness + 2 M finds it); each vertex
+     * sums its pairs in the order of their keys. A vertex whose pairs all lay further than
+     * self_thickness and twice the largest spread of a vertex of theirs (ehp) where the lists were
+     * found, less twice the drift since, has none that touches. */
+    if (listed && w->rpairs > 0) {
+        CS_PARALLEL_FOR(threads, schedule(dynamic, 32) reduction(+ : touching),
+        for (int32_t v = 0; v < n; v++) {
+            w->look[v] = 0;
+            if (!w->rl.count[v] || !(w->dminr[v] - 2.0f * drifted < th + 2.02f * w->ehp[v] + 1e-6f)) continue;
+            touching += repel(w, p, s, v, list_of(&w->rl, v), w->rl.count[v]);
+        });
+    } else if (!listed) { /* one thread: a rare path (no memory, or lists past their cap) */
+        const float Rl = th + 2.0f * M;
+        const cs_sc_grid G = build_grid(w, n, w->x0, w->y0, w->z0, Rl + 2.0f * LONGEST(), threads);
+        for (int32_t v = 0; v < n; v++) {
+            w->look[v] = 0;
+            const int32_t k = repel_keys(w, p, L0, &G, Rl, v);
+            if (k < 0) {
+                lost++;
+                continue;
+            }
+            touching += repel(w, p, s, v, w->fb, k);
+        }
+    }
     if (touching > 0) {
+        /* (look[v]: only the vertices a touching pair moved change - an x of -0 stays -0 elsewhere,
+         * whatever list a backend took the pairs from) */
         CS_PARALLEL_FOR(threads, schedule(static),
         for (int32_t v = 0; v < n; v++) {
-            if (!w->look[v]) continue; /* no pair of its touched */
+            if (!w->look[v]) continue;
             const float *px = w->px + 3 * (size_t)v, *pv = w->pv + 3 * (size_t)v;
             s->x[v] += px[0], s->y[v] += px[1], s->z[v] += px[2];
             s->vx[v] += pv[0], s->vy[v] += pv[1], s->vz[v] += pv[2];
         });
-        M = displacements(w, s, threads, NULL, &Ma);
+        M = displacements(w, s, threads, &c, &Ma, &over, &drifted);
+        if (listed && over) {
+            lost += find_lists(w, p, L0, LONGEST(), threads), finds++;
+            listed = lost == 0;
+            drifted = 0.0f;
+        }
     }
-    /* 4. the bound. A pair is safe by the reference when one of its vertices v is (its least
-     * distance there, less 2 C, leaves room for this substep's motion; margin 5 % for rounding):
-     * only the other vertices look at their pairs, or all of them when the reference is taken
-     * again (when the lists were not whole, or more than an eighth of the cloth would look) */
-    const float r = p->self_thickness + 2.0f * Ma / CS_SC_GAMMA;
-    int32_t cut = 0, looking = n;
-    int full = !listed;
-    if (!full) {
-        looking = 0;
-        CS_PARALLEL_FOR(threads, schedule(static) reduction(+ : looking),
+    /* 3. the bound: Jacobi sweeps of each vertex's pairs within r and their own reach at x0, from
+     * its lists while they serve the sweep's scales (found again when a cut spreads a vertex past
+     * them), else from the grid within r */
+    const float r = th + 2.0f * Ma / CS_SC_GAMMA;
+    cs_sc_grid G = {0};
+    if (!listed) G = build_grid(w, n, w->x0, w->y0, w->z0, r + 2.0f * LONGEST(), threads);
+    float *b = w->s2, most;
+    int changed = Ma > 0.0f;
+    for (int sweep = 0; changed && sweep <= CS_SC_SWEEPS; sweep++) {
+        /* the sweep that cuts outright cuts every pair within r: from the grid, as the CUDA backend */
+        const int outright = sweep == CS_SC_SWEEPS;
+        if (outright && listed) {
+            listed = 0;
+            G = build_grid(w, n, w->x0, w->y0, w->z0, r + 2.0f * LONGEST(), threads);
+        }
+        changed = 0;
+        /* a vertex whose pairs all lay beyond the reach of twice the largest spread of a vertex of
+         * theirs (ehp) where the lists were found, less twice the drift since, has none that can
+         * be unsafe: nothing cuts it */
+        CS_PARALLEL_FOR(threads, schedule(dynamic, 32) reduction(| : changed),
         for (int32_t v = 0; v < n; v++) {
-            w->look[v] = !(2.0f * Ma / CS_SC_GAMMA < 0.95f * (w->dall[v] - 2.0f * C));
-            looking += w->look[v];
-        });
-        full = looking > n / 2;
-    }
-    if (full || looking > 0) {
-        const float R = full ? r + ref_margin(p) : r, Rl = p->self_thickness + 2.0f * M + list_margin(p);
-        const int new_lists = full && listed; /* the lists move to the new reference too */
-        /* a partial pass takes each looking vertex's pairs from its list while the lists hold every
-         * pair now within r: one beyond ref_bound at the reference is still beyond ref_bound - 2 C
-         * (1 % and 1 um for rounding) */
-        const int from_lists = !full && w->bound_whole && w->ref_bound - 2.0f * C >= 1.01f * r + 1e-6f;
-        float reach = 0.0f;
-        if (!from_lists) {
-            if (L < 0.0f) L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads);
-            reach = R + 2.0f * L;
-            /* cells as large as the farthest candidate either pass looks for (the grid of the
-             * lists above serves when it is as large) */
-            const float need = (new_lists && Rl > R ? Rl : R) + 2.0f * L;
-            if (!(cell >= need)) G = build_grid(w, n, w->x0, w->y0, w->z0, cell = need, threads);
-        }
-        if (new_lists) {
-            const int32_t none = build_lists(w, p, L0, &G, Rl + 2.0f * L, Rl, threads);
-            w->lists_whole = none == 0;
-            lost += none;
-            w->ref_list = Rl;
-        }
-        for (int32_t v = 0; v < n; v++) w->s[v] = w->s2[v] = 1.0f;
-        float *a = w->s, *b = w->s2;
-        int changed = Ma > 0.0f || full;
-        for (int sweep = 0; changed && sweep <= CS_SC_SWEEPS; sweep++) {
-            const int outright = sweep == CS_SC_SWEEPS;
-            changed = 0;
-            if (full && sweep == 0) { /* every vertex, keeping its pairs within R for later */
-                const int32_t lost_ = owned_lists(w, p, L0, &G, R, reach, 0, &w->bl, threads);
-                CS_PARALLEL_FOR(threads, schedule(dynamic, 32) reduction(| : changed),
-                for (int32_t v = 0; v < n; v++) {
-                    if (lost_ == 0) {
-                        b[v] = cs_sc_limit_listed(p, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, v, outright,
-                                                  list_of(&w->bl, v), w->bl.count[v], &w->dall[v]);
-                    } else {
-                        int32_t nk;
-                        b[v] = cs_sc_limit(p, &G, L0, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, reach, v,
-                                           outright, &w->dall[v], NULL, 0, &nk);
-                    }
-                    changed |= b[v] != a[v];
-                });
-                w->bound_whole = lost_ == 0;
-                w->ref_bound = R;
-                lost += lost_;
+            if (listed && !(w->dminb[v] - 2.0f * drifted < cs_sc_pair_reach(th, 2.0f * w->ehp[v]) + 1e-6f)) {
+                b[v] = a[v];
+            } else if (listed) {
+                b[v] = cs_sc_limit_listed(p, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, r, v, outright,
+                                          list_of(&w->bl, v), w->bl.count[v], NULL);
             } else {
-                const int listed_now = from_lists || (full && w->bound_whole);
-                CS_PARALLEL_FOR(threads, schedule(dynamic, 32) reduction(| : changed),
-                for (int32_t v = 0; v < n; v++) {
-                    if (!full && !w->look[v]) continue;
-                    if (listed_now) {
-                        b[v] = cs_sc_limit_listed(p, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, v, outright,
-                                                  list_of(&w->bl, v), w->bl.count[v], NULL);
-                    } else {
-                        float da;
-                        int32_t nk;
-                        b[v] = cs_sc_limit(p, &G, L0, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, R, reach, v,
-                                           outright, &da, NULL, 0, &nk);
-                    }
-                    changed |= b[v] != a[v];
-                });
+                float da;
+                int32_t nk;
+                b[v] = cs_sc_limit(p, &G, L0, w->x0, w->y0, w->z0, w->dx, w->dy, w->dz, a, r, r + 2.0f * L, v,
+                                   outright, &da, NULL, 0, &nk);
             }
-            float *t = a;
-            a = b, b = t;
-        }
-        if (full) { /* the new reference */
-            memcpy(w->xr, w->x0, sizeof(float) * 3 * (size_t)n);
-            w->have_ref = 1;
-            w->ref_thickness = p->self_thickness;
-        }
-        CS_PARALLEL_FOR(threads, schedule(static) reduction(+ : cut),
-        for (int32_t v = 0; v < n; v++) {
-            const float k = a[v];
-            if (!(k < 1.0f)) continue;
-            cut++;
-            s->x[v] = w->x0[v] + k * w->dx[v];
-            s->y[v] = w->y0[v] + k * w->dy[v];
-            s->z[v] = w->z0[v] + k * w->dz[v];
-            s->vx[v] *= k, s->vy[v] *= k, s->vz[v] *= k;
+            changed |= b[v] != a[v];
         });
+        float *t = a;
+        a = b, b = t;
+        if (changed && listed && !spreads(w, a, c, n, threads, &most)) {
+            for (int32_t v = 0; v < n; v++) w->e[v] = cs_sc_max(w->e[v], w->eu[v] - slack(p));
+            lost += find_lists(w, p, L0, LONGEST(), threads), finds++;
+            listed = lost == 0;
+            drifted = 0.0f;
+            if (!listed) G = build_grid(w, n, w->x0, w->y0, w->z0, r + 2.0f * LONGEST(), threads);
+        }
     }
+#undef LONGEST
+    CS_PARALLEL_FOR(threads, schedule(static) reduction(+ : cut),
+    for (int32_t v = 0; v < n; v++) {
+        const float k = a[v];
+        if (!(k < 1.0f)) continue;
+        cut++;
+        s->x[v] = w->x0[v] + k * w->dx[v];
+        s->y[v] = w->y0[v] + k * w->dy[v];
+        s->z[v] = w->z0[v] + k * w->dz[v];
+        s->vx[v] *= k, s->vy[v] *= k, s->vz[v] *= k;
+    });
+done:
     if (st) {
         st->passes++;
-        st->broad += full;
-        st->pairs += full ? w->pairs : 0;
+        st->broad += finds;
+        st->pairs += finds && listed ? w->rpairs : 0;
         st->contacts += touching;
         st->cut += cut;
         st->lost += lost;

@@ -218,6 +218,40 @@ SIM_HD static inline cs_vec3 cs_sc_at(const float *x, const float *y, const floa
                 }                                                                                          \
     } while (0)
 
+/* The vertices within reach of a finder at x0, from every cell the reach spans (each met once, as
+ * CS_SC_FOR_NEAR; when the reach spans more cells than the table has keys, every vertex of the
+ * grid in its order instead, so that a far reach costs at most a pass over the cloth). */
+#define CS_SC_FOR_WITHIN(G, X0, Y0, Z0, XV, REACH, W, ...)                                                 \
+    do {                                                                                                   \
+        const float rc_ = (REACH);                                                                         \
+        const int32_t il_ = cs_sc_coord((XV).x - rc_, (G)->cell), ih_ = cs_sc_coord((XV).x + rc_, (G)->cell), \
+                      jl_ = cs_sc_coord((XV).y - rc_, (G)->cell), jh_ = cs_sc_coord((XV).y + rc_, (G)->cell), \
+                      kl_ = cs_sc_coord((XV).z - rc_, (G)->cell), kh_ = cs_sc_coord((XV).z + rc_, (G)->cell); \
+        const double span_ = ((double)ih_ - il_ + 1.0) * ((double)jh_ - jl_ + 1.0) * ((double)kh_ - kl_ + 1.0); \
+        if (span_ > (double)(G)->mask + 1.0) {                                                             \
+            for (int32_t e_ = 0; e_ < (G)->start[(G)->mask + 1]; e_++) {                                   \
+                const int32_t W = (G)->ids[e_];                                                            \
+                const cs_vec3 rw_ = cs_sub(cs_sc_at(X0, Y0, Z0, W), XV);                                    \
+                if (!(cs_dot(rw_, rw_) < rc_ * rc_)) continue;                                             \
+                __VA_ARGS__                                                                                \
+            }                                                                                              \
+        } else {                                                                                           \
+            for (int32_t ck_ = kl_; ck_ <= kh_; ck_++)                                                     \
+                for (int32_t cj_ = jl_; cj_ <= jh_; cj_++)                                                 \
+                    for (int32_t ci_ = il_; ci_ <= ih_; ci_++) {                                           \
+                        const uint32_t key_ = cs_sc_key(ci_, cj_, ck_, (G)->mask);                         \
+                        for (int32_t e_ = (G)->start[key_]; e_ < (G)->start[key_ + 1]; e_++) {             \
+                            const int32_t W = (G)->ids[e_];                                                \
+                            const int32_t *cw_ = (G)->cc + 3 * (size_t)W;                                  \
+                            if (cw_[0] != ci_ || cw_[1] != cj_ || cw_[2] != ck_) continue;                 \
+                            const cs_vec3 rw_ = cs_sub(cs_sc_at(X0, Y0, Z0, W), XV);                        \
+                            if (!(cs_dot(rw_, rw_) < rc_ * rc_)) continue;                                 \
+                            __VA_ARGS__                                                                    \
+                        }                                                                                  \
+                    }                                                                                      \
+        }                                                                                                  \
+    } while (0)
+
 /* A lower bound of the distance from p to the triangle or segment of corners c[0..k): how far p
  * lies outside their box (cheap; exact distances only where this is below the pairs' reach). */
 SIM_HD static inline float cs_sc_box_gap(cs_vec3 p, const cs_vec3 *c, int k)
@@ -259,18 +293,19 @@ SIM_HD static inline int cs_sc_may(float dist, float rad, float span)
 }
 
 /* Under implicit_euler a substep is cut into parts (as for rocks: implicit.h, cs_im_splits) so that
- * no vertex moves more than this fraction of self_thickness in one: the repulsion after each part
- * then meets layers before the bound has to stop them. (At twice and four times the thickness the
- * folding test still did not cross, but its layers at rest came to 1.97 and 0.82 mm, against
- * 3.79 mm at one: MODEL.md.) */
+ * no vertex of a pair that may touch within the substep moves more than this fraction of
+ * self_thickness in one about the cloth's common motion: the repulsion after each part then meets
+ * layers before the bound has to stop them. (At twice and four times the thickness the folding
+ * test still did not cross, but its layers at rest came to 1.97 and 0.82 mm, against 3.79 mm at
+ * one: MODEL.md.) */
 #define CS_SC_PART 1.0f
 
-/* Vertex v's rate for the parts of a substep h: (|v| + |g| h) / (CS_SC_PART self_thickness), 1/s. */
-SIM_HD static inline float cs_sc_rate(const cs_phys *ph, const float *vx, const float *vy, const float *vz, int32_t v,
-                                      float h)
+/* Vertex q's speed about a centre cv (the centre of the velocities' box), with gravity's |g| h
+ * (as cs_sc_near_speed counts it): two vertices close at most at the sum of theirs. */
+SIM_HD static inline float cs_sc_speed(const cs_phys *ph, const float *vx, const float *vy, const float *vz, int32_t q,
+                                       cs_vec3 cv, float h)
 {
-    const float speed = cs_len(cs_v3(vx[v], vy[v], vz[v])) + cs_len(ph->gravity) * h;
-    return speed / (CS_SC_PART * ph->self_thickness);
+    return cs_len(cs_sub(cs_sc_at(vx, vy, vz, q), cv)) + cs_len(ph->gravity) * h;
 }
 
 /* ---- 1. repulsion ---- */
@@ -583,6 +618,53 @@ SIM_HD static inline int32_t cs_sc_repel(const cs_phys *ph, const float *x, cons
     return touching;
 }
 
+/* How far apart at x a repelling pair may lie and still pass cs_sc_near_speed's test within h when
+ * no vertex's cs_sc_speed (about any one centre) passes Vm: two sides closing at most at 2 Vm, with
+ * room for the rounding of a distance computed from the other end. */
+SIM_HD static inline float cs_sc_near_reach(float thick, float h, float Vm)
+{
+    return 1.05f * (thick + 1.01f * h * 2.0f * Vm) + 1e-5f;
+}
+
+/* The fastest that the two sides of one of vertex v's repelling pairs (keys[0..n), any order) close
+ * on each other, among the pairs that may touch within h: the largest relative speed of a vertex
+ * of one side and one of the other, with gravity's |g| h (a layer held up by the ground, a rock or
+ * a pin does not follow gravity while the one above it does), for the pairs closer at x than the
+ * thickness plus that speed's reach in h (1 % and 1 um for rounding). 0 where none may: the parts
+ * of a substep (cs_im_splits of this over CS_SC_PART self_thickness) are cut only for layers that
+ * can meet in it, whatever the rest of the cloth does. Such a pair lies within cs_sc_near_reach of
+ * its vertices for the fastest cs_sc_speed about any centre. */
+SIM_HD static inline float cs_sc_near_speed(const cs_phys *ph, const float *x, const float *y, const float *z,
+                                            const float *vx, const float *vy, const float *vz, float h,
+                                            const int64_t *keys, int32_t n)
+{
+    const float gh = cs_len(ph->gravity) * h;
+    float most = 0.0f;
+    for (int32_t k = 0; k < n; k++) {
+        int32_t q[4], t[3], a[2], b[2], na;
+        float dist;
+        if (cs_sc_key_decode(ph, keys[k], &q[0], t, a, b)) {
+            q[0] = a[0], q[1] = a[1], q[2] = b[0], q[3] = b[1], na = 2;
+            dist = cs_sc_seg_seg(cs_sc_at(x, y, z, a[0]), cs_sc_at(x, y, z, a[1]), cs_sc_at(x, y, z, b[0]),
+                                 cs_sc_at(x, y, z, b[1]));
+        } else {
+            float bw[3];
+            q[1] = t[0], q[2] = t[1], q[3] = t[2], na = 1;
+            dist = cs_sc_point_tri(cs_sc_at(x, y, z, q[0]), cs_sc_at(x, y, z, t[0]), cs_sc_at(x, y, z, t[1]),
+                                   cs_sc_at(x, y, z, t[2]), bw);
+        }
+        float V = 0.0f;
+        for (int i = 0; i < na; i++)
+            for (int j = na; j < 4; j++) {
+                const float l = cs_len(cs_sub(cs_sc_at(vx, vy, vz, q[i]), cs_sc_at(vx, vy, vz, q[j])));
+                V = l > V ? l : V;
+            }
+        V += gh;
+        if (dist < ph->self_thickness + 1.01f * h * V + 1e-6f) most = V > most ? V : most;
+    }
+    return most;
+}
+
 /* ---- 2. the bound ---- */
 
 
@@ -676,6 +758,17 @@ SIM_HD static inline float cs_sc_pair_cut(int safe, float dist, const float *dx,
 }
 
 
+/* The distance at x0 within which a pair whose vertices move by at most E relative to one another
+ * may be unsafe: beyond it they move by less than CS_SC_GAMMA of their distance (1 % and 1 um for
+ * rounding), so the pair is safe; the thickness is the room every pair gets (the repulsion's). A
+ * pair's vertices move relative to one another by at most the farthest any of one side's moves
+ * from a point c plus the farthest of the other side's (|d_i - d_k| <= |d_i - c| + |d_k - c|,
+ * whatever c: the spreads about it). */
+SIM_HD static inline float cs_sc_pair_reach(float thick, float E)
+{
+    return thick + 1.01f * E / CS_SC_GAMMA + 1e-6f;
+}
+
 /* Vertex-triangle pair (point p, triangle t; canonical corners) if it lies within r at x0: vertex
  * v's cut for it into *cut and its distance into *dmin (each the least kept); returns 1 then. */
 SIM_HD static inline int cs_sc_vf_cut(const float *x0, const float *y0, const float *z0, const float *dx,
@@ -722,6 +815,13 @@ SIM_HD static inline int cs_sc_ee_cut(const float *x0, const float *y0, const fl
 SIM_HD static inline void cs_sc_keep(int64_t *keys, int32_t cap, int32_t *n, int64_t key)
 {
     if (keys && *n < cap) keys[*n] = key;
+    (*n)++;
+}
+
+/* cs_sc_keep, with the pair's distance d beside its key. */
+SIM_HD static inline void cs_sc_keep_at(int64_t *keys, float *dists, int32_t cap, int32_t *n, int64_t key, float d)
+{
+    if (keys && *n < cap) keys[*n] = key, dists[*n] = d;
     (*n)++;
 }
 
@@ -790,69 +890,103 @@ SIM_HD static inline float cs_sc_limit(const cs_phys *ph, const cs_sc_grid *G, c
     return cut;
 }
 
-/* The pairs within r at x0 that vertex v owns, each pair owned by one vertex: vertex-triangle
- * pairs with v as the point (the triangles its candidates own), edge-edge pairs of an edge of v's
- * (from v) and an edge of a candidate u > v (from u); none that shares a vertex, and with repel
- * only those that repel (cs_sc_repels, cs_sc_ee_repels: cs_sc_pairs' pairs). Keys into keys (room
- * for cap, unsorted); returns how many there are (past cap too). Every pair cs_sc_limit (or
- * cs_sc_pairs) finds for any of its vertices is owned by one of them (the owner of a triangle
- * within r of a point lies within r + L of it, an edge's owner within r + 2 L of the other edge's:
- * reach is r + 2 L), with the same tests on the same arguments, so the lists handed from owners
- * to every vertex of their pairs are theirs, each pair looked at once rather than by each of its
- * four vertices. */
-SIM_HD static inline int32_t cs_sc_owned(const cs_phys *ph, const cs_sc_grid *G, const float *L0, const float *x0,
-                                         const float *y0, const float *z0, float r, float reach, int32_t v,
-                                         int repel, int64_t *keys, int32_t cap)
+/* What vertex v owns that is intact, as bits for cs_sc_found: 1 its quad's triangle A, 2 B, 4 << e
+ * its edge e (cs_sc_edge_on, 0 where it would leave the grid). */
+SIM_HD static inline uint8_t cs_sc_intact(const float *L0, int32_t nx, int32_t ny, int32_t v)
+{
+    const int32_t i = v % nx, j = v / nx;
+    int bits = cs_quad_faces(L0, nx, ny, i, j);
+    for (int e = 0; e < 3; e++)
+        if (!((e != 1 && i + 1 >= nx) || (e != 0 && j + 1 >= ny)) && cs_sc_edge_on(L0, nx, ny, i, j, e)) bits |= 4 << e;
+    return (uint8_t)bits;
+}
+
+/* Whether vertex f finds the pairs it owns with vertex u (cs_sc_found): the one of the two whose
+ * spread eh is the larger does, the lower id on a tie. */
+SIM_HD static inline int cs_sc_finds(const float *eh, int32_t f, int32_t u)
+{
+    return eh[f] > eh[u] || (eh[f] == eh[u] && f < u);
+}
+
+/* The pairs vertex v finds within their reach at x0, for every pass whose spreads stay within eh.
+ * A pair has two owners - a vertex-triangle pair its point and the triangle's lower-left corner
+ * (physics.h's quad), an edge-edge pair each edge's lower end - and eh[q] bounds how far q and
+ * the far ends of its own edges and triangles move from a centre, so the pair's vertices move
+ * relative to one another by at most eh[a] + eh[b] and it can pass cs_sc_vf_cut's or cs_sc_ee_cut's reach
+ * only within cs_sc_pair_reach(thickness, eh[a] + eh[b]) of the other owner's primitive. Each
+ * pair is found once, by the owner that cs_sc_finds picks, which looks within its own reach
+ * (2 eh[v]) plus twice the longest edge L: a vertex that barely moves looks about it, one that
+ * moves far looks far, and a pair between them is found from the far one. extra widens every
+ * reach (the room for the cloth to move before the lists are found again). Every pair that shares
+ * no vertex, grid neighbours included (the bound's; the repulsion takes those that repel), of the
+ * primitives intact (cs_sc_intact of every vertex). Keys into keys and their distances at x0
+ * into dists (room for cap, unsorted); returns how many there are (past cap too). */
+SIM_HD static inline int32_t cs_sc_found(const cs_phys *ph, const cs_sc_grid *G, const float *L0, const float *x0,
+                                         const float *y0, const float *z0, const uint8_t *intact, const float *eh,
+                                         float L, float extra, int32_t v, int64_t *keys, float *dists,
+                                         int32_t cap)
 {
     const int32_t nx = ph->nx, ny = ph->ny, vi = v % nx, vj = v / nx;
-    /* as cs_sc_pairs: within CS_SC_RINGS of v no pair repels, beyond twice that every pair does
-     * (unless the thickness spans that many rings at rest) */
-    const float h = ph->self_hx < ph->self_hy ? ph->self_hx : ph->self_hy;
-    const int fine = ph->self_thickness > (float)(CS_SC_RINGS + 1) * h;
+    const float th = ph->self_thickness, ev = eh[v];
     const cs_vec3 xv = cs_sc_at(x0, y0, z0, v);
-    const float L = 0.5f * (reach - r); /* the longest edge */
-    int32_t own[3], oe[3][2], nown = 0, n = 0; /* v's edges, their ends, the other end's position and length */
-    cs_vec3 xo[3];
+    int32_t own[3], oe[3][2], nown = 0, n = 0; /* v's edges, their ends, the other end's position, */
+    cs_vec3 xo[3], mo[3];                        /* the edge's middle and its length */
     float lo[3];
     for (int e = 0; e < 3; e++) {
-        if ((e != 1 && vi + 1 >= nx) || (e != 0 && vj + 1 >= ny) || !cs_sc_edge_on(L0, nx, ny, vi, vj, e)) continue;
+        if (!((intact[v] >> (2 + e)) & 1)) continue;
         own[nown] = 3 * v + e;
         cs_sc_edge_ends(ph, own[nown], oe[nown]);
         xo[nown] = cs_sc_at(x0, y0, z0, oe[nown][1]);
         lo[nown] = cs_len(cs_sub(xo[nown], xv));
+        mo[nown] = cs_scale(cs_add(xv, xo[nown]), 0.5f);
         nown++;
     }
-    CS_SC_FOR_NEAR(G, x0, y0, z0, xv, reach, u, {
-        const int32_t rings = cs_sc_rings(nx, u, v);
-        if (u != v && !(repel && rings <= CS_SC_RINGS)) {
+    int32_t tv[2][3]; /* v's own triangles */
+    cs_sc_quad_tris(L0, nx, ny, vi, vj, tv);
+    const int32_t fv = intact[v] & 3;
+    cs_vec3 cv[2][3];
+    for (int k = 0; k < 2; k++)
+        for (int q = 0; q < 3 && ((fv >> k) & 1); q++) cv[k][q] = cs_sc_at(x0, y0, z0, tv[k][q]);
+    CS_SC_FOR_WITHIN(G, x0, y0, z0, xv, cs_sc_pair_reach(th, 2.0f * ev) + extra + 2.0f * L, u, {
+        if (u != v && cs_sc_finds(eh, v, u)) {
+            const float r = cs_sc_pair_reach(th, ev + eh[u]) + extra;
             const cs_vec3 xu = cs_sc_at(x0, y0, z0, u);
             int32_t t[2][3];
-            const int32_t ui = u % nx, uj = u / nx, f = cs_sc_quad_tris(L0, nx, ny, ui, uj, t);
+            const int32_t ui = u % nx, uj = u / nx;
+            const int32_t u00 = uj * nx + ui, f = intact[u] & 3;
+            t[0][0] = u00, t[0][1] = u00 + 1, t[0][2] = u00 + nx + 1;
+            t[1][0] = u00, t[1][1] = u00 + nx + 1, t[1][2] = u00 + nx;
             const float D = cs_len(cs_sub(xu, xv));
-            const int any = !repel || (!fine && rings > 2 * CS_SC_RINGS); /* every pair here repels */
-            for (int k = 0; k < 2 && cs_sc_may(D, r, L); k++) {
+            float bw[3];
+            for (int k = 0; k < 2 && cs_sc_may(D, r, L); k++) { /* v against u's triangles */
                 if (!((f >> k) & 1) || t[k][0] == v || t[k][1] == v || t[k][2] == v) continue;
-                if (!any && !cs_sc_repels(ph, v, t[k])) continue;
                 const cs_vec3 c[3] = {cs_sc_at(x0, y0, z0, t[k][0]), cs_sc_at(x0, y0, z0, t[k][1]),
                                       cs_sc_at(x0, y0, z0, t[k][2])};
-                float bw[3];
-                if (cs_sc_box_gap(xv, c, 3) < r && cs_sc_point_tri(xv, c[0], c[1], c[2], bw) < r)
-                    cs_sc_keep(keys, cap, &n, cs_sc_pair_key(ph, v, 2 * (uj * (nx - 1) + ui) + k));
+                float d;
+                if (cs_sc_box_gap(xv, c, 3) < r && (d = cs_sc_point_tri(xv, c[0], c[1], c[2], bw)) < r)
+                    cs_sc_keep_at(keys, dists, cap, &n, cs_sc_pair_key(ph, v, 2 * (uj * (nx - 1) + ui) + k), d);
             }
-            for (int e = 0; e < 3 && u > v; e++) {
-                if ((e != 1 && ui + 1 >= nx) || (e != 0 && uj + 1 >= ny) || !cs_sc_edge_on(L0, nx, ny, ui, uj, e)) continue;
+            for (int k = 0; k < 2 && cs_sc_may(D, r, L); k++) { /* u against v's triangles */
+                if (!((fv >> k) & 1) || tv[k][0] == u || tv[k][1] == u || tv[k][2] == u) continue;
+                float d;
+                if (cs_sc_box_gap(xu, cv[k], 3) < r && (d = cs_sc_point_tri(xu, cv[k][0], cv[k][1], cv[k][2], bw)) < r)
+                    cs_sc_keep_at(keys, dists, cap, &n, cs_sc_pair_key(ph, u, 2 * (vj * (nx - 1) + vi) + k), d);
+            }
+            for (int e = 0; e < 3; e++) { /* v's edges against u's */
+                if (!((intact[u] >> (2 + e)) & 1)) continue;
                 int32_t eb[2];
                 cs_sc_edge_ends(ph, 3 * u + e, eb);
                 if (eb[1] == v) continue;
-                const cs_vec3 xz = cs_sc_at(x0, y0, z0, eb[1]);
+                const cs_vec3 xz = cs_sc_at(x0, y0, z0, eb[1]), mu = cs_scale(cs_add(xu, xz), 0.5f);
                 const float lb = cs_len(cs_sub(xz, xu));
                 for (int k = 0; k < nown; k++) {
                     const int32_t *ea = oe[k];
-                    if (ea[1] == u || ea[1] == eb[1] || !cs_sc_may(D, r, lb + lo[k])) continue;
-                    if (!any && !cs_sc_ee_repels(ph, ea, eb)) continue;
-                    /* (the canonical order of cs_sc_ee_cut: v < u, so v's edge first) */
-                    if (cs_sc_seg_gap(xv, xo[k], xu, xz) < r && cs_sc_seg_seg(xv, xo[k], xu, xz) < r)
-                        cs_sc_keep(keys, cap, &n, cs_sc_ee_key(ph, own[k], 3 * u + e));
+                    /* (two segments lie no nearer than their middles less half their lengths) */
+                    if (ea[1] == u || ea[1] == eb[1] || !cs_sc_may(cs_len(cs_sub(mu, mo[k])), r, 0.5f * (lb + lo[k])))
+                        continue;
+                    float d;
+                    if (cs_sc_seg_gap(xv, xo[k], xu, xz) < r && (d = cs_sc_seg_seg(xv, xo[k], xu, xz)) < r)
+                        cs_sc_keep_at(keys, dists, cap, &n, cs_sc_ee_key(ph, own[k], 3 * u + e), d);
                 }
             }
         }
