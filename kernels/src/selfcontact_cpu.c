@@ -181,7 +181,7 @@ struct cs_sc_work {
     int32_t n;
     uint32_t mask;
     float *x0, *y0, *z0, *dx, *dy, *dz, *s, *s2, *px, *pv;
-    float *e;                /* each vertex's spread now: |s d - c| (cs_sc_spread's) */
+    float *e;                /* each vertex's spread now: |s d - c| (cs_sc_pair_reach's spreads) */
     float *eu;               /* the spread the lists were found for (at least e while they serve) */
     float *eh;               /* the largest eu of each vertex and the far ends of its own edges */
     float *dminb, *dminr;    /* the least distance where they were found of each vertex's pairs in bl, rl */
@@ -376,20 +376,16 @@ static float drift(const cs_sc_work *w, int32_t n, int threads)
     return most;
 }
 
-/* Each vertex's spread e = |s d - centre| for the scales s (as cs_sc_spread computes it), the
- * largest into *most; returns whether the lists still serve: every e within the eu they were
- * found for. */
-static int spreads(cs_sc_work *w, const float *s, cs_vec3 centre, int32_t n, int threads, float *most)
+/* Each vertex's spread e = |s d - centre| for the scales s; returns whether the lists still serve:
+ * every e within the eu they were found for. */
+static int spreads(cs_sc_work *w, const float *s, cs_vec3 centre, int32_t n, int threads)
 {
     int over = 0;
-    float m = 0.0f;
-    CS_PARALLEL_FOR(threads, schedule(static) reduction(| : over) reduction(max : m),
+    CS_PARALLEL_FOR(threads, schedule(static) reduction(| : over),
     for (int32_t v = 0; v < n; v++) {
         w->e[v] = cs_len(cs_sub(cs_scale(cs_sc_at(w->dx, w->dy, w->dz, v), s[v]), centre));
         over |= !(w->e[v] <= w->eu[v]);
-        m = w->e[v] > m ? w->e[v] : m;
     });
-    *most = m;
     return !over;
 }
 
@@ -692,7 +688,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
     const float r = th + 2.0f * Ma / CS_SC_GAMMA;
     cs_sc_grid G = {0};
     if (!listed) G = build_grid(w, n, w->x0, w->y0, w->z0, r + 2.0f * LONGEST(), threads);
-    float *b = w->s2, most;
+    float *b = w->s2;
     int changed = Ma > 0.0f;
     for (int sweep = 0; changed && sweep <= CS_SC_SWEEPS; sweep++) {
         /* the sweep that cuts outright cuts every pair within r: from the grid, as the CUDA backend */
@@ -722,7 +718,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         });
         float *t = a;
         a = b, b = t;
-        if (changed && listed && !spreads(w, a, c, n, threads, &most)) {
+        if (changed && listed && !spreads(w, a, c, n, threads)) {
             for (int32_t v = 0; v < n; v++) w->e[v] = cs_sc_max(w->e[v], w->eu[v] - slack(p));
             lost += find_lists(w, p, L0, LONGEST(), threads), finds++;
             listed = lost == 0;

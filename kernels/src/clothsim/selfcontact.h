@@ -196,31 +196,11 @@ SIM_HD static inline cs_vec3 cs_sc_at(const float *x, const float *y, const floa
 }
 
 
-/* The vertices a gatherer meets: those in the 27 cells about its own at x0 (each met once: an entry
- * is taken only in its own cell, whatever cell shares its key), within reach of it; the body is
- * the trailing arguments (commas and all). */
-#define CS_SC_FOR_NEAR(G, X0, Y0, Z0, XV, REACH, W, ...)                                                   \
-    do {                                                                                                   \
-        const int32_t ci_ = cs_sc_coord((XV).x, (G)->cell), cj_ = cs_sc_coord((XV).y, (G)->cell),          \
-                      ck_ = cs_sc_coord((XV).z, (G)->cell);                                                \
-        for (int dk_ = -1; dk_ <= 1; dk_++)                                                                 \
-            for (int dj_ = -1; dj_ <= 1; dj_++)                                                             \
-                for (int di_ = -1; di_ <= 1; di_++) {                                                       \
-                    const uint32_t key_ = cs_sc_key(ci_ + di_, cj_ + dj_, ck_ + dk_, (G)->mask);             \
-                    for (int32_t e_ = (G)->start[key_]; e_ < (G)->start[key_ + 1]; e_++) {                  \
-                        const int32_t W = (G)->ids[e_];                                                     \
-                        const int32_t *cw_ = (G)->cc + 3 * (size_t)W;                                       \
-                        if (cw_[0] != ci_ + di_ || cw_[1] != cj_ + dj_ || cw_[2] != ck_ + dk_) continue;    \
-                        const cs_vec3 rw_ = cs_sub(cs_sc_at(X0, Y0, Z0, W), XV);                             \
-                        if (!(cs_dot(rw_, rw_) < (REACH) * (REACH))) continue;                               \
-                        __VA_ARGS__                                                                        \
-                    }                                                                                      \
-                }                                                                                          \
-    } while (0)
-
-/* The vertices within reach of a finder at x0, from every cell the reach spans (each met once, as
- * CS_SC_FOR_NEAR; when the reach spans more cells than the table has keys, every vertex of the
- * grid in its order instead, so that a far reach costs at most a pass over the cloth). */
+/* The vertices within reach of a gatherer at x0 (XV its position), from every cell the reach spans
+ * (each met once: an entry is taken only in its own cell, whatever cell shares its key; when the
+ * reach spans more cells than the table has keys, every vertex of the grid in its order instead,
+ * so that a far reach costs at most a pass over the cloth); the body is the trailing arguments
+ * (commas and all). */
 #define CS_SC_FOR_WITHIN(G, X0, Y0, Z0, XV, REACH, W, ...)                                                 \
     do {                                                                                                   \
         const float rc_ = (REACH);                                                                         \
@@ -543,7 +523,7 @@ SIM_HD static inline int32_t cs_sc_pairs(const cs_phys *ph, const cs_sc_grid *G,
     int32_t n = 0;
     cs_sc_ring g;
     cs_sc_ring_of(ph, L0, x0, y0, z0, v, &g);
-    CS_SC_FOR_NEAR(G, x0, y0, z0, xv, reach, u, {
+    CS_SC_FOR_WITHIN(G, x0, y0, z0, xv, reach, u, {
         if (u != v) {
             float bw[3];
             int32_t t[2][3];
@@ -843,7 +823,7 @@ SIM_HD static inline float cs_sc_limit(const cs_phys *ph, const cs_sc_grid *G, c
     cs_sc_ring g;
     cs_sc_ring_of(ph, L0, x0, y0, z0, v, &g);
     *nkeys = 0;
-    CS_SC_FOR_NEAR(G, x0, y0, z0, xv, reach, u, {
+    CS_SC_FOR_WITHIN(G, x0, y0, z0, xv, reach, u, {
         if (u != v) {
             const cs_vec3 xu = cs_sc_at(x0, y0, z0, u);
             int32_t t[2][3];
