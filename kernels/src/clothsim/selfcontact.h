@@ -21,12 +21,13 @@
  *    CS_SC_GAMMA (M the largest displacement of any vertex in the substep: a pair further apart
  *    cannot meet, its vertices' motion relative to each other being at most 2 M) is safe while the
  *    largest displacement of one of its vertices relative to another of them stays under
- *    CS_SC_GAMMA times its distance at x0 (its distance then changes too slowly to reach zero),
+ *    CS_SC_GAMMA times its distance at x0, less a room for rounding (cs_sc_round_margin; its
+ *    distance then changes too slowly to reach zero),
  *    or while a direction keeps its two sides apart all along their straight paths (cs_sc_safe,
  *    cs_sc_apart_along: layers sliding over each other, or pushed apart, however near): its
- *    closest points then never meet. An unsafe pair's vertices are cut back, each to
- *    CS_SC_GAMMA / 2 of that distance (then no two of them move apart by more than CS_SC_GAMMA of
- *    it); sweeps repeat
+ *    closest points then never meet. An unsafe pair's vertices are cut back, each to half of
+ *    CS_SC_GAMMA of that distance less the room (then no two of them move apart by more than
+ *    that); sweeps repeat
  *    until every pair is safe (a vertex's cut only ever grows, so they end). Two triangles that
  *    share no vertex cross only after such a pair met (a vertex through a face, or an edge
  *    through an edge), so none cross: the guarantee needs no continuous collision detection.
@@ -696,18 +697,46 @@ SIM_HD static inline int cs_sc_apart_along(const double n[3], const double X[4][
     return (lo[0][1] - hi[0][0] > m && lo[1][1] - hi[1][0] > m) || (lo[0][0] - hi[0][1] > m && lo[1][0] - hi[1][1] > m);
 }
 
+/* The rounding a pair's first test leaves room for: 2e-6 of the largest coordinate of its four
+ * vertices at x0 and at x0 + s d, at most half the thickness (so a pair beyond its reach,
+ * cs_sc_pair_reach, stays safe: which list a pair came from never shows; the room covers the
+ * rounding while the cloth lies within 2.5e5 thicknesses of the origin, 1.25 km at the default). Each vertex ends within 2 ulps of its largest coordinate of
+ * x0 + s d (x0 + fl(s d) rounded, and x0 + d is not x exactly), and its distance at x0 is
+ * computed in float from coordinates of that size: a pair a few ulps apart can cross by rounding
+ * alone however little it moves (the head-on test's grabbed corner, pressed onto the sheet part
+ * after part, came to 0.24 um of it on a cloth 0.5 m from the origin and went through, with a
+ * relative motion of 0.21 um: build machine, 2026-12-07). */
+SIM_HD static inline float cs_sc_round_margin(const int32_t q[4], const float *x0, const float *y0, const float *z0,
+                                              const float *dx, const float *dy, const float *dz, const float *s,
+                                              float thick)
+{
+    float big = 0.0f;
+    for (int k = 0; k < 4; k++) {
+        const int32_t v = q[k];
+        const cs_vec3 a = cs_sc_at(x0, y0, z0, v), b = cs_add(a, cs_scale(cs_sc_at(dx, dy, dz, v), s[v]));
+        const float c[6] = {a.x, a.y, a.z, b.x, b.y, b.z};
+        for (int i = 0; i < 6; i++) {
+            const float u = c[i] < 0.0f ? -c[i] : c[i];
+            big = u > big ? u : big;
+        }
+    }
+    const float m = 2e-6f * big;
+    return m < 0.5f * thick ? m : 0.5f * thick;
+}
+
 /* Whether a pair (its four vertices q, side a the first na) is safe for the displacements s d:
- * its vertices move relative to one another by less than CS_SC_GAMMA of dist, its distance at x0
- * (the distance then changes no faster than that, so it cannot reach zero), or - only if not,
+ * its vertices move relative to one another by less than CS_SC_GAMMA of dist, its distance at x0,
+ * less m (cs_sc_round_margin; the distance then changes no faster than that, so it cannot reach
+ * zero), or - only if not,
  * as it costs more - one of the directions dir (the pair's normal at x0 from its closest points,
  * and the triangle's normal or the edges' cross product there) keeps them apart all along
  * (cs_sc_apart_along): layers that slide over each other, or that the repulsion pushes apart,
  * however near they are. */
-SIM_HD static inline int cs_sc_safe(const int32_t q[4], int na, float dist, cs_vec3 dir, const float *x0,
-                                    const float *y0, const float *z0, const float *dx, const float *dy,
-                                    const float *dz, const float *s)
+SIM_HD static inline int cs_sc_safe(const int32_t q[4], int na, float dist, float m, cs_vec3 dir,
+                                    const float *x0, const float *y0, const float *z0, const float *dx,
+                                    const float *dy, const float *dz, const float *s)
 {
-    if (cs_sc_relative(q, na, q + na, 4 - na, dx, dy, dz, s) < CS_SC_GAMMA * dist) return 1;
+    if (cs_sc_relative(q, na, q + na, 4 - na, dx, dy, dz, s) < CS_SC_GAMMA * dist - m) return 1;
     double X[4][3], E[4][3];
     for (int k = 0; k < 4; k++) {
         const int32_t v = q[k];
@@ -727,13 +756,15 @@ SIM_HD static inline int cs_sc_safe(const int32_t q[4], int na, float dist, cs_v
     return cs_sc_apart_along(n1, X, E, na);
 }
 
-/* Vertex v's cut for a pair (dist its distance at x0): 1 while the pair is safe, else the largest
- * scale that keeps v within CS_SC_GAMMA / 2 of dist. */
-SIM_HD static inline float cs_sc_pair_cut(int safe, float dist, const float *dx, const float *dy, const float *dz,
-                                          int32_t v)
+/* Vertex v's cut for a pair (dist its distance at x0, m cs_sc_round_margin): 1 while the pair is
+ * safe, else the largest scale that keeps v within half of CS_SC_GAMMA dist - m, and 0 when that
+ * is not positive (the vertex then stays at x0 exactly: x0 + 0 d is x0). */
+SIM_HD static inline float cs_sc_pair_cut(int safe, float dist, float m, const float *dx, const float *dy,
+                                          const float *dz, int32_t v)
 {
     if (safe) return 1.0f;
-    const float l = cs_len(cs_sc_at(dx, dy, dz, v)), lim = 0.5f * CS_SC_GAMMA * dist;
+    const float l = cs_len(cs_sc_at(dx, dy, dz, v)), lim = 0.5f * (CS_SC_GAMMA * dist - m);
+    if (!(lim > 0.0f)) return 0.0f;
     return l > lim ? lim / l : 1.0f;
 }
 
@@ -753,7 +784,8 @@ SIM_HD static inline float cs_sc_pair_reach(float thick, float E)
  * v's cut for it into *cut and its distance into *dmin (each the least kept); returns 1 then. */
 SIM_HD static inline int cs_sc_vf_cut(const float *x0, const float *y0, const float *z0, const float *dx,
                                       const float *dy, const float *dz, const float *s, int32_t p,
-                                      const int32_t t[3], float r, int32_t v, int outright, float *cut, float *dmin)
+                                      const int32_t t[3], float r, float thick, int32_t v, int outright, float *cut,
+                                      float *dmin)
 {
     float bw[3];
     const cs_vec3 xp = cs_sc_at(x0, y0, z0, p), a = cs_sc_at(x0, y0, z0, t[0]), b = cs_sc_at(x0, y0, z0, t[1]),
@@ -762,8 +794,9 @@ SIM_HD static inline int cs_sc_vf_cut(const float *x0, const float *y0, const fl
     if (!(d < r)) return 0;
     const int32_t q[4] = {p, t[0], t[1], t[2]};
     const cs_vec3 dir = cs_sub(xp, cs_tri_point(a, b, c, bw));
-    const int safe = !outright && cs_sc_safe(q, 1, d, dir, x0, y0, z0, dx, dy, dz, s);
-    const float cv = cs_sc_pair_cut(safe, d, dx, dy, dz, v);
+    const float m = cs_sc_round_margin(q, x0, y0, z0, dx, dy, dz, s, thick);
+    const int safe = !outright && cs_sc_safe(q, 1, d, m, dir, x0, y0, z0, dx, dy, dz, s);
+    const float cv = cs_sc_pair_cut(safe, d, m, dx, dy, dz, v);
     *cut = cv < *cut ? cv : *cut;
     *dmin = d < *dmin ? d : *dmin;
     return 1;
@@ -773,7 +806,8 @@ SIM_HD static inline int cs_sc_vf_cut(const float *x0, const float *y0, const fl
  * edge with the lower first vertex first), so every vertex of the pair computes the same bits. */
 SIM_HD static inline int cs_sc_ee_cut(const float *x0, const float *y0, const float *z0, const float *dx,
                                       const float *dy, const float *dz, const float *s, const int32_t a[2],
-                                      const int32_t b[2], float r, int32_t v, int outright, float *cut, float *dmin)
+                                      const int32_t b[2], float r, float thick, int32_t v, int outright, float *cut,
+                                      float *dmin)
 {
     const int swap = b[0] < a[0];
     const int32_t *ea = swap ? b : a, *eb = swap ? a : b;
@@ -784,8 +818,9 @@ SIM_HD static inline int cs_sc_ee_cut(const float *x0, const float *y0, const fl
     if (!(d < r)) return 0;
     const int32_t q[4] = {ea[0], ea[1], eb[0], eb[1]};
     const cs_vec3 dir = cs_sub(cs_sc_seg_point(a0, a1, ps), cs_sc_seg_point(b0, b1, pt));
-    const int safe = !outright && cs_sc_safe(q, 2, d, dir, x0, y0, z0, dx, dy, dz, s);
-    const float cv = cs_sc_pair_cut(safe, d, dx, dy, dz, v);
+    const float m = cs_sc_round_margin(q, x0, y0, z0, dx, dy, dz, s, thick);
+    const int safe = !outright && cs_sc_safe(q, 2, d, m, dir, x0, y0, z0, dx, dy, dz, s);
+    const float cv = cs_sc_pair_cut(safe, d, m, dx, dy, dz, v);
     *cut = cv < *cut ? cv : *cut;
     *dmin = d < *dmin ? d : *dmin;
     return 1;
@@ -836,14 +871,14 @@ SIM_HD static inline float cs_sc_limit(const cs_phys *ph, const cs_sc_grid *G, c
                 const cs_vec3 c[3] = {cs_sc_at(x0, y0, z0, t[k][0]), cs_sc_at(x0, y0, z0, t[k][1]),
                                       cs_sc_at(x0, y0, z0, t[k][2])};
                 if (cs_sc_box_gap(xv, c, 3) < r &&
-                    cs_sc_vf_cut(x0, y0, z0, dx, dy, dz, s, v, t[k], r, v, outright, &cut, &dmin))
+                    cs_sc_vf_cut(x0, y0, z0, dx, dy, dz, s, v, t[k], r, ph->self_thickness, v, outright, &cut, &dmin))
                     cs_sc_keep(keys, cap, nkeys, cs_sc_pair_key(ph, v, 2 * (uj * (nx - 1) + ui) + k));
             }
             /* u against v's triangles */
             for (int k = 0; k < g.ntri && vf; k++) {
                 if (g.tri[k][0] == u || g.tri[k][1] == u || g.tri[k][2] == u) continue;
                 if (cs_sc_box_gap(xu, g.c[k], 3) < r &&
-                    cs_sc_vf_cut(x0, y0, z0, dx, dy, dz, s, u, g.tri[k], r, v, outright, &cut, &dmin))
+                    cs_sc_vf_cut(x0, y0, z0, dx, dy, dz, s, u, g.tri[k], r, ph->self_thickness, v, outright, &cut, &dmin))
                     cs_sc_keep(keys, cap, nkeys, cs_sc_pair_key(ph, u, g.slot[k]));
             }
             /* v's spokes against the edges u owns */
@@ -860,7 +895,7 @@ SIM_HD static inline float cs_sc_limit(const cs_phys *ph, const cs_sc_grid *G, c
                     const int32_t o = ea[0] == v ? ea[1] : ea[0], eb[2] = {u, z1};
                     if (o == u || o == z1) continue;
                     if (cs_sc_seg_gap(xv, cs_sc_at(x0, y0, z0, o), xu, xz) < r &&
-                        cs_sc_ee_cut(x0, y0, z0, dx, dy, dz, s, ea, eb, r, v, outright, &cut, &dmin))
+                        cs_sc_ee_cut(x0, y0, z0, dx, dy, dz, s, ea, eb, r, ph->self_thickness, v, outright, &cut, &dmin))
                         cs_sc_keep(keys, cap, nkeys, cs_sc_ee_key(ph, g.spoke[k], 3 * u + e));
                 }
             }
@@ -985,9 +1020,9 @@ SIM_HD static inline float cs_sc_limit_listed(const cs_phys *ph, const float *x0
     for (int32_t k = 0; k < n; k++) {
         int32_t p, t[3], a[2], b[2];
         if (cs_sc_key_decode(ph, keys[k], &p, t, a, b))
-            cs_sc_ee_cut(x0, y0, z0, dx, dy, dz, s, a, b, r, v, outright, &cut, &dmin);
+            cs_sc_ee_cut(x0, y0, z0, dx, dy, dz, s, a, b, r, ph->self_thickness, v, outright, &cut, &dmin);
         else
-            cs_sc_vf_cut(x0, y0, z0, dx, dy, dz, s, p, t, r, v, outright, &cut, &dmin);
+            cs_sc_vf_cut(x0, y0, z0, dx, dy, dz, s, p, t, r, ph->self_thickness, v, outright, &cut, &dmin);
     }
     if (dall) *dall = dmin;
     return cut;
