@@ -24,7 +24,9 @@
  * ratio, the batch's against one scene stepped alone (the single-scene figure), and how many such
  * scenes the batch's throughput keeps in real time (each needs substeps x frame_rate substeps a
  * second). --frames F --only batch|alone runs one way for F frames and prints nothing else: a
- * fixed amount of work, for timing the two ways as whole processes. --read reads every scene's
+ * fixed amount of work, for timing the two ways as whole processes (without --batch, --frames F
+ * runs each case for F frames from its start instead of --seconds: the same work every run,
+ * for comparing two builds). --read reads every scene's
  * positions after each frame (what a daemon streaming them all does). */
 #include <math.h>
 #include <stdio.h>
@@ -77,7 +79,7 @@ static void usage(FILE *f)
             "usage: clothd-bench [--backend cpu|cuda|auto] [--json] [--threads N] [--seconds S]\n"
             "                    [--sizes 64,128,256,512] [--rocks 0,16] [--contact surface,vertex]\n"
             "                    [--integrator velocity_verlet|symplectic_euler|implicit_euler] [--model]\n"
-            "                    [--self-collision] [--crumple]\n"
+            "                    [--self-collision] [--crumple] [--frames F]\n"
             "       clothd-bench --batch 1,4,16,64 [--backend B] [--sizes 32,64] [--threads N] [--seconds S]\n"
             "                    [--frames F --only batch|alone] [--read] [--json]\n");
 }
@@ -448,8 +450,8 @@ int main(int argc, char **argv)
             fprintf(stderr, "clothd-bench: sizes must be 2..4096\n");
             return 2;
         }
-    if (!batch_arg && (frames || only)) {
-        fprintf(stderr, "clothd-bench: --frames and --only belong to --batch\n");
+    if (!batch_arg && (only || frames < 0 || frames > 1000000)) {
+        fprintf(stderr, "clothd-bench: --only belongs to --batch; --frames is 1..1e6\n");
         return 2;
     }
     if (batch_arg) {
@@ -563,22 +565,23 @@ int main(int argc, char **argv)
                 fprintf(stderr, "clothd-bench: %dx%d: %s\n", size, size, cs_sim_error(sim));
                 return 1;
             }
-            /* Settle, and size a batch to about 1/20 of the measuring time. */
+            /* Settle, and size a batch to about 1/20 of the measuring time; with --frames, the
+             * same work every run instead: those frames from the start, a frame a batch. */
             int64_t batch = 1;
             double t0 = now();
-            while (now() - t0 < 0.05 * seconds) {
+            while (!frames && now() - t0 < 0.05 * seconds) {
                 cs_sim_step(sim, batch);
                 batch *= 2;
             }
             const double rate_guess = (double)(batch - 1) / (now() - t0 + 1e-9);
-            batch = (int64_t)(rate_guess * seconds / 20) + 1;
+            batch = frames ? info.substeps : (int64_t)(rate_guess * seconds / 20) + 1;
             int64_t done = 0;
             cs_status st = CS_OK;
             t0 = now();
             double t = t0;
             cs_self_stats self_sum = {0};
             int64_t solved = 0, newton = 0, cg = 0;
-            while (t - t0 < seconds && st == CS_OK) {
+            while ((frames ? done < frames * info.substeps : t - t0 < seconds) && st == CS_OK) {
                 st = cs_sim_step(sim, batch);
                 done += batch;
                 t = now();

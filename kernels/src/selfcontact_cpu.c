@@ -186,6 +186,7 @@ struct cs_sc_work {
     float *eh;               /* the largest eu of each vertex and the far ends of its own edges */
     float *dminb, *dminr;    /* the least distance where they were found of each vertex's pairs in bl, rl */
     float *ehp;              /* the largest eu of a vertex of any of each vertex's pairs */
+    float *ell;              /* the longest of each vertex's own edges at x0 (cs_sc_own_reach) */
     float *xr;               /* x0 where the lists were found (3 n) */
     int have_ref;            /* whether xr and the lists belong to the state now */
     float ref_thickness;     /* the self_thickness they were found for */
@@ -252,7 +253,7 @@ static cs_status fit(cs_sc_work **wp, int32_t n)
     w->n = n;
     w->mask = size - 1;
     w->x0 = malloc(sizeof(float) * 3 * (size_t)n);
-    w->e = malloc(sizeof(float) * 6 * (size_t)n);
+    w->e = malloc(sizeof(float) * 7 * (size_t)n);
     w->xr = malloc(sizeof(float) * 3 * (size_t)n);
     const int lists = lists_alloc(&w->rl, n, 0) && lists_alloc(&w->bl, n, 0) && lists_alloc(&w->ol, n, 1);
     w->look = malloc(2 * (size_t)n);
@@ -269,8 +270,9 @@ static cs_status fit(cs_sc_work **wp, int32_t n)
     }
     w->y0 = w->x0 + n, w->z0 = w->y0 + n;
     w->eu = w->e + n, w->eh = w->eu + n, w->dminb = w->eh + n, w->dminr = w->dminb + n, w->ehp = w->dminr + n;
+    w->ell = w->ehp + n;
     w->intact = w->look + n;
-    memset(w->e, 0, sizeof(float) * 6 * (size_t)n);
+    memset(w->e, 0, sizeof(float) * 7 * (size_t)n);
     w->dy = w->dx + n, w->dz = w->dy + n;
     w->s2 = w->s + n;
     w->pv = w->px + 3 * (size_t)n;
@@ -444,9 +446,9 @@ static float room(const cs_phys *p)
 /* Every vertex's lists for spreads up to eu = e + slack (e from spreads()): the pairs each vertex
  * finds (cs_sc_found, in parallel, over a grid of x0), handed on one thread, in the finders' order,
  * to each of their four vertices - into bl all of them, into rl those that repel, each rl then
- * sorted by key. L: the longest edge at x0. Returns the vertices left without lists (n when there
+ * sorted by key. Returns the vertices left without lists (n when there
  * was no memory or room for them: then every list is empty and the lists do not serve). */
-static int32_t find_lists(cs_sc_work *w, const cs_phys *p, const float *L0, float L, int threads)
+static int32_t find_lists(cs_sc_work *w, const cs_phys *p, const float *L0, int threads)
 {
     const int32_t n = p->n, nx = p->nx, ny = p->ny;
     const float more = slack(p), extra = 2.0f * room(p);
@@ -461,10 +463,14 @@ static int32_t find_lists(cs_sc_work *w, const cs_phys *p, const float *L0, floa
         if (j + 1 < ny) m = cs_sc_max(m, w->eu[v + nx]);
         if (i + 1 < nx && j + 1 < ny) m = cs_sc_max(m, w->eu[v + nx + 1]);
         w->eh[v] = m;
+        w->ell[v] = cs_sc_own_reach(p, w->x0, w->y0, w->z0, v);
     });
+    float Lo = 0.0f, lsum = 0.0f; /* the longest own reach, and the mean (the cells' size only) */
+    for (int32_t v = 0; v < n; v++) Lo = cs_sc_max(Lo, w->ell[v]), lsum += w->ell[v];
     const float mean = n > 0 ? (float)(sum / n) : 0.0f;
+    const float lmean = n > 0 ? lsum / (float)n : 0.0f;
     const cs_sc_grid G = build_grid(w, n, w->x0, w->y0, w->z0,
-                                    cs_sc_pair_reach(p->self_thickness, 2.0f * mean) + extra + 2.0f * L, threads);
+                                    cs_sc_pair_reach(p->self_thickness, 2.0f * mean) + extra + Lo + lmean, threads);
     memcpy(w->xr, w->x0, sizeof(float) * 3 * (size_t)n);
     w->ref_thickness = p->self_thickness;
     w->have_ref = 0; /* until they are whole */
@@ -478,7 +484,8 @@ static int32_t find_lists(cs_sc_work *w, const cs_phys *p, const float *L0, floa
         int64_t len = 0;
         for (int32_t v = c * CHUNK; v < end; v++)
             LIST_FILL(&w->ol, c, len, v, keys, dists, cap,
-                      cs_sc_found(p, &G, L0, w->x0, w->y0, w->z0, w->intact, w->eh, L, extra, v, keys, dists, cap));
+                      cs_sc_found(p, &G, L0, w->x0, w->y0, w->z0, w->intact, w->eh, w->ell, Lo, extra, v, keys, dists,
+                                  cap));
     });
     sc_lists *out[2] = {&w->bl, &w->rl};
     for (int l = 0; l < 2; l++)
@@ -586,11 +593,7 @@ cs_status cs_sc_part_rate(cs_sc_work **wp, const cs_phys *p, const cs_state *s, 
     if (!(Vm < 3.0e38f)) return CS_OK; /* not finite: the step reports it */
     const float *L0 = s->L0;
     int listed = !over && w->have_ref && w->ref_thickness == th && drift(w, n, threads) <= room(p);
-    float L = -1.0f;
-    if (!listed) {
-        L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads);
-        listed = find_lists(w, p, L0, L, threads) == 0;
-    }
+    if (!listed) listed = find_lists(w, p, L0, threads) == 0;
     float most = 0.0f;
     if (listed) {
         CS_PARALLEL_FOR(threads, schedule(dynamic, 64) reduction(max : most),
@@ -602,6 +605,7 @@ cs_status cs_sc_part_rate(cs_sc_work **wp, const cs_phys *p, const cs_state *s, 
         });
     } else { /* one thread, as the passes without lists: every repelling pair within the reach of the fastest */
         const float rad = cs_sc_near_reach(th, h, Vm);
+        const float L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads);
         const cs_sc_grid G = build_grid(w, n, w->x0, w->y0, w->z0, rad + 2.0f * L, threads);
         for (int32_t v = 0; v < n; v++) {
             const int32_t k = repel_keys(w, p, L0, &G, rad, v);
@@ -632,7 +636,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
     int32_t lost = 0, finds = 0;
     int listed = !over && w->have_ref && w->ref_thickness == th && drifted <= room(p);
     if (!listed) {
-        lost = find_lists(w, p, L0, LONGEST(), threads), finds = 1;
+        lost = find_lists(w, p, L0, threads), finds = 1;
         listed = lost == 0;
         drifted = 0.0f; /* (found at x0) */
     }
@@ -677,7 +681,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         });
         M = displacements(w, s, threads, &c, &Ma, &over, &drifted);
         if (listed && over) {
-            lost += find_lists(w, p, L0, LONGEST(), threads), finds++;
+            lost += find_lists(w, p, L0, threads), finds++;
             listed = lost == 0;
             drifted = 0.0f;
         }
@@ -720,7 +724,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         a = b, b = t;
         if (changed && listed && !spreads(w, a, c, n, threads)) {
             for (int32_t v = 0; v < n; v++) w->e[v] = cs_sc_max(w->e[v], w->eu[v] - slack(p));
-            lost += find_lists(w, p, L0, LONGEST(), threads), finds++;
+            lost += find_lists(w, p, L0, threads), finds++;
             listed = lost == 0;
             drifted = 0.0f;
             if (!listed) G = build_grid(w, n, w->x0, w->y0, w->z0, r + 2.0f * LONGEST(), threads);

@@ -916,6 +916,21 @@ SIM_HD static inline uint8_t cs_sc_intact(const float *L0, int32_t nx, int32_t n
     return (uint8_t)bits;
 }
 
+/* How far vertex v's own primitives (its quad's triangles, its edges: physics.h's quad) reach from
+ * it at x: the longest of its three edges to the right, up and diagonally, intact or not. */
+SIM_HD static inline float cs_sc_own_reach(const cs_phys *ph, const float *x, const float *y, const float *z, int32_t v)
+{
+    const int32_t nx = ph->nx, i = v % nx, j = v / nx;
+    const cs_vec3 xv = cs_sc_at(x, y, z, v);
+    float m = 0.0f;
+    for (int e = 0; e < 3; e++) {
+        if ((e != 1 && i + 1 >= nx) || (e != 0 && j + 1 >= ph->ny)) continue;
+        const int32_t o = e == 0 ? v + 1 : e == 1 ? v + nx : v + nx + 1;
+        m = cs_sc_max(m, cs_len(cs_sub(cs_sc_at(x, y, z, o), xv)));
+    }
+    return m;
+}
+
 /* Whether vertex f finds the pairs it owns with vertex u (cs_sc_found): the one of the two whose
  * spread eh is the larger does, the lower id on a tie. */
 SIM_HD static inline int cs_sc_finds(const float *eh, int32_t f, int32_t u)
@@ -930,16 +945,18 @@ SIM_HD static inline int cs_sc_finds(const float *eh, int32_t f, int32_t u)
  * relative to one another by at most eh[a] + eh[b] and it can pass cs_sc_vf_cut's or cs_sc_ee_cut's reach
  * only within cs_sc_pair_reach(thickness, eh[a] + eh[b]) of the other owner's primitive. Each
  * pair is found once, by the owner that cs_sc_finds picks, which looks within its own reach
- * (2 eh[v]) plus twice the longest edge L: a vertex that barely moves looks about it, one that
- * moves far looks far, and a pair between them is found from the far one. extra widens every
+ * (2 eh[v]) plus its own primitives' reach ell[v] (cs_sc_own_reach) and the longest of any, Lo:
+ * a vertex that barely moves looks about it, one that moves far looks far, and a pair between
+ * them is found from the far one. A candidate u is taken further only within the reach plus
+ * ell[u] + ell[v] (its primitives and v's lie within those of each). extra widens every
  * reach (the room for the cloth to move before the lists are found again). Every pair that shares
  * no vertex, grid neighbours included (the bound's; the repulsion takes those that repel), of the
  * primitives intact (cs_sc_intact of every vertex). Keys into keys and their distances at x0
  * into dists (room for cap, unsorted); returns how many there are (past cap too). */
 SIM_HD static inline int32_t cs_sc_found(const cs_phys *ph, const cs_sc_grid *G, const float *L0, const float *x0,
                                          const float *y0, const float *z0, const uint8_t *intact, const float *eh,
-                                         float L, float extra, int32_t v, int64_t *keys, float *dists,
-                                         int32_t cap)
+                                         const float *ell, float Lo, float extra, int32_t v, int64_t *keys,
+                                         float *dists, int32_t cap)
 {
     const int32_t nx = ph->nx, ny = ph->ny, vi = v % nx, vj = v / nx;
     const float th = ph->self_thickness, ev = eh[v];
@@ -962,18 +979,19 @@ SIM_HD static inline int32_t cs_sc_found(const cs_phys *ph, const cs_sc_grid *G,
     cs_vec3 cv[2][3];
     for (int k = 0; k < 2; k++)
         for (int q = 0; q < 3 && ((fv >> k) & 1); q++) cv[k][q] = cs_sc_at(x0, y0, z0, tv[k][q]);
-    CS_SC_FOR_WITHIN(G, x0, y0, z0, xv, cs_sc_pair_reach(th, 2.0f * ev) + extra + 2.0f * L, u, {
-        if (u != v && cs_sc_finds(eh, v, u)) {
-            const float r = cs_sc_pair_reach(th, ev + eh[u]) + extra;
-            const cs_vec3 xu = cs_sc_at(x0, y0, z0, u);
+    const float lv = ell[v];
+    CS_SC_FOR_WITHIN(G, x0, y0, z0, xv, cs_sc_pair_reach(th, 2.0f * ev) + extra + lv + Lo, u, {
+        const float r = cs_sc_pair_reach(th, ev + eh[u]) + extra, lu = ell[u];
+        const cs_vec3 xu = cs_sc_at(x0, y0, z0, u);
+        const float D = cs_len(cs_sub(xu, xv));
+        if (u != v && cs_sc_may(D, r, lu + lv) && cs_sc_finds(eh, v, u)) {
             int32_t t[2][3];
             const int32_t ui = u % nx, uj = u / nx;
             const int32_t u00 = uj * nx + ui, f = intact[u] & 3;
             t[0][0] = u00, t[0][1] = u00 + 1, t[0][2] = u00 + nx + 1;
             t[1][0] = u00, t[1][1] = u00 + nx + 1, t[1][2] = u00 + nx;
-            const float D = cs_len(cs_sub(xu, xv));
             float bw[3];
-            for (int k = 0; k < 2 && cs_sc_may(D, r, L); k++) { /* v against u's triangles */
+            for (int k = 0; k < 2 && cs_sc_may(D, r, lu); k++) { /* v against u's triangles */
                 if (!((f >> k) & 1) || t[k][0] == v || t[k][1] == v || t[k][2] == v) continue;
                 const cs_vec3 c[3] = {cs_sc_at(x0, y0, z0, t[k][0]), cs_sc_at(x0, y0, z0, t[k][1]),
                                       cs_sc_at(x0, y0, z0, t[k][2])};
@@ -981,7 +999,7 @@ SIM_HD static inline int32_t cs_sc_found(const cs_phys *ph, const cs_sc_grid *G,
                 if (cs_sc_box_gap(xv, c, 3) < r && (d = cs_sc_point_tri(xv, c[0], c[1], c[2], bw)) < r)
                     cs_sc_keep_at(keys, dists, cap, &n, cs_sc_pair_key(ph, v, 2 * (uj * (nx - 1) + ui) + k), d);
             }
-            for (int k = 0; k < 2 && cs_sc_may(D, r, L); k++) { /* u against v's triangles */
+            for (int k = 0; k < 2 && cs_sc_may(D, r, lv); k++) { /* u against v's triangles */
                 if (!((fv >> k) & 1) || tv[k][0] == u || tv[k][1] == u || tv[k][2] == u) continue;
                 float d;
                 if (cs_sc_box_gap(xu, cv[k], 3) < r && (d = cs_sc_point_tri(xu, cv[k][0], cv[k][1], cv[k][2], bw)) < r)
