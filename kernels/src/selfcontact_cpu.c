@@ -68,7 +68,8 @@ static void lists_free(sc_lists *l, int32_t n)
     free(l->count);
 }
 
-/* The most keys a set of lists may hold: CS_SC_LIST_KEYS a vertex on average, wherever they lie
+/* The most keys a set of lists may hold: CS_SC_LIST_KEYS a vertex on average (and at least
+ * CS_SC_LIST_FLOOR, list_budget), wherever they lie
  * (where the cloth moves fast, its chunks hold many more; the chunks' buffers grow in parallel
  * against one integer budget, so which chunk passes it first may vary, but past it every list is
  * given up and the pass's bits do not depend on the lists). A cloth finer than its thickness
@@ -78,8 +79,20 @@ static void lists_free(sc_lists *l, int32_t n)
  * lost - so that what a step holds stays bounded, and cs_scene_memory counts it
  * (cs_sc_work_bytes). */
 #define CS_SC_LIST_KEYS 341
+/* A cloth of up to 128 x 128 may hold as many as one of that size: the daemon's default 64 x 64
+ * scene, a stone landing on it every three seconds, passed 341 keys a vertex as each landed (the
+ * stone's cloth swinging by up to 67 mm a substep about the median, a quarter of it by more than
+ * 2 cm), and the passes without lists ran it at 0.03 of real time; with four times the keys at
+ * 0.32-0.38 (build machine, 2026-12-07). */
+#define CS_SC_LIST_FLOOR ((int64_t)128 * 128 * CS_SC_LIST_KEYS)
 
 static int64_t chunk_most(void) { return (int64_t)CHUNK * CS_SC_LIST_KEYS; }
+
+static int64_t list_budget(int32_t n)
+{
+    const int64_t per = (int64_t)chunks(n) * chunk_most();
+    return per > CS_SC_LIST_FLOOR ? per : CS_SC_LIST_FLOOR;
+}
 
 static int lists_alloc(sc_lists *l, int32_t n, int dists)
 {
@@ -90,7 +103,7 @@ static int lists_alloc(sc_lists *l, int32_t n, int dists)
     l->count = malloc(sizeof(int32_t) * ((size_t)n + 1));
     l->nchunks = chunks(n);
     atomic_init(&l->used, 0);
-    l->budget = (int64_t)chunks(n) * chunk_most();
+    l->budget = list_budget(n);
     return l->chunk && l->cap && l->first && l->count;
 }
 
@@ -233,12 +246,13 @@ static uint32_t table_size(int32_t n)
 
 uint64_t cs_sc_work_bytes(int32_t n)
 {
-    const uint64_t v = (uint64_t)n, c = (uint64_t)chunks(n) + 1, keys = sizeof(int64_t) * (uint64_t)chunk_most();
-    /* three sets of lists, each chunk's full, and one chunk's growing into a new buffer */
-    const uint64_t lists = 3 * (c * (sizeof(int64_t *) + sizeof(int64_t) + keys) +
+    const uint64_t v = (uint64_t)n, c = (uint64_t)chunks(n) + 1, keys = sizeof(int64_t) * (uint64_t)chunk_most(),
+                   full = sizeof(int64_t) * (uint64_t)list_budget(n);
+    /* three sets of lists, their budget full, and one chunk's growing into a new buffer */
+    const uint64_t lists = 3 * (c * (sizeof(int64_t *) + sizeof(int64_t)) + full + keys +
                                 (v + 1) * (sizeof(int64_t) + sizeof(int32_t))) + keys +
-                           c * (sizeof(float *) + keys / 2) /* the finders' distances */;
-    return sizeof(cs_sc_work) + lists + sizeof(float) * 23 * v + 2 * v /* look, intact */ + sizeof(uint32_t) * v +
+                           c * sizeof(float *) + (full + keys) / 2 /* the finders' distances */;
+    return sizeof(cs_sc_work) + lists + sizeof(float) * 24 * v + 2 * v /* look, intact */ + sizeof(uint32_t) * v +
            sizeof(int32_t) * ((uint64_t)table_size(n) + 1 + 4 * v);
 }
 

@@ -105,7 +105,8 @@ test('the largest scene max_state_mb 8 accepts grows RSS by less than 8 MiB, wor
 });
 
 // The workspaces count while the parameters use them (kernels/include/clothsim/clothsim.h,
-// cs_scene_memory): self_collision's pair lists full (8 KiB a vertex), implicit_euler's workspace.
+// cs_scene_memory): self_collision's pair lists full (8 KiB a vertex, at least those of a 128 x 128
+// cloth), implicit_euler's workspace.
 test('max_state_mb counts the workspaces the parameters use: a change past it is 422 naming the parameter', async () => {
   // velocity_verlet to begin with: the explicit integrators need no workspace
   const d = await start(['--paused', '--nx', '48', '--ny', '48', '--auto-drop-interval', '0', '--max-state-mb', '16',
@@ -115,7 +116,8 @@ test('max_state_mb counts the workspaces the parameters use: a change past it is
     return Number(/^clothd_state_bytes (\S+)$/m.exec(text)[1]);
   };
   const b0 = await stateBytes();
-  // 48 x 48 = 2304 vertices: self_collision's lists alone may take 2304 x 3 x 341 x 8 bytes = 18.9 MB
+  // 48 x 48 = 2304 vertices: self_collision's lists alone may take those of a 128 x 128 cloth,
+  // 128 x 128 x 3 x 341 x 8 bytes = 134 MB
   const self = await call(d, 'PATCH', '/v1/params', { self_collision: true });
   assert.equal(self.status, 422, self.text);
   assert.equal(self.json.param, 'self_collision');
