@@ -176,24 +176,17 @@ __global__ void __launch_bounds__(SC_THREADS) k_sc_far(const float *__restrict__
     if (t == 0) part[8 * blockIdx.x] = buf[0], part[8 * blockIdx.x + 1] = buf[SC_THREADS];
 }
 
-/* A block's longest intact render edge at x0 (longest_edge of selfcontact_cpu.c) into part[8 b]. */
+/* A block's longest intact render edge at x0 (cs_sc_own_reach, as longest_edge of selfcontact_cpu.c)
+ * into part[8 b]. */
 __global__ void __launch_bounds__(SC_THREADS) k_sc_edge(const cuda_scene *__restrict__ sc, const float *__restrict__ x0,
                                                         const float *__restrict__ L0, float *part)
 {
     CS_DYNAMIC_SHARED(float, buf);
     const cs_phys *p = &sc->p;
     const int t = (int)threadIdx.x;
-    const int32_t v = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x), nx = p->nx, ny = p->ny, n = p->n;
+    const int32_t v = (int32_t)(blockIdx.x * blockDim.x + threadIdx.x), n = p->n;
     float most = 0.0f;
-    if (v < n) {
-        const int32_t i = v % nx, j = v / nx;
-        for (int e = 0; e < 3; e++) {
-            if ((e != 1 && i + 1 >= nx) || (e != 0 && j + 1 >= ny) || !cs_sc_edge_on(L0, nx, ny, i, j, e)) continue;
-            const int32_t o = e == 0 ? v + 1 : e == 1 ? v + nx : v + nx + 1;
-            const float l = cs_len(cs_sub(cs_sc_at(x0, x0 + n, x0 + 2 * (size_t)n, o), cs_sc_at(x0, x0 + n, x0 + 2 * (size_t)n, v)));
-            most = l > most ? l : most;
-        }
-    }
+    if (v < n) most = cs_sc_own_reach(p, L0, x0, x0 + n, x0 + 2 * (size_t)n, v);
     buf[t] = most;
     for (int s = SC_THREADS / 2; s > 0; s >>= 1) {
         __syncthreads();

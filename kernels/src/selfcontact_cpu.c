@@ -336,6 +336,20 @@ static cs_vec3 centre_of(const float *const a[3], const float *const b[3], int32
     return cs_v3(buf[0][k / 2], buf[1][k / 2], buf[2][k / 2]);
 }
 
+/* Vertex v's spread |s d - c| for its scale s. */
+static float spread_of(const cs_sc_work *w, int32_t v, float s, cs_vec3 c)
+{
+    return cs_len(cs_sub(cs_scale(cs_sc_at(w->dx, w->dy, w->dz, v), s), c));
+}
+
+/* How far vertex v's x0 has drifted from where the lists were found, about a centre c of all the
+ * drifts. */
+static float drift_of(const cs_sc_work *w, int32_t n, int32_t v, cs_vec3 c)
+{
+    const float *xr = w->xr;
+    return cs_len(cs_sub(cs_v3(w->x0[v] - xr[v], w->y0[v] - xr[n + v], w->z0[v] - xr[2 * n + v]), c));
+}
+
 /* d = x - x0. Returns the farthest a vertex moves from a centre (centre_of: two vertices move apart
  * by at most twice it, whatever the cloth's motion as a whole), and into *far_most the largest
  * displacement itself (the bound's cuts scale displacements, so it is what bounds two vertices'
@@ -357,15 +371,13 @@ static float displacements(cs_sc_work *w, const cs_state *s, int threads, cs_vec
     int past = 0;
     CS_PARALLEL_FOR(threads, schedule(static) reduction(max : most, abs_most, far) reduction(| : past),
     for (int32_t v = 0; v < n; v++) {
-        const cs_vec3 d = cs_v3(w->dx[v], w->dy[v], w->dz[v]);
-        const float a = cs_len(d);
-        w->e[v] = cs_len(cs_sub(cs_scale(d, 1.0f), c));
+        const float a = cs_len(cs_sc_at(w->dx, w->dy, w->dz, v));
+        w->e[v] = spread_of(w, v, 1.0f, c);
         most = w->e[v] > most ? w->e[v] : most;
         abs_most = a > abs_most ? a : abs_most;
         past |= !(w->e[v] <= w->eu[v]);
         if (ref) {
-            const cs_vec3 e = cs_v3(w->x0[v] - xr[v], w->y0[v] - xr[n + v], w->z0[v] - xr[2 * n + v]);
-            const float f = cs_len(cs_sub(e, cr));
+            const float f = drift_of(w, n, v, cr);
             far = f > far ? f : far;
         }
     });
@@ -385,8 +397,7 @@ static float drift(const cs_sc_work *w, int32_t n, int threads)
     float most = 0.0f;
     CS_PARALLEL_FOR(threads, schedule(static) reduction(max : most),
     for (int32_t v = 0; v < n; v++) {
-        const cs_vec3 e = cs_v3(w->x0[v] - xr[v], w->y0[v] - xr[n + v], w->z0[v] - xr[2 * n + v]);
-        const float l = cs_len(cs_sub(e, c));
+        const float l = drift_of(w, n, v, c);
         most = l > most ? l : most;
     });
     return most;
@@ -399,27 +410,22 @@ static int spreads(cs_sc_work *w, const float *s, cs_vec3 centre, int32_t n, int
     int over = 0;
     CS_PARALLEL_FOR(threads, schedule(static) reduction(| : over),
     for (int32_t v = 0; v < n; v++) {
-        w->e[v] = cs_len(cs_sub(cs_scale(cs_sc_at(w->dx, w->dy, w->dz, v), s[v]), centre));
+        w->e[v] = spread_of(w, v, s[v], centre);
         over |= !(w->e[v] <= w->eu[v]);
     });
     return !over;
 }
 
-/* The longest intact render edge at positions x, y, z (each vertex's three own edges). */
+/* The longest intact render edge at positions x, y, z (each vertex's three own edges,
+ * cs_sc_own_reach). */
 static float longest_edge(const cs_phys *p, const float *x, const float *y, const float *z, const float *L0,
                           int threads)
 {
     float most = 0.0f;
-    const int32_t nx = p->nx, ny = p->ny;
     CS_PARALLEL_FOR(threads, schedule(static) reduction(max : most),
     for (int32_t v = 0; v < p->n; v++) {
-        const int32_t i = v % nx, j = v / nx;
-        for (int e = 0; e < 3; e++) {
-            if ((e != 1 && i + 1 >= nx) || (e != 0 && j + 1 >= ny) || !cs_sc_edge_on(L0, nx, ny, i, j, e)) continue;
-            const int32_t o = e == 0 ? v + 1 : e == 1 ? v + nx : v + nx + 1;
-            const float l = cs_len(cs_sub(cs_sc_at(x, y, z, o), cs_sc_at(x, y, z, v)));
-            most = l > most ? l : most;
-        }
+        const float l = cs_sc_own_reach(p, L0, x, y, z, v);
+        most = l > most ? l : most;
     });
     return most;
 }
@@ -477,7 +483,7 @@ static int32_t find_lists(cs_sc_work *w, const cs_phys *p, const float *L0, int 
         if (j + 1 < ny) m = cs_sc_max(m, w->eu[v + nx]);
         if (i + 1 < nx && j + 1 < ny) m = cs_sc_max(m, w->eu[v + nx + 1]);
         w->eh[v] = m;
-        w->ell[v] = cs_sc_own_reach(p, w->x0, w->y0, w->z0, v);
+        w->ell[v] = cs_sc_own_reach(p, NULL, w->x0, w->y0, w->z0, v);
     });
     float Lo = 0.0f, lsum = 0.0f; /* the longest own reach, and the mean (the cells' size only) */
     for (int32_t v = 0; v < n; v++) Lo = cs_sc_max(Lo, w->ell[v]), lsum += w->ell[v];

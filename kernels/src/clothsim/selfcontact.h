@@ -917,14 +917,16 @@ SIM_HD static inline uint8_t cs_sc_intact(const float *L0, int32_t nx, int32_t n
 }
 
 /* How far vertex v's own primitives (its quad's triangles, its edges: physics.h's quad) reach from
- * it at x: the longest of its three edges to the right, up and diagonally, intact or not. */
-SIM_HD static inline float cs_sc_own_reach(const cs_phys *ph, const float *x, const float *y, const float *z, int32_t v)
+ * it at x: the longest of its three edges to the right, up and diagonally - with L0 the intact
+ * ones only, without it intact or not. */
+SIM_HD static inline float cs_sc_own_reach(const cs_phys *ph, const float *L0, const float *x, const float *y,
+                                           const float *z, int32_t v)
 {
-    const int32_t nx = ph->nx, i = v % nx, j = v / nx;
+    const int32_t nx = ph->nx, ny = ph->ny, i = v % nx, j = v / nx;
     const cs_vec3 xv = cs_sc_at(x, y, z, v);
     float m = 0.0f;
     for (int e = 0; e < 3; e++) {
-        if ((e != 1 && i + 1 >= nx) || (e != 0 && j + 1 >= ph->ny)) continue;
+        if ((e != 1 && i + 1 >= nx) || (e != 0 && j + 1 >= ny) || (L0 && !cs_sc_edge_on(L0, nx, ny, i, j, e))) continue;
         const int32_t o = e == 0 ? v + 1 : e == 1 ? v + nx : v + nx + 1;
         m = cs_sc_max(m, cs_len(cs_sub(cs_sc_at(x, y, z, o), xv)));
     }
