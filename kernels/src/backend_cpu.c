@@ -976,23 +976,27 @@ static int64_t take_torn(cpu_ctx *c)
     return t;
 }
 
+/* A refresh (one force evaluation, at creation, a load or a change from outside) runs on the
+ * calling thread alone: a thread that opens an OpenMP team keeps a pool of workers, and once a
+ * process has more pool threads than cores libgomp spins only briefly at its barriers and sleeps in
+ * the kernel instead - the daemon, which creates its first scene on its main thread and steps on
+ * its sim thread, paid that at every barrier of every step (docs/developing.md, "The daemon's
+ * threads"). Steps are the only parallel regions. */
 static cs_status cpu_refresh(void *ctx, const cs_model *m, cs_state *s)
 {
     cpu_ctx *c = ctx;
     const cs_phys *p = &m->phys;
-    const int threads = threads_of(m);
     cs_sc_forget(c->sc);
     if (p->integrator == CS_IMPLICIT_EULER) {
         if (reserve(c, m, s) != CS_OK) return CS_E_NOMEM;
-        const cs_status st = cs_im_refresh(&c->im, m, s, threads);
+        const cs_status st = cs_im_refresh(&c->im, m, s, 1);
         take_torn(c);
         return st;
     }
-    thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(threads, m->phys.nx) : NULL;
+    thread_buf **tb = reserve(c, m, s) == CS_OK ? scratch_take(1, m->phys.nx) : NULL;
     if (!tb) return CS_E_NOMEM;
-#pragma omp parallel num_threads(threads)
-    force_pass(c, tb[thread_id()], p, s, 0, 0);
-    scratch_give(tb, threads);
+    force_pass(c, tb[0], p, s, 0, 1);
+    scratch_give(tb, 1);
     rocks_forces(p, s, c->partials, 0.0f);
     take_torn(c);
     return CS_OK;

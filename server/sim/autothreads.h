@@ -18,8 +18,7 @@
  *    as if each thread sped the step up in full (which never gives one back too early);
  *  - one fewer, too, when a unit of work was measured to cost at least AUTOTHREADS_GAIN of what it
  *    cost on one thread fewer: the thread buys nothing, so the scenes step faster without it
- *    (measured on the build machine: a 128 x 128 cloth with stones under implicit_euler ran at
- *    0.79-0.82 of real time on one thread and 0.65-0.69 on two). Such a count is tried again
+ *    (a thread that buys less than its barriers cost). Such a count is tried again
  *    after AUTOTHREADS_PROBE windows, since the scenes change.
  * A wrong guess corrects itself: the next window measures it. The engine's results do not depend
  * on the count (cs_sim_set_threads), so a change mid-run changes no bits.
