@@ -79,7 +79,7 @@ static void usage(FILE *f)
             "usage: clothd-bench [--backend cpu|cuda|auto] [--json] [--threads N] [--seconds S]\n"
             "                    [--sizes 64,128,256,512] [--rocks 0,16] [--contact surface,vertex]\n"
             "                    [--integrator velocity_verlet|symplectic_euler|implicit_euler] [--model]\n"
-            "                    [--self-collision] [--crumple] [--frames F]\n"
+            "                    [--self-collision] [--crumple] [--frames F] [--set NAME=VALUE ...]\n"
             "       clothd-bench --batch 1,4,16,64 [--backend B] [--sizes 32,64] [--threads N] [--seconds S]\n"
             "                    [--frames F --only batch|alone] [--read] [--json]\n");
 }
@@ -398,6 +398,42 @@ static int parse_list(const char *s, int *out, int cap)
     return n;
 }
 
+/* The --set options: live parameters, each NAME=VALUE (a number, or an enum's name). */
+#define MAX_SETS 16
+static const char *sets[MAX_SETS];
+static int n_sets;
+
+/* Applies the --set options to p; prints why and returns -1 when one is not a live parameter or is
+ * out of its range. */
+static int apply_sets(cs_params *p)
+{
+    for (int k = 0; k < n_sets; k++) {
+        char name[64];
+        const char *eq = strchr(sets[k], '=');
+        const size_t len = eq ? (size_t)(eq - sets[k]) : 0;
+        const cs_param_info *pi = NULL;
+        if (eq && len < sizeof name) {
+            memcpy(name, sets[k], len);
+            name[len] = 0;
+            pi = cs_param_find(name);
+        }
+        if (!pi || pi->kind != CS_KIND_LIVE || pi->type == CS_T_VEC3) {
+            fprintf(stderr, "clothd-bench: --set %s: not NAME=VALUE of a live parameter with one value\n", sets[k]);
+            return -1;
+        }
+        double v[3] = {0.0, 0.0, 0.0};
+        char *end = NULL;
+        const int choice = pi->choices ? cs_param_choice(pi, eq + 1) : -1;
+        v[0] = choice >= 0 ? (double)choice : strtod(eq + 1, &end);
+        char why[256];
+        if ((choice < 0 && (end == eq + 1 || *end)) || cs_param_set(pi, p, v, why, sizeof why) != 0) {
+            fprintf(stderr, "clothd-bench: --set %s: %s\n", sets[k], choice < 0 && (end == eq + 1 || *end) ? "not a number" : why);
+            return -1;
+        }
+    }
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     const char *backend = "cpu", *sizes_arg = "64,128,256,512", *integrator = NULL, *rocks_arg = "0,16";
@@ -424,6 +460,7 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--integrator") == 0 && val) integrator = val, i++;
         else if (strcmp(a, "--self-collision") == 0) self_collision = 1;
         else if (strcmp(a, "--crumple") == 0) crumple = 1;
+        else if (strcmp(a, "--set") == 0 && val && n_sets < MAX_SETS) sets[n_sets++] = val, i++;
         else if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             return 0;
@@ -524,6 +561,7 @@ int main(int argc, char **argv)
                 sc.height = 0.1f + 0.5f * sc.size_y;
                 p.wind[1] = 2.0f;
             }
+            if (apply_sets(&p) != 0) return 2;
             cs_sim *sim = NULL;
             char err[256];
             /* The model needs the scene and rocks only: a CPU simulation holds them. */
