@@ -51,9 +51,11 @@ int autothreads_turn(autothreads *a, double now, int greedy)
     const double wall = now - a->start;
     if (wall < AUTOTHREADS_WINDOW) return a->now;
     const double busy = a->busy / wall;
-    if (a->work > 0) {
-        const double c = a->busy / a->work;
-        a->cost[a->now] = a->cost[a->now] > 0 ? 0.5 * (a->cost[a->now] + c) : c;
+    if (a->work > 0) { /* this count's windows, summed with the older ones fading */
+        const int t = a->now;
+        a->busy_sum[t] = AUTOTHREADS_FADE * a->busy_sum[t] + a->busy;
+        a->work_sum[t] = AUTOTHREADS_FADE * a->work_sum[t] + a->work;
+        a->cost[t] = a->busy_sum[t] / a->work_sum[t];
     }
     if (!greedy && a->work > 0) {
         const int t = a->now;

@@ -8,8 +8,10 @@
  * scenes barely keep up, and gives one back when the others would keep up without it.
  *
  * It looks at windows of AUTOTHREADS_WINDOW s of wall time: `busy`, the share of the window spent
- * stepping, and the compute per unit of work (vertex-substeps) last measured at each count, which
- * says what a thread buys on this machine and these scenes:
+ * stepping, and the compute per unit of work (vertex-substeps, or under implicit_euler what the
+ * solver did: simloop.c's work_of) measured at each count - the count's windows summed, each older
+ * one weighing AUTOTHREADS_FADE less, so that one window whose stones cost more than their units
+ * say does not decide alone - which says what a thread buys on this machine and these scenes:
  *  - a step in progress or a scene at max_speed (greedy) takes every thread, at once;
  *  - busy above AUTOTHREADS_UP: one thread more (when none is left, the scenes fall behind as they
  *    would on a fixed count), unless that count was measured to buy too little (below);
@@ -33,18 +35,20 @@
 #define AUTOTHREADS_MOST 256   /* the most threads it counts to (the `threads` setting's range) */
 #define AUTOTHREADS_GAIN 0.95  /* a thread more must cut the compute per work below this share */
 #define AUTOTHREADS_PROBE 30   /* windows before a count that bought too little is tried again */
+#define AUTOTHREADS_FADE 0.9   /* weight of a count's older windows in its cost, each window on */
 
 typedef struct autothreads {
     int most, now;
     long windows, probe;               /* windows decided; the first one that may try a count again */
     double start;                      /* wall clock of the window's start (< 0: none yet) */
-    double busy, work;                 /* compute s and vertex-substeps in the window */
-    double cost[AUTOTHREADS_MOST + 1]; /* compute s per vertex-substep last measured at each count (0: none) */
+    double busy, work;                 /* compute s and units of work in the window */
+    double busy_sum[AUTOTHREADS_MOST + 1], work_sum[AUTOTHREADS_MOST + 1]; /* each count's windows, fading */
+    double cost[AUTOTHREADS_MOST + 1]; /* compute s per unit of work measured at each count: busy_sum / work_sum (0: none) */
 } autothreads;
 
 /* Starts on one thread, of at most `most` (clamped to 1..AUTOTHREADS_MOST). */
 void autothreads_init(autothreads *a, int most);
-/* A call to the engine at the current count: `seconds` of compute for `work` vertex-substeps. */
+/* A call to the engine at the current count: `seconds` of compute for `work` units (vertex-substeps). */
 void autothreads_ran(autothreads *a, double seconds, double work);
 /* At a turn of the loop at wall time `now` (s, monotonic), before it steps: the count to step
  * with. greedy: a step is in progress or a scene runs at max_speed. */

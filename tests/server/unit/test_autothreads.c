@@ -83,6 +83,29 @@ static void test_a_thread_that_buys_nothing_goes_back(void **unused)
     assert_int_equal(window(&a, &t, 0.96, 1.6e6, 0), 2);
 }
 
+/* A count's cost is its windows summed, the older ones fading: one window that cost far more a
+ * unit (a stone's landing does work its units do not count) does not send back a thread that
+ * paid in the windows before it, where the last window alone, or half of it, would. */
+static void test_one_costly_window_does_not_decide(void **unused)
+{
+    (void)unused;
+    autothreads a;
+    autothreads_init(&a, 2);
+    double t = 0;
+    autothreads_turn(&a, t, 0);
+    assert_int_equal(window(&a, &t, 0.98, 1e6, 0), 2); /* behind on one, 0.98 us a unit */
+    for (int k = 0; k < 5; k++) assert_int_equal(window(&a, &t, 0.95, 1.3e6, 0), 2); /* 0.73 us on two */
+    /* 2.5 us a unit for one window: (0.73 + 2.5) / 2 would pass 0.95 x 0.98; the sums give 0.87 */
+    assert_int_equal(window(&a, &t, 0.99, 4e5, 0), 2);
+    assert_true(a.cost[2] < AUTOTHREADS_GAIN * a.cost[1]);
+    /* two that cost more a unit than one, window after window, still send it back */
+    int k = 0;
+    while (window(&a, &t, 0.99, 8e5, 0) == 2) {
+        k++;
+        assert_true(k < 10);
+    }
+}
+
 static void test_greedy_takes_every_thread(void **unused)
 {
     (void)unused;
@@ -123,6 +146,7 @@ int main(void)
         cmocka_unit_test(test_more_while_behind_then_back),
         cmocka_unit_test(test_unmeasured_count_assumed_full_speedup),
         cmocka_unit_test(test_a_thread_that_buys_nothing_goes_back),
+        cmocka_unit_test(test_one_costly_window_does_not_decide),
         cmocka_unit_test(test_greedy_takes_every_thread),
         cmocka_unit_test(test_idle_and_bounds),
     };
