@@ -2,6 +2,9 @@
  * every entry point refuses bad input with a code and leaves the state as it was. */
 #include "testkit.h"
 
+#include <dirent.h>
+#include <pthread.h>
+
 static void small(cs_scene *sc, cs_params *p)
 {
     cs_scene_default(sc);
@@ -229,6 +232,72 @@ static void test_threads_setting(void **unused)
     cs_sim_destroy(sim);
 }
 
+/* The threads this process runs now (/proc/self/task). */
+static int process_threads(void)
+{
+    DIR *d = opendir("/proc/self/task");
+    if (!d) return -1;
+    int n = 0;
+    for (struct dirent *e; (e = readdir(d)) != NULL;) n += e->d_name[0] != '.';
+    closedir(d);
+    return n;
+}
+
+/* What outside_steps saw: the process's threads before, after the calls that refresh, after a
+ * step; and whether the backend runs OpenMP. */
+typedef struct {
+    int before, refreshed, stepped, openmp, ok;
+} threads_seen;
+
+/* On a thread that has never opened an OpenMP team: a simulation on three threads created,
+ * switched between integrators and loaded from its snapshot, then stepped. */
+static void *outside_steps(void *arg)
+{
+    threads_seen *t = arg;
+    cs_scene sc;
+    cs_params p;
+    small(&sc, &p);
+    p.integrator = CS_IMPLICIT_EULER;
+    t->before = process_threads();
+    cs_sim *sim = NULL;
+    char err[256];
+    if (cs_sim_create(&sc, &p, "cpu", &sim, err, sizeof err) != CS_OK) return NULL;
+    size_t len = 0;
+    unsigned char *snap = malloc(cs_snapshot_size(sim));
+    t->ok = cs_sim_set_threads(sim, 3) == CS_OK && snap &&
+            cs_snapshot_save(sim, snap, cs_snapshot_size(sim), &len) == CS_OK;
+    p.integrator = CS_VELOCITY_VERLET;
+    t->ok = t->ok && cs_sim_set_params(sim, &p) == CS_OK;
+    p.integrator = CS_IMPLICIT_EULER;
+    t->ok = t->ok && cs_sim_set_params(sim, &p) == CS_OK && cs_snapshot_load(sim, snap, len) == CS_OK;
+    t->refreshed = process_threads();
+    t->ok = t->ok && cs_sim_step(sim, 1) == CS_OK;
+    t->stepped = process_threads();
+    t->openmp = strstr(cs_sim_device(sim), "OpenMP") != NULL;
+    free(snap);
+    cs_sim_destroy(sim);
+    return NULL;
+}
+
+/* Only a step opens an OpenMP team: creating a simulation, changing its parameters and loading a
+ * snapshot compute on the calling thread alone. A thread that opens a team keeps a pool of workers,
+ * and once a process holds more pool threads than cores libgomp sleeps at the step's barriers
+ * rather than spinning - the daemon creates its first scene on its main thread and steps on its
+ * sim thread (docs/developing.md, "The daemon's threads"). The step, on three threads, starts its
+ * team: the count below can see one. */
+static void test_only_steps_open_teams(void **unused)
+{
+    (void)unused;
+    threads_seen t = {0, 0, 0, 0, 0};
+    pthread_t th;
+    assert_int_equal(pthread_create(&th, NULL, outside_steps, &t), 0);
+    assert_int_equal(pthread_join(th, NULL), 0);
+    assert_true(t.ok);
+    assert_true(t.before > 0);
+    assert_int_equal(t.refreshed, t.before);
+    if (t.openmp) assert_true(t.stepped > t.before);
+}
+
 /* However a run of substeps is split into calls - a frame stepped in slices by the daemon, a
  * journal replayed in one go - it ends in the same state and on the same clock, bit for bit. */
 static void test_split_steps_agree(void **unused)
@@ -315,6 +384,7 @@ int main(void)
         cmocka_unit_test(test_pins_refuse_bad_vertices_and_hold),
         cmocka_unit_test(test_grab_moves_at_grab_speed),
         cmocka_unit_test(test_threads_setting),
+        cmocka_unit_test(test_only_steps_open_teams),
         cmocka_unit_test(test_split_steps_agree),
         cmocka_unit_test(test_batch_steps_like_alone),
     };
