@@ -906,21 +906,18 @@ static cs_status im_part(cuda_ctx *c, const cs_phys *p0, float h, cs_solver_stat
     CUDA_CHECK(cudaStreamSynchronize(c->stream));
     float reach = 0.0f;
     for (int32_t q = 0; q < w->nchunks; q++) reach = w->host_part[q] > reach ? w->host_part[q] : reach;
-    const int most = p->solver_iterations;
     float r;
     if ((st = im_assemble(c, S, L0, 1, rocks, &r)) != CS_OK) return st;
     const float r0 = r;
     int k = 0;
     float prev = 2.0f * r0 + 1.0f;
-    /* Newton: stops as implicit_cpu.c's does (the tolerance, float rounding's floor,
-     * solver_iterations, or an iteration that no longer halves the residual) */
+    /* Newton: stops as implicit_cpu.c's does (cs_im_newton_more) */
     const float rounding = cs_im_float_floor(p, reach);
-    while (k < most && r > p->solver_tolerance * r0 && r > rounding && r < 0.5f * prev) {
+    while (cs_im_newton_more(p, k, r, r0, prev, rounding)) {
         prev = r;
         im_hierarchy(c);
-        const float aim = 0.5f * p->solver_tolerance * r0, step = 0.05f * r;
         int its = 0;
-        if ((st = im_pcg(c, aim > step ? aim : step, p->cg_iterations, &its)) != CS_OK) return st;
+        if ((st = im_pcg(c, cs_im_cg_target(p, r0, r), p->cg_iterations, &its)) != CS_OK) return st;
         stats->cg += its;
         /* the backtracking line search: a = 1, 1/2, 1/4, 1/8 while the residual does not fall */
         k_im_keep<<<nb, IM_THREADS, 0, c->stream>>>(S, w->xo, n);

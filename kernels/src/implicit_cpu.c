@@ -703,19 +703,15 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
         s->x[v] = x.x, s->y[v] = x.y, s->z[v] = x.z;
         s->vx[v] = (x.x - w->xb[v]) * inv_h, s->vy[v] = (x.y - w->yb[v]) * inv_h, s->vz[v] = (x.z - w->zb[v]) * inv_h;
     });
-    const int most = p->solver_iterations;
     float r = assemble(p, h, s, w, &rv, 1, threads);
     const float r0 = r;
     int k = 0;
     float prev = 2.0f * r0 + 1.0f;
-    /* Newton stops at the tolerance, at float rounding's floor, after solver_iterations, or once
-     * an iteration no longer halves the residual (the floor, where the estimate is low) */
     const float floor = cs_im_float_floor(p, reach);
-    while (k < most && r > p->solver_tolerance * r0 && r > floor && r < 0.5f * prev) {
+    while (cs_im_newton_more(p, k, r, r0, prev, floor)) {
         prev = r;
         hierarchy(w, s, threads);
-        const float aim = 0.5f * p->solver_tolerance * r0, step = 0.05f * r;
-        st->cg += pcg(p, w, s, aim > step ? aim : step, p->cg_iterations, threads);
+        st->cg += pcg(p, w, s, cs_im_cg_target(p, r0, r), p->cg_iterations, threads);
         /* x = x_k + a dx, a = 1, 1/2, 1/4, 1/8 while the residual does not fall (a contact that
          * switches on or off within the step makes a full Newton step overshoot) */
         CS_PARALLEL_FOR(threads, schedule(static),

@@ -1159,6 +1159,23 @@ SIM_HD static inline float cs_im_float_floor(const cs_phys *p, float reach)
     return 1.2e-8f * reach * 4.0f * (p->k[CS_SX] + p->k[CS_D1] + p->k[CS_BX]) * sqrtf((float)p->n);
 }
 
+/* Whether Newton takes another iteration, in both backends' loops: k iterations taken, r the
+ * residual now, r0 the first, prev the one before the last iteration, rounding
+ * cs_im_float_floor. It stops at solver_iterations, at the tolerance, at rounding's floor, or once
+ * an iteration no longer halves the residual (the floor, where the estimate is low). */
+SIM_HD static inline int cs_im_newton_more(const cs_phys *p, int k, float r, float r0, float prev, float rounding)
+{
+    return k < p->solver_iterations && r > p->solver_tolerance * r0 && r > rounding && r < 0.5f * prev;
+}
+
+/* Where a Newton iteration's conjugate gradients stop, at residual r (r0 the first): a twentieth
+ * of r, or half the tolerance of r0 where that is more. */
+SIM_HD static inline float cs_im_cg_target(const cs_phys *p, float r0, float r)
+{
+    const float aim = 0.5f * p->solver_tolerance * r0, step = 0.05f * r;
+    return aim > step ? aim : step;
+}
+
 /* The largest coordinate of x and r (for cs_im_float_floor's reach; max is exact in any order). */
 SIM_HD static inline float cs_im_reach(cs_vec3 x, float r)
 {
