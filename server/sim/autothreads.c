@@ -17,12 +17,18 @@ void autothreads_ran(autothreads *a, double seconds, double work)
     if (work > 0) a->work += work;
 }
 
+double autothreads_cost(const autothreads *a, int t)
+{
+    return a->work_sum[t] > 0 ? a->busy_sum[t] / a->work_sum[t] : 0.0;
+}
+
 /* Busy on one thread fewer than now: from what a unit of work cost there, else as if the
  * threads sped the step up in full. */
 static double busy_on_fewer(const autothreads *a, double busy)
 {
     const int t = a->now;
-    if (a->cost[t - 1] > 0 && a->cost[t] > 0) return busy * a->cost[t - 1] / a->cost[t];
+    const double fewer = autothreads_cost(a, t - 1), now = autothreads_cost(a, t);
+    if (fewer > 0 && now > 0) return busy * fewer / now;
     return busy * (double)t / (double)(t - 1);
 }
 
@@ -30,7 +36,8 @@ static double busy_on_fewer(const autothreads *a, double busy)
  * cost no less than AUTOTHREADS_GAIN of what it cost on one thread fewer (both measured). */
 static int no_gain(const autothreads *a, int t)
 {
-    return a->cost[t] > 0 && a->cost[t - 1] > 0 && a->cost[t] >= AUTOTHREADS_GAIN * a->cost[t - 1];
+    const double more = autothreads_cost(a, t), fewer = autothreads_cost(a, t - 1);
+    return more > 0 && fewer > 0 && more >= AUTOTHREADS_GAIN * fewer;
 }
 
 /* A new window from now. */
@@ -55,7 +62,6 @@ int autothreads_turn(autothreads *a, double now, int greedy)
         const int t = a->now;
         a->busy_sum[t] = AUTOTHREADS_FADE * a->busy_sum[t] + a->busy;
         a->work_sum[t] = AUTOTHREADS_FADE * a->work_sum[t] + a->work;
-        a->cost[t] = a->busy_sum[t] / a->work_sum[t];
     }
     if (!greedy && a->work > 0) {
         const int t = a->now;

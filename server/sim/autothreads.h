@@ -43,11 +43,12 @@ typedef struct autothreads {
     double start;                      /* wall clock of the window's start (< 0: none yet) */
     double busy, work;                 /* compute s and units of work in the window */
     double busy_sum[AUTOTHREADS_MOST + 1], work_sum[AUTOTHREADS_MOST + 1]; /* each count's windows, fading */
-    double cost[AUTOTHREADS_MOST + 1]; /* compute s per unit of work measured at each count: busy_sum / work_sum (0: none) */
 } autothreads;
 
 /* Starts on one thread, of at most `most` (clamped to 1..AUTOTHREADS_MOST). */
 void autothreads_init(autothreads *a, int most);
+/* Compute s per unit of work measured at t threads: its windows' busy_sum / work_sum (0: none). */
+double autothreads_cost(const autothreads *a, int t);
 /* A call to the engine at the current count: `seconds` of compute for `work` units (vertex-substeps). */
 void autothreads_ran(autothreads *a, double seconds, double work);
 /* At a turn of the loop at wall time `now` (s, monotonic), before it steps: the count to step

@@ -306,17 +306,12 @@ static void batch_run(simloop *sl, int nb)
     const double t0 = clock_mono();
     const cs_status st = cs_sims_step(sl->engines, (size_t)nb, sl->substeps, sl->each);
     const double took = clock_mono() - t0;
-    double solved = 0;
-    for (int k = 0; k < nb; k++) {
-        cs_info info;
-        cs_sim_info(sl->batch[k]->engine, &info);
-        solved += work_of(&info, sl->substeps[k]);
-    }
-    ran(sl, took, solved);
+    double solved = 0; /* the work the count of threads weighs (work_of) */
     for (int k = 0; k < nb; k++) {
         scene *sc = sl->batch[k];
         cs_info info;
         cs_sim_info(sc->engine, &info);
+        solved += work_of(&info, sl->substeps[k]);
         const double share = work > 0 ? (double)sl->substeps[k] * (double)info.n_vertices / work : 0;
         if (st != CS_OK) sl->each[k] = st;
         scene_ran_substeps(sc, sl->substeps[k], sl->each[k], took * share);
@@ -326,6 +321,7 @@ static void batch_run(simloop *sl, int nb)
         }
         if (sl->each[k] == CS_OK) frame_done(sl, sc, (int32_t)sl->substeps[k]);
     }
+    ran(sl, took, solved);
 }
 
 /* Whether a step in progress goes by whole frames stepped together with other scenes'. */

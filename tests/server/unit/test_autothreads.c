@@ -97,7 +97,7 @@ static void test_one_costly_window_does_not_decide(void **unused)
     for (int k = 0; k < 5; k++) assert_int_equal(window(&a, &t, 0.95, 1.3e6, 0), 2); /* 0.73 us on two */
     /* 2.5 us a unit for one window: (0.73 + 2.5) / 2 would pass 0.95 x 0.98; the sums give 0.87 */
     assert_int_equal(window(&a, &t, 0.99, 4e5, 0), 2);
-    assert_true(a.cost[2] < AUTOTHREADS_GAIN * a.cost[1]);
+    assert_true(autothreads_cost(&a, 2) < AUTOTHREADS_GAIN * autothreads_cost(&a, 1));
     /* two that cost more a unit than one, window after window, still send it back */
     int k = 0;
     while (window(&a, &t, 0.99, 8e5, 0) == 2) {
