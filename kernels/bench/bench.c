@@ -425,9 +425,9 @@ static int apply_sets(cs_params *p)
         char *end = NULL;
         const int choice = pi->choices ? cs_param_choice(pi, eq + 1) : -1;
         v[0] = choice >= 0 ? (double)choice : strtod(eq + 1, &end);
-        char why[256];
+        char why[256] = "not a number";
         if ((choice < 0 && (end == eq + 1 || *end)) || cs_param_set(pi, p, v, why, sizeof why) != 0) {
-            fprintf(stderr, "clothd-bench: --set %s: %s\n", sets[k], choice < 0 && (end == eq + 1 || *end) ? "not a number" : why);
+            fprintf(stderr, "clothd-bench: --set %s: %s\n", sets[k], why);
             return -1;
         }
     }
