@@ -321,29 +321,32 @@ static int run_batch(batch_how *how, const int *sizes, int n_sizes, const int *c
 }
 
 /* Scenes of one kind a batch runs in real time at this bandwidth: a frame's time is each scene's
- * traffic (its substeps at the model's bytes) and host calls, plus the batch's kernels once (their
- * launch gaps, shared by every scene), one after another. */
+ * traffic (its substeps at the model's bytes) and host calls, plus the batch's kernels and waits for
+ * the device once (their launch gaps and round trips, shared by every scene), one after another. */
 static double scenes_in_real_time(const cs_cost_model *m, double n, double substeps, double fps, double bw,
                                   double calls)
 {
     const double traffic = substeps * (m->bytes_per_vertex_substep * n + m->fixed_per_substep) / bw;
-    const double shared = m->launches_per_frame * LAUNCH_US * 1e-6, host = calls * HOST_CALL_US * 1e-6;
+    const double shared = m->launches_per_frame * LAUNCH_US * 1e-6 + substeps * m->waits_per_substep * WAIT_US * 1e-6;
+    const double host = calls * HOST_CALL_US * 1e-6;
     const double left = 1.0 / fps - shared;
     return left > 0 ? floor(left / (traffic + host)) : 0;
 }
 
-/* The batch prediction: the default scene (scene and parameters as the engine's defaults with the
- * CUDA backend's integrator, no rocks) in one batch of many, on an H100 and an H200: by bandwidth
- * and launches alone, with each scene's host calls when no frame is read, and with every scene's
- * frame read each frame. */
-static void print_batch(int json)
+/* The batch prediction: the default scene (scene and parameters as the engine's defaults, no rocks)
+ * under integrator in one batch of many, on an H100 and an H200: by bandwidth, launches and waits
+ * alone, with each scene's host calls when no frame is read, and with every scene's frame read each
+ * frame. */
+static void print_batch_of(int json, cs_integrator integrator)
 {
     const cs_backend *cuda = cs_backend_cuda();
     cs_sim *sim = NULL;
     char err[256];
     cs_params dp;
     cs_params_default(&dp);
-    dp.integrator = cs_params_default_integrator("cuda");
+    dp.integrator = integrator;
+    static const char *const names[] = {CS_CHOICES_INTEGRATOR};
+    const char *name = names[integrator];
     if (!cuda || cs_sim_create(NULL, &dp, "cpu", &sim, err, sizeof err) != CS_OK) return;
     cs_info info;
     cs_params p;
@@ -364,11 +367,11 @@ static void print_batch(int json)
     }
     const double mb = F * (m.bytes_per_vertex_substep * n + m.fixed_per_substep) / 1e6;
     if (json) {
-        printf("{\"backend\":\"cuda\",\"batch\":\"default scene\",\"nx\":%d,\"ny\":%d,\"substeps_per_frame\":%d,"
-               "\"frame_rate\":%.0f,\"bytes_per_vertex_substep\":%.2f,\"mb_per_scene_frame\":%.2f,"
+        printf("{\"backend\":\"cuda\",\"batch\":\"default scene\",\"integrator\":\"%s\",\"nx\":%d,\"ny\":%d,"
+               "\"substeps_per_frame\":%d,\"frame_rate\":%.0f,\"bytes_per_vertex_substep\":%.2f,\"mb_per_scene_frame\":%.2f,"
                "\"launches_per_frame\":%.1f,\"launch_us_assumed\":%.1f,\"host_call_us_assumed\":%.1f,"
                "\"host_calls_per_scene\":%.0f,\"host_calls_per_read_scene\":%.0f",
-               (int)sc.nx, (int)sc.ny, info.substeps, fps, m.bytes_per_vertex_substep, mb, m.launches_per_frame,
+               name, (int)sc.nx, (int)sc.ny, info.substeps, fps, m.bytes_per_vertex_substep, mb, m.launches_per_frame,
                LAUNCH_US, HOST_CALL_US, m.batch_calls_per_scene, m.batch_calls_per_read_scene);
         const char *dev[2] = {"h100", "h200"};
         for (int d = 0; d < 2; d++)
@@ -378,15 +381,24 @@ static void print_batch(int json)
         printf("}\n");
         return;
     }
-    printf("cuda, a batch of default scenes (%d x %d, %d substeps a frame at %.0f fps, no rocks):\n", (int)sc.nx,
-           (int)sc.ny, info.substeps, fps);
-    printf("  %.2f bytes per vertex-substep: %.1f MB a scene-frame; %.0f launches a frame for the whole batch "
-           "(%.1f us each);\n  %.0f host calls a scene per frame, %.0f with its frame read (%.1f us each)\n",
-           m.bytes_per_vertex_substep, mb, m.launches_per_frame, LAUNCH_US, m.batch_calls_per_scene,
-           m.batch_calls_per_read_scene, HOST_CALL_US);
-    printf("  scenes in real time: H100 %.0f by bandwidth and launches, %.0f with host calls, %.0f with every frame "
-           "read;\n                       H200 %.0f, %.0f, %.0f\n",
+    printf("cuda, a batch of default scenes under %s (%d x %d, %d substeps a frame at %.0f fps, no rocks):\n", name,
+           (int)sc.nx, (int)sc.ny, info.substeps, fps);
+    printf("  %.2f bytes per vertex-substep: %.1f MB a scene-frame; %.0f launches and %.1f waits a frame for the "
+           "whole batch (%.1f, %.1f us each);\n  %.0f host calls a scene per frame, %.0f with its frame read (%.1f us "
+           "each)\n",
+           m.bytes_per_vertex_substep, mb, m.launches_per_frame, m.waits_per_substep * F, LAUNCH_US, WAIT_US,
+           m.batch_calls_per_scene, m.batch_calls_per_read_scene, HOST_CALL_US);
+    printf("  scenes in real time: H100 %.0f by bandwidth, launches and waits, %.0f with host calls, %.0f with every "
+           "frame read;\n                       H200 %.0f, %.0f, %.0f\n",
            k[0][0], k[0][1], k[0][2], k[1][0], k[1][1], k[1][2]);
+}
+
+/* The batch predictions: the CUDA backend's default integrator, then implicit_euler. */
+static void print_batch(int json)
+{
+    const cs_integrator def = cs_params_default_integrator("cuda");
+    print_batch_of(json, def);
+    if (def != CS_IMPLICIT_EULER) print_batch_of(json, CS_IMPLICIT_EULER);
 }
 
 static int parse_list(const char *s, int *out, int cap)

@@ -26,9 +26,10 @@
  *   batch_cuda.cuh           a batch's tables, its run and its frames' copies (host)
  *   cost_cuda.cuh            the cost model
  *
- * Integrator implicit_euler has a sequence of its own (implicit_cuda.cuh): plain launches of
- * per-vertex and per-chunk kernels around the functions of clothsim/implicit.h, with the solver's
- * scalars on the host; a batch steps such scenes alone. */
+ * Integrator implicit_euler has a sequence of its own (implicit_cuda.cuh): launches of per-vertex
+ * and per-chunk kernels around the functions of clothsim/implicit.h over a batch of scenes (a lone
+ * step is a batch of one), the host deciding each scene's Newton iterations and line search from
+ * what it reads back; a batch steps such scenes together after its explicit ones. */
 #include <cuda_runtime.h>
 
 #include <stdio.h>
@@ -221,15 +222,17 @@ static cs_status cuda_step_batch(cs_batch_item *items, int n)
                 items[j].status = cuda_step(items[j].ctx, items[j].m, items[j].s, items[j].substeps, &items[j].rep);
             return CS_OK;
         }
-    /* implicit_euler and self_collision run their own sequences of launches: those scenes step
-     * alone, as the CPU backend's cpu_step_batch does; batch_run leaves them out. */
+    /* self_collision's pass works on one scene: those scenes step alone, as the CPU backend's
+     * cpu_step_batch does; batch_run leaves them out, and implicit_euler's scenes, which
+     * im_batch_run steps together after the explicit ones. */
     for (int k = 0; k < n; k++)
-        if (items[k].m->phys.integrator == CS_IMPLICIT_EULER || items[k].m->phys.self_on) {
+        if (items[k].m->phys.self_on) {
             memset(&items[k].rep, 0, sizeof items[k].rep);
             items[k].status = cuda_step(items[k].ctx, items[k].m, items[k].s, items[k].substeps, &items[k].rep);
         }
     std::lock_guard<std::mutex> hold(batch_lock);
-    const cs_status st = batch_run(c, &batch, items, n);
+    cs_status st = batch_run(c, &batch, items, n);
+    if (st == CS_OK) st = im_batch_run(c, &batch, items, n);
     if (st != CS_OK) {
         (void)cudaStreamSynchronize(batch.stream); /* nothing left running on the staging */
         (void)cudaGetLastError();

@@ -9,6 +9,7 @@
 
 #include "batch_kernel_impl.cuh"
 #include "graphs_cuda.cuh"
+#include "implicit_cuda.cuh"
 
 /* What a batch call needs besides its scenes' own buffers: the descriptor table, the block prefix
  * sums and per-scene flags, on the device and in pinned staging. One per process (the scenes of a
@@ -159,7 +160,8 @@ static cs_status batch_frames(cuda_ctx *c, batch_ctx *b, const cs_batch_item *it
 
 /* The batch's scenes into b->order, most substeps first (the scenes still running at a substep
  * are then a prefix of the table, and a launch covers only their blocks); their reports cleared.
- * implicit_euler's scenes are left out (stepped alone: cuda_step_batch). Returns how many. */
+ * implicit_euler's scenes are left out (im_batch_run), and self_collision's (stepped alone:
+ * cuda_step_batch). Returns how many. */
 static int32_t batch_order(batch_ctx *b, cs_batch_item *items, int n)
 {
     int32_t m = 0;
@@ -296,6 +298,49 @@ static cs_status batch_run(cuda_ctx *c, batch_ctx *b, cs_batch_item *items, int 
     if ((st = batch_table(c, b, items, m, tr, stride, &smem, gmax)) != CS_OK) return st;
     if ((st = batch_launches(c, b, m, stride, smem, gmax)) != CS_OK) return st;
     if ((st = batch_reports(c, b, items, m)) != CS_OK) return st;
+    return batch_frames(c, b, items, m);
+}
+
+/* implicit_euler's tables for batches (im_run), one per process as batch is, under batch_lock. */
+static im_batch im_shared;
+
+/* The batch's implicit_euler scenes (self_collision off: those with it step alone), stepped
+ * together on the batch's stream (im_run) after its explicit ones: each scene's report from the
+ * batch's flags, its frame copied as theirs. c records a CUDA failure. */
+static cs_status im_batch_run(cuda_ctx *c, batch_ctx *b, cs_batch_item *items, int n)
+{
+    int32_t m = 0;
+    for (int k = 0; k < n; k++) {
+        cs_batch_item *it = &items[k];
+        if (it->m->phys.integrator != CS_IMPLICIT_EULER || it->m->phys.self_on) continue;
+        memset(&it->rep, 0, sizeof it->rep);
+        it->rep.finite = 1, it->status = CS_OK;
+        if (it->substeps > 0) b->order[m++] = k;
+    }
+    if (m == 0) return CS_OK;
+    cs_status st = im_batch_reserve(c, &im_shared, m);
+    if (st != CS_OK) return st;
+    for (int32_t q = 0; q < m; q++) {
+        cs_batch_item *it = &items[b->order[q]];
+        im_item *d = &im_shared.items[q];
+        d->c = (cuda_ctx *)it->ctx, d->m = it->m, d->substeps = it->substeps;
+        d->flags = b->flags + (size_t)q * FLAG_COUNT, d->rep = &it->rep;
+    }
+    /* (the explicit scenes' flags were read: batch_reports waited) */
+    CUDA_CHECK(cudaMemsetAsync(b->flags, 0, sizeof(int) * FLAG_COUNT * (size_t)m, b->stream));
+    if ((st = im_run(c, &im_shared, m, b->stream)) != CS_OK) return st;
+    CUDA_CHECK(cudaMemcpyAsync(b->host_flags, b->flags, sizeof(int) * FLAG_COUNT * (size_t)m, cudaMemcpyDeviceToHost,
+                               b->stream));
+    CUDA_CHECK(cudaStreamSynchronize(b->stream));
+    for (int32_t q = 0; q < m; q++) {
+        cs_batch_item *it = &items[b->order[q]];
+        cuda_ctx *ck = (cuda_ctx *)it->ctx;
+        ck->pending = 0;
+        ck->calls++; /* (im_run swapped its buffers as it went) */
+        it->rep.torn = b->host_flags[(size_t)q * FLAG_COUNT + FLAG_TORN];
+        it->rep.finite = b->host_flags[(size_t)q * FLAG_COUNT + FLAG_NONFINITE] == 0;
+    }
+    /* (the explicit scenes' frame jobs were copied to the device before the waits above) */
     return batch_frames(c, b, items, m);
 }
 

@@ -34,9 +34,10 @@ static double peak_bandwidth(int dev)
  * MODEL.md's table) - and the bytes per vertex each kernel's loads and stores name (a vertex's
  * own; neighbours' reads come from cache). A V-cycle's coarse levels add about a third of level 0's
  * traffic (2 x 2 aggregation), counted in its rows. Rough by design: what bench measures is the
- * truth. The host waits for the device at a part's start, for each assembly's |R| (the Newton
- * iteration's and its line search's, IM_TRIES) and to learn whether a linear solve is done
- * (IM_LOOKS); test_datapath counts them (about 4.2 a Newton iteration with a rock). */
+ * truth. The host waits for the device at a part's start (its first |R|), for each line-search
+ * assembly's |R| (IM_TRIES a Newton iteration) and to learn whether a linear solve is done
+ * (IM_LOOKS), with rocks once more a substep for its parts; test_datapath counts them (about 3.9 a
+ * Newton iteration with a rock). A batch of such scenes shares its launches and its waits. */
 #define IM_NEWTON 3.0
 #define IM_CG 5.0
 #define IM_TRIES 1.3
@@ -109,12 +110,13 @@ static void im_cost(const cs_model *m, int32_t n_rocks, cs_cost_model *out)
 #undef IM_ROW
     cs_cost_add(out, "frame copy (positions, on the device)", 12.0, 12.0, 0, 1.0 / F, 0);
     out->graphs_per_frame = N * C * F; /* a CG iteration's launches in one; the rest plain */
-    out->waits_per_substep = 2.0 + N * (IM_TRIES + IM_LOOKS) + (n_rocks > 0 ? 1.0 : 0.0);
+    out->waits_per_substep = 1.0 + N * (IM_TRIES + IM_LOOKS) + (n_rocks > 0 ? 1.0 : 0.0);
     /* every launch waits for the one before */
     out->nodes_per_substep = out->launches_per_frame / F;
-    /* stepped alone in a batch (cuda_step_batch): every launch and copy is its own call */
-    out->batch_calls_per_scene = out->launches_per_frame;
-    out->batch_calls_per_read_scene = out->launches_per_frame + 3.0;
+    /* in a batch (im_batch_run): the batch's stream waits for the scene's (an event recorded and
+     * waited for); its frame read, batch_frames' three calls (the tables and waits are the batch's) */
+    out->batch_calls_per_scene = 2.0;
+    out->batch_calls_per_read_scene = 5.0;
 }
 
 /* self_collision's pass (selfcontact_cuda.cuh) after each substep (a part: nominally one a

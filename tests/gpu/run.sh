@@ -9,7 +9,8 @@
 # network). On a machine without a usable GPU it says so and exits 77 (skipped).
 #   tests/gpu/run.sh [benchmark sizes, default 128,512,1024] [rock counts, default 0,64]
 # CLOTHD_GPU_SANITIZE=quick runs the sanitizers on the quick parity run instead (a tenth of the
-# substeps), =off skips them; CLOTHD_GPU_BATCH=N batches N default scenes instead of 1,000.
+# substeps), =off skips them; CLOTHD_GPU_BATCH=N batches N default scenes instead of 1,000, and
+# CLOTHD_GPU_IM_BATCH=N N under implicit_euler instead of 200.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/../.." && pwd)
 build="$root/build-gpu"
@@ -84,9 +85,11 @@ fi
 
 stamp "GPU benchmark (JSON lines: measured, with the cost model and roofline predictions)"
 "$build/kernels/clothd-bench" --backend cuda --json --sizes "$sizes" --rocks "$rocks" --seconds 2
-stamp "a batch of 1,000 default scenes (the model's prediction, then the measurement)"
-"$build/kernels/clothd-bench" --model --json --sizes 64 --rocks 0 | tail -n 1
+stamp "a batch of 1,000 default scenes, and of 200 under implicit_euler (the model's predictions, then the measurements)"
+"$build/kernels/clothd-bench" --model --json --sizes 64 --rocks 0 | tail -n 2
 "$build/kernels/clothd-bench" --backend cuda --json --batch "${CLOTHD_GPU_BATCH:-1000}" --sizes 64 --read --seconds 3
+"$build/kernels/clothd-bench" --backend cuda --json --batch "${CLOTHD_GPU_IM_BATCH:-200}" --sizes 64 --read --seconds 3 \
+  --integrator implicit_euler
 stamp "CPU benchmark on this machine, for comparison"
 "$build/kernels/clothd-bench" --backend cpu --json --sizes 128 --rocks 0 --seconds 1
 stamp "done"

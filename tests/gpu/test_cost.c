@@ -126,7 +126,7 @@ static void check_batch(int nx, int ny, int count)
     cs_params p;
     cs_scene_default(&sc);
     cs_params_default(&p);
-    p.integrator = CS_VELOCITY_VERLET; /* the explicit step's batch (implicit_euler's scenes step alone) */
+    p.integrator = CS_VELOCITY_VERLET; /* the explicit step's batch (implicit_euler's: emu.batch) */
     sc.nx = nx, sc.ny = ny;
     p.plastic_yield = 0.5f, p.tear_strain = 2.0f, p.max_substeps = 100000;
     p.contact_model = CS_CONTACT_VERTEX;

@@ -29,8 +29,9 @@
  * emulated backend) it stops after four calls of 22 substeps in all.
  *
  * Every full run ends with the batch check (run_batch; `batch` as the second argument runs it
- * alone): mixed scenes (two under implicit_euler, with rocks and without, which the batch steps
- * one by one) stepped together by cs_sims_step, each bitwise equal to a copy stepped
+ * alone): mixed scenes (three under implicit_euler, of two sizes, with rocks and without, which
+ * the batch steps together after the explicit ones) stepped together by cs_sims_step, each bitwise
+ * equal to a copy stepped
  * alone on the same backend and to one on the CPU backend, with scenes leaving and joining between
  * rounds and one poisoned scene failing alone. */
 #include <math.h>
@@ -643,11 +644,12 @@ static const variant batch_variants[] = {
     {"batch: surface contact, two rocks at once", 21, 21, VV, CV, 1, 2, S_PAIR, 0.05f, 1},
     {"batch: 66 rocks (the split rock kernels)", 20, 20, SE, CV, 1, 66, 0, 0.012f, 0},
     {"batch: wide rows (2 chunks a row), grab", 300, 3, VV, RS, 1, 1, S_GRAB, 0, 0},
-    {"batch: implicit_euler strain grab (steps alone)", 18, 12, IM, CV, 1, 0, S_GRAB, 0, 0},
-    {"batch: implicit_euler rocks (steps alone)", 18, 12, IM, CV, 1, 2, 0, 0, 1},
+    {"batch: implicit_euler strain grab", 18, 12, IM, CV, 1, 0, S_GRAB, 0, 0},
+    {"batch: implicit_euler rocks", 18, 12, IM, CV, 1, 2, 0, 0, 1},
+    {"batch: implicit_euler 40 x 32 rocks (a level above the tail)", 40, 32, IM, RS, 0, 1, 0, 0, 1},
     {"batch: joins mid-run, euler surface", 18, 18, SE, CV, 1, 2, 0, 0, 1},
 };
-#define BATCH_N 8 /* the first eight start together; the ninth joins when the second leaves */
+#define BATCH_N 9 /* the first nine start together; the tenth joins when the second leaves */
 
 typedef struct batch_scene {
     const variant *vr;
