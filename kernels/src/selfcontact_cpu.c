@@ -204,6 +204,8 @@ struct cs_sc_work {
     int have_ref;            /* whether xr and the lists belong to the state now */
     float ref_thickness;     /* the self_thickness they were found for */
     int64_t bpairs, rpairs;  /* the keys in all of bl and all of rl */
+    int32_t rate_finds;      /* the lists cs_sc_part_rate found since the last pass, and their */
+    int64_t rate_pairs;      /* repelling pairs (its statistics, which the pass reports) */
     sc_lists rl;             /* each vertex's repelling pairs, sorted by key (the repulsion's order) */
     sc_lists bl;             /* each vertex's pairs, all of them (the bound's) */
     sc_lists ol;             /* the pairs each vertex finds (cs_sc_found), handed out to rl and bl */
@@ -613,7 +615,10 @@ cs_status cs_sc_part_rate(cs_sc_work **wp, const cs_phys *p, const cs_state *s, 
     if (!(Vm < 3.0e38f)) return CS_OK; /* not finite: the step reports it */
     const float *L0 = s->L0;
     int listed = !over && w->have_ref && w->ref_thickness == th && drift(w, n, threads) <= room(p);
-    if (!listed) listed = find_lists(w, p, L0, threads) == 0;
+    if (!listed) {
+        listed = find_lists(w, p, L0, threads) == 0;
+        w->rate_finds++, w->rate_pairs += listed ? w->rpairs : 0;
+    }
     float most = 0.0f;
     if (listed) {
         CS_PARALLEL_FOR(threads, schedule(dynamic, 64) reduction(max : most),
@@ -764,11 +769,12 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
 done:
     if (st) {
         st->passes++;
-        st->broad += finds;
-        st->pairs += finds && listed ? w->rpairs : 0;
+        st->broad += finds + w->rate_finds; /* (cs_sc_part_rate's too) */
+        st->pairs += (finds && listed ? w->rpairs : 0) + w->rate_pairs;
         st->contacts += touching;
         st->cut += cut;
         st->lost += lost;
     }
+    w->rate_finds = 0, w->rate_pairs = 0;
     return CS_OK;
 }

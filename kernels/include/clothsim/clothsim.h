@@ -144,7 +144,8 @@ typedef struct cs_solver_stats {
  * without it). */
 typedef struct cs_self_stats {
     int32_t passes;   /* its passes: one after each substep (each part under implicit_euler) */
-    int32_t broad;    /* full broad phases: hash grids built and every vertex's pairs found again */
+    int32_t broad;    /* full broad phases: hash grids built and every vertex's pairs found again (by a pass, or
+                       * by implicit_euler's gather for a substep's parts) */
     int64_t pairs;    /* repelling pairs in the lists those found, summed */
     int64_t contacts; /* pairs that pushed apart (counted by each of their vertices), summed */
     int64_t cut;      /* vertices the bound cut back, summed */
