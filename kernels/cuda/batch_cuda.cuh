@@ -306,7 +306,8 @@ static im_batch im_shared;
 
 /* The batch's implicit_euler scenes (self_collision off: those with it step alone), stepped
  * together on the batch's stream (im_run) after its explicit ones: each scene's report from the
- * batch's flags, its frame copied as theirs. c records a CUDA failure. */
+ * batch's flags, its frame copied as theirs. A scene whose workspace cannot be had fails alone;
+ * c records another CUDA failure (the batch's). */
 static cs_status im_batch_run(cuda_ctx *c, batch_ctx *b, cs_batch_item *items, int n)
 {
     int32_t m = 0;
@@ -315,7 +316,8 @@ static cs_status im_batch_run(cuda_ctx *c, batch_ctx *b, cs_batch_item *items, i
         if (it->m->phys.integrator != CS_IMPLICIT_EULER || it->m->phys.self_on) continue;
         memset(&it->rep, 0, sizeof it->rep);
         it->rep.finite = 1, it->status = CS_OK;
-        if (it->substeps > 0) b->order[m++] = k;
+        if (it->substeps <= 0) continue;
+        if ((it->status = im_fit((cuda_ctx *)it->ctx, &it->m->phys)) == CS_OK) b->order[m++] = k;
     }
     if (m == 0) return CS_OK;
     cs_status st = im_batch_reserve(c, &im_shared, m);
