@@ -167,7 +167,7 @@ static int32_t batch_order(batch_ctx *b, cs_batch_item *items, int n)
     int32_t m = 0;
     for (int k = 0; k < n; k++) {
         if (items[k].m->phys.integrator == CS_IMPLICIT_EULER || items[k].m->phys.self_on)
-            continue; /* stepped alone (cuda_step_batch) */
+            continue; /* im_batch_run, or stepped alone (cuda_step_batch) */
         items[k].rep.torn = 0, items[k].rep.finite = 1, items[k].status = CS_OK;
         if (items[k].substeps <= 0) continue;
         int32_t at = m++;
