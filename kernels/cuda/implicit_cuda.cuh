@@ -246,7 +246,6 @@ __device__ static inline void im_put_sym(float *a, size_t S, int32_t v, const cs
 {
     cs_im_sym_put(a + v, S, m);
 }
-__device__ static inline int32_t im_vertex(void) { return (int32_t)(blockIdx.x * blockDim.x + threadIdx.x); }
 
 /* Position and velocity of vertex o of a state (SoA, 6 n). */
 #define IM_X(S, n, o) cs_v3((S)[(o)], (S)[(size_t)(n) + (o)], (S)[2 * (size_t)(n) + (o)])
