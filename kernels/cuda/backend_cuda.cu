@@ -19,10 +19,11 @@
  *   cloth_kernel_impl.cuh    the cloth kernel, Verlet's first drift, Euler's strain pass (device)
  *   rocks_kernel_impl.cuh    the rocks' forces and moves (device)
  *   batch_kernel_impl.cuh    a batch's kernels and its frames' device copy (device)
+ *   implicit_kernel_impl.cuh integrator implicit_euler's kernels, over a batch of scenes (device)
  *   memory_cuda.cuh          a scene's context and buffers, the device's errors (host)
  *   graphs_cuda.cuh          the explicit substeps' launches and the CUDA graphs of a frame (host)
  *   selfcontact_cuda.cuh     self_collision: its kernels and the host's sequence of a pass
- *   implicit_cuda.cuh        integrator implicit_euler: its kernels and their host sequence
+ *   implicit_cuda.cuh        integrator implicit_euler: the host sequence of its kernels
  *   batch_cuda.cuh           a batch's tables, its run and its frames' copies (host)
  *   cost_cuda.cuh            the cost model
  *
@@ -46,6 +47,7 @@
 #include "cloth_kernel_impl.cuh"
 #include "rocks_kernel_impl.cuh"
 #include "batch_kernel_impl.cuh"
+#include "implicit_kernel_impl.cuh"
 #include "memory_cuda.cuh"
 #include "graphs_cuda.cuh"
 #include "selfcontact_cuda.cuh"
