@@ -452,9 +452,10 @@ static cs_status im_cg_queue(cuda_ctx *c, im_batch *b)
  * |r| <= its target or after its most iterations; the iterations into its statistics. The host
  * queues as many iterations as the slowest scene's last solve took before it first reads whether
  * the solves are done, then one at a time: about two waits a solve rather than three an iteration,
- * and an iteration queued past a scene's end costs it launches that return at once. (As many less
- * one: 4.8 waits a Newton iteration and 198 graphs for 170 iterations in test_datapath's scene;
- * as many, 4.2 and 215; one more, 3.8 and 239.) */
+ * and an iteration queued past a scene's end costs it launches that return at once. (In
+ * test_datapath's scene, with a part's first residual then waited for apart from its reach: as
+ * many less one, 4.8 waits a Newton iteration and 198 graphs for 170 iterations; as many, 4.2 and
+ * 215; one more, 3.8 and 239. As many, now: 3.9 and 215.) */
 static cs_status im_pcg(cuda_ctx *c, im_batch *b)
 {
     IM_LAUNCH(b, IS_VERT3, k_im_vectors, IM_THREADS, 0, 0);
