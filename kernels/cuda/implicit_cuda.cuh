@@ -679,10 +679,7 @@ static cs_status im_run(cuda_ctx *c, im_batch *b, int32_t m, cudaStream_t st)
             if (h->p->self_on && (s = sc_part_rate(h->c, h->p, h->p->dt, &layers)) != CS_OK) return s;
             const float rate = layers > h->rate ? layers : h->rate;
             h->parts = cs_im_splits(rate, h->p->dt, h->p->most_splits);
-            const float hp = h->p->dt / (float)h->parts; /* the part's own step */
-            h->P = *h->p;
-            h->P.dt = hp, h->P.hdt = 0.5f * hp;
-            if (h->P.plastic_rate > 0.0f) h->P.plastic_f = h->P.plastic_rate * hp < 1.0f ? h->P.plastic_rate * hp : 1.0f;
+            h->P = cs_im_part_phys(h->p, h->p->dt / (float)h->parts); /* the part's own step */
             parts = h->parts > parts ? h->parts : parts;
         }
         for (int32_t q = 0; q < parts; q++) {

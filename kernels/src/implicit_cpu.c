@@ -677,10 +677,8 @@ static void rocks_push(const cs_phys *p, const cs_im_rocks *rv, float h, int thr
 static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int threads,
                     cs_solver_stats *st)
 {
-    cs_phys P = *p0; /* the part's own step */
+    cs_phys P = cs_im_part_phys(p0, h); /* the part's own step */
     cs_phys *p = &P;
-    p->dt = h, p->hdt = 0.5f * h;
-    if (p->plastic_rate > 0.0f) p->plastic_f = p->plastic_rate * h < 1.0f ? p->plastic_rate * h : 1.0f;
     const int32_t n = p->n, g = s->grab;
     const cs_im_rocks rv = rock_view(s, w);
     cs_im_rocks_advance(p, &rv, h);

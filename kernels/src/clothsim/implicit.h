@@ -1184,6 +1184,16 @@ SIM_HD static inline float cs_im_reach(cs_vec3 x, float r)
     return az > r ? az : r;
 }
 
+/* The phys of a part of a substep, of length h: its own step, and plasticity's share of it. Both
+ * backends' parts step with it. */
+SIM_HD static inline cs_phys cs_im_part_phys(const cs_phys *p, float h)
+{
+    cs_phys P = *p;
+    P.dt = h, P.hdt = 0.5f * h;
+    if (P.plastic_rate > 0.0f) P.plastic_f = P.plastic_rate * h < 1.0f ? P.plastic_rate * h : 1.0f;
+    return P;
+}
+
 /* The parts a substep h is cut into so that nothing closes on a rock by more than cs_im_depth in
  * one (MODEL.md, "Parts"): for the largest closing rate of cs_im_closing (1/s), at most most. */
 SIM_HD static inline int32_t cs_im_splits(float rate, float h, int32_t most)
