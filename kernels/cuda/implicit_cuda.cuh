@@ -706,14 +706,18 @@ static cs_status im_run(cuda_ctx *c, im_batch *b, int32_t m, cudaStream_t st)
     return CS_OK;
 }
 
-/* The batch of one a context's lone steps run (in its workspace, created with it). */
-static cs_status im_one(cuda_ctx *c, const cs_phys *p, im_batch **out)
+/* The batch of one a context's lone steps run (in its workspace, created with it), its item the
+ * scene: m, substeps and rep (NULL for a refresh, which reports nothing). */
+static cs_status im_one(cuda_ctx *c, const cs_model *m, int32_t substeps, cs_step_report *rep, im_batch **out)
 {
-    cs_status st = im_fit(c, p);
+    cs_status st = im_fit(c, &m->phys);
     if (st != CS_OK) return st;
     if (!c->im->one && !(c->im->one = (im_batch *)calloc(1, sizeof(im_batch)))) return CS_E_NOMEM;
-    if ((st = im_batch_reserve(c, c->im->one, 1)) != CS_OK) return st;
-    *out = c->im->one;
+    im_batch *b = c->im->one;
+    if ((st = im_batch_reserve(c, b, 1)) != CS_OK) return st;
+    b->items[0].c = c, b->items[0].m = m, b->items[0].substeps = substeps;
+    b->items[0].flags = c->flags, b->items[0].rep = rep;
+    *out = b;
     return CS_OK;
 }
 
@@ -722,22 +726,16 @@ static cs_status im_one(cuda_ctx *c, const cs_phys *p, im_batch **out)
 static cs_status im_step(cuda_ctx *c, const cs_model *m, int32_t substeps, cs_step_report *rep)
 {
     im_batch *b;
-    const cs_status st = im_one(c, &m->phys, &b);
-    if (st != CS_OK) return st;
-    b->items[0].c = c, b->items[0].m = m, b->items[0].substeps = substeps;
-    b->items[0].flags = c->flags, b->items[0].rep = rep;
-    return im_run(c, b, 1, c->stream);
+    const cs_status st = im_one(c, m, substeps, rep, &b);
+    return st != CS_OK ? st : im_run(c, b, 1, c->stream);
 }
 
 /* cs_im_refresh: the accelerations a = F/m of the state as it is (the force law at v = v_n). */
 static cs_status im_refresh(cuda_ctx *c, const cs_model *m)
 {
     im_batch *b;
-    cs_status st = im_one(c, &m->phys, &b);
+    cs_status st = im_one(c, m, 0, NULL, &b); /* (no step: nothing to report) */
     if (st != CS_OK) return st;
-    cs_step_report unused;
-    b->items[0].c = c, b->items[0].m = m, b->items[0].substeps = 0;
-    b->items[0].flags = c->flags, b->items[0].rep = &unused;
     if ((st = im_begin(c, b, 1, c->stream)) != CS_OK || (st = im_table(c, b)) != CS_OK) return st;
     memset(b->dyn_h, 0, sizeof *b->dyn_h);
     b->dyn_h[0].on = 1, b->dyn_h[0].cur = c->cur, b->dyn_h[0].rest_cur = c->rest_cur;
