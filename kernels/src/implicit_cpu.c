@@ -15,7 +15,8 @@
  *      longer halves it, else solve A dx = R by conjugate gradients preconditioned with one
  *      multigrid V-cycle (at most cg_iterations) and step along dx with a backtracking line
  *      search, v = (x - x_n)/h;
- *   3. the rocks moved by what their vertices carried, then rocks and cloth pushed apart
+ *   3. the rocks moved by what their vertices carried (no touching pair pressed closer than the
+ *      advance left it: cs_im_rocks_apart), then rocks and cloth pushed apart
  *      (cs_im_rocks_push), the cloth's velocities (x - x_n)/h again; a = (v - v_n)/h; with strain,
  *      the rest lengths from the new positions (cs_cpu_strain_row), swapped.
  * The rock steps (cs_im_rocks_advance, _share, _push: implicit.h, shared with the CUDA backend)

@@ -216,7 +216,8 @@ SIM_HD static inline cs_mat3 cs_im_ground_block(cs_vec3 xi, cs_vec3 vi, const cs
  * where d_r is the rock's own path over the part (gravity, rock-rock and ground contact), so the
  * cloth under a rock feels the rock's inertia and the cloth's springs decelerate it. After the
  * solve the rock moves by sum m_i'/M n_i (n_i . (x_i - x_n,i - d_r)) beyond its path (the
- * momentum it lent), and then every rock and the cloth are pushed apart to the contact sphere
+ * momentum it lent), no touching pair of rocks coming closer than its path left it
+ * (cs_im_rocks_apart), and then every rock and the cloth are pushed apart to the contact sphere
  * R + contact_offset: the point p of a triangle closest to the centre c, with barycentric weights
  * b, and the centre move along n = (p - c)/|p - c| in inverse proportion to their masses - dx_k
  * = b_k w_k lambda n, dc = -w_r lambda n, lambda = (R + offset - |p - c|) / (w_r + sum b_k^2
@@ -598,6 +599,37 @@ SIM_HD static inline float cs_im_stop_tri(const cs_vec3 x[3], const cs_vec3 u[3]
     return lambda;
 }
 
+/* After the carried moves of cs_im_rocks_push: no pair of rocks ends closer, nor approaching faster,
+ * than the advance left it (star) where it touches. The solve moves each rock with the cloth that
+ * carries it and knows nothing of the rocks' contacts with one another: on a sagging cloth it drove
+ * neighbours into each other part after part, and the next advance's stiff contact threw them apart
+ * (a pile of stones that never settled). Each such pair, in index order, is put back along its
+ * normal to the lesser of its distance at star and its contact distance, and its approach along it
+ * brought back to star's (or 0), both mass-weighted: momentum kept, no energy added. */
+SIM_HD static inline void cs_im_rocks_apart(const cs_im_rocks *R)
+{
+    for (int32_t a = 0; a < R->nr; a++)
+        for (int32_t b = a + 1; b < R->nr; b++) {
+            cs_rock_state *A = &R->rocks[a], *B = &R->rocks[b];
+            const float W = A->inv_mass + B->inv_mass, touch = A->radius + B->radius;
+            const cs_vec3 d = cs_sub(B->x, A->x);
+            const float l = cs_len(d);
+            if (!(W > 0.0f) || !(l < touch) || !(l > 0.0f)) continue;
+            const cs_vec3 n = cs_scale(d, 1.0f / l);
+            const float l0 = cs_len(cs_sub(R->star[b].x, R->star[a].x)), want = l0 < touch ? l0 : touch;
+            if (l < want) {
+                A->x = cs_sub(A->x, cs_scale(n, (want - l) * A->inv_mass / W));
+                B->x = cs_add(B->x, cs_scale(n, (want - l) * B->inv_mass / W));
+            }
+            const float un = cs_dot(cs_sub(R->star[b].v, R->star[a].v), n), vn = cs_dot(cs_sub(B->v, A->v), n);
+            const float floor = un < 0.0f ? un : 0.0f;
+            if (vn < floor) {
+                A->v = cs_sub(A->v, cs_scale(n, (floor - vn) * A->inv_mass / W));
+                B->v = cs_add(B->v, cs_scale(n, (floor - vn) * B->inv_mass / W));
+            }
+        }
+}
+
 /* Step 3 of a part, after the solve (R->x the iterate): the rocks follow what their vertices
  * carried in it (each dynamic rock moved by the mass-weighted mean of its vertices' normal moves
  * beyond its own path: the momentum the carrying took from the cloth), then the rocks and the
@@ -629,6 +661,7 @@ SIM_HD static inline void cs_im_rocks_push(const cs_phys *p, const cs_im_rocks *
         q->v = cs_add(R->star[r].v, cs_scale(acc[r], inv_h));
         acc[r] = cs_scale(acc[r], q->mass); /* the carried impulse times h, for friction */
     }
+    cs_im_rocks_apart(R);
     const int surface = p->contact_model == CS_CONTACT_SURFACE;
     for (int32_t r = 0; r < nr; r++) {
         cs_rock_state *q = &R->rocks[r];
