@@ -224,8 +224,9 @@ SIM_HD static inline cs_mat3 cs_im_ground_block(cs_vec3 xi, cs_vec3 vi, const cs
  * w_k), CS_IM_PUSH_SWEEPS sweeps over each rock's triangles in grid order. The push moves
  * positions only: a correction turned into velocity (dx / h) made the cloth around a stone
  * jitter at metres a second. The velocities meet the contact inelastically instead: each
- * contact's approach along its normal is stopped by an impulse shared the same way
- * (cs_im_stop_tri, CS_IM_STOP_SWEEPS sweeps), so momentum is kept and no energy is added. Then
+ * contact's approach along its normal is stopped by an impulse shared the same way, then its
+ * nearest vertex's (cs_im_stop_tri, CS_IM_STOP_SWEEPS sweeps), so momentum is kept and no energy
+ * is added. Then
  * Coulomb friction, once per rock (cs_im_rock_friction): the rock's contact point (its surface
  * toward the cloth, spin included) and the patch of cloth pressing on it (each vertex weighted by
  * the normal impulse it gave: carried and stopped) are brought to the same tangential
@@ -579,8 +580,12 @@ SIM_HD static inline void cs_im_rock_friction(const cs_phys *p, const cs_im_rock
 /* Triangle x[3] (velocities u[3], inverse masses wv) in contact with rock q centred at c, at the
  * contact sphere Rc (within a float's slack of it: after the push): the inelastic impulse along
  * the normal n (centre to cloth) that stops the triangle's closest point approaching the rock's
- * surface, into du[3] and the rock's dv (the caller applies them), b its barycentric weights;
- * returns the impulse, 0 when apart or separating. */
+ * surface, then the one that stops the vertex nearest that point (the largest weight) approaching
+ * it as well, into du[3] and the rock's dv (the caller applies them), b its barycentric weights;
+ * returns the first impulse, 0 when apart or separating. Without the second a vertex wedged
+ * between rocks kept running into one at metres a second, put back by the push (positions only)
+ * every part, and the parts counted its speed; stopping every vertex of the triangle let the
+ * 100 kg rock of the surface-hold sweep through the 8 x 8 cloth (kernels/MODEL.md). */
 SIM_HD static inline float cs_im_stop_tri(const cs_vec3 x[3], const cs_vec3 u[3], const float wv[3],
                                           const cs_rock_state *q, cs_vec3 c, float Rc, cs_vec3 du[3], cs_vec3 *dv,
                                           float b[3], cs_vec3 *nout)
@@ -595,6 +600,15 @@ SIM_HD static inline float cs_im_stop_tri(const cs_vec3 x[3], const cs_vec3 u[3]
     const float lambda = -vn / W;
     for (int k = 0; k < 3; k++) du[k] = cs_scale(n, b[k] * wv[k] * lambda);
     *dv = cs_scale(n, -q->inv_mass * lambda);
+    {
+        const int k = b[0] >= b[1] && b[0] >= b[2] ? 0 : b[1] >= b[2] ? 1 : 2;
+        const float vk = cs_dot(cs_sub(cs_add(u[k], du[k]), us), n); /* its approach after the first */
+        if (vk < 0.0f && wv[k] > 0.0f) {
+            const float lk = -vk / (wv[k] + q->inv_mass);
+            du[k] = cs_add(du[k], cs_scale(n, wv[k] * lk));
+            *dv = cs_sub(*dv, cs_scale(n, q->inv_mass * lk));
+        }
+    }
     *nout = n;
     return lambda;
 }
