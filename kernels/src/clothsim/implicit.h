@@ -583,9 +583,9 @@ SIM_HD static inline void cs_im_rock_friction(const cs_phys *p, const cs_im_rock
  * surface, then the one that stops the vertex nearest that point (the largest weight) approaching
  * it as well, into du[3] and the rock's dv (the caller applies them), b its barycentric weights;
  * returns the first impulse, 0 when apart or separating. Without the second a vertex wedged
- * between rocks kept running into one at metres a second, put back by the push (positions only)
- * every part, and the parts counted its speed; stopping every vertex of the triangle let the
- * 100 kg rock of the surface-hold sweep through the 8 x 8 cloth (kernels/MODEL.md). */
+ * between rocks runs into one at metres a second, put back by the push (positions only) every
+ * part, and the parts count its speed; stopping every vertex of the triangle let the 100 kg rock
+ * of the surface-hold sweep through the 8 x 8 cloth (kernels/MODEL.md, "A pile of stones"). */
 SIM_HD static inline float cs_im_stop_tri(const cs_vec3 x[3], const cs_vec3 u[3], const float wv[3],
                                           const cs_rock_state *q, cs_vec3 c, float Rc, cs_vec3 du[3], cs_vec3 *dv,
                                           float b[3], cs_vec3 *nout)
@@ -615,9 +615,9 @@ SIM_HD static inline float cs_im_stop_tri(const cs_vec3 x[3], const cs_vec3 u[3]
 
 /* After the carried moves of cs_im_rocks_push: no pair of rocks ends closer, nor approaching faster,
  * than the advance left it (star) where it touches. The solve moves each rock with the cloth that
- * carries it and knows nothing of the rocks' contacts with one another: on a sagging cloth it drove
- * neighbours into each other part after part, and the next advance's stiff contact threw them apart
- * (a pile of stones that never settled). Each such pair, in index order, is put back along its
+ * carries it and knows nothing of the rocks' contacts with one another: on a sagging cloth it drives
+ * neighbours into each other part after part, and the next advance's stiff contact throws them
+ * apart (a pile of stones that never settles). Each such pair, in index order, is put back along its
  * normal to the lesser of its distance at star and its contact distance, and its approach along it
  * brought back to star's (or 0), both mass-weighted: momentum kept, no energy added. */
 SIM_HD static inline void cs_im_rocks_apart(const cs_im_rocks *R)
