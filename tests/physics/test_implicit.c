@@ -247,7 +247,6 @@ static void test_rock_friction_slides_then_rolls(void **unused)
     cs_sim_destroy(sim);
 }
 
-/* k_structural 1e5 and a scrambled state (random positions and velocities) stay finite. */
 /* The deepest two rocks lie in each other now (m; 0 when none touch). */
 static double deepest_overlap(const cs_sim *sim)
 {
@@ -262,7 +261,7 @@ static double deepest_overlap(const cs_sim *sim)
     return most;
 }
 
-/* Eight stones (0.05-0.12 m, 2,500 kg/m^3: 1.5 to 18 kg, 76 kg in all) dropped one every half
+/* Eight stones (0.05-0.12 m, 2,500 kg/m^3: 1.5 to 18 kg, 72 kg in all) dropped one every half
  * second onto the default 32 x 32 edge-pinned cloth pile up in its sag. The solve moves each with
  * the cloth that carries it and does not see their contacts with one another: it must not drive
  * them into each other. The rock law alone lets a pair meeting at u sink about u / sqrt(k_rock)
@@ -308,6 +307,7 @@ static void test_pile_of_stones_not_pressed_together(void **unused)
     cs_sim_destroy(sim);
 }
 
+/* k_structural 1e5 and a scrambled state (random positions and velocities) stay finite. */
 static void test_stiff_and_scrambled_stay_finite(void **unused)
 {
     (void)unused;
