@@ -15,13 +15,24 @@
  * it drops eight stones of the daemon's sizes (0.05-0.12 m, 2,500 kg/m^3), one every half second,
  * onto the default N x N cloth and prints, every 2 s, their kinetic energy (the linear and the
  * spin's) and, under implicit_euler, Newton iterations and parts a frame: whether the pile settles,
- * and what it costs while it does not. */
+ * and what it costs while it does not. --iterations K sets solver_iterations for every case (the
+ * column's default is 100, the others' the table's). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
 #include "clothsim/clothsim.h"
+
+/* --iterations: solver_iterations for every case (0: each case's own) */
+static int iterations = 0;
+
+/* The table's defaults, with --iterations. */
+static void params_default(cs_params *p)
+{
+    cs_params_default(p);
+    if (iterations > 0) p->solver_iterations = iterations;
+}
 
 static double now(void)
 {
@@ -79,7 +90,7 @@ static double curtain(int N, int integrator, double seconds, int threads, double
     cs_scene sc;
     cs_params p;
     cs_scene_default(&sc);
-    cs_params_default(&p);
+    params_default(&p);
     sc.nx = sc.ny = N;
     sc.orientation = CS_VERTICAL;
     sc.pins = CS_PINS_TOP_EDGE;
@@ -102,7 +113,7 @@ static double stone(int N, int integrator, double seconds, int threads, double *
     cs_scene sc;
     cs_params p;
     cs_scene_default(&sc);
-    cs_params_default(&p);
+    params_default(&p);
     sc.nx = sc.ny = N;
     sc.pins = CS_PINS_EDGES;
     p.drag = 3.0f, p.auto_substeps = 1, p.max_substeps = 100000;
@@ -147,7 +158,7 @@ static int pile(int N, int integrator, double seconds, int threads)
     cs_scene sc;
     cs_params p;
     cs_scene_default(&sc);
-    cs_params_default(&p);
+    params_default(&p);
     sc.nx = sc.ny = N;
     p.integrator = integrator;
     cs_sim *sim = cpu_sim(&sc, &p, threads);
@@ -203,6 +214,7 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--tolerances") == 0 && v) n_tols = parse_list(v, tols, 8), i++;
         else if (strcmp(a, "--seconds") == 0 && v) seconds = atof(v), i++;
         else if (strcmp(a, "--threads") == 0 && v) threads = atoi(v), i++;
+        else if (strcmp(a, "--iterations") == 0 && v) iterations = atoi(v), i++;
         else if (strcmp(a, "--curtain") == 0 && v) {
             /* the curtain's stretch under velocity_verlet and implicit_euler */
             const int N = atoi(v);
@@ -233,7 +245,7 @@ int main(int argc, char **argv)
         }
         else {
             fprintf(stderr, "usage: clothd-accuracy [--sizes 64,128,256] [--tolerances 1e-2,1e-3] [--seconds S] "
-                            "[--threads T] [--curtain N | --stone N | --pile N]\n");
+                            "[--threads T] [--iterations K] [--curtain N | --stone N | --pile N]\n");
             return 2;
         }
     }
@@ -246,7 +258,7 @@ int main(int argc, char **argv)
             cs_scene sc;
             cs_params p;
             cs_scene_default(&sc);
-            cs_params_default(&p);
+            params_default(&p);
             sc.nx = 2, sc.ny = N;
             sc.orientation = CS_VERTICAL;
             sc.pins = CS_PINS_TOP_EDGE;
@@ -254,7 +266,7 @@ int main(int argc, char **argv)
             p.k_shear = 0.0f, p.k_bend = 0.0f, p.ground = 0;
             p.integrator = CS_IMPLICIT_EULER;
             p.solver_tolerance = (float)tols[ti];
-            p.solver_iterations = 100, p.cg_iterations = 1000;
+            p.solver_iterations = iterations > 0 ? iterations : 100, p.cg_iterations = 1000;
             cs_sim *sim = NULL;
             char err[256];
             if (cs_sim_create(&sc, &p, "cpu", &sim, err, sizeof err) != CS_OK) {

@@ -76,7 +76,7 @@ typedef enum cs_contact_model { CS_CONTACT_VERTEX = 0, CS_CONTACT_SURFACE = 1 } 
     X(integrator, ENUM, "-", CS_IMPLICIT_EULER, 0, 2, INTEGRATOR, "velocity_verlet (kick-drift-kick), symplectic_euler, or implicit_euler (backward Euler solved by Newton and multigrid-preconditioned conjugate gradients: stiff springs cost no substeps); the daemon on the CUDA backend defaults to velocity_verlet") \
     X(grab_speed, FLOAT, "m/s", 5.0, 0.001, 1000, NONE, "Fastest a grabbed vertex moves toward its target") \
     X(implicit_substeps, INT, "-", 1, 1, 100000, NONE, "Substeps per frame under implicit_euler (a substep is cut in parts while cloth near a rock would close on it by more than contact_offset or a quarter of its radius)") \
-    X(solver_iterations, INT, "-", 4, 1, 100, NONE, "implicit_euler: most Newton iterations per substep") \
+    X(solver_iterations, INT, "-", 2, 1, 100, NONE, "implicit_euler: most Newton iterations per substep") \
     X(solver_tolerance, FLOAT, "-", 1e-3, 1e-7, 0.5, NONE, "implicit_euler: a substep stops once its residual (the net force's norm) is this fraction of its first") \
     X(cg_iterations, INT, "-", 30, 1, 1000, NONE, "implicit_euler: most conjugate-gradient iterations per Newton iteration, each preconditioned by one multigrid V-cycle") \
     X(self_collision, BOOL, "-", 0, 0, 1, NONE, "Whether the cloth collides with itself: its layers push apart and never pass through each other") \
