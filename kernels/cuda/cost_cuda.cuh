@@ -38,7 +38,7 @@ static double peak_bandwidth(int dev)
  * assembly's |R| (IM_TRIES a Newton iteration) and to learn whether a linear solve is done
  * (IM_LOOKS), with rocks once more a substep for its parts; test_datapath counts them (about 3.9 a
  * Newton iteration with a rock). A batch of such scenes shares its launches and its waits. */
-#define IM_NEWTON 3.0
+#define IM_NEWTON 2.0
 #define IM_CG 5.0
 #define IM_TRIES 1.3
 #define IM_LOOKS 2.0
