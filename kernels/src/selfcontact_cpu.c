@@ -26,8 +26,9 @@
  * the pass gathers as the CUDA backend does (its repulsion on one thread).
  *
  * Under implicit_euler the parts of a substep come from the repelling pairs that may touch in it
- * (cs_sc_part_rate: cs_sc_near_speed over the lists, found at the positions now when they do not
- * hold every such pair). */
+ * (cs_sc_part_rate: cs_sc_near_speed over the lists; where they do not hold every such pair, the
+ * pairs of the few vertices they no longer serve gathered afresh as well (strays), or with more of
+ * those the lists found again at the positions now). */
 #include <math.h>
 #include <stdatomic.h>
 #include <stdint.h>
@@ -591,6 +592,32 @@ static int32_t repel(cs_sc_work *w, const cs_phys *p, const cs_state *s, int32_t
     return t;
 }
 
+/* The vertices the lists no longer serve for cs_sc_part_rate: a spread e past the eu they were found
+ * for, or a drift past the room (drift_of, about a centre of every drift). Marks them 1 in w->s
+ * (0 elsewhere; the pass sets its scales afresh) and returns how many there are. A pair whose four
+ * vertices are all served lies in the lists (each of its sides spreads within its eh and drifts
+ * within the room), so only the pairs of these can be missing. */
+static int32_t strays(cs_sc_work *w, const cs_phys *p, int32_t n, int threads)
+{
+    const float *xr = w->xr, *const x3[3] = {w->x0, w->y0, w->z0}, *const r3[3] = {xr, xr + n, xr + 2 * (size_t)n};
+    const cs_vec3 c = centre_of(x3, r3, n);
+    const float rm = room(p);
+    int32_t count = 0;
+    CS_PARALLEL_FOR(threads, schedule(static) reduction(+ : count),
+    for (int32_t v = 0; v < n; v++) {
+        const int bad = !(w->e[v] <= w->eu[v]) || !(drift_of(w, n, v, c) <= rm);
+        w->s[v] = bad ? 1.0f : 0.0f;
+        count += bad;
+    });
+    return count;
+}
+
+/* At most this many vertices (of n) the lists no longer serve have their pairs gathered afresh for
+ * cs_sc_part_rate, rather than the lists found again: a stone's landing spreads the whole cloth
+ * past them, but under a resting stone a few vertices gain speed every substep (kernels/MODEL.md,
+ * "Self-collision"). */
+static int32_t few(int32_t n) { return n / 16; }
+
 cs_status cs_sc_part_rate(cs_sc_work **wp, const cs_phys *p, const cs_state *s, float h, int threads, float *rate)
 {
     if (cs_sc_begin(wp, s) != CS_OK) return CS_E_NOMEM; /* x0: the positions now */
@@ -600,8 +627,9 @@ cs_status cs_sc_part_rate(cs_sc_work **wp, const cs_phys *p, const cs_state *s, 
     const float *const v3[3] = {s->vx, s->vy, s->vz};
     const cs_vec3 cv = centre_of(v3, NULL, n);
     /* the lists hold every repelling pair that may touch within h while each vertex's reach in h
-     * lies within the spread they were found for (as for a pass: cs_sc_end), else they are found
-     * again for it here */
+     * lies within the spread they were found for (as for a pass: cs_sc_end); else the pairs of the
+     * few vertices past it (strays) are gathered afresh beside them, or with more the lists are
+     * found again for it here */
     int over = 0;
     float Vm = 0.0f;
     CS_PARALLEL_FOR(threads, schedule(static) reduction(| : over) reduction(max : Vm),
@@ -614,7 +642,14 @@ cs_status cs_sc_part_rate(cs_sc_work **wp, const cs_phys *p, const cs_state *s, 
     *rate = 0.0f;
     if (!(Vm < 3.0e38f)) return CS_OK; /* not finite: the step reports it */
     const float *L0 = s->L0;
-    int listed = !over && w->have_ref && w->ref_thickness == th && drift(w, n, threads) <= room(p);
+    const int kept = w->have_ref && w->ref_thickness == th;
+    int listed = !over && kept && drift(w, n, threads) <= room(p);
+    int32_t stray = 0; /* vertices the lists do not serve, whose pairs are gathered afresh */
+    if (!listed && kept) {
+        stray = strays(w, p, n, threads);
+        listed = stray <= few(n);
+        if (!listed) stray = 0;
+    }
     if (!listed) {
         listed = find_lists(w, p, L0, threads) == 0;
         w->rate_finds++, w->rate_pairs += listed ? w->rpairs : 0;
@@ -628,11 +663,14 @@ cs_status cs_sc_part_rate(cs_sc_work **wp, const cs_phys *p, const cs_state *s, 
                                              w->rl.count[v]);
             most = q > most ? q : most;
         });
-    } else { /* one thread, as the passes without lists: every repelling pair within the reach of the fastest */
+    }
+    if (!listed || stray) { /* one thread, as the passes without lists: every repelling pair (with lists,
+                              * the strays') within the reach of the fastest */
         const float rad = cs_sc_near_reach(th, h, Vm);
         const float L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads);
         const cs_sc_grid G = build_grid(w, n, w->x0, w->y0, w->z0, rad + 2.0f * L, threads);
         for (int32_t v = 0; v < n; v++) {
+            if (listed && w->s[v] == 0.0f) continue;
             const int32_t k = repel_keys(w, p, L0, &G, rad, v);
             const float q = k > 0 ? cs_sc_near_speed(p, s->x, s->y, s->z, s->vx, s->vy, s->vz, h, w->fb, k)
                                   : k < 0 ? Vm : 0.0f; /* (no memory: as fast as the fastest) */
