@@ -10,7 +10,7 @@
  *      moves more (cs_sc_found: a vertex looks as far as its own spread says), and handed to its
  *      four vertices (find_lists; the repelling ones also into lists sorted by key). They are kept
  *      while they provably still hold every such pair: each vertex's spread within the one they
- *      were found for (plus a slack), x0 within a drift of where they were found (drift()), the
+ *      were found for (plus a slack), x0 within a drift of where they were found (drift_of), the
  *      same thickness, and no spring torn or state set from outside since (cs_sc_forget);
  *   3. repulsion (cs_sc_repel) per vertex into scratch, then added;
  *   4. the bound (cs_sc_limit_listed) over each vertex's list, in Jacobi sweeps of the scales until
@@ -358,7 +358,8 @@ static float drift_of(const cs_sc_work *w, int32_t n, int32_t v, cs_vec3 c)
  * displacement itself (the bound's cuts scale displacements, so it is what bounds two vertices'
  * relative motion once some are cut). Also each vertex's spread e = |d - centre| (every scale 1,
  * as spreads()), into *over whether one passes the eu the lists were found for, and with have_ref
- * into *drifted drift() (else 3e38). Maxima: exact in any order. */
+ * into *drifted the farthest any vertex's x0 has drifted from where the lists were found (drift_of,
+ * about a centre of every drift; else 3e38). Maxima: exact in any order. */
 static float displacements(cs_sc_work *w, const cs_state *s, int threads, cs_vec3 *centre, float *far_most,
                            int *over, float *drifted)
 {
@@ -389,21 +390,6 @@ static float displacements(cs_sc_work *w, const cs_state *s, int threads, cs_vec
     *over = past;
     *drifted = ref ? far : 3e38f;
     return n > 0 ? most : 0.0f;
-}
-
-/* How far x0 has drifted from where the lists were found: the farthest any vertex's drift lies from
- * a centre of them all (centre_of; the maximum exact in any order). */
-static float drift(const cs_sc_work *w, int32_t n, int threads)
-{
-    const float *xr = w->xr, *const x3[3] = {w->x0, w->y0, w->z0}, *const r3[3] = {xr, xr + n, xr + 2 * (size_t)n};
-    const cs_vec3 c = centre_of(x3, r3, n);
-    float most = 0.0f;
-    CS_PARALLEL_FOR(threads, schedule(static) reduction(max : most),
-    for (int32_t v = 0; v < n; v++) {
-        const float l = drift_of(w, n, v, c);
-        most = l > most ? l : most;
-    });
-    return most;
 }
 
 /* Each vertex's spread e = |s d - centre| for the scales s; returns whether the lists still serve:
@@ -453,7 +439,7 @@ static int key_order(const void *a, const void *b)
  * centre's shift take before the lists must be found again. */
 static float slack(const cs_phys *p) { return 0.25f * p->self_thickness; }
 
-/* How far x0 may drift (drift()) before the lists are found again: every reach is twice this
+/* How far x0 may drift (drift_of) before the lists are found again: every reach is twice this
  * wider, as a pair's distance changes by at most the drift of its two sides. More room means
  * fewer finds, but a pass skips a vertex only while its nearest pair lies beyond the thickness
  * and twice the drift: on a flat grid the nearest pairs that share no vertex lie about 0.7 of the
@@ -630,27 +616,21 @@ cs_status cs_sc_part_rate(cs_sc_work **wp, const cs_phys *p, const cs_state *s, 
      * lies within the spread they were found for (as for a pass: cs_sc_end); else the pairs of the
      * few vertices past it (strays) are gathered afresh beside them, or with more the lists are
      * found again for it here */
-    int over = 0;
     float Vm = 0.0f;
-    CS_PARALLEL_FOR(threads, schedule(static) reduction(| : over) reduction(max : Vm),
+    CS_PARALLEL_FOR(threads, schedule(static) reduction(max : Vm),
     for (int32_t v = 0; v < n; v++) {
         const float V = cs_sc_speed(p, s->vx, s->vy, s->vz, v, cv, h);
         w->e[v] = h * V;
-        over |= !(w->e[v] <= w->eu[v]);
         Vm = V > Vm ? V : Vm;
     });
     *rate = 0.0f;
     if (!(Vm < 3.0e38f)) return CS_OK; /* not finite: the step reports it */
     const float *L0 = s->L0;
     const int kept = w->have_ref && w->ref_thickness == th;
-    int listed = !over && kept && drift(w, n, threads) <= room(p);
-    int32_t stray = 0; /* vertices the lists do not serve, whose pairs are gathered afresh */
-    if (!listed && kept) {
-        stray = strays(w, p, n, threads);
-        listed = stray <= few(n);
-        if (!listed) stray = 0;
-    }
+    int32_t stray = kept ? strays(w, p, n, threads) : 0; /* vertices the lists do not serve */
+    int listed = kept && stray <= few(n);
     if (!listed) {
+        stray = 0;
         listed = find_lists(w, p, L0, threads) == 0;
         w->rate_finds++, w->rate_pairs += listed ? w->rpairs : 0;
     }
@@ -686,7 +666,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
     const int32_t n = s->n;
     const float *L0 = s->L0, th = p->self_thickness;
     cs_vec3 c;
-    float Ma, drifted; /* the largest displacement; drift() */
+    float Ma, drifted; /* the largest displacement; the farthest drift (displacements) */
     int over;
     float M = displacements(w, s, threads, &c, &Ma, &over, &drifted);
     if (!(M < 3.0e38f)) return CS_OK; /* not finite: the caller reports it */
