@@ -8,9 +8,10 @@
  *      under gravity, rock-rock and ground contact), and the mass each dynamic rock lends the
  *      vertices that may touch it in the part (cs_im_rocks_share; implicit.h, "rock contact" and
  *      "the rock steps of a part");
- *   2. the cloth: x_n and v_n kept aside, the first guess x = x_n + h v_n + h^2 g (pinned vertices
- *      stay, the grabbed one moves at its grab velocity), then Newton: assemble (residual and
- *      blocks, the carried mass and the ground included) at the iterate, stop at solver_tolerance
+ *   2. the cloth: x_n and v_n kept aside, the first guess x = x_n + h v_n + h^2 a (a:
+ *      cs_im_guess_accel; pinned vertices stay, the grabbed one moves at its grab velocity), then
+ *      Newton: assemble (the residual, and the blocks where another iteration may follow, the
+ *      carried mass and the ground included) at the iterate, stop at solver_tolerance
  *      of the first residual, at float's floor, after solver_iterations or once an iteration no
  *      longer halves it, else solve A dx = R by conjugate gradients preconditioned with one
  *      multigrid V-cycle (at most cg_iterations) and step along dx with a backtracking line
@@ -715,15 +716,17 @@ static int64_t part(const cs_phys *p0, cs_im_work *w, cs_state *s, float h, int 
          * switches on or off within the step makes a full Newton step overshoot) */
         CS_PARALLEL_FOR(threads, schedule(static),
         for (int32_t v = 0; v < n; v++) w->xo[v] = s->x[v], w->yo[v] = s->y[v], w->zo[v] = s->z[v];);
+        /* the matrix only where another iteration may follow (the residual is the same bits) */
+        const int blocks = k + 1 < p->solver_iterations;
         float a = 1.0f, rn = r;
         for (int tries = 0; tries < 4; tries++, a *= 0.5f) {
             move(w, s, a, inv_h, threads);
-            rn = assemble(p, h, s, w, &rv, 1, threads);
+            rn = assemble(p, h, s, w, &rv, blocks, threads);
             if (rn < r) break;
         }
         if (!(rn < r)) { /* no step along dx helps: back to x_k, and stop */
             move(w, s, 0.0f, inv_h, threads);
-            rn = assemble(p, h, s, w, &rv, 1, threads);
+            rn = assemble(p, h, s, w, &rv, 0, threads);
             prev = rn;
         }
         k++;
