@@ -407,7 +407,7 @@ static float assemble(const cs_phys *p, float h, const cs_state *s, cs_im_work *
         chunk_span(p, c, &j, &i0, &i1);
         chunk_owned(p, h, s, w, j, i0, i1, blocks);
     });
-    CS_PARALLEL_FOR(threads, schedule(dynamic, 4),
+    CS_PARALLEL_FOR(threads, schedule(static),
     for (int32_t c = 0; c < nchunks; c++) {
         int32_t j, i0, i1;
         chunk_span(p, c, &j, &i0, &i1);
