@@ -67,7 +67,7 @@ static void print_self(const cs_self_stats *st, int json)
                st->passes, st->broad, (double)st->pairs / broad, (double)st->contacts / passes,
                (double)st->cut / passes, (long long)st->lost);
     else
-        printf("        self_collision: %d passes, %d broad phases (%.2f a pass), %.0f pairs in the lists a broad "
+        printf("        self_collision: %d passes, %d broad phases (%.2f a pass), %.0f repelling pairs in the lists a broad "
                "phase, %.1f contacts and %.2f vertices cut a pass, %lld vertices without a list\n",
                st->passes, st->broad, st->broad / passes, (double)st->pairs / broad,
                (double)st->contacts / passes, (double)st->cut / passes, (long long)st->lost);
