@@ -32,13 +32,17 @@ static double busy_on_fewer(const autothreads *a, double busy)
     return busy * (double)t / (double)(t - 1);
 }
 
-/* Whether t threads were measured to buy less than AUTOTHREADS_GAIN over t - 1: a unit of work
- * cost no less than AUTOTHREADS_GAIN of what it cost on one thread fewer (both measured). */
-static int no_gain(const autothreads *a, int t)
+/* Whether t threads were measured to buy too little over t - 1: a unit of work cost no less than
+ * `gain` of what it cost on one thread fewer (both measured). */
+static int no_gain(const autothreads *a, int t, double gain)
 {
     const double more = autothreads_cost(a, t), fewer = autothreads_cost(a, t - 1);
-    return more > 0 && fewer > 0 && more >= AUTOTHREADS_GAIN * fewer;
+    return more > 0 && fewer > 0 && more >= gain * fewer;
 }
+
+/* What a thread more must cut a unit's cost to when the scenes would be busy `busy` without it:
+ * behind (AUTOTHREADS_BEHIND), anything; else below AUTOTHREADS_GAIN. */
+static double gain_for(double busy) { return busy > AUTOTHREADS_BEHIND ? 1.0 : AUTOTHREADS_GAIN; }
 
 /* A new window from now. */
 static void restart(autothreads *a, double now)
@@ -66,12 +70,15 @@ int autothreads_turn(autothreads *a, double now, int greedy)
     if (!greedy && a->work > 0) {
         const int t = a->now;
         a->windows++;
-        if (busy > AUTOTHREADS_UP && t < a->most && (!no_gain(a, t + 1) || a->windows >= a->probe)) {
+        if (busy > AUTOTHREADS_UP && t < a->most && (!no_gain(a, t + 1, gain_for(busy)) || a->windows >= a->probe)) {
             a->now++;
             a->probe = a->windows + AUTOTHREADS_PROBE;
-        } else if (t > 1 && (busy_on_fewer(a, busy) < AUTOTHREADS_DOWN || no_gain(a, t))) {
-            a->now--;
+        } else if (t > 1) {
+            const double fewer = busy_on_fewer(a, busy);
+            a->calm = fewer < AUTOTHREADS_DOWN ? a->calm + 1 : 0;
+            if (a->calm >= AUTOTHREADS_CALM || no_gain(a, t, gain_for(fewer))) a->now--;
         }
+        if (a->now != t) a->calm = 0;
     }
     restart(a, now);
     return a->now;

@@ -15,13 +15,20 @@
  *  - a step in progress or a scene at max_speed (greedy) takes every thread, at once;
  *  - busy above AUTOTHREADS_UP: one thread more (when none is left, the scenes fall behind as they
  *    would on a fixed count), unless that count was measured to buy too little (below);
- *  - busy as it would be on one thread fewer below AUTOTHREADS_DOWN: one fewer. That estimate
- *    scales busy by the compute per work measured at the smaller count, or, before there is one,
- *    as if each thread sped the step up in full (which never gives one back too early);
+ *  - busy as it would be on one thread fewer below AUTOTHREADS_DOWN in AUTOTHREADS_CALM windows
+ *    in a row: one fewer. That estimate scales busy by the compute per work measured at the
+ *    smaller count, or, before there is one, as if each thread sped the step up in full (which
+ *    never gives one back too early). A lull between stones does not give the thread back: the
+ *    daemon's 128 x 128 scene (a stone every 3 s) gave it back after every quiet window, fell
+ *    behind for a window each time a stone landed, and ran at 0.95 of real time on 1.1 cores;
+ *    after three in a row, at 0.97-0.98 on 1.4 (two threads fixed: 0.97-0.99; build machine,
+ *    2026-12-07);
  *  - one fewer, too, when a unit of work was measured to cost at least AUTOTHREADS_GAIN of what it
- *    cost on one thread fewer: the thread buys nothing, so the scenes step faster without it
- *    (a thread that buys less than its barriers cost). Such a count is tried again
- *    after AUTOTHREADS_PROBE windows, since the scenes change.
+ *    cost on one thread fewer: the thread buys too little for a core (a thread that buys less
+ *    than its barriers cost). While the scenes would fall behind without it (busy above
+ *    AUTOTHREADS_BEHIND), any gain keeps it (and takes it): only a thread measured to cost more
+ *    a unit goes. Such a count is tried again after AUTOTHREADS_PROBE windows, since the scenes
+ *    change.
  * A wrong guess corrects itself: the next window measures it. The engine's results do not depend
  * on the count (cs_sim_set_threads), so a change mid-run changes no bits.
  *
@@ -34,12 +41,15 @@
 #define AUTOTHREADS_DOWN 0.75  /* busy on one thread fewer below this: one fewer */
 #define AUTOTHREADS_MOST 256   /* the most threads it counts to (the `threads` setting's range) */
 #define AUTOTHREADS_GAIN 0.95  /* a thread more must cut the compute per work below this share */
+#define AUTOTHREADS_BEHIND 0.98 /* busy above this: the scenes fall behind, and any gain counts */
+#define AUTOTHREADS_CALM 3      /* windows in a row that say one fewer suffices before it goes */
 #define AUTOTHREADS_PROBE 30   /* windows before a count that bought too little is tried again */
 #define AUTOTHREADS_FADE 0.9   /* weight of a count's older windows in its cost, each window on */
 
 typedef struct autothreads {
     int most, now;
     long windows, probe;               /* windows decided; the first one that may try a count again */
+    int calm;                          /* windows in a row that one thread fewer would have kept up */
     double start;                      /* wall clock of the window's start (< 0: none yet) */
     double busy, work;                 /* compute s and units of work in the window */
     double busy_sum[AUTOTHREADS_MOST + 1], work_sum[AUTOTHREADS_MOST + 1]; /* each count's windows, fading */
