@@ -56,6 +56,7 @@ int autothreads_turn(autothreads *a, double now, int greedy)
     if (a->start < 0 || now < a->start) restart(a, now);
     if (greedy && a->now != a->most) { /* a new window begins on every thread */
         a->now = a->most;
+        a->calm = 0;
         restart(a, now);
         return a->now;
     }

@@ -21,7 +21,7 @@
  *    never gives one back too early). A lull between stones does not give the thread back: the
  *    daemon's 128 x 128 scene (a stone every 3 s) gave it back after every quiet window, fell
  *    behind for a window each time a stone landed, and ran at 0.95 of real time on 1.1 cores;
- *    after three in a row, at 0.97-0.98 on 1.4 (two threads fixed: 0.97-0.99; build machine,
+ *    after three in a row, at 0.97-0.99 on 1.4-1.6 (two threads fixed: 0.97-0.99; build machine,
  *    2026-12-07);
  *  - one fewer, too, when a unit of work was measured to cost at least AUTOTHREADS_GAIN of what it
  *    cost on one thread fewer: the thread buys too little for a core (a thread that buys less
