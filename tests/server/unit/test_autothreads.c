@@ -14,6 +14,14 @@ static int window(autothreads *a, double *t, double busy, double work, int greed
     return autothreads_turn(a, *t, greedy);
 }
 
+/* A count of at most `most` threads, started (its first turn) at time 0; returns that time. */
+static double begin(autothreads *a, int most)
+{
+    autothreads_init(a, most);
+    autothreads_turn(a, 0, 0);
+    return 0;
+}
+
 /* Quiet windows (busy, work) in a row while the count stays `was`: AUTOTHREADS_CALM - 1 of them,
  * then the last one's count. */
 static int calm_windows(autothreads *a, double *t, double busy, double work, int was)
@@ -37,9 +45,7 @@ static void test_more_while_behind_then_back(void **unused)
 {
     (void)unused;
     autothreads a;
-    autothreads_init(&a, 4);
-    double t = 0;
-    autothreads_turn(&a, t, 0);
+    double t = begin(&a, 4);
     assert_int_equal(window(&a, &t, 0.95, 1e6, 0), 2); /* 95 % busy on one: a second */
     /* Two threads take 0.92 s for the work one thread did in 0.95 s: a poor machine. Still busy:
      * a third. */
@@ -76,9 +82,7 @@ static void test_a_thread_that_buys_nothing_goes_back(void **unused)
 {
     (void)unused;
     autothreads a;
-    autothreads_init(&a, 2);
-    double t = 0;
-    autothreads_turn(&a, t, 0);
+    double t = begin(&a, 2);
     assert_int_equal(window(&a, &t, 0.98, 1e6, 0), 2);  /* behind on one (0.98 us a unit): a second */
     assert_int_equal(window(&a, &t, 1.0, 8.2e5, 0), 1); /* 1.22 us a unit on two: back to one */
     /* still behind on one, but two was measured slower: stay, until the count is tried again */
@@ -100,14 +104,10 @@ static void test_a_small_gain_counts_only_while_behind(void **unused)
 {
     (void)unused;
     autothreads a;
-    autothreads_init(&a, 2);
-    double t = 0;
-    autothreads_turn(&a, t, 0);
+    double t = begin(&a, 2);
     assert_int_equal(window(&a, &t, 0.99, 1e6, 0), 2); /* behind on one */
     for (int k = 0; k < 5; k++) assert_int_equal(window(&a, &t, 1.0, 1.03e6, 0), 2);
-    autothreads_init(&a, 2);
-    t = 0;
-    autothreads_turn(&a, t, 0);
+    t = begin(&a, 2);
     assert_int_equal(window(&a, &t, 0.93, 1e6, 0), 2); /* 93 % busy on one: a second */
     /* on two 0.911 us a unit (2 % less), 80 % busy: on one 82 %, keeping up: back to one */
     assert_int_equal(window(&a, &t, 0.8, 8.78e5, 0), 1);
@@ -119,9 +119,7 @@ static void test_a_lull_keeps_the_thread(void **unused)
 {
     (void)unused;
     autothreads a;
-    autothreads_init(&a, 2);
-    double t = 0;
-    autothreads_turn(&a, t, 0);
+    double t = begin(&a, 2);
     assert_int_equal(window(&a, &t, 0.95, 1e6, 0), 2);
     for (int k = 0; k < 4; k++) {
         for (int q = 0; q < 2; q++) assert_int_equal(window(&a, &t, 0.3, 6e5, 0), 2); /* a lull */
@@ -136,9 +134,7 @@ static void test_one_costly_window_does_not_decide(void **unused)
 {
     (void)unused;
     autothreads a;
-    autothreads_init(&a, 2);
-    double t = 0;
-    autothreads_turn(&a, t, 0);
+    double t = begin(&a, 2);
     assert_int_equal(window(&a, &t, 0.98, 1e6, 0), 2); /* behind on one, 0.98 us a unit */
     for (int k = 0; k < 5; k++) assert_int_equal(window(&a, &t, 0.95, 1.3e6, 0), 2); /* 0.73 us on two */
     /* 2.5 us a unit for one window: (0.73 + 2.5) / 2 would pass 0.95 x 0.98; the sums give 0.87 */
@@ -156,9 +152,7 @@ static void test_greedy_takes_every_thread(void **unused)
 {
     (void)unused;
     autothreads a;
-    autothreads_init(&a, 8);
-    double t = 0;
-    autothreads_turn(&a, t, 0);
+    double t = begin(&a, 8);
     assert_int_equal(autothreads_turn(&a, 0.125, 1), 8); /* at once, not at the window's end */
     t = 0.125;
     assert_int_equal(window(&a, &t, 1.0, 1e6, 1), 8);
@@ -170,9 +164,7 @@ static void test_idle_and_bounds(void **unused)
 {
     (void)unused;
     autothreads a;
-    autothreads_init(&a, 1);
-    double t = 0;
-    autothreads_turn(&a, t, 0);
+    double t = begin(&a, 1);
     assert_int_equal(window(&a, &t, 1.0, 1e6, 0), 1); /* one core: nowhere to go */
     autothreads_init(&a, 100000);
     assert_int_equal(a.most, AUTOTHREADS_MOST);
