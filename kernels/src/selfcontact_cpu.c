@@ -1,17 +1,20 @@
 /* selfcontact_cpu.c - self_collision on the CPU backend: the functions of clothsim/selfcontact.h
  * looped over the cloth with OpenMP (kernels/MODEL.md, "Self-collision"). After a substep (a part
  * under implicit_euler) that began at x0 (cs_sc_begin):
- *   1. d = x - x0, a centre c of it (centre_of), and each vertex's spread e = |s d - c| (every
- *      scale s 1):
+ *   1. d = x - x0, a centre c of it (centre_of), each vertex's spread e = |s d - c| (every
+ *      scale s 1) and its largest difference g of s d to a grid neighbour (nbr_spread):
  *      a pair's vertices move relative to one another by at most the sum of its two sides'
- *      largest e, so it can touch, or fail the bound's test, only within its own reach
- *      (cs_sc_pair_reach) - small where the cloth barely moves, large only where it moves;
+ *      largest e, and where its owners lie within a few rings of each other by at most the ring
+ *      bound (cs_sc_ring_spread, from the largest g about them: windows), so it can touch, or fail
+ *      the bound's test, only within its own reach (cs_sc_pair_reach) - small where the cloth
+ *      barely moves or moves as one sheet, large only where layers move against each other;
  *   2. the lists: each pair within its reach at x0 found once, by the one of its two owners that
- *      moves more (cs_sc_found: a vertex looks as far as its own spread says), and handed to its
- *      four vertices (find_lists; the repelling ones also into lists sorted by key). They are kept
- *      while they provably still hold every such pair: each vertex's spread within the one they
- *      were found for (plus a slack), x0 within a drift of where they were found (drift_of), the
- *      same thickness, and no spring torn or state set from outside since (cs_sc_forget);
+ *      moves more (cs_sc_found: a vertex looks as far as its own spread says, among the quads'
+ *      boxes), and handed to its four vertices (find_lists; the repelling ones also into lists
+ *      sorted by key). They are kept while they provably still hold every such pair: each
+ *      vertex's spread and neighbour difference within those they were found for (plus a slack),
+ *      x0 within a drift of where they were found (drift_of), the same thickness, and no spring
+ *      torn or state set from outside since (cs_sc_forget);
  *   3. repulsion (cs_sc_repel) per vertex into scratch, then added;
  *   4. the bound (cs_sc_limit_listed) over each vertex's list, in Jacobi sweeps of the scales until
  *      none changes (at most CS_SC_SWEEPS, then one sweep that cuts every pair within the cloth's
@@ -201,6 +204,12 @@ struct cs_sc_work {
     float *dminb, *dminr;    /* the least distance where they were found of each vertex's pairs in bl, rl */
     float *ehp;              /* the largest eu of a vertex of any of each vertex's pairs */
     float *ell;              /* the longest of each vertex's own edges at x0 (cs_sc_own_reach) */
+    float *g;                /* each vertex's largest difference of s d to a grid neighbour now */
+    float *gu;               /* the g the lists were found for (at least g while they serve) */
+    float *gh;               /* the largest gu within each window of rings (CS_SC_WINDOWS n) */
+    float ga;                /* what the lists' ring bounds add (cs_sc_ring_spread) */
+    float *qb;               /* each vertex's cs_sc_quad_box at x0 (6 n) */
+    float *qc;               /* their centres (x, y, z, each n) and the radii about them (n) */
     float *xr;               /* x0 where the lists were found (3 n) */
     int have_ref;            /* whether xr and the lists belong to the state now */
     float ref_thickness;     /* the self_thickness they were found for */
@@ -227,6 +236,7 @@ void cs_sc_free(cs_sc_work *w)
     free(w->x0);
     free(w->e);
     free(w->xr);
+    free(w->qb);
     free(w->look);
     free(w->fb);
     free(w->dx);
@@ -255,7 +265,7 @@ uint64_t cs_sc_work_bytes(int32_t n)
     const uint64_t lists = 3 * (c * (sizeof(int64_t *) + sizeof(int64_t)) + full + keys +
                                 (v + 1) * (sizeof(int64_t) + sizeof(int32_t))) + keys +
                            c * sizeof(float *) + (full + keys) / 2 /* the finders' distances */;
-    return sizeof(cs_sc_work) + lists + sizeof(float) * 24 * v + 2 * v /* look, intact */ + sizeof(uint32_t) * v +
+    return sizeof(cs_sc_work) + lists + sizeof(float) * (36 + CS_SC_WINDOWS) * v + 2 * v /* look, intact */ + sizeof(uint32_t) * v +
            sizeof(int32_t) * ((uint64_t)table_size(n) + 1 + 4 * v);
 }
 
@@ -270,8 +280,9 @@ static cs_status fit(cs_sc_work **wp, int32_t n)
     w->n = n;
     w->mask = size - 1;
     w->x0 = malloc(sizeof(float) * 3 * (size_t)n);
-    w->e = malloc(sizeof(float) * 7 * (size_t)n);
+    w->e = malloc(sizeof(float) * (9 + CS_SC_WINDOWS) * (size_t)n);
     w->xr = malloc(sizeof(float) * 3 * (size_t)n);
+    w->qb = malloc(sizeof(float) * 10 * (size_t)n);
     const int lists = lists_alloc(&w->rl, n, 0) && lists_alloc(&w->bl, n, 0) && lists_alloc(&w->ol, n, 1);
     w->look = malloc(2 * (size_t)n);
     w->dx = malloc(sizeof(float) * 3 * (size_t)n);
@@ -281,15 +292,17 @@ static cs_status fit(cs_sc_work **wp, int32_t n)
     w->start = malloc(sizeof(int32_t) * ((size_t)size + 1));
     w->ids = malloc(sizeof(int32_t) * (size_t)n);
     w->cc = malloc(sizeof(int32_t) * 3 * (size_t)n);
-    if (!lists || !w->x0 || !w->e || !w->xr || !w->look || !w->dx || !w->s || !w->px || !w->key || !w->start || !w->ids || !w->cc) {
+    if (!lists || !w->x0 || !w->e || !w->xr || !w->qb || !w->look || !w->dx || !w->s || !w->px || !w->key || !w->start || !w->ids || !w->cc) {
         cs_sc_free(w);
         return CS_E_NOMEM;
     }
     w->y0 = w->x0 + n, w->z0 = w->y0 + n;
+    w->qc = w->qb + 6 * (size_t)n;
     w->eu = w->e + n, w->eh = w->eu + n, w->dminb = w->eh + n, w->dminr = w->dminb + n, w->ehp = w->dminr + n;
     w->ell = w->ehp + n;
+    w->g = w->ell + n, w->gu = w->g + n, w->gh = w->gu + n;
     w->intact = w->look + n;
-    memset(w->e, 0, sizeof(float) * 7 * (size_t)n);
+    memset(w->e, 0, sizeof(float) * (9 + CS_SC_WINDOWS) * (size_t)n);
     w->dy = w->dx + n, w->dz = w->dy + n;
     w->s2 = w->s + n;
     w->pv = w->px + 3 * (size_t)n;
@@ -345,6 +358,55 @@ static float spread_of(const cs_sc_work *w, int32_t v, float s, cs_vec3 c)
     return cs_len(cs_sub(cs_scale(cs_sc_at(w->dx, w->dy, w->dz, v), s), c));
 }
 
+/* Vertex v's largest difference of s a (s NULL: every scale 1) to one of its eight grid neighbours,
+ * times k: what bounds its pairs' relative motion along the grid (cs_sc_ring_spread). */
+static float nbr_spread(const cs_phys *p, const float *ax, const float *ay, const float *az, const float *s, float k,
+                        int32_t v)
+{
+    const int32_t nx = p->nx, ny = p->ny, i = v % nx, j = v / nx;
+    const cs_vec3 a = cs_scale(cs_sc_at(ax, ay, az, v), s ? s[v] : 1.0f);
+    float m = 0.0f;
+    for (int32_t dj = -1; dj <= 1; dj++)
+        for (int32_t di = -1; di <= 1; di++) {
+            if ((!di && !dj) || i + di < 0 || i + di >= nx || j + dj < 0 || j + dj >= ny) continue;
+            const int32_t u = v + dj * nx + di;
+            m = cs_sc_max(m, cs_len(cs_sub(a, cs_scale(cs_sc_at(ax, ay, az, u), s ? s[u] : 1.0f))));
+        }
+    return k * m;
+}
+
+/* The largest of src within r vertices of each along the rows (cols 0) or the columns (1), into
+ * dst. */
+static void axis_max(const cs_phys *p, const float *src, float *dst, int32_t r, int cols, int threads)
+{
+    const int32_t nx = p->nx, ny = p->ny, len = cols ? ny : nx, step = cols ? nx : 1;
+    CS_PARALLEL_FOR(threads, schedule(static),
+    for (int32_t j = 0; j < ny; j++)
+        for (int32_t i = 0; i < nx; i++) {
+            const int32_t at = cols ? j : i, v = j * nx + i;
+            float m = 0.0f;
+            for (int32_t q = at - r < 0 ? 0 : at - r; q <= at + r && q < len; q++) m = cs_sc_max(m, src[v + (q - at) * step]);
+            dst[v] = m;
+        });
+}
+
+/* The largest of src within r rings of each vertex (a square's window: by rows, then columns),
+ * into dst (tmp: room for n). */
+static void window_max(const cs_phys *p, const float *src, float *tmp, float *dst, int32_t r, int threads)
+{
+    axis_max(p, src, tmp, r, 0, threads);
+    axis_max(p, tmp, dst, r, 1, threads);
+}
+
+/* gh from gu: each window's from the one before it (g is scratch here; every check computes it
+ * afresh). */
+static void windows(cs_sc_work *w, const cs_phys *p, int threads)
+{
+    for (int k = 0; k < CS_SC_WINDOWS; k++)
+        window_max(p, k ? w->gh + (size_t)(k - 1) * (size_t)p->n : w->gu, w->g, w->gh + (size_t)k * (size_t)p->n,
+                   k ? cs_sc_window(k) - cs_sc_window(k - 1) : cs_sc_window(0), threads);
+}
+
 /* How far vertex v's x0 has drifted from where the lists were found, about a centre c of all the
  * drifts. */
 static float drift_of(const cs_sc_work *w, int32_t n, int32_t v, cs_vec3 c)
@@ -357,11 +419,12 @@ static float drift_of(const cs_sc_work *w, int32_t n, int32_t v, cs_vec3 c)
  * by at most twice it, whatever the cloth's motion as a whole), and into *far_most the largest
  * displacement itself (the bound's cuts scale displacements, so it is what bounds two vertices'
  * relative motion once some are cut). Also each vertex's spread e = |d - centre| (every scale 1,
- * as spreads()), into *over whether one passes the eu the lists were found for, and with have_ref
+ * as spreads()) and neighbour difference g, into *over whether one passes the eu (or gu) the
+ * lists were found for, and with have_ref
  * into *drifted the farthest any vertex's x0 has drifted from where the lists were found (drift_of,
  * about a centre of every drift; else 3e38). Maxima: exact in any order. */
-static float displacements(cs_sc_work *w, const cs_state *s, int threads, cs_vec3 *centre, float *far_most,
-                           int *over, float *drifted)
+static float displacements(cs_sc_work *w, const cs_phys *p, const cs_state *s, int threads, cs_vec3 *centre,
+                           float *far_most, int *over, float *drifted)
 {
     const int32_t n = s->n, ref = w->have_ref;
     CS_PARALLEL_FOR(threads, schedule(static),
@@ -377,9 +440,10 @@ static float displacements(cs_sc_work *w, const cs_state *s, int threads, cs_vec
     for (int32_t v = 0; v < n; v++) {
         const float a = cs_len(cs_sc_at(w->dx, w->dy, w->dz, v));
         w->e[v] = spread_of(w, v, 1.0f, c);
+        w->g[v] = nbr_spread(p, w->dx, w->dy, w->dz, NULL, 1.0f, v);
         most = w->e[v] > most ? w->e[v] : most;
         abs_most = a > abs_most ? a : abs_most;
-        past |= !(w->e[v] <= w->eu[v]);
+        past |= !(w->e[v] <= w->eu[v]) || !(w->g[v] <= w->gu[v]);
         if (ref) {
             const float f = drift_of(w, n, v, cr);
             far = f > far ? f : far;
@@ -392,15 +456,16 @@ static float displacements(cs_sc_work *w, const cs_state *s, int threads, cs_vec
     return n > 0 ? most : 0.0f;
 }
 
-/* Each vertex's spread e = |s d - centre| for the scales s; returns whether the lists still serve:
- * every e within the eu they were found for. */
-static int spreads(cs_sc_work *w, const float *s, cs_vec3 centre, int32_t n, int threads)
+/* Each vertex's spread e = |s d - centre| and neighbour difference g for the scales s; returns
+ * whether the lists still serve: every e and g within the eu and gu they were found for. */
+static int spreads(cs_sc_work *w, const cs_phys *p, const float *s, cs_vec3 centre, int32_t n, int threads)
 {
     int over = 0;
     CS_PARALLEL_FOR(threads, schedule(static) reduction(| : over),
     for (int32_t v = 0; v < n; v++) {
         w->e[v] = spread_of(w, v, s[v], centre);
-        over |= !(w->e[v] <= w->eu[v]);
+        w->g[v] = nbr_spread(p, w->dx, w->dy, w->dz, s, 1.0f, v);
+        over |= !(w->e[v] <= w->eu[v]) || !(w->g[v] <= w->gu[v]);
     });
     return !over;
 }
@@ -439,6 +504,13 @@ static int key_order(const void *a, const void *b)
  * centre's shift take before the lists must be found again. */
 static float slack(const cs_phys *p) { return 0.25f * p->self_thickness; }
 
+/* The neighbour difference g the lists are found for: half again as much as now, and the slack (a
+ * cloth that swings changes its differences from one substep to the next: on the bench's 64 x 64
+ * cloth with 8 rocks the lists were found 1.53 times a pass with this, 1.79 with g + slack; build
+ * machine, 2026-12-07). g_was is its inverse. */
+static float g_budget(const cs_phys *p, float g) { return 1.5f * g + slack(p); }
+static float g_was(const cs_phys *p, float gu) { return (gu - slack(p)) / 1.5f; }
+
 /* How far x0 may drift (drift_of) before the lists are found again: every reach is twice this
  * wider, as a pair's distance changes by at most the drift of its two sides. More room means
  * fewer finds, but a pass skips a vertex only while its nearest pair lies beyond the thickness
@@ -452,8 +524,9 @@ static float room(const cs_phys *p)
     return q < 0.25f * th ? 0.25f * th : q > th ? th : q;
 }
 
-/* Every vertex's lists for spreads up to eu = e + slack (e from spreads()): the pairs each vertex
- * finds (cs_sc_found, in parallel, over a grid of x0), handed on one thread, in the finders' order,
+/* Every vertex's lists for spreads up to eu = e + slack and neighbour differences up to
+ * g_budget(g) (e, g from spreads()): the pairs each vertex finds (cs_sc_found, in parallel, over a
+ * grid of its quads' boxes at x0), handed on one thread, in the finders' order,
  * to each of their four vertices - into bl all of them, into rl those that repel, each rl then
  * sorted by key. Returns the vertices left without lists (n when there
  * was no memory or room for them: then every list is empty and the lists do not serve). */
@@ -462,7 +535,8 @@ static int32_t find_lists(cs_sc_work *w, const cs_phys *p, const float *L0, int 
     const int32_t n = p->n, nx = p->nx, ny = p->ny;
     const float more = slack(p), extra = 2.0f * room(p);
     double sum = 0.0; /* (the cells' size only: what is found does not depend on it) */
-    for (int32_t v = 0; v < n; v++) w->eu[v] = w->e[v] + more, sum += w->eu[v];
+    for (int32_t v = 0; v < n; v++) w->eu[v] = w->e[v] + more, w->gu[v] = g_budget(p, w->g[v]), sum += w->eu[v];
+    windows(w, p, threads);
     CS_PARALLEL_FOR(threads, schedule(static),
     for (int32_t v = 0; v < n; v++) {
         const int32_t i = v % nx, j = v / nx;
@@ -473,13 +547,19 @@ static int32_t find_lists(cs_sc_work *w, const cs_phys *p, const float *L0, int 
         if (i + 1 < nx && j + 1 < ny) m = cs_sc_max(m, w->eu[v + nx + 1]);
         w->eh[v] = m;
         w->ell[v] = cs_sc_own_reach(p, NULL, w->x0, w->y0, w->z0, v);
+        float *b = w->qb + 6 * (size_t)v;
+        cs_sc_quad_box(p, w->x0, w->y0, w->z0, v, b);
+        const cs_vec3 lo = cs_v3(b[0], b[1], b[2]), hi = cs_v3(b[3], b[4], b[5]);
+        const cs_vec3 mid = cs_scale(cs_add(lo, hi), 0.5f);
+        w->qc[v] = mid.x, w->qc[n + v] = mid.y, w->qc[2 * (size_t)n + v] = mid.z;
+        w->qc[3 * (size_t)n + v] = cs_sc_max(cs_len(cs_sub(hi, mid)), cs_len(cs_sub(mid, lo)));
     });
-    float Lo = 0.0f, lsum = 0.0f; /* the longest own reach, and the mean (the cells' size only) */
-    for (int32_t v = 0; v < n; v++) Lo = cs_sc_max(Lo, w->ell[v]), lsum += w->ell[v];
+    float Qm = 0.0f, qsum = 0.0f; /* the largest radius of a quad's box, and the mean (the cells' size only) */
+    for (int32_t v = 0; v < n; v++) Qm = cs_sc_max(Qm, w->qc[3 * (size_t)n + v]), qsum += w->qc[3 * (size_t)n + v];
     const float mean = n > 0 ? (float)(sum / n) : 0.0f;
-    const float lmean = n > 0 ? lsum / (float)n : 0.0f;
-    const cs_sc_grid G = build_grid(w, n, w->x0, w->y0, w->z0,
-                                    cs_sc_pair_reach(p->self_thickness, 2.0f * mean) + extra + Lo + lmean, threads);
+    const float qmean = n > 0 ? qsum / (float)n : 0.0f;
+    const cs_sc_grid G = build_grid(w, n, w->qc, w->qc + n, w->qc + 2 * (size_t)n,
+                                    cs_sc_pair_reach(p->self_thickness, 2.0f * mean) + extra + Qm + qmean, threads);
     memcpy(w->xr, w->x0, sizeof(float) * 3 * (size_t)n);
     w->ref_thickness = p->self_thickness;
     w->have_ref = 0; /* until they are whole */
@@ -493,8 +573,8 @@ static int32_t find_lists(cs_sc_work *w, const cs_phys *p, const float *L0, int 
         int64_t len = 0;
         for (int32_t v = c * CHUNK; v < end; v++)
             LIST_FILL(&w->ol, c, len, v, keys, dists, cap,
-                      cs_sc_found(p, &G, L0, w->x0, w->y0, w->z0, w->intact, w->eh, w->ell, Lo, extra, v, keys, dists,
-                                  cap));
+                      cs_sc_found(p, &G, L0, w->x0, w->y0, w->z0, w->intact, w->eh, w->ell, w->qb, w->qc, Qm, w->gh,
+                                  w->ga, extra, v, keys, dists, cap));
     });
     sc_lists *out[2] = {&w->bl, &w->rl};
     for (int l = 0; l < 2; l++)
@@ -617,20 +697,27 @@ cs_status cs_sc_part_rate(cs_sc_work **wp, const cs_phys *p, const cs_state *s, 
      * few vertices past it (strays) are gathered afresh beside them, or with more the lists are
      * found again for it here */
     float Vm = 0.0f;
-    CS_PARALLEL_FOR(threads, schedule(static) reduction(max : Vm),
+    int gover = 0; /* a neighbour difference past the one the lists were found for */
+    CS_PARALLEL_FOR(threads, schedule(static) reduction(max : Vm) reduction(| : gover),
     for (int32_t v = 0; v < n; v++) {
         const float V = cs_sc_speed(p, s->vx, s->vy, s->vz, v, cv, h);
         w->e[v] = h * V;
+        w->g[v] = nbr_spread(p, s->vx, s->vy, s->vz, NULL, h, v);
+        gover |= !(w->g[v] <= w->gu[v]);
         Vm = V > Vm ? V : Vm;
     });
+    const float ga = cs_len(p->gravity) * h * h; /* (cs_sc_speed's gravity, on the ring bound) */
     *rate = 0.0f;
     if (!(Vm < 3.0e38f)) return CS_OK; /* not finite: the step reports it */
     const float *L0 = s->L0;
-    const int kept = w->have_ref && w->ref_thickness == th;
+    /* (a neighbour difference past the lists' widens the ring bound of every pair about it: they are
+     * found again) */
+    const int kept = w->have_ref && w->ref_thickness == th && !gover && ga <= w->ga;
     int32_t stray = kept ? strays(w, p, n, threads) : 0; /* vertices the lists do not serve */
     int listed = kept && stray <= few(n);
     if (!listed) {
         stray = 0;
+        w->ga = ga;
         listed = find_lists(w, p, L0, threads) == 0;
         w->rate_finds++, w->rate_pairs += listed ? w->rpairs : 0;
     }
@@ -668,7 +755,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
     cs_vec3 c;
     float Ma, drifted; /* the largest displacement; the farthest drift (displacements) */
     int over;
-    float M = displacements(w, s, threads, &c, &Ma, &over, &drifted);
+    float M = displacements(w, p, s, threads, &c, &Ma, &over, &drifted);
     if (!(M < 3.0e38f)) return CS_OK; /* not finite: the caller reports it */
     float L = -1.0f; /* the longest edge at x0, once needed */
 #define LONGEST() (L < 0.0f ? (L = longest_edge(p, w->x0, w->y0, w->z0, L0, threads)) : L)
@@ -722,7 +809,7 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
             s->x[v] += px[0], s->y[v] += px[1], s->z[v] += px[2];
             s->vx[v] += pv[0], s->vy[v] += pv[1], s->vz[v] += pv[2];
         });
-        M = displacements(w, s, threads, &c, &Ma, &over, &drifted);
+        M = displacements(w, p, s, threads, &c, &Ma, &over, &drifted);
         if (listed && over) {
             lost += find_lists(w, p, L0, threads), finds++;
             listed = lost == 0;
@@ -765,8 +852,9 @@ cs_status cs_sc_end(cs_sc_work *w, const cs_phys *p, cs_state *s, int threads, c
         });
         float *t = a;
         a = b, b = t;
-        if (changed && listed && !spreads(w, a, c, n, threads)) {
-            for (int32_t v = 0; v < n; v++) w->e[v] = cs_sc_max(w->e[v], w->eu[v] - slack(p));
+        if (changed && listed && !spreads(w, p, a, c, n, threads)) {
+            for (int32_t v = 0; v < n; v++)
+                w->e[v] = cs_sc_max(w->e[v], w->eu[v] - slack(p)), w->g[v] = cs_sc_max(w->g[v], g_was(p, w->gu[v]));
             lost += find_lists(w, p, L0, threads), finds++;
             listed = lost == 0;
             drifted = 0.0f;

@@ -277,6 +277,66 @@ static void test_push_back_to_the_side_at_x0(void **unused)
     }
 }
 
+/* The ring bound (cs_sc_ring_spread) against every pair of owners on a 12 x 12 grid: the farthest
+ * any corner of one owner's quad moves relative to any of the other's (computed here, in double)
+ * never passes it. The displacements are a swing (smooth, large) with a rough patch of noise; the
+ * neighbour differences and their windows' maxima are computed here from the displacements. Some
+ * pair comes within 3/4 of its bound, so a bound that counted one ring fewer would fail. */
+static void test_ring_bound(void **unused)
+{
+    (void)unused;
+    enum { NX = 12, NY = 12, N = NX * NY };
+    uint64_t seed = 7;
+    float dx[N], dy[N], dz[N], gh[CS_SC_WINDOWS * N];
+    double g[N];
+    for (int v = 0; v < N; v++) {
+        const double i = v % NX, j = v / NX, rough = (i >= 3 && i < 6 && j >= 4 && j < 8) ? 0.004 : 0.0;
+        dx[v] = (float)(0.02 * j / NY + rough * (uniform(&seed) - 0.5));
+        dy[v] = (float)(-0.02 * i / NX + rough * (uniform(&seed) - 0.5));
+        dz[v] = (float)(0.03 * sin(0.5 * i) * cos(0.3 * j) + rough * (uniform(&seed) - 0.5));
+    }
+    for (int v = 0; v < N; v++) {
+        g[v] = 0.0;
+        for (int q = 0; q < N; q++) {
+            const int di = q % NX - v % NX, dj = q / NX - v / NX;
+            if (q == v || di < -1 || di > 1 || dj < -1 || dj > 1) continue;
+            const d3 a = {dx[v], dy[v], dz[v]}, b = {dx[q], dy[q], dz[q]};
+            g[v] = fmax(g[v], len3(sub3(a, b)));
+        }
+    }
+    for (int k = 0; k < CS_SC_WINDOWS; k++)
+        for (int v = 0; v < N; v++) {
+            double m = 0.0;
+            for (int q = 0; q < N; q++)
+                if (abs(q % NX - v % NX) <= cs_sc_window(k) && abs(q / NX - v / NX) <= cs_sc_window(k)) m = fmax(m, g[q]);
+            gh[k * N + v] = (float)m;
+        }
+    int bounded = 0;
+    double closest = 0.0;
+    for (int v = 0; v < N; v++)
+        for (int u = 0; u < N; u++) {
+            if (u == v) continue;
+            const int vi = v % NX, vj = v / NX, ui = u % NX, uj = u / NX;
+            const float b = cs_sc_ring_spread(gh, 0.0f, N, v, vi, vj, u, ui, uj, 1e30f);
+            if (b >= 1e30f) continue; /* beyond every window */
+            double most = 0.0;
+            for (int p = 0; p < 4; p++)
+                for (int q = 0; q < 4; q++) {
+                    const int ai = vi + (p & 1), aj = vj + (p >> 1), bi = ui + (q & 1), bj = uj + (q >> 1);
+                    if (ai >= NX || aj >= NY || bi >= NX || bj >= NY) continue;
+                    const int a = aj * NX + ai, c = bj * NX + bi;
+                    most = fmax(most, len3(sub3((d3){dx[a], dy[a], dz[a]}, (d3){dx[c], dy[c], dz[c]})));
+                }
+            if (most > (double)b * (1.0 + 1e-6))
+                fail_msg("owners %d and %d: their corners move %.6g m apart, the ring bound says %.6g", v, u, most, (double)b);
+            bounded++;
+            closest = fmax(closest, most / (double)b);
+        }
+    print_message("%d pairs of owners within a window; the closest came to %.2f of its bound\n", bounded, closest);
+    assert_true(bounded > N * 20);
+    assert_true(closest > 0.75);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -284,6 +344,7 @@ int main(void)
         cmocka_unit_test(test_random_pairs),
         cmocka_unit_test(test_rounded_ends),
         cmocka_unit_test(test_push_back_to_the_side_at_x0),
+        cmocka_unit_test(test_ring_bound),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -940,25 +940,85 @@ SIM_HD static inline int cs_sc_finds(const float *eh, int32_t f, int32_t u)
     return eh[f] > eh[u] || (eh[f] == eh[u] && f < u);
 }
 
-/* The pairs vertex v finds within their reach at x0, for every pass whose spreads stay within eh.
- * A pair has two owners - a vertex-triangle pair its point and the triangle's lower-left corner
- * (physics.h's quad), an edge-edge pair each edge's lower end - and eh[q] bounds how far q and
- * the far ends of its own edges and triangles move from a centre, so the pair's vertices move
- * relative to one another by at most eh[a] + eh[b] and it can pass cs_sc_vf_cut's or cs_sc_ee_cut's reach
- * only within cs_sc_pair_reach(thickness, eh[a] + eh[b]) of the other owner's primitive. Each
- * pair is found once, by the owner that cs_sc_finds picks, which looks within its own reach
- * (2 eh[v]) plus its own primitives' reach ell[v] (cs_sc_own_reach) and the longest of any, Lo:
- * a vertex that barely moves looks about it, one that moves far looks far, and a pair between
- * them is found from the far one. A candidate u is taken further only within the reach plus
- * ell[u] + ell[v] (its primitives and v's lie within those of each). extra widens every
- * reach (the room for the cloth to move before the lists are found again). Every pair that shares
- * no vertex, grid neighbours included (the bound's; the repulsion takes those that repel), of the
- * primitives intact (cs_sc_intact of every vertex). Keys into keys and their distances at x0
- * into dists (room for cap, unsorted); returns how many there are (past cap too). */
+/* The box of vertex v's quad at x (its corners v, v + 1, v + nx, v + nx + 1 where they lie in the
+ * grid: every primitive v owns, physics.h's quad) into b: lowest x y z, then highest. */
+SIM_HD static inline void cs_sc_quad_box(const cs_phys *ph, const float *x, const float *y, const float *z, int32_t v,
+                                         float b[6])
+{
+    const int32_t nx = ph->nx, i = v % nx, j = v / nx;
+    const cs_vec3 p = cs_sc_at(x, y, z, v);
+    b[0] = b[3] = p.x, b[1] = b[4] = p.y, b[2] = b[5] = p.z;
+    for (int k = 1; k < 4; k++) {
+        const int32_t di = k & 1, dj = k >> 1;
+        if (i + di >= nx || j + dj >= ph->ny) continue;
+        const cs_vec3 q = cs_sc_at(x, y, z, v + dj * nx + di);
+        const float c[3] = {q.x, q.y, q.z};
+        for (int a = 0; a < 3; a++) b[a] = c[a] < b[a] ? c[a] : b[a], b[3 + a] = c[a] > b[3 + a] ? c[a] : b[3 + a];
+    }
+}
+
+/* The distance between two boxes (cs_sc_quad_box): no point of one lies nearer a point of the
+ * other. */
+SIM_HD static inline float cs_sc_boxes_gap(const float *a, const float *b)
+{
+    float s = 0.0f;
+    for (int c = 0; c < 3; c++) {
+        const float p = b[c] - a[3 + c], q = a[c] - b[3 + c], g = p > q ? p : q;
+        s += g > 0.0f ? g * g : 0.0f;
+    }
+    return sqrtf(s);
+}
+
+/* The windows of the ring bound (cs_sc_ring_spread): the largest neighbour difference within
+ * 2, 4, 8 and 16 rings of each vertex. */
+#define CS_SC_WINDOWS 4
+SIM_HD static inline int32_t cs_sc_window(int k) { return 2 << k; }
+
+/* The farthest a pair's vertices may move relative to one another, E (the spreads' bound, about one
+ * centre), or where its owners v and u lie within a window of rings less one of each other the
+ * smaller of it and its ring bound. Every vertex of a pair lies within one ring of its owner (the
+ * quad's corners) and so within rho + 1 rings (rho the owners' distance in rings) of every vertex
+ * of the other side, along a path of king's moves inside the window of radius rho + 1 about either
+ * owner; each move changes the displacement by at most the moving vertex's largest difference to
+ * a neighbour (g). gh[k n + q]: the largest g within cs_sc_window(k) rings of q; ga is added to
+ * the ring bound (gravity's reach in a substep, where the bound is of speeds). */
+SIM_HD static inline float cs_sc_ring_spread(const float *gh, float ga, int32_t n, int32_t v, int32_t vi, int32_t vj,
+                                             int32_t u, int32_t ui, int32_t uj, float E)
+{
+    const int32_t di = ui > vi ? ui - vi : vi - ui, dj = uj > vj ? uj - vj : vj - uj, rho = di > dj ? di : dj;
+    for (int k = 0; k < CS_SC_WINDOWS; k++) {
+        if (rho + 1 > cs_sc_window(k)) continue;
+        const float *g = gh + (size_t)k * (size_t)n, G = g[v] < g[u] ? g[v] : g[u], R = (float)(rho + 1) * G + ga;
+        return R < E ? R : E;
+    }
+    return E;
+}
+
+/* The pairs vertex v finds within their reach at x0, for every pass whose spreads stay within eh
+ * and whose neighbour differences stay within those gh was taken from. A pair has two owners - a
+ * vertex-triangle pair its point and the triangle's lower-left corner (physics.h's quad), an
+ * edge-edge pair each edge's lower end - and eh[q] bounds how far q and the far ends of its own
+ * edges and triangles move from a centre, so the pair's vertices move relative to one another by
+ * at most eh[a] + eh[b], and where its owners lie within a window of rings of each other by at
+ * most their ring bound (cs_sc_ring_spread, gh and ga: the layers of one smooth sheet barely move
+ * relative to one another, however far the sheet moves about the cloth's centre). The pair can
+ * pass cs_sc_vf_cut's or cs_sc_ee_cut's reach only within cs_sc_pair_reach(thickness, the smaller
+ * bound) of the other owner's primitive. Each pair is found once, by the owner that cs_sc_finds
+ * picks, among the owners whose quad's box (qb: every primitive an owner has lies in it,
+ * cs_sc_quad_box at x0) lies within that reach of its own: a vertex that barely moves looks about
+ * it, one that moves far looks far, and a pair between them is found from the far one. The
+ * candidates come from G, a grid of the boxes' centres (qc: x, y, z, each n, then each box's
+ * radius about its centre, n), within the finder's reach (2 eh[v]) and the two radii (Qm the
+ * largest). extra widens every reach (the room for the cloth to move before the lists are found
+ * again). Every pair that shares no vertex, grid neighbours included (the bound's; the repulsion
+ * takes those that repel), of the primitives intact (cs_sc_intact of every vertex); ell (each
+ * vertex's cs_sc_own_reach) skips a primitive early. Keys into keys and their distances at x0 into
+ * dists (room for cap, unsorted); returns how many there are (past cap too). */
 SIM_HD static inline int32_t cs_sc_found(const cs_phys *ph, const cs_sc_grid *G, const float *L0, const float *x0,
                                          const float *y0, const float *z0, const uint8_t *intact, const float *eh,
-                                         const float *ell, float Lo, float extra, int32_t v, int64_t *keys,
-                                         float *dists, int32_t cap)
+                                         const float *ell, const float *qb, const float *qc, float Qm,
+                                         const float *gh, float ga, float extra,
+                                         int32_t v, int64_t *keys, float *dists, int32_t cap)
 {
     const int32_t nx = ph->nx, ny = ph->ny, vi = v % nx, vj = v / nx;
     const float th = ph->self_thickness, ev = eh[v];
@@ -981,14 +1041,19 @@ SIM_HD static inline int32_t cs_sc_found(const cs_phys *ph, const cs_sc_grid *G,
     cs_vec3 cv[2][3];
     for (int k = 0; k < 2; k++)
         for (int q = 0; q < 3 && ((fv >> k) & 1); q++) cv[k][q] = cs_sc_at(x0, y0, z0, tv[k][q]);
-    const float lv = ell[v];
-    CS_SC_FOR_WITHIN(G, x0, y0, z0, xv, cs_sc_pair_reach(th, 2.0f * ev) + extra + lv + Lo, u, {
-        const float r = cs_sc_pair_reach(th, ev + eh[u]) + extra, lu = ell[u];
-        const cs_vec3 xu = cs_sc_at(x0, y0, z0, u);
-        const float D = cs_len(cs_sub(xu, xv));
-        if (u != v && cs_sc_may(D, r, lu + lv) && cs_sc_finds(eh, v, u)) {
+    const float lv = ell[v], *qx = qc, *qy = qc + ph->n, *qz = qc + 2 * (size_t)ph->n, *qr = qc + 3 * (size_t)ph->n;
+    const cs_vec3 mv = cs_sc_at(qx, qy, qz, v);
+    /* (u's box lies within r of v's only where their centres lie within r and the two radii) */
+    CS_SC_FOR_WITHIN(G, qx, qy, qz, mv, 1.01f * (cs_sc_pair_reach(th, 2.0f * ev) + extra + qr[v] + Qm) + 1e-6f, u, {
+        const int32_t ui = u % nx, uj = u / nx;
+        const float r = u != v && cs_sc_finds(eh, v, u)
+                            ? cs_sc_pair_reach(th, cs_sc_ring_spread(gh, ga, ph->n, v, vi, vj, u, ui, uj, ev + eh[u])) + extra
+                            : -1.0f;
+        if (r > 0.0f && cs_sc_may(cs_sc_boxes_gap(qb + 6 * (size_t)v, qb + 6 * (size_t)u), r, 0.0f)) {
+            const float lu = ell[u];
+            const cs_vec3 xu = cs_sc_at(x0, y0, z0, u);
+            const float D = cs_len(cs_sub(xu, xv));
             int32_t t[2][3];
-            const int32_t ui = u % nx, uj = u / nx;
             const int32_t u00 = uj * nx + ui, f = intact[u] & 3;
             t[0][0] = u00, t[0][1] = u00 + 1, t[0][2] = u00 + nx + 1;
             t[1][0] = u00, t[1][1] = u00 + nx + 1, t[1][2] = u00 + nx;
