@@ -515,7 +515,7 @@ static cs_status im_part(cuda_ctx *c, im_batch *b)
     int rocks = 0;
     for (int32_t j = 0; j < b->m; j++) {
         im_host *h = &b->hs[j];
-        b->dyn_h[j].cur = h->c->cur, b->dyn_h[j].rest_cur = h->c->rest_cur;
+        b->dyn_h[j].cur = h->c->cur, b->dyn_h[j].rest_cur = h->c->rest_cur, b->dyn_h[j].last = 0;
         if (!h->on) continue;
         b->parts_h[j] = h->c->host_sc;
         b->parts_h[j].p = h->P;
@@ -563,6 +563,8 @@ static cs_status im_part(cuda_ctx *c, im_batch *b)
             im_host *h = &b->hs[j];
             h->search = h->newton, h->a = 1.0f, h->rn = h->r;
         }
+        /* (the matrix only where another iteration may follow) */
+        for (int32_t j = 0; j < b->m; j++) b->dyn_h[j].last = !(b->hs[j].k + 1 < b->hs[j].P.solver_iterations);
         for (int tries = 0; tries < 4 && im_any(b, &im_host::search); tries++) {
             IM_ON(b, search);
             for (int32_t j = 0; j < b->m; j++) b->dyn_h[j].a = b->hs[j].a;
@@ -580,7 +582,7 @@ static cs_status im_part(cuda_ctx *c, im_batch *b)
         for (int32_t j = 0; j < b->m; j++) {
             im_host *h = &b->hs[j];
             h->search = h->newton && !(h->rn < h->r);
-            b->dyn_h[j].a = 0.0f;
+            b->dyn_h[j].a = 0.0f, b->dyn_h[j].last = 1;
         }
         if (im_any(b, &im_host::search)) {
             IM_ON(b, search);
@@ -590,6 +592,7 @@ static cs_status im_part(cuda_ctx *c, im_batch *b)
             for (int32_t j = 0; j < b->m; j++)
                 if (b->hs[j].search) b->hs[j].prev = b->hs[j].rn;
         }
+        for (int32_t j = 0; j < b->m; j++) b->dyn_h[j].last = 0;
         for (int32_t j = 0; j < b->m; j++) {
             im_host *h = &b->hs[j];
             if (!h->newton) continue;

@@ -92,10 +92,13 @@ struct im_scene {
 };
 
 /* What changes between a batch's phases, per scene (written by the host after a wait): whether it
- * takes part, its buffers' parity, the line search's step, the conjugate gradients' stop. */
+ * takes part, its buffers' parity, the line search's step, the conjugate gradients' stop, and
+ * whether its next assembly is after its last Newton iteration allowed (then the residual alone,
+ * as implicit_cpu.c: the same bits). */
 struct im_dyn {
     int32_t on, cur, rest_cur, most;
-    float a, target, pad[2];
+    float a, target;
+    int32_t last, pad;
 };
 
 /* What comes back to the host, per scene: a sum's total (cs_im_chunk_total), the largest
@@ -346,6 +349,7 @@ __global__ void __launch_bounds__(CS_CHUNK) k_im_assemble(im_dev B, const int32_
     float *S = d->state[dn->cur ^ (iter ? 1 : 0)];
     const float *base = w->base, *L0 = d->rest[dn->rest_cur];
     const int rocks = with_rocks && d->nr > 0;
+    blocks = blocks && !dn->last;
     const im_level_bufs *l0 = &w->lv[0];
     float mine = 0.0f;
     if (i < nx) {
