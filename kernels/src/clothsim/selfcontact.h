@@ -505,6 +505,14 @@ SIM_HD static inline void cs_sc_list_add(int64_t *keys, int32_t cap, int32_t *n,
     keys[k] = key;
 }
 
+/* How many rings apart in the grid vertices (vi, vj) and (ui, uj) lie (the larger of the two index
+ * distances). */
+SIM_HD static inline int32_t cs_sc_rings_apart(int32_t vi, int32_t vj, int32_t ui, int32_t uj)
+{
+    const int32_t di = ui > vi ? ui - vi : vi - ui, dj = uj > vj ? uj - vj : vj - uj;
+    return di > dj ? di : dj;
+}
+
 /* Vertex v's repelling pairs closer than rad at x0 - vertex-triangle (cs_sc_repels) as the point
  * (the triangles of its candidates) and as a corner (its six triangles against its candidates),
  * edge-edge (cs_sc_ee_repels) through its spokes - into keys (room for cap), sorted; returns how
@@ -529,8 +537,7 @@ SIM_HD static inline int32_t cs_sc_pairs(const cs_phys *ph, const cs_sc_grid *G,
             float bw[3];
             int32_t t[2][3];
             const int32_t ui = u % nx, uj = u / nx, f = cs_sc_quad_tris(L0, nx, ny, ui, uj, t);
-            const int32_t di = ui > vi ? ui - vi : vi - ui, dj = uj > vj ? uj - vj : vj - uj;
-            const int32_t rings = di > dj ? di : dj;
+            const int32_t rings = cs_sc_rings_apart(vi, vj, ui, uj);
             /* u and v are both in every pair they could share here: within CS_SC_RINGS, none repels */
             if (rings <= CS_SC_RINGS) continue;
             const int far = !fine && rings > 2 * CS_SC_RINGS;
@@ -985,7 +992,7 @@ SIM_HD static inline int32_t cs_sc_window(int k) { return 2 << k; }
 SIM_HD static inline float cs_sc_ring_spread(const float *gh, float ga, int32_t n, int32_t v, int32_t vi, int32_t vj,
                                              int32_t u, int32_t ui, int32_t uj, float E)
 {
-    const int32_t di = ui > vi ? ui - vi : vi - ui, dj = uj > vj ? uj - vj : vj - uj, rho = di > dj ? di : dj;
+    const int32_t rho = cs_sc_rings_apart(vi, vj, ui, uj);
     for (int k = 0; k < CS_SC_WINDOWS; k++) {
         if (rho + 1 > cs_sc_window(k)) continue;
         const float *g = gh + (size_t)k * (size_t)n, G = g[v] < g[u] ? g[v] : g[u], R = (float)(rho + 1) * G + ga;
