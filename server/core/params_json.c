@@ -30,7 +30,12 @@ json_t *params_to_json(setting_kind kind, const scene_config *sc)
     return o;
 }
 
-/* One member onto a parameter: type checked (400), then range checked by the table (422). */
+/* A parameter's value that it cannot take - out of its range, not one of its choices, or of another
+ * JSON type (a string; null, as JSON.stringify writes a client's NaN) - is 422 naming it. Elsewhere
+ * (rock fields, ids, recordings) a wrong JSON type is 400: proto/PROTOCOL.md, "Errors". */
+#define PARAM_WRONG_TYPE 422
+
+/* One member onto a parameter: type checked, then range checked by the table; either refusal 422. */
 static int param_from_value(const setting *s, void *field, const json_t *v, problem *pr)
 {
     double d[3] = {0, 0, 0};
@@ -38,17 +43,20 @@ static int param_from_value(const setting *s, void *field, const json_t *v, prob
     switch (s->type) {
     case SET_VEC3: {
         float f[3];
-        if (vec3_from_json(v, f, s->name, pr) != 0) return -1;
+        if (vec3_from_json(v, f, s->name, pr) != 0) {
+            if (pr->status == 400) pr->status = PARAM_WRONG_TYPE; /* (an array of 3 numbers it is not) */
+            return -1;
+        }
         for (int k = 0; k < 3; k++) d[k] = json_number_value(json_array_get(v, (size_t)k));
         break;
     }
     case SET_BOOL:
-        if (!json_is_boolean(v)) return problem_set(pr, 400, "wrong-type", s->name, "%s must be true or false", s->name);
+        if (!json_is_boolean(v)) return problem_set(pr, PARAM_WRONG_TYPE, "wrong-type", s->name, "%s must be true or false, not %s", s->name, json_type_word(v));
         d[0] = json_is_true(v);
         break;
     case SET_ENUM: {
         const int k = json_is_string(v) ? setting_choice(s, json_string_value(v)) : -2;
-        if (k == -2) return problem_set(pr, 400, "wrong-type", s->name, "%s must be a string", s->name);
+        if (k == -2) return problem_set(pr, PARAM_WRONG_TYPE, "wrong-type", s->name, "%s must be a string, not %s", s->name, json_type_word(v));
         if (k < 0) {
             char list[160] = "";
             for (int c = 0; s->choices[c]; c++)
@@ -60,7 +68,7 @@ static int param_from_value(const setting *s, void *field, const json_t *v, prob
     }
     default:
         if (!json_is_number(v))
-            return problem_set(pr, 400, "wrong-type", s->name, "%s must be a number, not %s", s->name, json_type_word(v));
+            return problem_set(pr, PARAM_WRONG_TYPE, "wrong-type", s->name, "%s must be a number, not %s", s->name, json_type_word(v));
         d[0] = json_number_value(v);
         break;
     }

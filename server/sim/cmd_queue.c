@@ -1,6 +1,8 @@
 /* cmd_queue.c - the rows whose request makes a command for the sim thread: a control (pause,
  * resume, a step, snapshots, the cloth's state) or a journaled change (the rows' request
  * functions, commands_internal.h). */
+#include <string.h>
+
 #include "core/params_json.h"
 #include "core/settings.h"
 #include "sim/changes.h"
@@ -45,11 +47,13 @@ int make_change(const command *d, json_t *object, long long id, json_t **cmd, pr
 {
     *cmd = NULL;
     if (d->change == change_params) {
-        /* Refused here without bothering the sim thread; the sim thread merges the patch with the
-         * parameters of the moment it applies it (so a 422 there may be no 422 here). */
+        /* Refused here without bothering the sim thread, unless the refusal is a range's: the sim
+         * thread merges the patch with the parameters of the moment it applies it (so an
+         * out-of-range there may be none here). */
         clothd_config defaults;
         settings_default(&defaults);
-        if (params_from_json(object, SET_LIVE, &defaults.scene, pr) != 0 && pr->status == 400) return -1;
+        if (params_from_json(object, SET_LIVE, &defaults.scene, pr) != 0 && strcmp(pr->slug, "out-of-range") != 0)
+            return -1;
     }
     json_t *c;
     if (d->member) c = json_pack("{s:O}", d->member, object);

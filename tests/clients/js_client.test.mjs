@@ -133,7 +133,8 @@ test('a refusal is the error of its status, with slug, detail and param, and cha
   const cases = [
     [() => client.setParams({ k_bend: -1 }), clothd.Unprocessable, 422, 'out-of-range', 'k_bend'],
     [() => client.setParams({ no_such: 1 }), clothd.BadRequest, 400, 'unknown-field', 'no_such'],
-    [() => client.setParams({ k_bend: 'stiff' }), clothd.BadRequest, 400, 'wrong-type', 'k_bend'],
+    [() => client.setParams({ k_bend: 'stiff' }), clothd.Unprocessable, 422, 'wrong-type', 'k_bend'],
+    [() => client.addRock({ position: 'here', radius: 0.1 }), clothd.BadRequest, 400, 'wrong-type', 'position'],
     [() => client.rock(999), clothd.NotFound, 404, 'not-found', 'id'],
     [() => client.removeRock(999), clothd.NotFound, 404, 'not-found', 'id'],
     [() => client.step({ frames: 0 }), clothd.Unprocessable, 422, 'out-of-range', 'frames'],

@@ -65,17 +65,32 @@ test('a long field name cut inside a character still makes a problem body', asyn
   assert.equal(p.detail, `unknown parameter 'a${'é'.repeat(139)}`);
 });
 
-test('wrong types are 400', async () => {
-  await refused('PATCH', '/v1/params', { k_bend: '10' }, 400, 'k_bend');
-  await refused('PATCH', '/v1/params', { ground: 1 }, 400, 'ground');
-  await refused('PATCH', '/v1/params', { gravity: [0, 0] }, 400, 'gravity');
-  await refused('PATCH', '/v1/params', { gravity: [0, 0, 'down'] }, 400, 'gravity');
-  await refused('PATCH', '/v1/params', { integrator: 1 }, 400, 'integrator');
+test("a parameter's value of a wrong type is 422, any other field's 400", async () => {
+  await refused('PATCH', '/v1/params', { k_bend: '10' }, 422, 'k_bend');
+  await refused('PATCH', '/v1/params', { solver_iterations: '5' }, 422, 'solver_iterations');
+  await refused('PATCH', '/v1/params', { solver_tolerance: null }, 422, 'solver_tolerance'); // JSON.stringify(NaN)
+  await refused('PATCH', '/v1/params', { self_thickness: [0.005] }, 422, 'self_thickness');
+  await refused('PATCH', '/v1/params', { ground: 1 }, 422, 'ground');
+  await refused('PATCH', '/v1/params', { gravity: [0, 0] }, 422, 'gravity');
+  await refused('PATCH', '/v1/params', { gravity: [0, 0, 'down'] }, 422, 'gravity');
+  await refused('PATCH', '/v1/params', { integrator: 1 }, 422, 'integrator');
+  await refused('PUT', '/v1/scene', { nx: '64' }, 422, 'nx');
   await refused('POST', '/v1/rocks', { position: 'here', radius: 0.1 }, 400, 'position');
   await refused('POST', '/v1/rocks', { position: [0, 0, 1], radius: 0.1, kinematic: 'yes' }, 400, 'kinematic');
   await refused('PUT', '/v1/pins', { vertices: 'all', pinned: true }, 400, 'vertices');
   await refused('PUT', '/v1/grab', { vertex: 3, target: [0, 0] }, 400, 'target');
   await refused('POST', '/v1/sim/step', { frames: 'two' }, 400, 'frames');
+});
+
+test("self-collision's and the solver's parameters: 0, negative, NaN, a string or past the range is 422 naming it, the parameters as they were", async () => {
+  const before = await call(d, 'GET', '/v1/params');
+  // (NaN as a client's JSON.stringify writes it: null)
+  for (const [name, value] of [['self_thickness', 0], ['self_thickness', -0.005], ['self_thickness', NaN],
+    ['self_thickness', 'thin'], ['self_thickness', 1], ['self_collision', 'yes'], ['self_collision', 1],
+    ['solver_iterations', 0], ['solver_iterations', -1], ['solver_iterations', NaN], ['solver_iterations', '4'],
+    ['solver_iterations', 1e6], ['solver_tolerance', 0], ['solver_tolerance', NaN]])
+    await refused('PATCH', '/v1/params', { [name]: value }, 422, name);
+  assert.deepEqual((await call(d, 'GET', '/v1/params')).json, before.json);
 });
 
 test('values out of range are 422', async () => {

@@ -2,7 +2,7 @@
 // in kernels/include/clothsim/params.h; docs.params_schema keeps it equal to the generator) describes
 // what the daemon really does: live GET /v1/params and GET /v1/scene answers validate against it, with
 // the table's defaults, and values the schema rejects (out of range, wrong type, unknown choice) are
-// also refused by the daemon: 422 out of range, 400 wrong type.
+// also refused by the daemon: 422 out of range or of a wrong type.
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
@@ -55,12 +55,12 @@ test('values the schema rejects the daemon refuses with 422, and boundary values
   const d = await start(['--paused']);
   try {
     for (const [name, p] of Object.entries(SCHEMA.$defs.Params.properties)) {
-      // [value, status]: out of range or no such choice is 422 (out-of-range), a wrong JSON type 400 (wrong-type).
+      // [value, status]: out of range or no such choice is 422 (out-of-range), a wrong JSON type 422 (wrong-type).
       const bad = [];
-      if (p.type === 'number' || p.type === 'integer') bad.push([p.maximum * 2 + 1, 422], [p.minimum - Math.abs(p.minimum) - 1, 422], ['x', 400]);
-      else if (p.type === 'array') bad.push([[p.items.maximum * 2 + 1, 0, 0], 422], [[0, 0], 400], ['x', 400]);
-      else if (p.type === 'string') bad.push(['no-such-choice', 422], [3, 400]);
-      else if (p.type === 'boolean') bad.push(['yes', 400]);
+      if (p.type === 'number' || p.type === 'integer') bad.push([p.maximum * 2 + 1, 422], [p.minimum - Math.abs(p.minimum) - 1, 422], ['x', 422], [null, 422]);
+      else if (p.type === 'array') bad.push([[p.items.maximum * 2 + 1, 0, 0], 422], [[0, 0], 422], ['x', 422]);
+      else if (p.type === 'string') bad.push(['no-such-choice', 422], [3, 422]);
+      else if (p.type === 'boolean') bad.push(['yes', 422]);
       for (const [v, status] of bad) {
         assert.equal(fieldOk('Params', name, v), false, `schema rejects ${name}=${JSON.stringify(v)}`);
         const r = await call(d, 'PATCH', '/v1/params', { [name]: v });

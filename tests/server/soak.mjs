@@ -107,7 +107,7 @@ function hostile(host) {
     ['NaN', req('PATCH', '/v1/params', '{"k_bend": NaN}'), [400], true],
     ['1e999', req('PATCH', '/v1/params', '{"k_bend": 1e999}'), [400], true],
     ['out of range', req('PATCH', '/v1/params', '{"k_bend": -5}'), [422], true],
-    ['wrong type', req('PATCH', '/v1/params', '{"wind": "east"}'), [400], true],
+    ['wrong type', req('PATCH', '/v1/params', '{"wind": "east"}'), [422], true],
     ['unknown field', req('PATCH', '/v1/params', '{"k_bendy": 1}'), [400], true],
     ['duplicate key', req('PATCH', '/v1/params', '{"k_bend": 1, "k_bend": 2}'), [400], true],
     ['not JSON', req('POST', '/v1/rocks', '{"position": [0, 0,'), [400], true],

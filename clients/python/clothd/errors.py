@@ -71,7 +71,7 @@ class ClientError(ClothdError):
 
 
 class BadRequest(ClientError):
-    """400: malformed JSON, a wrong type, an unknown field, a refused snapshot."""
+    """400: malformed JSON, a wrong type (but a parameter's), an unknown field, a refused snapshot."""
 
 
 class Unauthorized(ClientError):
@@ -103,7 +103,7 @@ class UriTooLong(ClientError):
 
 
 class Unprocessable(ClientError):
-    """422: a value out of range, a change the stability guard refuses, a limit reached."""
+    """422: a value out of range, a parameter's of a wrong type, a change the stability guard refuses, a limit reached."""
 
 
 class RateLimited(ClientError):

@@ -168,7 +168,7 @@ def test_a_refusal_is_the_exception_of_its_status_and_changes_nothing(client):
     cases = [
         (lambda: c.set_params(k_bend=-1), clothd.Unprocessable, 422, "out-of-range", "k_bend"),
         (lambda: c.set_params(no_such=1), clothd.BadRequest, 400, "unknown-field", "no_such"),
-        (lambda: c.set_params(k_bend="stiff"), clothd.BadRequest, 400, "wrong-type", "k_bend"),
+        (lambda: c.set_params(k_bend="stiff"), clothd.Unprocessable, 422, "wrong-type", "k_bend"),
         (lambda: c.rock(999), clothd.NotFound, 404, "not-found", "id"),
         (lambda: c.remove_rock(999), clothd.NotFound, 404, "not-found", "id"),
         (lambda: c.step(frames=0), clothd.Unprocessable, 422, "out-of-range", "frames"),

@@ -182,7 +182,7 @@ static void test_commands_from_requests(void **unused)
     refused("reset", "{\"x\":1}", 400, "unknown-field", "x");
     refused("params", "{\"nope\":1}", 400, "unknown-field", "nope");
     refused("params", "{\"nx\":9}", 400, "unknown-field", "nx"); /* a scene field */
-    refused("params", "{\"k_bend\":\"soft\"}", 400, "wrong-type", "k_bend");
+    refused("params", "{\"k_bend\":\"soft\"}", 422, "wrong-type", "k_bend"); /* a parameter's */
     refused("rock_add", "", 400, "invalid-json", NULL);
     refused("scene", "[1]", 400, "wrong-type", NULL);
     refused("pins", "{\"preset\":", 400, "invalid-json", NULL);
