@@ -1,6 +1,7 @@
 /* json_read.c - reading a request's JSON (see json_read.h). */
 #include <ctype.h>
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "core/json_read.h"
@@ -56,6 +57,96 @@ int only_fields(const json_t *obj, const char *const *allowed, problem *pr)
     return 0;
 }
 
+/* Bare NaN, Infinity and -Infinity, and numbers past a double's range (1e999), are not JSON and
+ * jansson refuses them, but they are values a client meant (Python's json module writes NaN): they
+ * are answered as values out of range, 422 naming their field. To find that field the body is read
+ * again with each such token, where a value may stand, written as a string: MARK and the token. */
+#define MARK "\xEF\xBF\xBF" /* U+FFFF, which the copy writes as \uFFFF */
+#define MARKS_MOST 16         /* tokens marked at most (past them: malformed, 400) */
+#define TOKEN_MOST 32         /* bytes a marked token may have */
+
+/* Whether the token t (n bytes) is one of those values. */
+static int nonfinite_token(const char *t, size_t n)
+{
+    if ((n == 3 && memcmp(t, "NaN", 3) == 0) || (n == 8 && memcmp(t, "Infinity", 8) == 0) ||
+        (n == 9 && memcmp(t, "-Infinity", 9) == 0))
+        return 1;
+    if (n > TOKEN_MOST || !(isdigit((unsigned char)t[0]) || (t[0] == '-' && n > 1 && isdigit((unsigned char)t[1]))))
+        return 0;
+    char buf[TOKEN_MOST + 1], *end;
+    memcpy(buf, t, n);
+    buf[n] = 0;
+    const double d = strtod(buf, &end);
+    return *end == 0 && isinf(d);
+}
+
+static int token_byte(char c) { return isalnum((unsigned char)c) || c == '+' || c == '-' || c == '.'; }
+
+/* body with those tokens marked (malloc'd, its length into *n), or NULL when it has none or more
+ * than MARKS_MOST (or no memory). One pass: strings are copied as they are, and a value may stand
+ * after '[', ':' or ','. */
+static char *nonfinite_marked(const char *b, size_t len, size_t *n)
+{
+    char *out = malloc(len + MARKS_MOST * (sizeof "\"\\uFFFF\"" - 1) + 1);
+    if (!out) return NULL;
+    size_t o = 0;
+    int in_string = 0, escaped = 0, value = 0, marks = 0;
+    for (size_t i = 0; i < len;) {
+        const char c = b[i];
+        if (in_string) {
+            in_string = escaped || c != '"';
+            escaped = !escaped && c == '\\';
+        } else if (c == ' ' || c == '\t' || c == '\n' || c == '\r') {
+            /* (a value may still stand next) */
+        } else if (value) {
+            size_t t = 0;
+            while (i + t < len && t <= TOKEN_MOST && token_byte(b[i + t])) t++;
+            value = 0;
+            if (t > 0 && nonfinite_token(b + i, t)) {
+                if (++marks > MARKS_MOST) break;
+                memcpy(out + o, "\"\\uFFFF", 7), o += 7;
+                memcpy(out + o, b + i, t), o += t;
+                out[o++] = '"';
+                i += t;
+                continue;
+            }
+            in_string = c == '"';
+            value = c == '[';
+        } else {
+            in_string = c == '"';
+            value = c == '[' || c == ':' || c == ',';
+        }
+        out[o++] = c;
+        i++;
+    }
+    if (marks == 0 || marks > MARKS_MOST) {
+        free(out);
+        return NULL;
+    }
+    *n = o;
+    return out;
+}
+
+/* The first marked value in v (members in order, depth first): 1 with the innermost member's
+ * name holding it into *key (NULL at the top) and the token into *token. */
+static int find_mark(const json_t *v, const char *name, const char **key, const char **token)
+{
+    if (json_is_string(v) && strncmp(json_string_value(v), MARK, 3) == 0) {
+        *key = name, *token = json_string_value(v) + 3;
+        return 1;
+    }
+    if (json_is_array(v)) {
+        size_t i;
+        const json_t *e;
+        json_array_foreach(v, i, e) if (find_mark(e, name, key, token)) return 1;
+    } else if (json_is_object(v)) {
+        const char *k;
+        json_t *e;
+        json_object_foreach((json_t *)v, k, e) if (find_mark(e, k, key, token)) return 1;
+    }
+    return 0;
+}
+
 int request_body_object(const char *body, size_t len, int required, json_t **out, problem *pr)
 {
     *out = NULL;
@@ -68,6 +159,15 @@ int request_body_object(const char *body, size_t len, int required, json_t **out
     }
     json_error_t err;
     json_t *o = json_loadb(body, len, JSON_REJECT_DUPLICATES, &err);
+    int marked = 0;
+    if (!o) {
+        size_t mlen = 0;
+        char *m = nonfinite_marked(body, len, &mlen);
+        json_error_t merr;
+        o = m ? json_loadb(m, mlen, JSON_REJECT_DUPLICATES, &merr) : NULL;
+        free(m);
+        marked = o != NULL;
+    }
     if (!o)
         return problem_set(pr, 400, "invalid-json", NULL, "malformed JSON at line %d, column %d: %s", err.line,
                            err.column, err.text);
@@ -78,6 +178,12 @@ int request_body_object(const char *body, size_t len, int required, json_t **out
     if (!required && json_object_size(o)) {
         const char *key = json_object_iter_key(json_object_iter(o));
         problem_set(pr, 400, "unknown-field", key, "this request takes no field ('%s' given)", key);
+        json_decref(o);
+        return -1;
+    }
+    const char *key = NULL, *token = NULL;
+    if (marked && find_mark(o, NULL, &key, &token)) {
+        problem_set(pr, 422, "out-of-range", key, "%s must be a finite number (got %s)", key ? key : "a value", token);
         json_decref(o);
         return -1;
     }

@@ -11,7 +11,7 @@
 
 /* A request body as a JSON object, whatever its Content-Type: required, or optional (then an
  * empty or blank body means {} and no member may be given). 0 with *out (a new reference), or -1
- * with the problem (400). */
+ * with the problem: 400, or 422 naming the field of a bare NaN, Infinity or 1e999 (not JSON). */
 int request_body_object(const char *body, size_t len, int required, json_t **out, problem *pr);
 
 /* A vector of three finite numbers that fit a float. */

@@ -37,12 +37,28 @@ test('malformed JSON is 400', async () => {
   await refused('PATCH', '/v1/params', '', 400);
   await refused('PATCH', '/v1/params', '[1, 2]', 400);
   await refused('PATCH', '/v1/params', '"k_bend"', 400);
-  await refused('PATCH', '/v1/params', '{"k_bend": NaN}', 400);
-  await refused('PATCH', '/v1/params', '{"k_bend": Infinity}', 400);
-  await refused('PATCH', '/v1/params', '{"k_bend": 1e999}', 400);
-  await refused('POST', '/v1/rocks', '{"position": [0, 0, 1], "radius": 1e999}', 400);
+  await refused('PATCH', '/v1/params', '{"k_bend": nan}', 400);
+  await refused('PATCH', '/v1/params', '{"k_bend": NaN', 400);
+  await refused('PATCH', '/v1/params', '[NaN]', 400);
   // A body that is not JSON is 400 whatever its Content-Type says.
   await refused('PUT', '/v1/scene', 'nx=5', 400, undefined, { 'Content-Type': 'application/x-www-form-urlencoded' });
+});
+
+test('bare NaN, Infinity and numbers past a double (not JSON, but values a client meant) are 422, naming their field', async () => {
+  for (const [method, path, body, param, token] of [
+    ['PATCH', '/v1/params', '{"k_bend": NaN}', 'k_bend', 'NaN'], // what Python's json.dumps writes
+    ['PATCH', '/v1/params', '{"solver_tolerance":Infinity}', 'solver_tolerance', 'Infinity'],
+    ['PATCH', '/v1/params', '{"self_thickness": -Infinity}', 'self_thickness', '-Infinity'],
+    ['PATCH', '/v1/params', '{"wind": "x\\\\\\", NaN", "k_bend": 1e999}', 'k_bend', '1e999'], // (a string holding \\, \" and NaN first)
+    ['PATCH', '/v1/params', '{"gravity": [0, 0,\nNaN]}', 'gravity', 'NaN'],
+    ['POST', '/v1/rocks', '{"position": [0, 0, 1], "radius": 1e999}', 'radius', '1e999'],
+    ['POST', '/v1/scenes', '{"id": "nan", "params": {"k_bend": NaN}}', 'k_bend', 'NaN'],
+    ['POST', '/v1/sim/step', '{"frames": NaN}', 'frames', 'NaN'],
+  ]) {
+    const p = await refused(method, path, body, 422, param);
+    assert.equal(p.detail, `${param} must be a finite number (got ${token})`);
+  }
+  assert.equal((await call(d, 'GET', '/v1/scenes')).json.scenes.length, 1);
 });
 
 test('duplicate keys and unknown fields are 400, naming the field', async () => {
