@@ -2,9 +2,9 @@
  *
  * The scene: a 1 m square cloth hanging free (orientation vertical, no pins) with its lower edge
  * 0.1 m above the ground, blown sideways by a 2 m/s wind, falls and crumples onto the ground in
- * folds. The crossing counter is written here from geometry alone: two grid triangles that share
- * no vertex cross when an edge of one passes through the other (Moller-Trumbore in double
- * precision), never from the product's contact code. With self_collision off the scene crosses
+ * folds. The crossing counter (tests/support/tk_geom.h) is written from geometry alone: two grid
+ * triangles that share no vertex cross when an edge of one passes through the other
+ * (Moller-Trumbore in double precision), never from the product's contact code. With self_collision off the scene crosses
  * itself (so it really folds); with it on it never does, at any frame, under each integrator. */
 #include <sys/resource.h>
 
@@ -14,53 +14,6 @@
 #define SIDE 16
 /* Frames run: the lower edge lands at about 0.15 s, the cloth has folded onto itself by 1.1 s. */
 #define FRAMES 80
-
-
-/* Whether segment p q passes through triangle a b c. */
-static int segment_through(d3 p, d3 q, d3 a, d3 b, d3 c)
-{
-    const d3 dir = sub3(q, p), e1 = sub3(b, a), e2 = sub3(c, a), h = cross3(dir, e2);
-    const double det = dot3(e1, h);
-    if (fabs(det) < 1e-18) return 0;
-    const d3 s = sub3(p, a), qq = cross3(s, e1);
-    const double u = dot3(s, h) / det, v = dot3(dir, qq) / det, t = dot3(e2, qq) / det;
-    return u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t >= 0.0 && t <= 1.0;
-}
-
-/* Pairs of the grid's triangles (each quad split on its +x+y diagonal) that share no vertex and
- * cross. */
-static long crossings(const float *xyz, int nx, int ny)
-{
-    const int nt = 2 * (nx - 1) * (ny - 1);
-    int(*t)[3] = malloc(sizeof *t * (size_t)nt);
-    assert_non_null(t);
-    for (int j = 0, k = 0; j < ny - 1; j++)
-        for (int i = 0; i < nx - 1; i++) {
-            const int v = j * nx + i;
-            t[k][0] = v, t[k][1] = v + 1, t[k][2] = v + nx + 1, k++;
-            t[k][0] = v, t[k][1] = v + nx + 1, t[k][2] = v + nx, k++;
-        }
-    long n = 0;
-    for (int k = 0; k < nt; k++)
-        for (int l = k + 1; l < nt; l++) {
-            int share = 0;
-            for (int a = 0; a < 3; a++)
-                for (int b = 0; b < 3; b++) share |= t[k][a] == t[l][b];
-            if (share) continue;
-            d3 P[3], Q[3];
-            for (int q = 0; q < 3; q++) {
-                P[q] = (d3){xyz[3 * t[k][q]], xyz[3 * t[k][q] + 1], xyz[3 * t[k][q] + 2]};
-                Q[q] = (d3){xyz[3 * t[l][q]], xyz[3 * t[l][q] + 1], xyz[3 * t[l][q] + 2]};
-            }
-            int hit = 0;
-            for (int e = 0; e < 3; e++)
-                hit |= segment_through(P[e], P[(e + 1) % 3], Q[0], Q[1], Q[2]) |
-                       segment_through(Q[e], Q[(e + 1) % 3], P[0], P[1], P[2]);
-            n += hit;
-        }
-    free(t);
-    return n;
-}
 
 /* The tests' cloth: free, 1 m square, SIDE x SIDE, at height, under the given integrator. */
 static void free_cloth(cs_scene *sc, cs_params *p, float height, int integrator, int self)
