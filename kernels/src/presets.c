@@ -68,12 +68,16 @@ static cs_status stone_rock(cs_sim *sim, const cs_scene *sc)
     return add_stone(sim, 0.25f, 0.0f, 0.25f, true);
 }
 
-/* A sheet crumpling on the ground: free, 0.3 m up, a 0.15 m stone dropped onto it from 1.5 m. */
+/* A sheet crumpling on the ground: free and upright, its lower edge 0.1 m above the ground, blown
+ * over by a 2 m/s side wind so that it folds onto itself as it lands (lying flat, it stayed a
+ * single layer under the stone: without self_collision nothing crossed in 10 s under
+ * implicit_euler); a 0.15 m stone dropped onto the pile from 1.5 m. */
 static void crumple_scene(cs_scene *sc, cs_params *p)
 {
     common(sc, p);
-    sc->orientation = CS_HORIZONTAL;
-    sc->height = 0.3f;
+    sc->orientation = CS_VERTICAL;
+    sc->height = 0.6f;
+    p->wind[1] = 2.0f;
 }
 
 static cs_status crumple_rock(cs_sim *sim, const cs_scene *sc)
@@ -85,7 +89,7 @@ static cs_status crumple_rock(cs_sim *sim, const cs_scene *sc)
 static const preset presets[] = {
     {"towel-on-line", "a towel pinned over a line, blown by a side wind", towel_scene, towel_pins},
     {"cloth-over-stone", "a free cloth dropped over a stone on the ground", stone_scene, stone_rock},
-    {"sheet-crumple", "a sheet on the ground crumpled by a falling stone", crumple_scene, crumple_rock},
+    {"sheet-crumple", "an upright sheet blown over onto the ground, folding on itself, and a stone dropped on it", crumple_scene, crumple_rock},
 };
 
 int cs_preset_count(void) { return (int)(sizeof presets / sizeof presets[0]); }
