@@ -182,8 +182,13 @@ int request_body_object(const char *body, size_t len, int required, json_t **out
         return -1;
     }
     const char *key = NULL, *token = NULL;
-    if (marked && find_mark(o, NULL, &key, &token)) {
-        problem_set(pr, 422, "out-of-range", key, "%s must be a finite number (got %s)", key ? key : "a value", token);
+    if (marked) { /* (a token marked where a member's name stands is malformed JSON after all) */
+        if (find_mark(o, NULL, &key, &token))
+            problem_set(pr, 422, "out-of-range", key, "%s must be a finite number (got %s)", key ? key : "a value",
+                        token);
+        else
+            problem_set(pr, 400, "invalid-json", NULL, "malformed JSON at line %d, column %d: %s", err.line, err.column,
+                        err.text);
         json_decref(o);
         return -1;
     }

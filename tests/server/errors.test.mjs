@@ -40,6 +40,7 @@ test('malformed JSON is 400', async () => {
   await refused('PATCH', '/v1/params', '{"k_bend": nan}', 400);
   await refused('PATCH', '/v1/params', '{"k_bend": NaN', 400);
   await refused('PATCH', '/v1/params', '[NaN]', 400);
+  await refused('PATCH', '/v1/params', '{"k_bend": 1, NaN: 2}', 400);
   // A body that is not JSON is 400 whatever its Content-Type says.
   await refused('PUT', '/v1/scene', 'nx=5', 400, undefined, { 'Content-Type': 'application/x-www-form-urlencoded' });
 });
