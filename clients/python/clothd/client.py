@@ -441,8 +441,9 @@ class Client(SceneRoutes):
             payload = bytes(body)
             sent["Content-Type"] = "application/octet-stream"
         elif body is not None:
-            # NaN and infinities are not JSON: refused here, not sent.
-            payload = json.dumps(body, allow_nan=False).encode("utf-8")
+            # NaN and infinities, which JSON lacks, go as Python writes them (NaN, Infinity): the
+            # server answers 422 naming their field, as for any value out of range.
+            payload = json.dumps(body).encode("utf-8")
             sent["Content-Type"] = "application/json"
         sent.update(headers or {})
         conn: http.client.HTTPConnection

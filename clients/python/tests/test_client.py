@@ -184,9 +184,11 @@ def test_a_refusal_is_the_exception_of_its_status_and_changes_nothing(client):
         assert re.fullmatch(r"py-[a-z0-9]{6}-\d+", e.request_id)
     assert "GET" in refusal(lambda: c.request("POST", "/v1/health")).allow
     assert c.sim()["state_hash"] == h  # nothing changed
-    # Not JSON: refused before anything is sent.
-    with pytest.raises(ValueError):
-        c.set_params(k_bend=float("nan"))
+    # NaN and infinities (not JSON, but what Python writes): the server's 422 naming the field.
+    for bad in (float("nan"), float("inf")):
+        e = refusal(lambda: c.set_params(solver_tolerance=bad))
+        assert type(e) is clothd.Unprocessable and (e.slug, e.param) == ("out-of-range", "solver_tolerance")
+    assert c.sim()["state_hash"] == h
     with pytest.raises(ValueError):
         c.set_pins()
     c.resume()
