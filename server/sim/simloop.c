@@ -103,12 +103,18 @@ static void ran(simloop *sl, double seconds, double work)
  * and one under stones (1.09 parts, 3.8 Newton, 19 CG) 25.6 ms, 5.0 times as much, which these
  * units count as 2.9 times and vertex-substeps as 1: a window at two threads while stones landed
  * then cost more per vertex-substep than a calm one at one, and the count gave back a thread that
- * bought 14 %. */
+ * bought 14 %. self_collision's passes weigh in alike: on the default scene with it on (64 x 64,
+ * one thread, same machine, 2026-12-08) a find of its lists took 7.2 ms and a pass without one
+ * (with its gather for the parts) about 3 ms, some 60 and 25 of these units, against 12 for the
+ * substep's solve; uncounted, windows where stones landed (a find nearly every pass) cost more
+ * per unit at two threads than calm ones at one, and the count went back to one thread - 0.39-0.61
+ * of real time against 0.64-0.84 on two. */
 static double work_of(const cs_info *after, int64_t n)
 {
     const cs_solver_stats *st = &after->solver;
     const double units = st->substeps > 0 ? (double)st->cg + 2.0 * st->newton + 2.0 * st->substeps : (double)n;
-    return units * (double)after->n_vertices;
+    const double self = 25.0 * (double)after->self.passes + 60.0 * (double)after->self.broad;
+    return (units + self) * (double)after->n_vertices;
 }
 
 /* Substeps run, and a backend failure told to the daemon: it saves and exits (serve.c, persist.c). */
