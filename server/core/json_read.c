@@ -147,6 +147,13 @@ static int find_mark(const json_t *v, const char *name, const char **key, const 
     return 0;
 }
 
+/* The problem of a body jansson refused. */
+static int malformed(problem *pr, const json_error_t *err)
+{
+    return problem_set(pr, 400, "invalid-json", NULL, "malformed JSON at line %d, column %d: %s", err->line,
+                       err->column, err->text);
+}
+
 int request_body_object(const char *body, size_t len, int required, json_t **out, problem *pr)
 {
     *out = NULL;
@@ -168,9 +175,7 @@ int request_body_object(const char *body, size_t len, int required, json_t **out
         free(m);
         marked = o != NULL;
     }
-    if (!o)
-        return problem_set(pr, 400, "invalid-json", NULL, "malformed JSON at line %d, column %d: %s", err.line,
-                           err.column, err.text);
+    if (!o) return malformed(pr, &err);
     if (!json_is_object(o)) {
         json_decref(o);
         return problem_set(pr, 400, "wrong-type", NULL, "the body must be a JSON object");
@@ -187,8 +192,7 @@ int request_body_object(const char *body, size_t len, int required, json_t **out
             problem_set(pr, 422, "out-of-range", key, "%s must be a finite number (got %s)", key ? key : "a value",
                         token);
         else
-            problem_set(pr, 400, "invalid-json", NULL, "malformed JSON at line %d, column %d: %s", err.line, err.column,
-                        err.text);
+            malformed(pr, &err);
         json_decref(o);
         return -1;
     }
